@@ -1,0 +1,13 @@
+//! # ciflow-engine
+//!
+//! The numerical core of ciflow, free of libtorch:
+//!
+//! - [`model`] and [`algorithm`]: serial-chain rigid-body dynamics
+//!   `M(q) q̈ + C(q, q̇) q̇ + g(q) = τ + τ_ext` (RNEA, CRBA, Coriolis, forward dynamics),
+//!   with the Franka Panda and a planar point mass behind one [`robot::Robot`] trait;
+//! - [`control`]: the computed-torque layer `τ = C q̇ + g + M q̈_des`;
+//! - [`sim`]: fixed-step simulation with perturbations in simulated time;
+//! - [`flow`]: stable conditioned invertible-network policies (inference only; training
+//!   lives in the `ciflow-train` crate, the only libtorch user).
+
+pub mod math;

@@ -1,0 +1,14 @@
+//! Scalar and linear-algebra aliases used across the engine.
+
+/// The scalar of all dynamics computations.
+pub type Real = f64;
+/// A dynamically sized column vector (joint positions, velocities, torques).
+pub type DVector = nalgebra::DVector<Real>;
+/// A dynamically sized matrix (mass matrix, Jacobians).
+pub type DMatrix = nalgebra::DMatrix<Real>;
+pub type Vector3 = nalgebra::Vector3<Real>;
+pub type Vector6 = nalgebra::Vector6<Real>;
+pub type Matrix3 = nalgebra::Matrix3<Real>;
+pub type Matrix6 = nalgebra::Matrix6<Real>;
+pub type Isometry3 = nalgebra::Isometry3<Real>;
+pub type UnitQuaternion = nalgebra::UnitQuaternion<Real>;

@@ -1,0 +1,106 @@
+//! The environment interface shared by every task, the bridge and the Python client.
+
+use std::collections::BTreeMap;
+
+use ciflow_engine::sim::Perturbation;
+use serde::{Deserialize, Serialize};
+
+use crate::space::BoxSpace;
+
+/// Extra per-step or per-reset values, as in Gymnasium's `info` dict. Numbers only, so
+/// that every wire format carries them.
+pub type Info = BTreeMap<String, f64>;
+
+/// What a task is: its id, spaces and timing. Everything a client needs before `reset`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EnvSpec {
+    /// Gymnasium id, e.g. `ciflow/Pouring-v0`.
+    pub id: String,
+    pub observation_space: BoxSpace,
+    /// Desired joint accelerations `q̈_des` in rad/s² (or m/s² for point masses).
+    pub action_space: BoxSpace,
+    /// The context `c` (also the tail of every observation).
+    pub context_space: BoxSpace,
+    /// Seconds of simulated time per `step` (the control period).
+    pub control_dt: f64,
+    /// Seconds per physics substep.
+    pub physics_dt: f64,
+    /// Episode length after which `truncated` is set.
+    pub max_episode_steps: u32,
+}
+
+/// Options accepted by [`Env::reset`]; unset fields are drawn from the task's documented
+/// distributions with the environment's RNG.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ResetOptions {
+    /// The context `c`; must lie in the context space.
+    pub context: Option<Vec<f64>>,
+    /// Initial generalized positions.
+    pub initial_position: Option<Vec<f64>>,
+    /// Initial generalized velocities (zero when unset).
+    pub initial_velocity: Option<Vec<f64>>,
+    /// Task-specific integer or real options, e.g. `obstacles` or `shape`.
+    #[serde(default)]
+    pub extra: BTreeMap<String, f64>,
+}
+
+/// The result of one [`Env::step`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Step {
+    pub observation: Vec<f64>,
+    pub reward: f64,
+    pub terminated: bool,
+    pub truncated: bool,
+    pub info: Info,
+}
+
+/// Why an environment call was refused. Never a panic: every bad input has a variant.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum EnvError {
+    #[error("{what} has {got} elements, expected {expected}")]
+    WrongDimension {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
+    #[error("{what} contains a non-finite value (NaN or inf)")]
+    NotFinite { what: &'static str },
+    #[error("{what} is outside its space: {detail}")]
+    OutOfBounds { what: &'static str, detail: String },
+    #[error("invalid option `{name}`: {detail}")]
+    InvalidOption { name: String, detail: String },
+    #[error("`step` called before `reset` or after the episode ended")]
+    NeedsReset,
+    #[error("simulation failed: {0}")]
+    Simulation(String),
+}
+
+/// A task with Gymnasium semantics.
+///
+/// Seeding follows Gymnasium: `reset(Some(seed))` reseeds the RNG, `reset(None)` continues
+/// from the current RNG state, so two runs with the same seed sequence are identical.
+pub trait Env: Send {
+    fn spec(&self) -> &EnvSpec;
+
+    /// Starts an episode and returns the first observation.
+    fn reset(
+        &mut self,
+        seed: Option<u64>,
+        options: &ResetOptions,
+    ) -> Result<(Vec<f64>, Info), EnvError>;
+
+    /// Applies the desired acceleration for one control period.
+    fn step(&mut self, action: &[f64]) -> Result<Step, EnvError>;
+
+    /// The expert's action for the current state and context.
+    fn expert_action(&self) -> Result<Vec<f64>, EnvError>;
+
+    /// Replaces the context mid-episode.
+    fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError>;
+
+    /// Schedules an external perturbation in simulated time.
+    fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError>;
+
+    /// Renders the current state as an RGB image, row-major `height × width × 3`.
+    fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError>;
+}

@@ -1,0 +1,1 @@
+//! Python extension `ciflow._native` (built by maturin).
