@@ -16,4 +16,12 @@ pub struct Cli {
 pub enum Command {
     /// Inspect a robot model: kinematics and dynamics at a given state, printed as JSON.
     Robot(commands::robot::RobotArgs),
+    /// Record expert demonstrations of a task into a Minari dataset.
+    Demos(commands::demos::DemosArgs),
+    /// Train a stable conditioned policy by exact maximum likelihood on demonstrations.
+    Train(commands::train::TrainArgs),
+    /// Measure how many noise-free rollouts of a trained policy converge.
+    Stability(commands::stability::StabilityArgs),
+    /// Start an engine that serves every task as a Gymnasium environment over Zenoh.
+    Serve(commands::serve::ServeArgs),
 }

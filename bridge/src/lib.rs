@@ -2,3 +2,25 @@
 //!
 //! The Zenoh server and wire protocol that expose every `ciflow-envs` task as a
 //! Gymnasium environment.
+//!
+//! - [`protocol`]: key expressions, MessagePack messages and typed errors (version
+//!   [`protocol::PROTOCOL_VERSION`]; `PROTOCOL.md` describes it for any language);
+//! - [`server`]: [`EngineServer`], the engine hosting environment sessions;
+//! - [`client`]: [`Client`] and [`RemoteEnv`], the Rust side of a Gymnasium client;
+//! - [`config`]: Zenoh configuration with a zero-configuration loopback default;
+//! - [`policy`]: the [`Policy`] hook for `act`.
+
+pub mod client;
+pub mod config;
+pub mod error;
+pub mod policy;
+pub mod protocol;
+pub mod server;
+
+pub use client::{BatchStep, Client, EngineInfo, RemoteEnv, StepResult, query_all};
+pub use config::{DEFAULT_ENDPOINT, Mode, NetworkOptions, Role};
+pub use error::BridgeError;
+pub use policy::{Policy, PolicyError};
+pub use server::{EngineServer, Kwargs, ServerOptions, TaskFactory};
+/// The Zenoh crate this bridge is built with, for callers that need its types.
+pub use zenoh;

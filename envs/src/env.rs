@@ -71,6 +71,8 @@ pub enum EnvError {
     InvalidOption { name: String, detail: String },
     #[error("`step` called before `reset` or after the episode ended")]
     NeedsReset,
+    #[error("invalid perturbation: {0}")]
+    InvalidPerturbation(String),
     #[error("simulation failed: {0}")]
     Simulation(String),
 }

@@ -3,12 +3,25 @@
 //! The paper's tasks as environments with Gymnasium semantics ([`Env`]): observation and
 //! action spaces, seeded `reset`, `step`, `render`, plus what a learning-from-demonstration
 //! workflow needs on top — the expert's action, context changes and perturbations during
-//! an episode.
+//! an episode — and the demonstration [`dataset`] format (Minari's Arrow layout).
+//!
+//! Tasks: [`tasks::limit_cycle`], [`tasks::obstacle_avoidance`], [`tasks::pouring`],
+//! [`tasks::lasa`]; list them with
+//! [`tasks()`], build them with [`make`].
 
+pub mod dataset;
 pub mod env;
+pub mod expert;
+pub mod lasa;
+pub mod planar;
+pub mod raster;
+pub mod registry;
+pub mod rollout;
+pub mod seeding;
 pub mod space;
+pub mod tasks;
+pub mod vitruvian;
 
 pub use env::{Env, EnvError, EnvSpec, Info, ResetOptions, Step};
+pub use registry::{make, make_with, tasks};
 pub use space::{BoxSpace, Dtype};
-pub mod registry;
-pub use registry::{make, tasks};

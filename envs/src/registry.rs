@@ -1,6 +1,12 @@
 //! Task ids and constructors: the one place that knows which tasks exist.
 
+use std::collections::BTreeMap;
+
 use crate::env::{Env, EnvError};
+use crate::tasks::{lasa, limit_cycle, obstacle_avoidance, pouring};
+
+/// Construction arguments, as `gymnasium.make(id, **kwargs)` takes them (numbers only).
+pub type Kwargs = BTreeMap<String, f64>;
 
 /// A registered task: its Gymnasium id and how to build it.
 pub struct TaskEntry {
@@ -8,25 +14,148 @@ pub struct TaskEntry {
     pub id: &'static str,
     /// Short name used on the command line, e.g. `pouring`.
     pub name: &'static str,
+    /// One line for `--help` and listings.
+    pub summary: &'static str,
+    /// Builds the task with its default arguments.
     pub make: fn() -> Box<dyn Env>,
+    /// Builds the task with construction arguments (see each task's "Arguments").
+    pub make_with: fn(&Kwargs) -> Result<Box<dyn Env>, EnvError>,
+    /// Arguments and options whose values may be given by name: `(key, names)`, where a
+    /// name stands for its index in `names` (e.g. LASA's `shape`).
+    pub named_values: &'static [(&'static str, &'static [&'static str])],
+}
+
+impl TaskEntry {
+    /// The number an argument or option `key` of this task takes for `text`: `text` as a
+    /// number, or the index of a name listed in [`TaskEntry::named_values`].
+    pub fn value(&self, key: &str, text: &str) -> Result<f64, EnvError> {
+        if let Ok(number) = text.parse::<f64>() {
+            return Ok(number);
+        }
+        let names = self
+            .named_values
+            .iter()
+            .find(|(named, _)| *named == key)
+            .map(|(_, names)| *names);
+        let invalid = |detail: String| EnvError::InvalidOption {
+            name: key.into(),
+            detail,
+        };
+        match names {
+            Some(names) => names
+                .iter()
+                .position(|n| *n == text)
+                .map(|i| i as f64)
+                .ok_or_else(|| invalid(format!("`{text}` is none of {}", names.join(", ")))),
+            None => Err(invalid(format!("`{text}` is not a number"))),
+        }
+    }
+}
+
+fn unknown_kwargs(kwargs: &Kwargs, known: &[&str]) -> Result<(), EnvError> {
+    crate::planar::reject_unknown_options(kwargs, known)
+}
+
+fn limit_cycle_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
+    unknown_kwargs(kwargs, &[])?;
+    Ok(Box::new(limit_cycle::make()?))
+}
+
+fn obstacle_avoidance_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
+    let name = obstacle_avoidance::OBSTACLES_OPTION;
+    unknown_kwargs(kwargs, &[name])?;
+    let count = kwargs
+        .get(name)
+        .copied()
+        .unwrap_or(obstacle_avoidance::MAX_OBSTACLES as f64);
+    if count.fract() != 0.0 || count < 0.0 {
+        return Err(EnvError::InvalidOption {
+            name: name.into(),
+            detail: format!("{count} is not a whole number"),
+        });
+    }
+    Ok(Box::new(obstacle_avoidance::make(count as usize)?))
+}
+
+fn lasa_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
+    let name = lasa::SHAPE_OPTION;
+    unknown_kwargs(kwargs, &[name])?;
+    let shape = crate::planar::index_option(kwargs, name, lasa::SHAPES.len())?.unwrap_or(0);
+    Ok(Box::new(lasa::make(shape)?))
+}
+
+fn pouring_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
+    unknown_kwargs(kwargs, &[])?;
+    Ok(Box::new(pouring::Pouring::new()?))
+}
+
+/// Defaults never fail: each task's tests build it with its defaults.
+fn with_defaults(make_with: fn(&Kwargs) -> Result<Box<dyn Env>, EnvError>) -> Box<dyn Env> {
+    make_with(&Kwargs::new()).expect("a task's default arguments are valid (tested)")
 }
 
 /// Every task this build provides.
 pub fn tasks() -> &'static [TaskEntry] {
-    &[]
+    &[
+        TaskEntry {
+            id: limit_cycle::ID,
+            name: "limit-cycle",
+            summary: "Vitruvian-man limit cycles of a 2-D point mass, context = phase",
+            make: || with_defaults(limit_cycle_with),
+            make_with: limit_cycle_with,
+            named_values: &[],
+        },
+        TaskEntry {
+            id: obstacle_avoidance::ID,
+            name: "obstacle-avoidance",
+            summary: "2-D go-to among 1-3 obstacles, context = obstacles + target",
+            make: || with_defaults(obstacle_avoidance_with),
+            make_with: obstacle_avoidance_with,
+            named_values: &[],
+        },
+        TaskEntry {
+            id: pouring::ID,
+            name: "pouring",
+            summary: "7-DOF Panda pours from a cup into a pot, context = the pot's 6-D pose",
+            make: || with_defaults(pouring_with),
+            make_with: pouring_with,
+            named_values: &[],
+        },
+        TaskEntry {
+            id: lasa::ID,
+            name: "lasa",
+            summary: "the 30 LASA handwriting shapes as 2-D go-to motions (mm), context = goal",
+            make: || with_defaults(lasa_with),
+            make_with: lasa_with,
+            named_values: &[(lasa::SHAPE_OPTION, &lasa::SHAPES)],
+        },
+    ]
 }
 
-/// Builds the task with this Gymnasium id or command-line name.
-pub fn make(id_or_name: &str) -> Result<Box<dyn Env>, EnvError> {
+/// The registered task with this Gymnasium id or command-line name.
+pub fn entry(id_or_name: &str) -> Result<&'static TaskEntry, EnvError> {
     tasks()
         .iter()
         .find(|t| t.id == id_or_name || t.name == id_or_name)
-        .map(|t| (t.make)())
         .ok_or_else(|| EnvError::InvalidOption {
             name: "task".into(),
             detail: format!(
                 "unknown task `{id_or_name}`; known: {}",
-                tasks().iter().map(|t| t.name).collect::<Vec<_>>().join(", ")
+                tasks()
+                    .iter()
+                    .map(|t| t.name)
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ),
         })
+}
+
+/// Builds the task with this Gymnasium id or command-line name.
+pub fn make(id_or_name: &str) -> Result<Box<dyn Env>, EnvError> {
+    entry(id_or_name).map(|t| (t.make)())
+}
+
+/// Builds the task with construction arguments, like `gymnasium.make(id, **kwargs)`.
+pub fn make_with(id_or_name: &str, kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
+    (entry(id_or_name)?.make_with)(kwargs)
 }

@@ -2,6 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::env::EnvError;
+
 /// Element type of a space, as numpy names it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -36,5 +38,37 @@ impl BoxSpace {
             && x.iter()
                 .zip(self.low.iter().zip(&self.high))
                 .all(|(v, (lo, hi))| v.is_finite() && *lo <= *v && *v <= *hi)
+    }
+
+    /// Like [`BoxSpace::contains`], but says what is wrong with `x` (named `what`).
+    pub fn check(&self, what: &'static str, x: &[f64]) -> Result<(), EnvError> {
+        if x.len() != self.dim() {
+            return Err(EnvError::WrongDimension {
+                what,
+                expected: self.dim(),
+                got: x.len(),
+            });
+        }
+        if x.iter().any(|v| !v.is_finite()) {
+            return Err(EnvError::NotFinite { what });
+        }
+        match (0..x.len()).find(|&i| x[i] < self.low[i] || x[i] > self.high[i]) {
+            Some(i) => Err(EnvError::OutOfBounds {
+                what,
+                detail: format!(
+                    "element {i} = {} is not in [{}, {}]",
+                    x[i], self.low[i], self.high[i]
+                ),
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// The nearest point of the box to `x` (same length as the space).
+    pub fn clip(&self, x: &[f64]) -> Vec<f64> {
+        x.iter()
+            .zip(self.low.iter().zip(&self.high))
+            .map(|(v, (lo, hi))| v.clamp(*lo, *hi))
+            .collect()
     }
 }

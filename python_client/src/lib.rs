@@ -1,1 +1,413 @@
-//! Python extension `ciflow._native` (built by maturin).
+//! Python extension `ciflow._native` (built by maturin): the Rust Zenoh client and the
+//! embedded engine. Every call that waits on the network releases the GIL. The
+//! `gymnasium.Env` classes live in the pure-Python package `ciflow`.
+
+mod convert;
+mod errors;
+
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+
+use ciflow_bridge::protocol::PerturbationMsg;
+use ciflow_bridge::{Client, EngineServer, Mode, NetworkOptions, RemoteEnv, ServerOptions};
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict};
+
+use crate::convert::{
+    columns_to_dict, floats_from_bytes, floats_to_bytes, reset_options_from_json, spec_to_dict,
+};
+use crate::errors::{CiflowError, EngineUnreachable, to_py};
+
+fn network_options(
+    config: Option<String>,
+    mode: Option<&str>,
+    connect: Option<Vec<String>>,
+    listen: Option<Vec<String>>,
+) -> PyResult<NetworkOptions> {
+    Ok(NetworkOptions {
+        config_file: config.map(Into::into),
+        mode: mode
+            .map(|m| m.parse::<Mode>())
+            .transpose()
+            .map_err(|e| PyValueError::new_err(e.to_string()))?,
+        connect: connect.unwrap_or_default(),
+        listen: listen.unwrap_or_default(),
+    })
+}
+
+/// An engine running inside this process, announced on Zenoh like `ciflow serve`.
+#[pyclass(module = "ciflow._native")]
+struct Engine {
+    server: Mutex<Option<EngineServer>>,
+    name: String,
+}
+
+#[pymethods]
+impl Engine {
+    /// Starts an engine; default: peer listening on `tcp/127.0.0.1:7447`.
+    #[new]
+    #[pyo3(signature = (*, config=None, mode=None, connect=None, listen=None, name=None))]
+    fn new(
+        py: Python<'_>,
+        config: Option<String>,
+        mode: Option<&str>,
+        connect: Option<Vec<String>>,
+        listen: Option<Vec<String>>,
+        name: Option<String>,
+    ) -> PyResult<Self> {
+        let network = network_options(config, mode, connect, listen)?;
+        let options = ServerOptions {
+            name,
+            ..ServerOptions::default()
+        };
+        let server = py
+            .detach(|| EngineServer::open(&network, options))
+            .map_err(to_py)?;
+        Ok(Self {
+            name: server.name().to_owned(),
+            server: Mutex::new(Some(server)),
+        })
+    }
+
+    #[getter]
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Number of sessions it hosts.
+    fn session_count(&self) -> usize {
+        self.lock().as_ref().map_or(0, EngineServer::session_count)
+    }
+
+    /// Stops serving; its sessions are closed.
+    fn close(&self, py: Python<'_>) {
+        let server = self.lock().take();
+        py.detach(move || drop(server));
+    }
+}
+
+impl Engine {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Option<EngineServer>> {
+        self.server.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// A Zenoh client with its liveliness token; owns the sessions it makes.
+#[pyclass(module = "ciflow._native")]
+struct ClientHandle {
+    client: Client,
+}
+
+#[pymethods]
+impl ClientHandle {
+    /// Joins Zenoh as a client (default: connect to `tcp/127.0.0.1:7447`). Raises
+    /// `EngineUnreachable` when nothing listens.
+    #[staticmethod]
+    #[pyo3(signature = (*, config=None, mode=None, connect=None, listen=None, timeout=10.0))]
+    fn open(
+        py: Python<'_>,
+        config: Option<String>,
+        mode: Option<&str>,
+        connect: Option<Vec<String>>,
+        listen: Option<Vec<String>>,
+        timeout: f64,
+    ) -> PyResult<Self> {
+        let network = network_options(config, mode, connect, listen)?;
+        let mut client = py.detach(|| Client::open(&network)).map_err(to_py)?;
+        client.set_timeout(seconds(timeout)?);
+        Ok(Self { client })
+    }
+
+    /// A client sharing the Zenoh session of an engine in this process.
+    #[staticmethod]
+    #[pyo3(signature = (engine, *, timeout=10.0))]
+    fn for_engine(py: Python<'_>, engine: &Engine, timeout: f64) -> PyResult<Self> {
+        let session = engine
+            .lock()
+            .as_ref()
+            .map(|server| server.zenoh_session().clone())
+            .ok_or_else(|| PyRuntimeError::new_err("the engine is closed"))?;
+        let mut client = py.detach(|| Client::with_session(session)).map_err(to_py)?;
+        client.set_timeout(seconds(timeout)?);
+        Ok(Self { client })
+    }
+
+    /// The client's name (its liveliness token is `ciflow/v1/alive/client/<id>`).
+    #[getter]
+    fn id(&self) -> &str {
+        self.client.id()
+    }
+
+    /// Reachable engines: `[{"name", "tasks": [{"name", "spec"}], "policies": [...]}]`.
+    fn discover<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let engines = py.detach(|| self.client.discover()).map_err(to_py)?;
+        engines
+            .iter()
+            .map(|engine| engine_to_dict(py, engine))
+            .collect()
+    }
+
+    fn engine_info<'py>(&self, py: Python<'py>, engine: &str) -> PyResult<Bound<'py, PyDict>> {
+        let info = py
+            .detach(|| self.client.engine_info(engine))
+            .map_err(to_py)?;
+        engine_to_dict(py, &info)
+    }
+
+    /// Opens a session of `num_envs` environments of `task` on `engine`, built with the
+    /// task's numeric construction arguments `kwargs`.
+    #[pyo3(signature = (engine, task, num_envs=1, kwargs=None))]
+    fn make(
+        &self,
+        py: Python<'_>,
+        engine: &str,
+        task: &str,
+        num_envs: u32,
+        kwargs: Option<BTreeMap<String, f64>>,
+    ) -> PyResult<Session> {
+        let kwargs = kwargs.unwrap_or_default();
+        let env = py
+            .detach(|| self.client.make(engine, task, num_envs, &kwargs))
+            .map_err(to_py)?;
+        Ok(Session { env })
+    }
+
+    /// Actions of a loaded policy for row-major observations (f64 bytes in and out).
+    fn act<'py>(
+        &self,
+        py: Python<'py>,
+        engine: &str,
+        policy: &str,
+        observations: &[u8],
+    ) -> PyResult<Bound<'py, PyBytes>> {
+        let observations = floats_from_bytes("observations", observations)?;
+        let actions = py
+            .detach(|| self.client.act(engine, policy, &observations))
+            .map_err(to_py)?;
+        Ok(floats_to_bytes(py, &actions))
+    }
+}
+
+fn seconds(timeout: f64) -> PyResult<std::time::Duration> {
+    std::time::Duration::try_from_secs_f64(timeout)
+        .map_err(|e| PyValueError::new_err(format!("timeout {timeout}: {e}")))
+}
+
+fn engine_to_dict<'py>(
+    py: Python<'py>,
+    engine: &ciflow_bridge::EngineInfo,
+) -> PyResult<Bound<'py, PyDict>> {
+    let dict = PyDict::new(py);
+    dict.set_item("name", &engine.name)?;
+    let tasks = engine
+        .tasks
+        .iter()
+        .map(|task| {
+            let t = PyDict::new(py);
+            t.set_item("name", &task.name)?;
+            t.set_item("spec", spec_to_dict(py, &task.spec)?)?;
+            Ok(t)
+        })
+        .collect::<PyResult<Vec<_>>>()?;
+    dict.set_item("tasks", tasks)?;
+    let policies = engine
+        .policies
+        .iter()
+        .map(|p| {
+            let d = PyDict::new(py);
+            d.set_item("name", &p.name)?;
+            d.set_item("task", &p.task)?;
+            d.set_item("observation_dim", p.observation_dim)?;
+            d.set_item("action_dim", p.action_dim)?;
+            Ok(d)
+        })
+        .collect::<PyResult<Vec<_>>>()?;
+    dict.set_item("policies", policies)?;
+    Ok(dict)
+}
+
+/// One session on an engine (1 or `num_envs` environments). Vectors are f64 bytes.
+#[pyclass(module = "ciflow._native")]
+struct Session {
+    env: RemoteEnv,
+}
+
+#[pymethods]
+impl Session {
+    #[getter]
+    fn spec<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        spec_to_dict(py, self.env.spec())
+    }
+
+    #[getter]
+    fn session_id(&self) -> &str {
+        self.env.session_id()
+    }
+
+    #[getter]
+    fn engine(&self) -> &str {
+        self.env.engine()
+    }
+
+    #[getter]
+    fn num_envs(&self) -> u32 {
+        self.env.num_envs()
+    }
+
+    /// The session's secret (share it to let another process control the session).
+    #[getter]
+    fn token<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, self.env.token())
+    }
+
+    /// `(observation bytes, info)`; `options` is JSON of the reset options.
+    #[pyo3(signature = (seed=None, options=None))]
+    fn reset<'py>(
+        &self,
+        py: Python<'py>,
+        seed: Option<u64>,
+        options: Option<&str>,
+    ) -> PyResult<(Bound<'py, PyBytes>, Bound<'py, PyDict>)> {
+        let options = reset_options_from_json(options)?;
+        let (observation, info) = py.detach(|| self.env.reset(seed, options)).map_err(to_py)?;
+        Ok((floats_to_bytes(py, &observation), info_dict(py, &info)?))
+    }
+
+    /// `(observation bytes, reward, terminated, truncated, info, time)`.
+    #[allow(clippy::type_complexity)]
+    fn step<'py>(
+        &self,
+        py: Python<'py>,
+        action: &[u8],
+    ) -> PyResult<(
+        Bound<'py, PyBytes>,
+        f64,
+        bool,
+        bool,
+        Bound<'py, PyDict>,
+        f64,
+    )> {
+        let action = floats_from_bytes("action", action)?;
+        let step = py.detach(|| self.env.step(&action)).map_err(to_py)?;
+        Ok((
+            floats_to_bytes(py, &step.observation),
+            step.reward,
+            step.terminated,
+            step.truncated,
+            info_dict(py, &step.info)?,
+            step.time,
+        ))
+    }
+
+    /// `(observations bytes, info columns)`; environment `i` gets seed `seed + i`.
+    #[pyo3(signature = (seed=None, options=None))]
+    fn reset_batch<'py>(
+        &self,
+        py: Python<'py>,
+        seed: Option<u64>,
+        options: Option<&str>,
+    ) -> PyResult<(Bound<'py, PyBytes>, Bound<'py, PyDict>)> {
+        let options = reset_options_from_json(options)?;
+        let (observations, info) = py
+            .detach(|| self.env.reset_batch(seed, options))
+            .map_err(to_py)?;
+        Ok((
+            floats_to_bytes(py, &observations),
+            columns_to_dict(py, &info)?,
+        ))
+    }
+
+    /// `(observations, rewards, terminated, truncated, info columns)`, all bytes
+    /// (`terminated`/`truncated`: one byte per environment).
+    #[allow(clippy::type_complexity)]
+    fn step_batch<'py>(
+        &self,
+        py: Python<'py>,
+        actions: &[u8],
+    ) -> PyResult<(
+        Bound<'py, PyBytes>,
+        Bound<'py, PyBytes>,
+        Bound<'py, PyBytes>,
+        Bound<'py, PyBytes>,
+        Bound<'py, PyDict>,
+    )> {
+        let actions = floats_from_bytes("actions", actions)?;
+        let step = py.detach(|| self.env.step_batch(&actions)).map_err(to_py)?;
+        let flags =
+            |v: &[bool]| PyBytes::new(py, &v.iter().map(|&b| u8::from(b)).collect::<Vec<_>>());
+        Ok((
+            floats_to_bytes(py, &step.observations),
+            floats_to_bytes(py, &step.rewards),
+            flags(&step.terminated),
+            flags(&step.truncated),
+            columns_to_dict(py, &step.info)?,
+        ))
+    }
+
+    #[pyo3(signature = (index=0))]
+    fn expert<'py>(&self, py: Python<'py>, index: u32) -> PyResult<Bound<'py, PyBytes>> {
+        let action = py.detach(|| self.env.expert(index)).map_err(to_py)?;
+        Ok(floats_to_bytes(py, &action))
+    }
+
+    /// Replaces the context; returns the simulated time.
+    #[pyo3(signature = (context, index=0))]
+    fn set_context(&self, py: Python<'_>, context: &[u8], index: u32) -> PyResult<f64> {
+        let context = floats_from_bytes("context", context)?;
+        py.detach(|| self.env.set_context(index, &context))
+            .map_err(to_py)
+    }
+
+    /// Schedules a perturbation given as JSON (see PROTOCOL.md); returns the time.
+    #[pyo3(signature = (perturbation, index=0))]
+    fn perturb(&self, py: Python<'_>, perturbation: &str, index: u32) -> PyResult<f64> {
+        let message: PerturbationMsg = serde_json::from_str(perturbation)
+            .map_err(|e| PyValueError::new_err(format!("bad perturbation {perturbation}: {e}")))?;
+        py.detach(|| self.env.perturb(index, message))
+            .map_err(to_py)
+    }
+
+    /// RGB bytes, row-major `height × width × 3`.
+    #[pyo3(signature = (width, height, index=0))]
+    fn render<'py>(
+        &self,
+        py: Python<'py>,
+        width: u32,
+        height: u32,
+        index: u32,
+    ) -> PyResult<Bound<'py, PyBytes>> {
+        let pixels = py
+            .detach(|| self.env.render(index, width, height))
+            .map_err(to_py)?;
+        Ok(PyBytes::new(py, &pixels))
+    }
+
+    /// Closes the session on the engine (idempotent).
+    fn close(&self, py: Python<'_>) -> PyResult<()> {
+        py.detach(|| self.env.close()).map_err(to_py)
+    }
+}
+
+fn info_dict<'py>(py: Python<'py>, info: &ciflow_envs::Info) -> PyResult<Bound<'py, PyDict>> {
+    let dict = PyDict::new(py);
+    for (key, value) in info {
+        dict.set_item(key, *value)?;
+    }
+    Ok(dict)
+}
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Engine>()?;
+    m.add_class::<ClientHandle>()?;
+    m.add_class::<Session>()?;
+    m.add("CiflowError", m.py().get_type::<CiflowError>())?;
+    m.add("EngineUnreachable", m.py().get_type::<EngineUnreachable>())?;
+    m.add("DEFAULT_ENDPOINT", ciflow_bridge::DEFAULT_ENDPOINT)?;
+    m.add(
+        "PROTOCOL_VERSION",
+        ciflow_bridge::protocol::PROTOCOL_VERSION,
+    )?;
+    Ok(())
+}

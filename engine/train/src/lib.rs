@@ -3,3 +3,24 @@
 //! Exact maximum-likelihood training of the policies in `ciflow_engine::flow`, with tch.
 //! This crate is the only one in the workspace that links libtorch: inference, the
 //! environments, the bridge and the Python extension never load it.
+//!
+//! The tch model ([`model::FlowModel`]) mirrors the engine's network and latent dynamics
+//! parameter for parameter and runs in f64; [`trainer::TrainedFlow::save`] writes a
+//! checkpoint directory the pure-Rust `Policy::load` reads. [`baseline`] trains the
+//! unconstrained behaviour-cloning MLP used as the stability check's negative control.
+
+pub mod baseline;
+pub mod data;
+pub mod error;
+pub mod latent;
+pub mod model;
+pub mod nets;
+pub mod optimise;
+pub mod synthetic;
+pub mod trainer;
+
+pub use baseline::{BaselineTrainConfig, TrainedBaseline, train_baseline};
+pub use data::{Contexts, Demonstrations, Episode};
+pub use error::{TrainError, TrainResult};
+pub use optimise::{OptimConfig, Progress};
+pub use trainer::{TrainConfig, TrainedFlow, train_flow};

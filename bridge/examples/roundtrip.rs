@@ -1,0 +1,157 @@
+//! Round-trip benchmark, everything measured side by side in one run against one engine:
+//!
+//! 1. raw Zenoh query round trip (`…/ping` echoes the payload; same size as a step);
+//! 2. single-environment `step` round trip of a 2-D task through [`RemoteEnv::step`];
+//! 3. batched stepping throughput (env-steps/s) of `step_batch` for several batch sizes.
+//!
+//! ```text
+//! cargo run --release -p ciflow-bridge --example roundtrip -- [ENDPOINT] [ENGINE]
+//! ```
+//! Without arguments it starts an engine in this process on its own Zenoh session
+//! (loopback TCP, like a separate process); `bench/roundtrip.sh` runs it against
+//! `ciflow serve` instead.
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+use ciflow_bridge::protocol::keys;
+use ciflow_bridge::zenoh::Wait;
+use ciflow_bridge::zenoh::query::ConsolidationMode;
+use ciflow_bridge::{Client, EngineServer, NetworkOptions, Role, ServerOptions};
+
+const TASK: &str = "ciflow/LimitCycle-v0";
+const WARMUP: usize = 500;
+const SAMPLES: usize = 5000;
+const BATCH_SIZES: [u32; 4] = [1024, 16384, 65536, 262144];
+
+fn percentile(sorted: &[Duration], p: f64) -> Duration {
+    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
+}
+
+/// Median and p99 of `SAMPLES` timed calls of `call` after a warm-up.
+fn time_calls(mut call: impl FnMut()) -> (Duration, Duration) {
+    for _ in 0..WARMUP {
+        call();
+    }
+    let mut samples: Vec<Duration> = (0..SAMPLES)
+        .map(|_| {
+            let start = Instant::now();
+            call();
+            start.elapsed()
+        })
+        .collect();
+    samples.sort();
+    (percentile(&samples, 0.5), percentile(&samples, 0.99))
+}
+
+fn micros(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e6
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let (endpoint, _local_engine) = match args.first() {
+        Some(endpoint) => (endpoint.clone(), None),
+        None => {
+            let endpoint = "tcp/127.0.0.1:27499".to_owned();
+            let options = ServerOptions {
+                name: Some("bench".into()),
+                ..ServerOptions::default()
+            };
+            let engine =
+                EngineServer::open(&NetworkOptions::endpoint(Role::Engine, &endpoint), options)?;
+            (endpoint, Some(engine))
+        }
+    };
+    let client = Client::open(&NetworkOptions::endpoint(Role::Client, &endpoint))?;
+    let engine = match args.get(1) {
+        Some(name) => name.clone(),
+        None => {
+            client
+                .discover()?
+                .into_iter()
+                .find(|e| e.tasks.iter().any(|t| t.spec.id == TASK))
+                .ok_or("no engine serves the 2-D task")?
+                .name
+        }
+    };
+
+    let env = client.make(&engine, TASK, 1, &BTreeMap::new())?;
+    env.reset(Some(0), None)?;
+    let action = env.expert(0)?;
+    let step_payload = ciflow_bridge::protocol::encode(&ciflow_bridge::protocol::StepRequest {
+        v: ciflow_bridge::protocol::PROTOCOL_VERSION,
+        token: ciflow_bridge::protocol::ByteBuf::from(env.token().to_vec()),
+        action: ciflow_bridge::protocol::F64s(action.clone()),
+    });
+    let ping = client
+        .zenoh_session()
+        .declare_querier(keys::ping(&engine))
+        .consolidation(ConsolidationMode::None)
+        .wait()?;
+    let mut raw = || {
+        let replies = ping
+            .get()
+            .payload(step_payload.clone())
+            .wait()
+            .expect("ping");
+        replies.recv().expect("ping reply");
+    };
+    let mut step = || {
+        if env
+            .step(&action)
+            .map(|s| s.terminated || s.truncated)
+            .unwrap_or(true)
+        {
+            env.reset(None, None).expect("reset");
+        }
+    };
+    // Interleave the two measurements so that both see the same machine load.
+    let (mut raw_runs, mut step_runs) = (Vec::new(), Vec::new());
+    for _ in 0..3 {
+        raw_runs.push(time_calls(&mut raw));
+        step_runs.push(time_calls(&mut step));
+    }
+    let best = |runs: &[(Duration, Duration)]| *runs.iter().min_by_key(|r| r.0).unwrap();
+    let (raw_median, raw_p99) = best(&raw_runs);
+    let (step_median, step_p99) = best(&step_runs);
+    println!("round trip ({TASK}, {SAMPLES} samples, best of 3 interleaved runs)");
+    println!(
+        "  raw Zenoh query (ping)   median {:7.1} µs   p99 {:7.1} µs",
+        micros(raw_median),
+        micros(raw_p99)
+    );
+    println!(
+        "  Rust RemoteEnv::step     median {:7.1} µs   p99 {:7.1} µs",
+        micros(step_median),
+        micros(step_p99)
+    );
+    println!(
+        "  ratio step / raw         median {:7.2}x     p99 {:7.2}x   (target ≤ 1.2x)",
+        step_median.as_secs_f64() / raw_median.as_secs_f64(),
+        step_p99.as_secs_f64() / raw_p99.as_secs_f64()
+    );
+
+    println!("batched stepping ({TASK}, step_batch, next-step autoreset)");
+    for n in BATCH_SIZES {
+        let batch = client.make(&engine, TASK, n, &BTreeMap::new())?;
+        batch.reset_batch(Some(0), None)?;
+        let actions = vec![0.0; n as usize * batch.spec().action_space.dim()];
+        batch.step_batch(&actions)?;
+        let rounds = (2_000_000 / n as usize).clamp(5, 200);
+        let start = Instant::now();
+        for _ in 0..rounds {
+            batch.step_batch(&actions)?;
+        }
+        let elapsed = start.elapsed();
+        let rate = (rounds as f64 * n as f64) / elapsed.as_secs_f64();
+        println!(
+            "  num_envs {n:>7}: {:>12.0} env-steps/s   ({:.2} ms per request, {} threads)",
+            rate,
+            elapsed.as_secs_f64() * 1e3 / rounds as f64,
+            std::thread::available_parallelism().map_or(1, |n| n.get())
+        );
+        batch.close()?;
+    }
+    Ok(())
+}

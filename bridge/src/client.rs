@@ -1,0 +1,592 @@
+//! The Rust client: discovers engines, opens sessions and drives them. The Python
+//! extension wraps it; the integration tests and benchmarks use it directly.
+//!
+//! Blocking API: each call is one Zenoh query (`step` through a pre-declared querier),
+//! waiting for its one reply.
+
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use ciflow_envs::{EnvSpec, Info, ResetOptions};
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+use serde_bytes::ByteBuf;
+use zenoh::Wait;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::pubsub::Subscriber;
+use zenoh::query::{ConsolidationMode, Querier, QueryTarget, Reply};
+use zenoh::sample::Sample;
+
+use crate::config::{NetworkOptions, Role};
+use crate::error::BridgeError;
+use crate::protocol::keys::{self, SessionOp};
+use crate::protocol::{
+    AckReply, ActRequest, ActionReply, BatchResetReply, BatchStepReply, BatchStepRequest,
+    ContextRequest, ErrorReply, F64s, FrameHeader, MakeReply, MakeRequest, PROTOCOL_VERSION,
+    PerturbRequest, PerturbationMsg, PolicyInfo, RenderReply, RenderRequest, ResetReply,
+    ResetRequest, SessionRequest, StepReply, StepRequest, TaskInfo, TasksReply, TasksRequest,
+    decode_reply, encode,
+};
+
+/// Default wait for a reply.
+pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// An engine found by [`Client::discover`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct EngineInfo {
+    pub name: String,
+    pub tasks: Vec<TaskInfo>,
+    pub policies: Vec<PolicyInfo>,
+}
+
+impl From<TasksReply> for EngineInfo {
+    fn from(reply: TasksReply) -> Self {
+        Self {
+            name: reply.engine,
+            tasks: reply.tasks,
+            policies: reply.policies,
+        }
+    }
+}
+
+/// A process's identity towards engines: a Zenoh session and a liveliness token under
+/// which its sessions live (they are closed when the token goes away).
+pub struct Client {
+    zsession: zenoh::Session,
+    id: String,
+    timeout: Duration,
+    _token: LivelinessToken,
+}
+
+impl Client {
+    /// Connects to Zenoh as a client (default: to [`crate::DEFAULT_ENDPOINT`]). Fails
+    /// fast with [`BridgeError::NoEngine`]-like advice when nothing listens there.
+    pub fn open(network: &NetworkOptions) -> Result<Self, BridgeError> {
+        let config = network.to_zenoh_config(Role::Client)?;
+        let zsession = zenoh::open(config).wait().map_err(|e| {
+            BridgeError::Zenoh(format!(
+                "cannot join Zenoh ({e}). Is an engine or router running there? Start one \
+                 with `ciflow serve`"
+            ))
+        })?;
+        Self::with_session(zsession)
+    }
+
+    /// Uses an open Zenoh session (e.g. the one of an engine in the same process).
+    pub fn with_session(zsession: zenoh::Session) -> Result<Self, BridgeError> {
+        let id = format!("c{:016x}", rand::random::<u64>());
+        let token = zsession
+            .liveliness()
+            .declare_token(keys::client_alive(&id))
+            .wait()
+            .map_err(BridgeError::zenoh)?;
+        Ok(Self {
+            zsession,
+            id,
+            timeout: DEFAULT_TIMEOUT,
+            _token: token,
+        })
+    }
+
+    /// The `<client>` name under which this client's sessions are owned.
+    pub fn id(&self) -> &str {
+        &self.id
+    }
+
+    pub fn zenoh_session(&self) -> &zenoh::Session {
+        &self.zsession
+    }
+
+    pub fn set_timeout(&mut self, timeout: Duration) {
+        self.timeout = timeout;
+    }
+
+    /// Every engine reachable now, with its tasks and policies.
+    pub fn discover(&self) -> Result<Vec<EngineInfo>, BridgeError> {
+        let replies = self
+            .zsession
+            .get(keys::ALL_ENGINES_TASKS)
+            .payload(encode(&TasksRequest {
+                v: PROTOCOL_VERSION,
+            }))
+            .consolidation(ConsolidationMode::None)
+            .target(QueryTarget::All)
+            .timeout(self.timeout)
+            .wait()
+            .map_err(BridgeError::zenoh)?;
+        let mut engines: Vec<EngineInfo> = replies
+            .iter()
+            .filter_map(|reply| decode_ok::<TasksReply>(keys::ALL_ENGINES_TASKS, &reply).ok())
+            .map(EngineInfo::from)
+            .collect();
+        engines.sort_by(|a, b| a.name.cmp(&b.name));
+        engines.dedup_by(|a, b| a.name == b.name);
+        Ok(engines)
+    }
+
+    /// Tasks and policies of one engine.
+    pub fn engine_info(&self, engine: &str) -> Result<EngineInfo, BridgeError> {
+        let reply: TasksReply = self.call(
+            &keys::tasks(engine),
+            &TasksRequest {
+                v: PROTOCOL_VERSION,
+            },
+        )?;
+        Ok(reply.into())
+    }
+
+    /// Opens a session of `num_envs` environments of `task` on `engine`, built with the
+    /// task's construction arguments `kwargs`.
+    pub fn make(
+        &self,
+        engine: &str,
+        task: &str,
+        num_envs: u32,
+        kwargs: &BTreeMap<String, f64>,
+    ) -> Result<RemoteEnv, BridgeError> {
+        let reply: MakeReply = self.call(
+            &keys::make(engine),
+            &MakeRequest {
+                v: PROTOCOL_VERSION,
+                client: self.id.clone(),
+                task: task.to_owned(),
+                num_envs,
+                kwargs: kwargs.clone(),
+            },
+        )?;
+        RemoteEnv::new(self.zsession.clone(), engine, reply, self.timeout)
+    }
+
+    /// Asks policy `policy` of `engine` for the actions of `n` observations (row-major).
+    pub fn act(
+        &self,
+        engine: &str,
+        policy: &str,
+        observations: &[f64],
+    ) -> Result<Vec<f64>, BridgeError> {
+        let reply: ActionReply = self.call(
+            &keys::policy_act(engine, policy),
+            &ActRequest {
+                v: PROTOCOL_VERSION,
+                observations: F64s(observations.to_vec()),
+            },
+        )?;
+        Ok(reply.action.0)
+    }
+
+    fn call<R: DeserializeOwned>(
+        &self,
+        key: &str,
+        request: &impl Serialize,
+    ) -> Result<R, BridgeError> {
+        query(&self.zsession, key, encode(request), self.timeout)
+    }
+}
+
+/// Sends raw `payload` to `key` and collects every reply until the query completes: each
+/// is the reply payload or the engine's typed error. For tools and tests that speak the
+/// protocol by hand (the engine always sends exactly one).
+pub fn query_all(
+    zsession: &zenoh::Session,
+    key: &str,
+    payload: Vec<u8>,
+    timeout: Duration,
+) -> Result<Vec<Result<Vec<u8>, ErrorReply>>, BridgeError> {
+    let replies = zsession
+        .get(key)
+        .payload(payload)
+        .consolidation(ConsolidationMode::None)
+        .timeout(timeout)
+        .wait()
+        .map_err(BridgeError::zenoh)?;
+    replies
+        .iter()
+        .map(
+            |reply| match decode_ok::<serde::de::IgnoredAny>(key, &reply) {
+                Ok(_) => Ok(Ok(reply
+                    .result()
+                    .map(|s| s.payload().to_bytes().into_owned())
+                    .unwrap_or_default())),
+                Err(BridgeError::Remote(error)) => Ok(Err(error)),
+                Err(other) => Err(other),
+            },
+        )
+        .collect()
+}
+
+/// One query, one reply.
+pub(crate) fn query<R: DeserializeOwned>(
+    zsession: &zenoh::Session,
+    key: &str,
+    payload: Vec<u8>,
+    timeout: Duration,
+) -> Result<R, BridgeError> {
+    let replies = zsession
+        .get(key)
+        .payload(payload)
+        .consolidation(ConsolidationMode::None)
+        .timeout(timeout)
+        .wait()
+        .map_err(BridgeError::zenoh)?;
+    first_reply(key, &replies)
+}
+
+fn first_reply<R: DeserializeOwned>(
+    key: &str,
+    replies: &FifoChannelHandler<Reply>,
+) -> Result<R, BridgeError> {
+    match replies.recv() {
+        Ok(reply) => decode_ok(key, &reply),
+        Err(_) => Err(BridgeError::NoEngine {
+            key: key.to_owned(),
+        }),
+    }
+}
+
+fn decode_ok<R: DeserializeOwned>(key: &str, reply: &Reply) -> Result<R, BridgeError> {
+    let bad = |detail: String| BridgeError::BadReply {
+        key: key.to_owned(),
+        detail,
+    };
+    match reply.result() {
+        Ok(sample) => decode_reply(&sample.payload().to_bytes()).map_err(|e| bad(e.to_string())),
+        Err(error) => {
+            let bytes = error.payload().to_bytes();
+            match decode_reply::<ErrorReply>(&bytes) {
+                Ok(remote) => Err(BridgeError::Remote(remote)),
+                Err(_) => Err(bad(format!(
+                    "error reply: {}",
+                    String::from_utf8_lossy(&bytes)
+                ))),
+            }
+        }
+    }
+}
+
+/// Result of [`RemoteEnv::step`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepResult {
+    pub observation: Vec<f64>,
+    pub reward: f64,
+    pub terminated: bool,
+    pub truncated: bool,
+    pub info: Info,
+    /// Simulated seconds since the reset.
+    pub time: f64,
+}
+
+/// Result of [`RemoteEnv::step_batch`] (next-step autoreset, see the protocol).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BatchStep {
+    /// Row-major `num_envs × obs_dim`.
+    pub observations: Vec<f64>,
+    pub rewards: Vec<f64>,
+    pub terminated: Vec<bool>,
+    pub truncated: Vec<bool>,
+    /// Key → one value per environment (NaN where absent).
+    pub info: BTreeMap<String, Vec<f64>>,
+}
+
+/// A session on an engine, owned by the [`Client`] that made it. Closed on drop.
+pub struct RemoteEnv {
+    zsession: zenoh::Session,
+    engine: String,
+    session: String,
+    token: ByteBuf,
+    spec: EnvSpec,
+    num_envs: u32,
+    timeout: Duration,
+    stepper: Querier<'static>,
+    frames: Mutex<Option<Subscriber<FifoChannelHandler<Sample>>>>,
+    closed: AtomicBool,
+}
+
+impl RemoteEnv {
+    fn new(
+        zsession: zenoh::Session,
+        engine: &str,
+        reply: MakeReply,
+        timeout: Duration,
+    ) -> Result<Self, BridgeError> {
+        let step_op = if reply.num_envs == 1 {
+            SessionOp::Step
+        } else {
+            SessionOp::StepBatch
+        };
+        let stepper = zsession
+            .declare_querier(keys::session(engine, &reply.session, step_op.as_str()))
+            .consolidation(ConsolidationMode::None)
+            .timeout(timeout)
+            .wait()
+            .map_err(BridgeError::zenoh)?;
+        Ok(Self {
+            zsession,
+            engine: engine.to_owned(),
+            session: reply.session,
+            token: reply.token,
+            spec: reply.spec,
+            num_envs: reply.num_envs,
+            timeout,
+            stepper,
+            frames: Mutex::new(None),
+            closed: AtomicBool::new(false),
+        })
+    }
+
+    pub fn spec(&self) -> &EnvSpec {
+        &self.spec
+    }
+
+    pub fn engine(&self) -> &str {
+        &self.engine
+    }
+
+    /// The `<session>` chunk of the session's keys.
+    pub fn session_id(&self) -> &str {
+        &self.session
+    }
+
+    /// The session's secret; whoever holds it may control the session.
+    pub fn token(&self) -> &[u8] {
+        &self.token
+    }
+
+    pub fn num_envs(&self) -> u32 {
+        self.num_envs
+    }
+
+    fn key(&self, op: SessionOp) -> String {
+        keys::session(&self.engine, &self.session, op.as_str())
+    }
+
+    fn call<R: DeserializeOwned>(
+        &self,
+        op: SessionOp,
+        request: &impl Serialize,
+    ) -> Result<R, BridgeError> {
+        query(&self.zsession, &self.key(op), encode(request), self.timeout)
+    }
+
+    fn call_stepper<R: DeserializeOwned>(
+        &self,
+        request: &impl Serialize,
+    ) -> Result<R, BridgeError> {
+        let replies = self
+            .stepper
+            .get()
+            .payload(encode(request))
+            .wait()
+            .map_err(BridgeError::zenoh)?;
+        first_reply(self.stepper.key_expr().as_str(), &replies)
+    }
+
+    /// Gymnasium `reset` of a single-environment session.
+    pub fn reset(
+        &self,
+        seed: Option<u64>,
+        options: Option<ResetOptions>,
+    ) -> Result<(Vec<f64>, Info), BridgeError> {
+        let reply: ResetReply = self.call(SessionOp::Reset, &self.reset_request(seed, options))?;
+        Ok((reply.observation.0, reply.info))
+    }
+
+    /// Gymnasium `step` of a single-environment session.
+    pub fn step(&self, action: &[f64]) -> Result<StepResult, BridgeError> {
+        let request = StepRequest {
+            v: PROTOCOL_VERSION,
+            token: self.token.clone(),
+            action: F64s(action.to_vec()),
+        };
+        let reply: StepReply = if self.num_envs == 1 {
+            self.call_stepper(&request)?
+        } else {
+            self.call(SessionOp::Step, &request)?
+        };
+        Ok(StepResult {
+            observation: reply.observation.0,
+            reward: reply.reward,
+            terminated: reply.terminated,
+            truncated: reply.truncated,
+            info: reply.info,
+            time: reply.time,
+        })
+    }
+
+    /// Resets every environment; environment `i` gets seed `seed + i`.
+    pub fn reset_batch(
+        &self,
+        seed: Option<u64>,
+        options: Option<ResetOptions>,
+    ) -> Result<(Vec<f64>, BTreeMap<String, Vec<f64>>), BridgeError> {
+        let reply: BatchResetReply =
+            self.call(SessionOp::ResetBatch, &self.reset_request(seed, options))?;
+        Ok((reply.observations.0, unwrap_columns(reply.info)))
+    }
+
+    /// Steps every environment with row-major `actions` (`num_envs × action_dim`).
+    pub fn step_batch(&self, actions: &[f64]) -> Result<BatchStep, BridgeError> {
+        let request = BatchStepRequest {
+            v: PROTOCOL_VERSION,
+            token: self.token.clone(),
+            actions: F64s(actions.to_vec()),
+        };
+        let reply: BatchStepReply = if self.num_envs == 1 {
+            self.call(SessionOp::StepBatch, &request)?
+        } else {
+            self.call_stepper(&request)?
+        };
+        Ok(BatchStep {
+            observations: reply.observations.0,
+            rewards: reply.rewards.0,
+            terminated: reply.terminated.iter().map(|&b| b != 0).collect(),
+            truncated: reply.truncated.iter().map(|&b| b != 0).collect(),
+            info: unwrap_columns(reply.info),
+        })
+    }
+
+    /// The expert's action for environment `index`.
+    pub fn expert(&self, index: u32) -> Result<Vec<f64>, BridgeError> {
+        let reply: ActionReply = self.call(SessionOp::Expert, &self.session_request(index))?;
+        Ok(reply.action.0)
+    }
+
+    /// Replaces the context of environment `index`; returns the simulated time.
+    pub fn set_context(&self, index: u32, context: &[f64]) -> Result<f64, BridgeError> {
+        let reply: AckReply = self.call(
+            SessionOp::Context,
+            &ContextRequest {
+                v: PROTOCOL_VERSION,
+                token: self.token.clone(),
+                index,
+                context: F64s(context.to_vec()),
+            },
+        )?;
+        Ok(reply.time)
+    }
+
+    /// Schedules a perturbation of environment `index`; returns the simulated time at
+    /// which the engine accepted it.
+    pub fn perturb(&self, index: u32, perturbation: PerturbationMsg) -> Result<f64, BridgeError> {
+        let reply: AckReply = self.call(
+            SessionOp::Perturb,
+            &PerturbRequest {
+                v: PROTOCOL_VERSION,
+                token: self.token.clone(),
+                index,
+                perturbation,
+            },
+        )?;
+        Ok(reply.time)
+    }
+
+    /// Renders environment `index` as `height × width × 3` RGB bytes. The frame travels
+    /// over pub/sub; the query only carries its header.
+    pub fn render(&self, index: u32, width: u32, height: u32) -> Result<Vec<u8>, BridgeError> {
+        let mut frames = self.frames.lock().unwrap_or_else(|p| p.into_inner());
+        let first_use = frames.is_none();
+        if first_use {
+            let subscriber = self
+                .zsession
+                .declare_subscriber(self.key_leaf("frame"))
+                .wait()
+                .map_err(BridgeError::zenoh)?;
+            *frames = Some(subscriber);
+        }
+        let subscriber = frames.as_ref().expect("declared above");
+        let request = RenderRequest {
+            v: PROTOCOL_VERSION,
+            token: self.token.clone(),
+            index,
+            width,
+            height,
+        };
+        // A subscriber declared just now may not have reached the engine before the frame
+        // was published: then ask once more.
+        let attempts = if first_use { 2 } else { 1 };
+        let mut lost = None;
+        for _ in 0..attempts {
+            let reply: RenderReply = self.call(SessionOp::Render, &request)?;
+            match receive_frame(
+                subscriber,
+                reply.frame,
+                self.timeout.min(Duration::from_secs(2)),
+            )? {
+                Some(pixels) => return Ok(pixels),
+                None => lost = Some(reply.frame.id),
+            }
+        }
+        Err(BridgeError::FrameLost {
+            session: self.session.clone(),
+            id: lost.unwrap_or_default(),
+            timeout_ms: self.timeout.as_millis(),
+        })
+    }
+
+    /// Closes the session on the engine. Idempotent.
+    pub fn close(&self) -> Result<(), BridgeError> {
+        if self.closed.swap(true, Ordering::SeqCst) {
+            return Ok(());
+        }
+        let _: AckReply = self.call(SessionOp::Close, &self.session_request(0))?;
+        Ok(())
+    }
+
+    fn key_leaf(&self, leaf: &str) -> String {
+        keys::session(&self.engine, &self.session, leaf)
+    }
+
+    fn reset_request(&self, seed: Option<u64>, options: Option<ResetOptions>) -> ResetRequest {
+        ResetRequest {
+            v: PROTOCOL_VERSION,
+            token: self.token.clone(),
+            seed,
+            options,
+        }
+    }
+
+    fn session_request(&self, index: u32) -> SessionRequest {
+        SessionRequest {
+            v: PROTOCOL_VERSION,
+            token: self.token.clone(),
+            index,
+        }
+    }
+}
+
+impl Drop for RemoteEnv {
+    fn drop(&mut self) {
+        // Best effort: if the engine is gone there is nothing to close.
+        let _ = self.close();
+    }
+}
+
+/// Waits for frame `header.id`, skipping older ones; `None` on timeout.
+fn receive_frame(
+    subscriber: &Subscriber<FifoChannelHandler<Sample>>,
+    header: FrameHeader,
+    timeout: Duration,
+) -> Result<Option<Vec<u8>>, BridgeError> {
+    let deadline = Instant::now() + timeout;
+    while let Some(sample) = subscriber
+        .recv_deadline(deadline)
+        .map_err(BridgeError::zenoh)?
+    {
+        let Some(attachment) = sample.attachment() else {
+            continue;
+        };
+        let Ok(got) = decode_reply::<FrameHeader>(&attachment.to_bytes()) else {
+            continue;
+        };
+        if got == header {
+            return Ok(Some(sample.payload().to_bytes().into_owned()));
+        }
+    }
+    Ok(None)
+}
+
+fn unwrap_columns(columns: BTreeMap<String, F64s>) -> BTreeMap<String, Vec<f64>> {
+    columns.into_iter().map(|(k, v)| (k, v.0)).collect()
+}

@@ -1,0 +1,191 @@
+//! Zenoh configuration of engines and clients: standard Zenoh JSON5 files plus the usual
+//! `--mode/--connect/--listen` overrides. With none of them, everything meets on the
+//! well-known loopback endpoint [`DEFAULT_ENDPOINT`] without multicast.
+
+use std::path::PathBuf;
+
+use zenoh::Config;
+
+use crate::error::BridgeError;
+
+/// Where a zero-configuration engine listens and a zero-configuration client connects.
+pub const DEFAULT_ENDPOINT: &str = "tcp/127.0.0.1:7447";
+
+/// Zenoh's role for this process.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    Peer,
+    Client,
+    Router,
+}
+
+impl Mode {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Mode::Peer => "peer",
+            Mode::Client => "client",
+            Mode::Router => "router",
+        }
+    }
+}
+
+impl std::str::FromStr for Mode {
+    type Err = BridgeError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "peer" => Ok(Mode::Peer),
+            "client" => Ok(Mode::Client),
+            "router" => Ok(Mode::Router),
+            other => Err(BridgeError::Config(format!(
+                "unknown Zenoh mode `{other}`; expected peer, client or router"
+            ))),
+        }
+    }
+}
+
+/// How to join Zenoh. Fields left empty keep the file's (or the default's) values.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NetworkOptions {
+    /// A standard Zenoh JSON5 configuration file.
+    pub config_file: Option<PathBuf>,
+    pub mode: Option<Mode>,
+    /// Endpoints to connect to, e.g. `tcp/10.0.0.2:7447` (a router or an engine).
+    pub connect: Vec<String>,
+    /// Endpoints to listen on.
+    pub listen: Vec<String>,
+}
+
+/// Which side of the protocol a configuration is for: it decides the defaults.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// Listens on [`DEFAULT_ENDPOINT`] in peer mode.
+    Engine,
+    /// Connects to [`DEFAULT_ENDPOINT`] in client mode and fails fast when nobody listens.
+    Client,
+}
+
+impl NetworkOptions {
+    /// Options that connect to (or, for an engine, listen on) one endpoint.
+    pub fn endpoint(role: Role, endpoint: &str) -> Self {
+        let mut options = Self::default();
+        match role {
+            Role::Engine => options.listen.push(endpoint.to_owned()),
+            Role::Client => options.connect.push(endpoint.to_owned()),
+        }
+        options
+    }
+
+    /// The Zenoh configuration for `role`.
+    ///
+    /// Without a file: multicast scouting off; an engine is a peer listening on
+    /// [`DEFAULT_ENDPOINT`] (or `listen`), a client is a Zenoh client connecting to
+    /// [`DEFAULT_ENDPOINT`] (or `connect`). With a file, only the explicit overrides apply.
+    pub fn to_zenoh_config(&self, role: Role) -> Result<Config, BridgeError> {
+        let mut config = match &self.config_file {
+            Some(path) => Config::from_file(path).map_err(|e| {
+                BridgeError::Config(format!("cannot read Zenoh config {}: {e}", path.display()))
+            })?,
+            None => default_config(role)?,
+        };
+        if let Some(mode) = self.mode {
+            insert(&mut config, "mode", &json_string(mode.as_str()))?;
+        }
+        if !self.connect.is_empty() {
+            insert(&mut config, "connect/endpoints", &json_list(&self.connect))?;
+        }
+        if !self.listen.is_empty() {
+            insert(&mut config, "listen/endpoints", &json_list(&self.listen))?;
+        }
+        Ok(config)
+    }
+}
+
+fn default_config(role: Role) -> Result<Config, BridgeError> {
+    let mut config = Config::default();
+    insert(&mut config, "scouting/multicast/enabled", "false")?;
+    let endpoint = json_list(&[DEFAULT_ENDPOINT.to_owned()]);
+    match role {
+        Role::Engine => {
+            insert(&mut config, "mode", &json_string(Mode::Peer.as_str()))?;
+            insert(&mut config, "listen/endpoints", &endpoint)?;
+        }
+        Role::Client => {
+            insert(&mut config, "mode", &json_string(Mode::Client.as_str()))?;
+            insert(&mut config, "connect/endpoints", &endpoint)?;
+        }
+    }
+    Ok(config)
+}
+
+fn insert(config: &mut Config, key: &str, json5: &str) -> Result<(), BridgeError> {
+    config
+        .insert_json5(key, json5)
+        .map_err(|e| BridgeError::Config(format!("bad Zenoh setting {key} = {json5}: {e}")))
+}
+
+fn json_string(s: &str) -> String {
+    format!("\"{}\"", s.replace('\\', "\\\\").replace('"', "\\\""))
+}
+
+fn json_list(items: &[String]) -> String {
+    let quoted: Vec<String> = items.iter().map(|s| json_string(s)).collect();
+    format!("[{}]", quoted.join(","))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_meet_on_the_loopback_endpoint() {
+        let engine = NetworkOptions::default()
+            .to_zenoh_config(Role::Engine)
+            .unwrap();
+        assert!(
+            engine
+                .get_json("listen/endpoints")
+                .unwrap()
+                .contains(DEFAULT_ENDPOINT)
+        );
+        assert_eq!(engine.get_json("mode").unwrap(), "\"peer\"");
+        assert_eq!(
+            engine.get_json("scouting/multicast/enabled").unwrap(),
+            "false"
+        );
+        let client = NetworkOptions::default()
+            .to_zenoh_config(Role::Client)
+            .unwrap();
+        assert!(
+            client
+                .get_json("connect/endpoints")
+                .unwrap()
+                .contains(DEFAULT_ENDPOINT)
+        );
+        assert_eq!(client.get_json("mode").unwrap(), "\"client\"");
+    }
+
+    #[test]
+    fn overrides_replace_defaults_and_bad_values_are_errors() {
+        let options = NetworkOptions {
+            mode: Some(Mode::Peer),
+            connect: vec!["tcp/10.1.2.3:7447".into()],
+            ..Default::default()
+        };
+        let config = options.to_zenoh_config(Role::Client).unwrap();
+        assert!(
+            config
+                .get_json("connect/endpoints")
+                .unwrap()
+                .contains("10.1.2.3")
+        );
+        assert_eq!(config.get_json("mode").unwrap(), "\"peer\"");
+
+        let bad = NetworkOptions {
+            listen: vec!["not an endpoint".into()],
+            ..Default::default()
+        };
+        assert!(bad.to_zenoh_config(Role::Engine).is_err());
+        assert!("satellite".parse::<Mode>().is_err());
+    }
+}

@@ -1,0 +1,111 @@
+//! Real vectors on the wire: one MessagePack `bin` holding little-endian IEEE-754 `f64`s.
+//!
+//! ```text
+//! bin 8   n·8 bytes
+//! ┌──────┬────────┬──────────┬─────┬──────────────┐
+//! │ 0xc4…│ length │ x₀ (f64le)│ …  │ xₙ₋₁ (f64le) │
+//! └──────┴────────┴──────────┴─────┴──────────────┘
+//! ```
+//!
+//! numpy reads it without a copy (`np.frombuffer(b, "<f8")`), and any MessagePack library
+//! writes it from a byte string. Hand-written clients may send a plain MessagePack array
+//! of numbers instead; it is accepted too.
+
+use std::fmt;
+
+use serde::de::{self, SeqAccess, Visitor};
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+/// A vector of reals encoded as little-endian `f64` bytes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct F64s(pub Vec<f64>);
+
+impl F64s {
+    /// Encodes `values` into a fresh little-endian byte buffer.
+    pub fn to_le_bytes(values: &[f64]) -> Vec<u8> {
+        let mut bytes = Vec::with_capacity(values.len() * 8);
+        for v in values {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+        bytes
+    }
+
+    /// Decodes little-endian `f64` bytes; `None` if the length is not a multiple of 8.
+    pub fn from_le_bytes(bytes: &[u8]) -> Option<Vec<f64>> {
+        if bytes.len() % 8 != 0 {
+            return None;
+        }
+        Some(
+            bytes
+                .chunks_exact(8)
+                .map(|c| f64::from_le_bytes(c.try_into().expect("chunks of 8")))
+                .collect(),
+        )
+    }
+}
+
+impl From<Vec<f64>> for F64s {
+    fn from(values: Vec<f64>) -> Self {
+        Self(values)
+    }
+}
+
+impl Serialize for F64s {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_bytes(&Self::to_le_bytes(&self.0))
+    }
+}
+
+impl<'de> Deserialize<'de> for F64s {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        deserializer.deserialize_any(F64sVisitor)
+    }
+}
+
+struct F64sVisitor;
+
+impl<'de> Visitor<'de> for F64sVisitor {
+    type Value = F64s;
+
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("a bin of little-endian f64 (length a multiple of 8) or an array of numbers")
+    }
+
+    fn visit_bytes<E: de::Error>(self, bytes: &[u8]) -> Result<F64s, E> {
+        F64s::from_le_bytes(bytes).map(F64s).ok_or_else(|| {
+            E::custom(format!(
+                "f64 byte string of {} bytes is not a multiple of 8",
+                bytes.len()
+            ))
+        })
+    }
+
+    fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<F64s, A::Error> {
+        let mut values = Vec::with_capacity(seq.size_hint().unwrap_or(0).min(1 << 16));
+        while let Some(v) = seq.next_element::<f64>()? {
+            values.push(v);
+        }
+        Ok(F64s(values))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bin_and_array_forms_decode_to_the_same_values() {
+        let values = vec![1.5, -0.0, f64::INFINITY, 1e-300];
+        let bin = rmp_serde::to_vec(&F64s(values.clone())).unwrap();
+        assert_eq!(bin[0], 0xc4, "encoded as bin 8");
+        assert_eq!(rmp_serde::from_slice::<F64s>(&bin).unwrap().0, values);
+        let array = rmp_serde::to_vec(&values).unwrap();
+        assert_eq!(rmp_serde::from_slice::<F64s>(&array).unwrap().0, values);
+    }
+
+    #[test]
+    fn ragged_byte_string_is_an_error() {
+        let bin = rmp_serde::to_vec(&serde_bytes::Bytes::new(&[0u8; 7])).unwrap();
+        assert!(rmp_serde::from_slice::<F64s>(&bin).is_err());
+    }
+}

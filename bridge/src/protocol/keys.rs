@@ -1,0 +1,196 @@
+//! Key expressions of protocol version 1. See `PROTOCOL.md` for the full table.
+//!
+//! ```text
+//! ciflow/v1/alive/engine/<engine>                    liveliness token of an engine
+//! ciflow/v1/alive/client/<client>                    liveliness token of a client
+//! ciflow/v1/engine/<engine>/tasks                    query: tasks, specs, policies
+//! ciflow/v1/engine/<engine>/make                     query: open a session
+//! ciflow/v1/engine/<engine>/ping                     query: echoes its payload
+//! ciflow/v1/engine/<engine>/session/<session>/<op>   query: reset, step, reset_batch,
+//!                                                    step_batch, expert, context,
+//!                                                    perturb, render, close
+//! ciflow/v1/engine/<engine>/session/<session>/telemetry   publication (engine → viewers)
+//! ciflow/v1/engine/<engine>/session/<session>/frame       publication (rendered frames)
+//! ciflow/v1/engine/<engine>/policy/<policy>/act      query: observation in, action out
+//! ```
+
+/// Root of every key of this protocol version.
+pub const ROOT: &str = "ciflow/v1";
+
+/// Liveliness key of an engine.
+pub fn engine_alive(engine: &str) -> String {
+    format!("{ROOT}/alive/engine/{engine}")
+}
+
+/// Liveliness keys of all engines (for discovery).
+pub const ALL_ENGINES_ALIVE: &str = "ciflow/v1/alive/engine/*";
+
+/// Liveliness key of a client.
+pub fn client_alive(client: &str) -> String {
+    format!("{ROOT}/alive/client/{client}")
+}
+
+/// Liveliness keys of all clients (the engine watches them to reclaim sessions).
+pub const ALL_CLIENTS_ALIVE: &str = "ciflow/v1/alive/client/*";
+
+/// Prefix of everything an engine serves.
+pub fn engine(engine: &str) -> String {
+    format!("{ROOT}/engine/{engine}")
+}
+
+/// The `tasks` query of every engine at once (for discovery).
+pub const ALL_ENGINES_TASKS: &str = "ciflow/v1/engine/*/tasks";
+
+pub fn tasks(engine_id: &str) -> String {
+    format!("{}/tasks", engine(engine_id))
+}
+
+pub fn make(engine_id: &str) -> String {
+    format!("{}/make", engine(engine_id))
+}
+
+/// Echo: the raw Zenoh round trip to an engine, without the protocol's decoding.
+pub fn ping(engine_id: &str) -> String {
+    format!("{}/ping", engine(engine_id))
+}
+
+/// A per-session key: an operation, `telemetry` or `frame`.
+pub fn session(engine_id: &str, session: &str, leaf: &str) -> String {
+    format!("{}/session/{session}/{leaf}", engine(engine_id))
+}
+
+pub fn policy_act(engine_id: &str, policy: &str) -> String {
+    format!("{}/policy/{policy}/act", engine(engine_id))
+}
+
+/// Whether `chunk` can be one chunk of a key expression: non-empty, no `/`, no wildcard
+/// or reserved character. Engine, client, session and policy names must satisfy it.
+pub fn is_plain_chunk(chunk: &str) -> bool {
+    !chunk.is_empty()
+        && chunk
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'-' | b'_' | b'.'))
+}
+
+/// What a query addressed to one engine asks for, parsed from the key after
+/// `ciflow/v1/engine/<engine>/`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Route<'a> {
+    Tasks,
+    Make,
+    Ping,
+    Session { session: &'a str, op: SessionOp },
+    PolicyAct { policy: &'a str },
+}
+
+/// Operations on one session.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SessionOp {
+    Reset,
+    Step,
+    ResetBatch,
+    StepBatch,
+    Expert,
+    Context,
+    Perturb,
+    Render,
+    Close,
+}
+
+impl SessionOp {
+    pub const ALL: [SessionOp; 9] = [
+        SessionOp::Reset,
+        SessionOp::Step,
+        SessionOp::ResetBatch,
+        SessionOp::StepBatch,
+        SessionOp::Expert,
+        SessionOp::Context,
+        SessionOp::Perturb,
+        SessionOp::Render,
+        SessionOp::Close,
+    ];
+
+    /// The last chunk of the operation's key.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            SessionOp::Reset => "reset",
+            SessionOp::Step => "step",
+            SessionOp::ResetBatch => "reset_batch",
+            SessionOp::StepBatch => "step_batch",
+            SessionOp::Expert => "expert",
+            SessionOp::Context => "context",
+            SessionOp::Perturb => "perturb",
+            SessionOp::Render => "render",
+            SessionOp::Close => "close",
+        }
+    }
+
+    fn parse(op: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|o| o.as_str() == op)
+    }
+}
+
+/// Parses the full key of a query received by the queryable on
+/// `ciflow/v1/engine/<engine>/**`. `None` for keys outside the protocol (including
+/// wildcard chunks where a name is expected).
+pub fn parse_route(key: &str) -> Option<Route<'_>> {
+    let rest = key.strip_prefix(ROOT)?.strip_prefix("/engine/")?;
+    let (_engine, rest) = rest.split_once('/')?;
+    let chunks: Vec<&str> = rest.split('/').collect();
+    match chunks.as_slice() {
+        ["tasks"] => Some(Route::Tasks),
+        ["make"] => Some(Route::Make),
+        ["ping"] => Some(Route::Ping),
+        ["session", session, op] if is_plain_chunk(session) => Some(Route::Session {
+            session,
+            op: SessionOp::parse(op)?,
+        }),
+        ["policy", policy, "act"] if is_plain_chunk(policy) => Some(Route::PolicyAct { policy }),
+        _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_built_key_parses_back_to_its_route() {
+        assert_eq!(parse_route(&tasks("e1")), Some(Route::Tasks));
+        assert_eq!(parse_route(ALL_ENGINES_TASKS), Some(Route::Tasks));
+        assert_eq!(parse_route(&make("e1")), Some(Route::Make));
+        assert_eq!(parse_route(&ping("e1")), Some(Route::Ping));
+        for op in SessionOp::ALL {
+            assert_eq!(
+                parse_route(&session("e1", "s42", op.as_str())),
+                Some(Route::Session { session: "s42", op })
+            );
+        }
+        assert_eq!(
+            parse_route(&policy_act("e1", "pour")),
+            Some(Route::PolicyAct { policy: "pour" })
+        );
+    }
+
+    #[test]
+    fn foreign_and_wildcard_keys_are_rejected() {
+        for key in [
+            "ciflow/v1/engine/e1",
+            "ciflow/v1/engine/e1/session/*/step",
+            "ciflow/v1/engine/e1/session/s1/fly",
+            "ciflow/v1/engine/e1/session/s1/step/more",
+            "ciflow/v2/engine/e1/tasks",
+            "other/engine/e1/tasks",
+        ] {
+            assert_eq!(parse_route(key), None, "{key}");
+        }
+    }
+
+    #[test]
+    fn plain_chunks_exclude_key_syntax() {
+        assert!(is_plain_chunk("client-1.a_b"));
+        for bad in ["", "a/b", "*", "**", "a$b", "a?b", "a#b"] {
+            assert!(!is_plain_chunk(bad), "{bad}");
+        }
+    }
+}

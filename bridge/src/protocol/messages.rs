@@ -1,0 +1,289 @@
+//! Request and reply payloads: MessagePack maps with the field names below (encode with
+//! named fields; `rmp_serde::to_vec_named`). Vectors of reals are [`F64s`]. Every request
+//! carries the protocol version `v`; session requests also carry the owner's `token`.
+
+use std::collections::BTreeMap;
+
+use ciflow_envs::{EnvSpec, Info, ResetOptions};
+use serde::{Deserialize, Serialize};
+use serde_bytes::ByteBuf;
+
+use super::F64s;
+
+/// The minimal view of any request: only its version. Decoded when the full request is
+/// malformed, to tell a version mismatch from garbage.
+#[derive(Debug, Deserialize)]
+pub struct Header {
+    pub v: u16,
+}
+
+// ---------------------------------------------------------------- engine-level queries
+
+/// `…/tasks`: `{v}`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TasksRequest {
+    pub v: u16,
+}
+
+/// Reply to `…/tasks`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TasksReply {
+    pub v: u16,
+    /// The engine's name, the `<engine>` chunk of its keys.
+    pub engine: String,
+    pub tasks: Vec<TaskInfo>,
+    pub policies: Vec<PolicyInfo>,
+}
+
+/// One task an engine can make.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TaskInfo {
+    /// Short command-line name, e.g. `pouring`.
+    pub name: String,
+    pub spec: EnvSpec,
+}
+
+/// One policy an engine evaluates with `…/policy/<name>/act`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PolicyInfo {
+    pub name: String,
+    /// The task whose observations it reads, e.g. `ciflow/Pouring-v0`.
+    pub task: String,
+    pub observation_dim: u32,
+    pub action_dim: u32,
+}
+
+/// `…/make`: opens a session of `num_envs` copies of `task`, owned by `client`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MakeRequest {
+    pub v: u16,
+    /// The client's name; its liveliness token `ciflow/v1/alive/client/<client>` must be
+    /// declared first. When the token goes away the session is closed.
+    pub client: String,
+    /// Gymnasium id or short name.
+    pub task: String,
+    /// Number of environments stepped together by `step_batch` (default 1).
+    #[serde(default = "one")]
+    pub num_envs: u32,
+    /// Construction arguments of the task (numbers), e.g. `{"obstacles": 2}`.
+    #[serde(default)]
+    pub kwargs: BTreeMap<String, f64>,
+}
+
+fn one() -> u32 {
+    1
+}
+
+/// Reply to `…/make`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MakeReply {
+    pub v: u16,
+    /// The `<session>` chunk of the session's keys. Not a secret.
+    pub session: String,
+    /// The session's secret: 16 bytes every later request must echo in `token`.
+    pub token: ByteBuf,
+    pub num_envs: u32,
+    pub spec: EnvSpec,
+}
+
+// ---------------------------------------------------------------- session queries
+
+/// `…/reset` (single environment) and `…/reset_batch` (all environments; environment
+/// `i` is seeded with `seed + i`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ResetRequest {
+    pub v: u16,
+    pub token: ByteBuf,
+    pub seed: Option<u64>,
+    pub options: Option<ResetOptions>,
+}
+
+/// Reply to `…/reset`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ResetReply {
+    pub v: u16,
+    pub observation: F64s,
+    pub info: Info,
+}
+
+/// `…/step`: one control period of a single-environment session.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StepRequest {
+    pub v: u16,
+    pub token: ByteBuf,
+    pub action: F64s,
+}
+
+/// Reply to `…/step`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StepReply {
+    pub v: u16,
+    pub observation: F64s,
+    pub reward: f64,
+    pub terminated: bool,
+    pub truncated: bool,
+    pub info: Info,
+    /// Simulated seconds since the reset, after this step.
+    pub time: f64,
+}
+
+/// Reply to `…/reset_batch`: observations row-major `num_envs × obs_dim`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BatchResetReply {
+    pub v: u16,
+    pub observations: F64s,
+    /// Info columns: key → `num_envs` values, NaN where an environment had no such key.
+    pub info: BTreeMap<String, F64s>,
+}
+
+/// `…/step_batch`: actions row-major `num_envs × action_dim`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BatchStepRequest {
+    pub v: u16,
+    pub token: ByteBuf,
+    pub actions: F64s,
+}
+
+/// Reply to `…/step_batch`, with Gymnasium's next-step autoreset: an environment whose
+/// episode ended on the previous call ignores its action, resets (RNG continuing, the
+/// last `reset_batch` options) and reports the first observation, reward 0 and both flags
+/// false.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BatchStepReply {
+    pub v: u16,
+    pub observations: F64s,
+    pub rewards: F64s,
+    /// One byte per environment, 0 or 1.
+    pub terminated: ByteBuf,
+    pub truncated: ByteBuf,
+    /// Info columns, as in [`BatchResetReply::info`].
+    pub info: BTreeMap<String, F64s>,
+}
+
+/// `…/expert` (`{v, token, index}`) and `…/close` (`{v, token}`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SessionRequest {
+    pub v: u16,
+    pub token: ByteBuf,
+    /// Which environment of the session (default 0).
+    #[serde(default)]
+    pub index: u32,
+}
+
+/// Reply to `…/expert` and to `…/policy/<name>/act`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ActionReply {
+    pub v: u16,
+    pub action: F64s,
+}
+
+/// `…/context`: replaces the context of environment `index` mid-episode.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ContextRequest {
+    pub v: u16,
+    pub token: ByteBuf,
+    #[serde(default)]
+    pub index: u32,
+    pub context: F64s,
+}
+
+/// `…/perturb`: schedules a perturbation of environment `index`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PerturbRequest {
+    pub v: u16,
+    pub token: ByteBuf,
+    #[serde(default)]
+    pub index: u32,
+    pub perturbation: PerturbationMsg,
+}
+
+/// An external push on the robot during `[start, start + duration)` simulated seconds.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PerturbationMsg {
+    #[serde(flatten)]
+    pub kind: PerturbationKindMsg,
+    /// Simulated seconds since the reset; absent means "now" (the session's time).
+    pub start: Option<f64>,
+    pub duration: f64,
+}
+
+/// What pushes: `{kind: "joint_torque", torque}` or
+/// `{kind: "link_wrench", link, force, torque}`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum PerturbationKindMsg {
+    /// Generalized forces added to `τ`, one per joint (N·m or N).
+    JointTorque { torque: Vec<f64> },
+    /// A wrench at the origin of movable link number `link` (0 = first), world-aligned
+    /// (N, N·m).
+    LinkWrench {
+        link: u32,
+        force: [f64; 3],
+        torque: [f64; 3],
+    },
+}
+
+/// Acknowledges `…/context`, `…/perturb` and `…/close`: the session's simulated time when
+/// the request took effect.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AckReply {
+    pub v: u16,
+    pub time: f64,
+}
+
+/// `…/render`: the frame is published on `…/session/<session>/frame`; subscribe first.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RenderRequest {
+    pub v: u16,
+    pub token: ByteBuf,
+    #[serde(default)]
+    pub index: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// Reply to `…/render`, sent after the frame was published. The frame's publication
+/// carries the same [`FrameHeader`] as its attachment.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RenderReply {
+    pub v: u16,
+    pub frame: FrameHeader,
+}
+
+/// Identifies a published frame: payload is `height × width × 3` RGB bytes, row-major.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FrameHeader {
+    /// Increases by one per frame of the session.
+    pub id: u64,
+    pub width: u32,
+    pub height: u32,
+}
+
+// ---------------------------------------------------------------- policies
+
+/// `…/policy/<name>/act`: `n` observations row-major in, `n` actions out.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ActRequest {
+    pub v: u16,
+    pub observations: F64s,
+}
+
+// ---------------------------------------------------------------- publications
+
+/// Published on `…/session/<session>/telemetry` for environment 0 while a subscriber
+/// matches, at most `telemetry_hz` times per wall-clock second.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Telemetry {
+    pub v: u16,
+    pub session: String,
+    /// Steps since the reset.
+    pub step: u64,
+    /// Simulated seconds since the reset.
+    pub time: f64,
+    /// The observation without its context tail: the robot's state.
+    pub state: F64s,
+    /// The last action (desired acceleration) applied.
+    pub command: F64s,
+    pub context: F64s,
+    pub reward: f64,
+}

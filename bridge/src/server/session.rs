@@ -1,0 +1,312 @@
+//! A session: `num_envs` environments of one task, owned by one client, guarded by a
+//! secret token. Each method implements one operation and returns the encoded reply.
+
+use std::collections::BTreeMap;
+
+use ciflow_engine::sim::{Perturbation, PerturbationKind};
+use ciflow_envs::{EnvError, EnvSpec, Info, ResetOptions};
+use rayon::prelude::*;
+use serde_bytes::ByteBuf;
+
+use super::slot::{EnvSlot, check_vector};
+use super::telemetry::TelemetryPublisher;
+use crate::protocol::{
+    AckReply, ActionReply, BatchResetReply, BatchStepReply, ContextRequest, ErrorCode, ErrorReply,
+    F64s, FrameHeader, PROTOCOL_VERSION, PerturbRequest, PerturbationKindMsg, ResetReply,
+    ResetRequest, StepReply, TOKEN_BYTES, encode,
+};
+
+/// Environments per rayon task in `step_batch`: below this, threads cost more than they
+/// save.
+const BATCH_CHUNK: usize = 512;
+
+pub(crate) type Token = [u8; TOKEN_BYTES];
+
+pub(crate) struct Session {
+    pub id: String,
+    pub owner: String,
+    token: Token,
+    spec: EnvSpec,
+    envs: Vec<EnvSlot>,
+    /// Options of the last reset, reused by autoresets.
+    reset_options: ResetOptions,
+    telemetry: TelemetryPublisher,
+    frames: u64,
+}
+
+impl Session {
+    pub fn new(
+        id: String,
+        owner: String,
+        token: Token,
+        envs: Vec<EnvSlot>,
+        telemetry: TelemetryPublisher,
+    ) -> Self {
+        let spec = envs[0].env.spec().clone();
+        Self {
+            id,
+            owner,
+            token,
+            spec,
+            envs,
+            reset_options: ResetOptions::default(),
+            telemetry,
+            frames: 0,
+        }
+    }
+
+    /// Refuses callers that do not hold the session's token.
+    pub fn authorize(&self, token: &ByteBuf) -> Result<(), ErrorReply> {
+        // Compare every byte so the time taken does not reveal the matching prefix.
+        let equal = token.len() == TOKEN_BYTES
+            && token
+                .iter()
+                .zip(&self.token)
+                .fold(0u8, |acc, (a, b)| acc | (a ^ b))
+                == 0;
+        if equal {
+            Ok(())
+        } else {
+            Err(ErrorReply::new(
+                ErrorCode::Forbidden,
+                format!("wrong or missing token for session {}", self.id),
+            ))
+        }
+    }
+
+    fn single(&mut self, op: &str) -> Result<&mut EnvSlot, ErrorReply> {
+        if self.envs.len() != 1 {
+            return Err(ErrorReply::new(
+                ErrorCode::InvalidRequest,
+                format!(
+                    "`{op}` needs a single-environment session; session {} has {} \
+                     environments (use `{op}_batch`)",
+                    self.id,
+                    self.envs.len()
+                ),
+            ));
+        }
+        Ok(&mut self.envs[0])
+    }
+
+    fn slot(&mut self, index: u32) -> Result<&mut EnvSlot, ErrorReply> {
+        let n = self.envs.len();
+        self.envs.get_mut(index as usize).ok_or_else(|| {
+            ErrorReply::new(
+                ErrorCode::InvalidRequest,
+                format!("environment index {index} out of range (session has {n})"),
+            )
+        })
+    }
+
+    pub fn reset(&mut self, request: ResetRequest) -> Result<Vec<u8>, ErrorReply> {
+        let options = request.options.unwrap_or_default();
+        let slot = self.single("reset")?;
+        let (observation, info) = slot.reset(request.seed, &options)?;
+        self.reset_options = options;
+        self.telemetry.offer(&self.id, &self.envs[0]);
+        Ok(encode(&ResetReply {
+            v: PROTOCOL_VERSION,
+            observation: F64s(observation),
+            info,
+        }))
+    }
+
+    pub fn step(&mut self, action: &[f64]) -> Result<Vec<u8>, ErrorReply> {
+        let slot = self.single("step")?;
+        let step = slot.step(action)?;
+        let time = slot.time();
+        self.telemetry.offer(&self.id, &self.envs[0]);
+        Ok(encode(&StepReply {
+            v: PROTOCOL_VERSION,
+            observation: F64s(step.observation),
+            reward: step.reward,
+            terminated: step.terminated,
+            truncated: step.truncated,
+            info: step.info,
+            time,
+        }))
+    }
+
+    pub fn reset_batch(&mut self, request: ResetRequest) -> Result<Vec<u8>, ErrorReply> {
+        let options = request.options.unwrap_or_default();
+        let results: Vec<Result<(Vec<f64>, Info), EnvError>> = self
+            .envs
+            .par_iter_mut()
+            .with_min_len(BATCH_CHUNK)
+            .enumerate()
+            .map(|(i, slot)| slot.reset(request.seed.map(|s| s.wrapping_add(i as u64)), &options))
+            .collect();
+        let mut observations = Vec::with_capacity(self.envs.len() * self.observation_dim());
+        let mut infos = Vec::with_capacity(results.len());
+        for (i, result) in results.into_iter().enumerate() {
+            let (observation, info) = result.map_err(|e| in_env(i, e))?;
+            observations.extend_from_slice(&observation);
+            infos.push(info);
+        }
+        self.reset_options = options;
+        self.telemetry.offer(&self.id, &self.envs[0]);
+        Ok(encode(&BatchResetReply {
+            v: PROTOCOL_VERSION,
+            observations: F64s(observations),
+            info: info_columns(&infos),
+        }))
+    }
+
+    pub fn step_batch(&mut self, actions: &[f64]) -> Result<Vec<u8>, ErrorReply> {
+        let n = self.envs.len();
+        let action_dim = self.spec.action_space.dim();
+        check_vector("actions", actions, n * action_dim)?;
+        let options = &self.reset_options;
+        let results: Vec<_> = self
+            .envs
+            .par_iter_mut()
+            .with_min_len(BATCH_CHUNK)
+            .zip(actions.par_chunks(action_dim.max(1)))
+            .map(|(slot, action)| slot.step_autoreset(action, options))
+            .collect();
+        let mut observations = Vec::with_capacity(n * self.observation_dim());
+        let mut rewards = Vec::with_capacity(n);
+        let mut terminated = Vec::with_capacity(n);
+        let mut truncated = Vec::with_capacity(n);
+        let mut infos = Vec::with_capacity(n);
+        for (i, result) in results.into_iter().enumerate() {
+            let step = result.map_err(|e| in_env(i, e))?;
+            observations.extend_from_slice(&step.observation);
+            rewards.push(step.reward);
+            terminated.push(u8::from(step.terminated));
+            truncated.push(u8::from(step.truncated));
+            infos.push(step.info);
+        }
+        self.telemetry.offer(&self.id, &self.envs[0]);
+        Ok(encode(&BatchStepReply {
+            v: PROTOCOL_VERSION,
+            observations: F64s(observations),
+            rewards: F64s(rewards),
+            terminated: ByteBuf::from(terminated),
+            truncated: ByteBuf::from(truncated),
+            info: info_columns(&infos),
+        }))
+    }
+
+    pub fn expert(&mut self, index: u32) -> Result<Vec<u8>, ErrorReply> {
+        let action = self.slot(index)?.env.expert_action()?;
+        Ok(encode(&ActionReply {
+            v: PROTOCOL_VERSION,
+            action: F64s(action),
+        }))
+    }
+
+    pub fn set_context(&mut self, request: &ContextRequest) -> Result<Vec<u8>, ErrorReply> {
+        let context_dim = self.spec.context_space.dim();
+        check_vector("context", &request.context.0, context_dim)?;
+        let slot = self.slot(request.index)?;
+        slot.env.set_context(&request.context.0)?;
+        let split = slot.observation.len().saturating_sub(context_dim);
+        if slot.observation.len() >= context_dim {
+            slot.observation[split..].copy_from_slice(&request.context.0);
+        }
+        Ok(encode(&AckReply {
+            v: PROTOCOL_VERSION,
+            time: slot.time(),
+        }))
+    }
+
+    pub fn perturb(&mut self, request: PerturbRequest) -> Result<Vec<u8>, ErrorReply> {
+        let slot = self.slot(request.index)?;
+        let now = slot.time();
+        let message = request.perturbation;
+        let start = message.start.unwrap_or(now);
+        if !(start.is_finite() && message.duration.is_finite() && message.duration >= 0.0) {
+            return Err(ErrorReply::new(
+                ErrorCode::OutOfBounds,
+                "perturbation start and duration must be finite, duration ≥ 0",
+            ));
+        }
+        let kind = match message.kind {
+            PerturbationKindMsg::JointTorque { torque } => {
+                if torque.iter().any(|t| !t.is_finite()) {
+                    return Err(EnvError::NotFinite { what: "torque" }.into());
+                }
+                PerturbationKind::JointTorque(torque)
+            }
+            PerturbationKindMsg::LinkWrench {
+                link,
+                force,
+                torque,
+            } => {
+                if force.iter().chain(&torque).any(|v| !v.is_finite()) {
+                    return Err(EnvError::NotFinite { what: "wrench" }.into());
+                }
+                PerturbationKind::LinkWrench {
+                    link: link as usize,
+                    force,
+                    torque,
+                }
+            }
+        };
+        slot.env.perturb(Perturbation {
+            kind,
+            start,
+            duration: message.duration,
+        })?;
+        Ok(encode(&AckReply {
+            v: PROTOCOL_VERSION,
+            time: now,
+        }))
+    }
+
+    /// Renders environment `index`; returns the frame's header and RGB bytes.
+    pub fn render(
+        &mut self,
+        index: u32,
+        width: u32,
+        height: u32,
+    ) -> Result<(FrameHeader, Vec<u8>), ErrorReply> {
+        const MAX_SIDE: u32 = 4096;
+        if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
+            return Err(ErrorReply::new(
+                ErrorCode::OutOfBounds,
+                format!("frame size {width}×{height} outside 1..={MAX_SIDE}"),
+            ));
+        }
+        let pixels = self.slot(index)?.env.render(width, height)?;
+        self.frames += 1;
+        Ok((
+            FrameHeader {
+                id: self.frames,
+                width,
+                height,
+            },
+            pixels,
+        ))
+    }
+
+    pub fn time(&self) -> f64 {
+        self.envs[0].time()
+    }
+
+    fn observation_dim(&self) -> usize {
+        self.spec.observation_space.dim()
+    }
+}
+
+fn in_env(index: usize, error: EnvError) -> ErrorReply {
+    let mut reply = ErrorReply::from(error);
+    reply.message = format!("environment {index}: {}", reply.message);
+    reply
+}
+
+/// Gymnasium-style vector info: key → one value per environment, NaN where missing.
+fn info_columns(infos: &[Info]) -> BTreeMap<String, F64s> {
+    let mut columns: BTreeMap<String, F64s> = BTreeMap::new();
+    for (i, info) in infos.iter().enumerate() {
+        for (key, value) in info {
+            let column = columns
+                .entry(key.clone())
+                .or_insert_with(|| F64s(vec![f64::NAN; infos.len()]));
+            column.0[i] = *value;
+        }
+    }
+    columns
+}

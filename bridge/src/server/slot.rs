@@ -1,0 +1,117 @@
+//! One environment inside a session, with the bookkeeping the protocol reports: simulated
+//! time, the last command, and whether the episode ended (for next-step autoreset).
+
+use ciflow_envs::{Env, EnvError, Info, ResetOptions, Step};
+
+pub(crate) struct EnvSlot {
+    pub env: Box<dyn Env>,
+    /// Control periods since the last reset.
+    pub steps: u64,
+    /// The last action applied (zeros after a reset).
+    pub command: Vec<f64>,
+    pub observation: Vec<f64>,
+    pub reward: f64,
+    /// `true` after a step that terminated or truncated, until the next reset.
+    pub episode_over: bool,
+}
+
+impl EnvSlot {
+    pub fn new(env: Box<dyn Env>) -> Self {
+        let action_dim = env.spec().action_space.dim();
+        Self {
+            env,
+            steps: 0,
+            command: vec![0.0; action_dim],
+            observation: Vec::new(),
+            reward: 0.0,
+            episode_over: false,
+        }
+    }
+
+    /// Simulated seconds since the reset: `steps · control_dt`.
+    pub fn time(&self) -> f64 {
+        self.steps as f64 * self.env.spec().control_dt
+    }
+
+    pub fn reset(
+        &mut self,
+        seed: Option<u64>,
+        options: &ResetOptions,
+    ) -> Result<(Vec<f64>, Info), EnvError> {
+        let (observation, info) = self.env.reset(seed, options)?;
+        self.steps = 0;
+        self.command.iter_mut().for_each(|c| *c = 0.0);
+        self.observation.clone_from(&observation);
+        self.reward = 0.0;
+        self.episode_over = false;
+        Ok((observation, info))
+    }
+
+    /// One control period. The action is checked here too, so that a task that forgets a
+    /// check still answers with a typed error.
+    pub fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
+        check_vector("action", action, self.command.len())?;
+        if self.episode_over {
+            return Err(EnvError::NeedsReset);
+        }
+        let step = self.env.step(action)?;
+        self.steps += 1;
+        self.command.copy_from_slice(action);
+        self.observation.clone_from(&step.observation);
+        self.reward = step.reward;
+        self.episode_over = step.terminated || step.truncated;
+        Ok(step)
+    }
+
+    /// A step with Gymnasium's next-step autoreset: if the previous step ended the
+    /// episode, the action is ignored and the environment resets instead (RNG continuing).
+    pub fn step_autoreset(
+        &mut self,
+        action: &[f64],
+        options: &ResetOptions,
+    ) -> Result<Step, EnvError> {
+        if !self.episode_over {
+            return self.step(action);
+        }
+        let (observation, info) = self.reset(None, options)?;
+        Ok(Step {
+            observation,
+            reward: 0.0,
+            terminated: false,
+            truncated: false,
+            info,
+        })
+    }
+
+    /// The context: the tail of the observation, as [`ciflow_envs::EnvSpec`] defines it.
+    pub fn context(&self) -> &[f64] {
+        let context_dim = self.env.spec().context_space.dim();
+        let split = self.observation.len().saturating_sub(context_dim);
+        &self.observation[split..]
+    }
+
+    /// The observation without its context tail.
+    pub fn state(&self) -> &[f64] {
+        let context_dim = self.env.spec().context_space.dim();
+        &self.observation[..self.observation.len().saturating_sub(context_dim)]
+    }
+}
+
+/// `values` must have `expected` finite elements.
+pub(crate) fn check_vector(
+    what: &'static str,
+    values: &[f64],
+    expected: usize,
+) -> Result<(), EnvError> {
+    if values.len() != expected {
+        return Err(EnvError::WrongDimension {
+            what,
+            expected,
+            got: values.len(),
+        });
+    }
+    if values.iter().any(|v| !v.is_finite()) {
+        return Err(EnvError::NotFinite { what });
+    }
+    Ok(())
+}

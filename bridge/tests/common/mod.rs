@@ -1,0 +1,159 @@
+//! Shared set-up of the bridge's tests: an engine and clients on a private loopback port,
+//! and `Fixture`, a tiny test-only task whose behaviour the tests know exactly (short
+//! episodes for autoreset, a deliberate panic for crash containment).
+
+#![allow(dead_code)]
+
+use std::sync::Arc;
+
+use ciflow_bridge::{Client, EngineServer, NetworkOptions, Role, ServerOptions, TaskFactory};
+use ciflow_engine::sim::Perturbation;
+use ciflow_envs::{BoxSpace, Dtype, Env, EnvError, EnvSpec, Info, ResetOptions, Step};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+pub const FIXTURE_ID: &str = "test/Fixture-v0";
+/// An action whose first element is this value makes the fixture panic.
+pub const PANIC_ACTION: f64 = 12345.0;
+pub const EPISODE_STEPS: u64 = 5;
+
+/// A 1-D integrator `x ← x + a·dt` with context `c` (observation `[x, c]`), truncated
+/// after [`EPISODE_STEPS`] steps; reward `-|x - c|`.
+pub struct Fixture {
+    spec: EnvSpec,
+    rng: ChaCha8Rng,
+    x: f64,
+    context: f64,
+    steps: u64,
+    pub perturbations: Vec<Perturbation>,
+}
+
+impl Fixture {
+    pub fn new() -> Self {
+        let unbounded = || BoxSpace::new(vec![-1e9], vec![1e9], Dtype::Float64);
+        Self {
+            spec: EnvSpec {
+                id: FIXTURE_ID.into(),
+                observation_space: BoxSpace::new(vec![-1e9, -1.0], vec![1e9, 1.0], Dtype::Float64),
+                action_space: unbounded(),
+                context_space: BoxSpace::new(vec![-1.0], vec![1.0], Dtype::Float64),
+                control_dt: 0.1,
+                physics_dt: 0.1,
+                max_episode_steps: EPISODE_STEPS as u32,
+            },
+            rng: ChaCha8Rng::seed_from_u64(0),
+            x: 0.0,
+            context: 0.0,
+            steps: 0,
+            perturbations: Vec::new(),
+        }
+    }
+
+    fn observation(&self) -> Vec<f64> {
+        vec![self.x, self.context]
+    }
+}
+
+impl Env for Fixture {
+    fn spec(&self) -> &EnvSpec {
+        &self.spec
+    }
+
+    fn reset(
+        &mut self,
+        seed: Option<u64>,
+        options: &ResetOptions,
+    ) -> Result<(Vec<f64>, Info), EnvError> {
+        if let Some(seed) = seed {
+            self.rng = ChaCha8Rng::seed_from_u64(seed);
+        }
+        self.context = match &options.context {
+            Some(c) => {
+                self.spec.context_space.check("context", c)?;
+                c[0]
+            }
+            None => self.rng.random_range(-1.0..1.0),
+        };
+        self.x = self.rng.random_range(-1.0..1.0);
+        self.steps = 0;
+        let mut info = Info::new();
+        info.insert("reset".into(), 1.0);
+        Ok((self.observation(), info))
+    }
+
+    fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
+        self.spec.action_space.check("action", action)?;
+        assert!(action[0] != PANIC_ACTION, "fixture asked to panic");
+        self.x += action[0] * self.spec.control_dt;
+        self.steps += 1;
+        let mut info = Info::new();
+        info.insert("distance".into(), (self.x - self.context).abs());
+        Ok(Step {
+            observation: self.observation(),
+            reward: -(self.x - self.context).abs(),
+            terminated: false,
+            truncated: self.steps >= EPISODE_STEPS,
+            info,
+        })
+    }
+
+    fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
+        Ok(vec![(self.context - self.x) / self.spec.control_dt])
+    }
+
+    fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
+        self.spec.context_space.check("context", context)?;
+        self.context = context[0];
+        Ok(())
+    }
+
+    fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError> {
+        self.perturbations.push(perturbation);
+        Ok(())
+    }
+
+    fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
+        let shade = ((self.x.tanh() + 1.0) * 127.0) as u8;
+        Ok(vec![shade; (width * height * 3) as usize])
+    }
+}
+
+pub fn fixture_task() -> TaskFactory {
+    TaskFactory {
+        id: FIXTURE_ID.into(),
+        name: "fixture".into(),
+        make: Arc::new(|_| Ok(Box::new(Fixture::new()) as Box<dyn Env>)),
+    }
+}
+
+pub fn endpoint(port: u16) -> String {
+    format!("tcp/127.0.0.1:{port}")
+}
+
+/// An engine serving the fixture (and the registered tasks) on `port`.
+pub fn start_engine(port: u16) -> EngineServer {
+    let mut options = ServerOptions::default();
+    options.tasks.push(fixture_task());
+    options.name = Some(format!("test-{port}"));
+    EngineServer::open(
+        &NetworkOptions::endpoint(Role::Engine, &endpoint(port)),
+        options,
+    )
+    .expect("engine starts")
+}
+
+pub fn connect(port: u16) -> Client {
+    Client::open(&NetworkOptions::endpoint(Role::Client, &endpoint(port))).expect("client connects")
+}
+
+/// Polls `condition` for up to `seconds`.
+pub fn eventually(seconds: f64, mut condition: impl FnMut() -> bool) -> bool {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs_f64(seconds);
+    while std::time::Instant::now() < deadline {
+        if condition() {
+            return true;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    condition()
+}

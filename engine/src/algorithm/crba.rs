@@ -1,0 +1,36 @@
+//! The composite rigid-body algorithm (CRBA): the joint-space inertia matrix `M(q)`.
+//! Featherstone (2008), Table 6.2: `Mᵢⱼ = Sⱼᵀ ʲXᵢ* Iᶜᵢ Sᵢ` for `j ⪯ i`, with the composite
+//! inertia `Iᶜᵢ = Iᵢ + Σ_children Iᶜ`.
+
+use super::{DynamicsError, check_vector};
+use crate::math::{DMatrix, Real};
+use crate::model::{Data, Model};
+
+/// The joint-space inertia matrix `M(q)` (n × n, both triangles filled) into `data.m`.
+pub fn crba<'d>(
+    model: &Model,
+    data: &'d mut Data,
+    q: &[Real],
+) -> Result<&'d DMatrix, DynamicsError> {
+    check_vector("q", q, model.nv())?;
+    let bodies = model.bodies();
+    for (i, body) in bodies.iter().enumerate() {
+        data.li_m_i[i] = body.joint.transform(q[i]);
+        data.ycrb[i] = body.inertia;
+    }
+    for i in (0..bodies.len()).rev() {
+        let mut force = data.ycrb[i] * bodies[i].joint.motion_subspace();
+        data.m[(i, i)] = bodies[i].joint.axis.dot(&force.angular);
+        for j in (0..i).rev() {
+            force = data.li_m_i[j + 1].act_force(&force);
+            let m_ij = bodies[j].joint.axis.dot(&force.angular);
+            data.m[(i, j)] = m_ij;
+            data.m[(j, i)] = m_ij;
+        }
+        if i > 0 {
+            let composite = data.li_m_i[i].act_inertia(&data.ycrb[i]);
+            data.ycrb[i - 1] += composite;
+        }
+    }
+    Ok(&data.m)
+}

@@ -1,0 +1,43 @@
+//! Forward kinematics.
+
+use super::{DynamicsError, check_vector};
+use crate::math::Real;
+use crate::model::{Data, Model};
+use crate::spatial::Se3;
+
+/// Places every body: `ᵖMᵢ = placementᵢ · Rot(axisᵢ, qᵢ)` into `data.li_m_i` and
+/// `⁰Mᵢ = ⁰Mₚ ᵖMᵢ` into `data.o_m_i`.
+pub fn forward_kinematics(model: &Model, data: &mut Data, q: &[Real]) -> Result<(), DynamicsError> {
+    check_vector("q", q, model.nv())?;
+    let mut o_m_i = Se3::identity();
+    for (i, body) in model.bodies().iter().enumerate() {
+        let li_m_i = body.joint.transform(q[i]);
+        o_m_i = o_m_i * li_m_i;
+        data.li_m_i[i] = li_m_i;
+        data.o_m_i[i] = o_m_i;
+    }
+    Ok(())
+}
+
+/// The placement `⁰M_f(q)` of frame `frame` in the base frame, walking the chain only up
+/// to the frame's body (no workspace needed).
+pub fn frame_placement(model: &Model, q: &[Real], frame: usize) -> Result<Se3, DynamicsError> {
+    check_vector("q", q, model.nv())?;
+    let frames = model.frames();
+    let frame = frames.get(frame).ok_or(DynamicsError::NoSuchFrame {
+        index: frame,
+        count: frames.len(),
+    })?;
+    Ok(body_placement(model, q, frame.body) * frame.placement)
+}
+
+/// `⁰M_b(q)` of body `body` (`None`: the base); `q` already checked.
+pub(crate) fn body_placement(model: &Model, q: &[Real], body: Option<usize>) -> Se3 {
+    let count = body.map_or(0, |b| b + 1);
+    model.bodies()[..count]
+        .iter()
+        .zip(q)
+        .fold(Se3::identity(), |o_m, (body, &qi)| {
+            o_m * body.joint.transform(qi)
+        })
+}

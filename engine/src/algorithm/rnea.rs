@@ -1,0 +1,94 @@
+//! The recursive Newton–Euler algorithm (RNEA): inverse dynamics
+//! `τ = M(q) q̈ + C(q, q̇) q̇ + g(q)`, and its special cases `C q̇ + g` (q̈ = 0) and `g`
+//! (q̇ = q̈ = 0). Featherstone (2008), Table 5.1, in body coordinates; gravity enters as
+//! the base acceleration `a₀ = −g`.
+
+use super::{DynamicsError, check_vector};
+use crate::math::{DVector, Real, Vector3};
+use crate::model::{Data, Model};
+use crate::spatial::Motion;
+
+/// Inverse dynamics `τ = M(q) q̈ + C(q, q̇) q̇ + g(q)` (all of dimension n) into `data.tau`.
+pub fn rnea<'d>(
+    model: &Model,
+    data: &'d mut Data,
+    q: &[Real],
+    qd: &[Real],
+    qdd: &[Real],
+) -> Result<&'d DVector, DynamicsError> {
+    check_vector("q", q, model.nv())?;
+    check_vector("qd", qd, model.nv())?;
+    check_vector("qdd", qdd, model.nv())?;
+    newton_euler(model, data, q, Some(qd), Some(qdd));
+    Ok(&data.tau)
+}
+
+/// Nonlinear effects `b(q, q̇) = C(q, q̇) q̇ + g(q)` = RNEA with `q̈ = 0`, into `data.nle`.
+pub fn nonlinear_effects<'d>(
+    model: &Model,
+    data: &'d mut Data,
+    q: &[Real],
+    qd: &[Real],
+) -> Result<&'d DVector, DynamicsError> {
+    check_vector("q", q, model.nv())?;
+    check_vector("qd", qd, model.nv())?;
+    newton_euler(model, data, q, Some(qd), None);
+    data.nle.copy_from(&data.tau);
+    Ok(&data.nle)
+}
+
+/// Generalized gravity `g(q)` = RNEA with `q̇ = q̈ = 0`, into `data.g`.
+pub fn generalized_gravity<'d>(
+    model: &Model,
+    data: &'d mut Data,
+    q: &[Real],
+) -> Result<&'d DVector, DynamicsError> {
+    check_vector("q", q, model.nv())?;
+    newton_euler(model, data, q, None, None);
+    data.g.copy_from(&data.tau);
+    Ok(&data.g)
+}
+
+/// The two passes of the RNEA into `data.tau`; a missing `qd` / `qdd` counts as zero.
+/// Inputs are already checked.
+fn newton_euler(
+    model: &Model,
+    data: &mut Data,
+    q: &[Real],
+    qd: Option<&[Real]>,
+    qdd: Option<&[Real]>,
+) {
+    let bodies = model.bodies();
+    let base_acceleration = Motion::new(-model.gravity(), Vector3::zeros());
+    for (i, body) in bodies.iter().enumerate() {
+        let li_m_i = body.joint.transform(q[i]);
+        let s = body.joint.motion_subspace();
+        let (mut v, mut a) = match i {
+            0 => (Motion::zero(), li_m_i.act_inv_motion(&base_acceleration)),
+            _ => (
+                li_m_i.act_inv_motion(&data.v[i - 1]),
+                li_m_i.act_inv_motion(&data.a[i - 1]),
+            ),
+        };
+        if let Some(qd) = qd {
+            let joint_velocity = s * qd[i];
+            v += joint_velocity;
+            a += v.cross(&joint_velocity);
+        }
+        if let Some(qdd) = qdd {
+            a += s * qdd[i];
+        }
+        let inertia = body.inertia;
+        data.f[i] = inertia * a + v.cross_force(&(inertia * v));
+        data.li_m_i[i] = li_m_i;
+        data.v[i] = v;
+        data.a[i] = a;
+    }
+    for i in (0..bodies.len()).rev() {
+        data.tau[i] = bodies[i].joint.axis.dot(&data.f[i].angular);
+        if i > 0 {
+            let f_parent = data.li_m_i[i].act_force(&data.f[i]);
+            data.f[i - 1] += f_parent;
+        }
+    }
+}

@@ -1,0 +1,359 @@
+//! The JSON half of a checkpoint: architecture, dimensions, normalisation, latent type,
+//! task name. The other half, `weights.safetensors`, holds the parameters named by
+//! [`FlowConfig::parameter_shapes`] / [`BaselineConfig::parameter_shapes`].
+
+use serde::{Deserialize, Serialize};
+
+use super::error::{FlowError, FlowResult};
+use super::mlp::mlp_parameter_shapes;
+
+/// Minimum bin width / height and knot derivative of the rational-quadratic spline
+/// (the defaults of Durkan et al. 2019).
+pub const SPLINE_MIN_BIN: f64 = 1e-3;
+pub const SPLINE_MIN_DERIVATIVE: f64 = 1e-3;
+
+/// The element-wise transform of a coupling layer.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum CouplingKind {
+    /// `y = x·e^s + t` with `s = B·tanh(ŝ/B)`, so `|log-scale| < B` everywhere.
+    Affine { scale_bound: f64 },
+    /// Monotone rational-quadratic spline on `[-B, B]` with `bins` bins, identity outside.
+    Spline { bins: usize, tail_bound: f64 },
+}
+
+impl CouplingKind {
+    /// Conditioner outputs per transformed dimension.
+    pub fn params_per_dim(&self) -> usize {
+        match self {
+            Self::Affine { .. } => 2,
+            Self::Spline { bins, .. } => 3 * bins - 1,
+        }
+    }
+}
+
+/// The latent attractor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LatentKind {
+    /// A fixed point at the origin: `z_{k+1} = exp(A·dt) z_k + ε`.
+    GoTo,
+    /// A circle of radius `ρ*` in the first two latent dimensions, a fixed point in the rest.
+    LimitCycle,
+}
+
+/// Affine normalisation `x = mean + std ⊙ x̃` of states and contexts; part of the model.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Normalisation {
+    pub state_mean: Vec<f64>,
+    pub state_std: Vec<f64>,
+    pub context_mean: Vec<f64>,
+    pub context_std: Vec<f64>,
+}
+
+impl Normalisation {
+    pub fn identity(state_dim: usize, context_dim: usize) -> Self {
+        Self {
+            state_mean: vec![0.0; state_dim],
+            state_std: vec![1.0; state_dim],
+            context_mean: vec![0.0; context_dim],
+            context_std: vec![1.0; context_dim],
+        }
+    }
+
+    fn validate(&self, state_dim: usize, context_dim: usize) -> FlowResult<()> {
+        for (name, v, n, positive) in [
+            ("state_mean", &self.state_mean, state_dim, false),
+            ("state_std", &self.state_std, state_dim, true),
+            ("context_mean", &self.context_mean, context_dim, false),
+            ("context_std", &self.context_std, context_dim, true),
+        ] {
+            if v.len() != n {
+                return Err(invalid(format!("normalisation.{name} has {} entries, expected {n}", v.len())));
+            }
+            if v.iter().any(|x| !x.is_finite() || (positive && *x <= 0.0)) {
+                return Err(invalid(format!("normalisation.{name} must be finite{}", if positive { " and > 0" } else { "" })));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The demonstrations' bounding box; the stability check samples starts around it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Bounds {
+    pub state_min: Vec<f64>,
+    pub state_max: Vec<f64>,
+    pub context_min: Vec<f64>,
+    pub context_max: Vec<f64>,
+}
+
+impl Bounds {
+    fn validate(&self, state_dim: usize, context_dim: usize) -> FlowResult<()> {
+        for (name, lo, hi, n) in [
+            ("state", &self.state_min, &self.state_max, state_dim),
+            ("context", &self.context_min, &self.context_max, context_dim),
+        ] {
+            if lo.len() != n || hi.len() != n {
+                return Err(invalid(format!("bounds.{name}_min/max need {n} entries")));
+            }
+            if lo.iter().zip(hi).any(|(a, b)| !a.is_finite() || !b.is_finite() || a > b) {
+                return Err(invalid(format!("bounds.{name}_min must be finite and <= {name}_max")));
+            }
+        }
+        Ok(())
+    }
+
+    /// Length of the state box's diagonal: the unit of the stability tolerances.
+    pub fn state_diagonal(&self) -> f64 {
+        self.state_min
+            .iter()
+            .zip(&self.state_max)
+            .map(|(a, b)| (b - a) * (b - a))
+            .sum::<f64>()
+            .sqrt()
+    }
+}
+
+/// Architecture and data description of a conditioned ImitationFlow
+/// `y = f(z, c)`, `z_{k+1} ~ p(z_{k+1} | z_k)`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FlowConfig {
+    /// Name of the task the policy was trained for; loading checks it.
+    pub task: String,
+    /// `d`, the dimension of `y` and `z`.
+    pub state_dim: usize,
+    /// `m`, the dimension of `c` (0: the unconditioned ImitationFlow).
+    pub context_dim: usize,
+    /// Sampling period of the transitions, in seconds.
+    pub dt: f64,
+    pub latent: LatentKind,
+    /// `ε` in `A = -(L Lᵀ + ε I) + (W - Wᵀ)`: the guaranteed latent contraction rate (1/s).
+    pub min_rate: f64,
+    pub coupling: CouplingKind,
+    /// Number of (mixing, coupling) blocks.
+    pub layers: usize,
+    /// Hidden widths of each conditioner MLP.
+    pub hidden: Vec<usize>,
+    /// For go-to tasks whose target is part of the context: `target(c) = c[indices]`
+    /// (raw units, one index per state dimension); the attractor then sits on it.
+    #[serde(default)]
+    pub goal_context_indices: Option<Vec<usize>>,
+    pub normalisation: Normalisation,
+    pub bounds: Bounds,
+}
+
+impl FlowConfig {
+    /// A configuration with identity normalisation and unit bounds, for tests and benches.
+    pub fn new(
+        task: &str,
+        state_dim: usize,
+        context_dim: usize,
+        latent: LatentKind,
+        coupling: CouplingKind,
+        layers: usize,
+        hidden: Vec<usize>,
+    ) -> Self {
+        Self {
+            task: task.to_owned(),
+            state_dim,
+            context_dim,
+            dt: 0.01,
+            latent,
+            min_rate: 0.1,
+            coupling,
+            layers,
+            hidden,
+            goal_context_indices: None,
+            normalisation: Normalisation::identity(state_dim, context_dim),
+            bounds: Bounds {
+                state_min: vec![-1.0; state_dim],
+                state_max: vec![1.0; state_dim],
+                context_min: vec![-1.0; context_dim],
+                context_max: vec![1.0; context_dim],
+            },
+        }
+    }
+
+    /// Dimensions left unchanged by each coupling layer (they feed the conditioner).
+    pub fn kept_dim(&self) -> usize {
+        self.state_dim / 2
+    }
+
+    /// Dimensions each coupling layer transforms.
+    pub fn transformed_dim(&self) -> usize {
+        self.state_dim - self.kept_dim()
+    }
+
+    /// Layer sizes of the conditioner MLP: `[kept + m, hidden.., transformed · P]`.
+    pub fn conditioner_sizes(&self) -> Vec<usize> {
+        let mut sizes = vec![self.kept_dim() + self.context_dim];
+        sizes.extend(&self.hidden);
+        sizes.push(self.transformed_dim() * self.coupling.params_per_dim());
+        sizes
+    }
+
+    /// Dimension of the linear latent attractor (all of `z` for go-to, `z[2..]` for cycles).
+    pub fn linear_latent_dim(&self) -> usize {
+        match self.latent {
+            LatentKind::GoTo => self.state_dim,
+            LatentKind::LimitCycle => self.state_dim - 2,
+        }
+    }
+
+    /// Every parameter's name and shape, as the trainer's `VarStore` names them.
+    pub fn parameter_shapes(&self) -> Vec<(String, Vec<usize>)> {
+        let d = self.state_dim;
+        let mut shapes = Vec::new();
+        for i in 0..self.layers {
+            let prefix = format!("layers.{i}");
+            shapes.push((format!("{prefix}.mixing.lower"), vec![d, d]));
+            shapes.push((format!("{prefix}.mixing.upper"), vec![d, d]));
+            shapes.push((format!("{prefix}.mixing.log_diag"), vec![d]));
+            shapes.push((format!("{prefix}.mixing.bias"), vec![d]));
+            shapes.extend(mlp_parameter_shapes(
+                &format!("{prefix}.conditioner"),
+                &self.conditioner_sizes(),
+            ));
+        }
+        shapes.push(("latent.log_sigma".into(), vec![d]));
+        shapes.push(("latent.log_sigma0".into(), vec![d]));
+        let r = self.linear_latent_dim();
+        if r > 0 {
+            shapes.push(("latent.factor".into(), vec![r, r]));
+            shapes.push(("latent.skew".into(), vec![r, r]));
+        }
+        if self.latent == LatentKind::LimitCycle {
+            for name in ["log_radius", "log_rate", "omega"] {
+                shapes.push((format!("latent.{name}"), vec![1]));
+            }
+        }
+        shapes
+    }
+
+    pub fn validate(&self) -> FlowResult<()> {
+        let (d, m) = (self.state_dim, self.context_dim);
+        if d < 2 {
+            return Err(invalid("state_dim must be at least 2".into()));
+        }
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            return Err(invalid("dt must be finite and > 0".into()));
+        }
+        if !(self.min_rate.is_finite() && self.min_rate > 0.0) {
+            return Err(invalid("min_rate must be finite and > 0".into()));
+        }
+        if self.layers == 0 || self.hidden.is_empty() || self.hidden.contains(&0) {
+            return Err(invalid("layers and hidden widths must be >= 1".into()));
+        }
+        match self.coupling {
+            CouplingKind::Affine { scale_bound } if !(scale_bound.is_finite() && scale_bound > 0.0) => {
+                return Err(invalid("affine scale_bound must be finite and > 0".into()));
+            }
+            CouplingKind::Spline { bins, tail_bound }
+                if bins < 2
+                    || !(tail_bound.is_finite() && tail_bound > 0.0)
+                    || (bins as f64) * SPLINE_MIN_BIN >= 1.0 =>
+            {
+                return Err(invalid("spline needs bins in [2, 999] and a finite tail_bound > 0".into()));
+            }
+            _ => {}
+        }
+        if let Some(indices) = &self.goal_context_indices {
+            if self.latent != LatentKind::GoTo {
+                return Err(invalid("goal_context_indices needs a go_to latent".into()));
+            }
+            if indices.len() != d || indices.iter().any(|&i| i >= m) {
+                return Err(invalid(format!(
+                    "goal_context_indices needs {d} indices into a context of dimension {m}"
+                )));
+            }
+        }
+        self.normalisation.validate(d, m)?;
+        self.bounds.validate(d, m)
+    }
+}
+
+/// The negative control for stability: unconstrained behaviour cloning
+/// `ỹ_{k+1} = ỹ_k + dt · MLP(ỹ_k, c̃)` in normalised coordinates.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BaselineConfig {
+    pub task: String,
+    pub state_dim: usize,
+    pub context_dim: usize,
+    pub dt: f64,
+    pub hidden: Vec<usize>,
+    /// The attractor the demonstrations go to: `c[indices]` or a fixed state (raw units).
+    pub goal: Goal,
+    pub normalisation: Normalisation,
+    pub bounds: Bounds,
+}
+
+/// Where a go-to task's attractor is, for models that have none built in.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum Goal {
+    ContextIndices { indices: Vec<usize> },
+    State { value: Vec<f64> },
+}
+
+impl BaselineConfig {
+    pub fn mlp_sizes(&self) -> Vec<usize> {
+        let mut sizes = vec![self.state_dim + self.context_dim];
+        sizes.extend(&self.hidden);
+        sizes.push(self.state_dim);
+        sizes
+    }
+
+    pub fn parameter_shapes(&self) -> Vec<(String, Vec<usize>)> {
+        mlp_parameter_shapes("net", &self.mlp_sizes())
+    }
+
+    pub fn validate(&self) -> FlowResult<()> {
+        let (d, m) = (self.state_dim, self.context_dim);
+        if d == 0 || !(self.dt.is_finite() && self.dt > 0.0) {
+            return Err(invalid("state_dim must be >= 1 and dt finite and > 0".into()));
+        }
+        if self.hidden.is_empty() || self.hidden.contains(&0) {
+            return Err(invalid("hidden widths must be >= 1".into()));
+        }
+        match &self.goal {
+            Goal::ContextIndices { indices } if indices.len() != d || indices.iter().any(|&i| i >= m) => {
+                return Err(invalid(format!("goal needs {d} indices into a context of dimension {m}")));
+            }
+            Goal::State { value } if value.len() != d || value.iter().any(|v| !v.is_finite()) => {
+                return Err(invalid(format!("goal state needs {d} finite entries")));
+            }
+            _ => {}
+        }
+        self.normalisation.validate(d, m)?;
+        self.bounds.validate(d, m)
+    }
+}
+
+/// What `config.json` holds: one of the two model families.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "model", rename_all = "snake_case")]
+pub enum CheckpointConfig {
+    Flow(FlowConfig),
+    MlpBaseline(BaselineConfig),
+}
+
+impl CheckpointConfig {
+    pub fn task(&self) -> &str {
+        match self {
+            Self::Flow(c) => &c.task,
+            Self::MlpBaseline(c) => &c.task,
+        }
+    }
+
+    pub fn model_name(&self) -> &'static str {
+        match self {
+            Self::Flow(_) => "flow",
+            Self::MlpBaseline(_) => "mlp_baseline",
+        }
+    }
+}
+
+fn invalid(message: String) -> FlowError {
+    FlowError::InvalidConfig(message)
+}

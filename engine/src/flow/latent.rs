@@ -1,0 +1,258 @@
+//! Latent stochastic dynamics whose noise-free part is globally asymptotically stable in
+//! discrete time for every parameter value.
+//!
+//! **Linear attractor** (go-to, and the non-cycle dimensions of a limit cycle):
+//! `A = -(F Fᵀ + ε I) + (W_l - W_lᵀ)` with `W_l` the strictly lower part of `W`. The
+//! symmetric part of `A` is `≤ -ε I`, so `‖exp(A t)‖₂ ≤ e^{-ε t}`: the exact step
+//! `z_{k+1} = Φ z_k`, `Φ = exp(A dt)`, is a contraction in the Euclidean norm — unlike an
+//! Euler step `I + A dt`, which a Hurwitz `A` does not keep stable.
+//!
+//! **Limit cycle** in `(z₀, z₁)` with polar coordinates `(ρ, ψ)`: the exact flow of
+//! `ρ̇ = α (ρ - ρ*)`, `ψ̇ = ω` over `dt`,
+//! `ρ_{k+1} = ρ* + (ρ_k - ρ*) e^{α dt}`, `ψ_{k+1} = ψ_k + ω dt`, with `α = -e^{a} < 0` and
+//! `ρ* = e^{r} > 0`. Every start (the origin included: it is mapped to `ρ = ρ*(1 - e^{α dt})`)
+//! converges to the circle `ρ = ρ*`.
+//!
+//! **Noise** is Gaussian in Cartesian latent coordinates around the mean next state,
+//! `z_{k+1} ~ N(μ(z_k), diag σ²)`, so `p(z_{k+1} | z_k)` is an exact density. The
+//! `k`-step density is `N(μ^k(z), Σ_k)` with `μ^k` the exact noise-free `k`-step map and,
+//! on the linear part, the exact `Σ_k = Σ_{j<k} Φ^j Σ Φ^{jᵀ}`; on the cycle plane
+//! `Σ_k = k σ²` (random-walk accumulation — a model choice, since the `k`-fold composition
+//! of the polar step has no closed-form density). The initial state has `z₀ ~ N(0, diag σ₀²)`.
+
+use nalgebra::{Cholesky, DMatrix, DVector};
+use rand::Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+use super::config::{FlowConfig, LatentKind};
+use super::error::{FlowError, FlowResult};
+use super::scalar::Scalar;
+use super::weights::Weights;
+
+const LN_2PI: f64 = 1.837_877_066_409_345_5;
+
+/// Parameters of the polar limit cycle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Cycle {
+    /// `ρ* > 0`.
+    pub radius: f64,
+    /// `α < 0`.
+    pub rate: f64,
+    /// `ω` (rad/s).
+    pub omega: f64,
+}
+
+#[derive(Clone, Debug)]
+pub struct LatentDynamics {
+    kind: LatentKind,
+    dt: f64,
+    /// `A` of the linear part (`r × r`).
+    rate_matrix: DMatrix<f64>,
+    /// `Φ = exp(A dt)`.
+    transition: DMatrix<f64>,
+    sigma: Vec<f64>,
+    sigma0: Vec<f64>,
+    cycle: Option<Cycle>,
+}
+
+/// `A = -(F Fᵀ + ε I) + (W_l - W_lᵀ)`.
+pub fn stable_rate_matrix(factor: &DMatrix<f64>, skew: &DMatrix<f64>, min_rate: f64) -> DMatrix<f64> {
+    let r = factor.nrows();
+    let lower = skew.lower_triangle() - DMatrix::from_diagonal(&skew.diagonal());
+    -(factor * factor.transpose() + DMatrix::identity(r, r) * min_rate) + &lower - lower.transpose()
+}
+
+impl LatentDynamics {
+    pub fn from_weights(config: &FlowConfig, weights: &mut Weights) -> FlowResult<Self> {
+        let d = config.state_dim;
+        let sigma = exp_all(weights.take("latent.log_sigma", &[d])?);
+        let sigma0 = exp_all(weights.take("latent.log_sigma0", &[d])?);
+        let r = config.linear_latent_dim();
+        let rate_matrix = if r > 0 {
+            let factor = DMatrix::from_row_slice(r, r, &weights.take("latent.factor", &[r, r])?);
+            let skew = DMatrix::from_row_slice(r, r, &weights.take("latent.skew", &[r, r])?);
+            stable_rate_matrix(&factor, &skew, config.min_rate)
+        } else {
+            DMatrix::zeros(0, 0)
+        };
+        let cycle = match config.latent {
+            LatentKind::GoTo => None,
+            LatentKind::LimitCycle => {
+                let mut scalar = |name: &str| weights.take(&format!("latent.{name}"), &[1]).map(|v| v[0]);
+                Some(Cycle {
+                    radius: scalar("log_radius")?.exp(),
+                    rate: -scalar("log_rate")?.exp(),
+                    omega: scalar("omega")?,
+                })
+            }
+        };
+        let transition = if r > 0 { (&rate_matrix * config.dt).exp() } else { DMatrix::zeros(0, 0) };
+        if transition.iter().any(|v| !v.is_finite()) {
+            return Err(FlowError::NonFinite { what: "latent transition matrix" });
+        }
+        Ok(Self {
+            kind: config.latent,
+            dt: config.dt,
+            rate_matrix,
+            transition,
+            sigma,
+            sigma0,
+            cycle,
+        })
+    }
+
+    pub fn kind(&self) -> LatentKind {
+        self.kind
+    }
+
+    pub fn cycle(&self) -> Option<Cycle> {
+        self.cycle
+    }
+
+    /// `Φ = exp(A dt)` of the linear part.
+    pub fn transition_matrix(&self) -> &DMatrix<f64> {
+        &self.transition
+    }
+
+    /// `A` of the linear part.
+    pub fn rate_matrix(&self) -> &DMatrix<f64> {
+        &self.rate_matrix
+    }
+
+    /// Noise standard deviations `σ`.
+    pub fn sigma(&self) -> &[f64] {
+        &self.sigma
+    }
+
+    /// First latent dimension of the linear part.
+    fn linear_start(&self) -> usize {
+        if self.cycle.is_some() { 2 } else { 0 }
+    }
+
+    /// Noise-free step `out = μ(z)`.
+    pub fn mean_step(&self, z: &[f64], out: &mut [f64]) {
+        let s = self.linear_start();
+        if let Some(cycle) = self.cycle {
+            let (rho, psi) = (z[0].hypot(z[1]), z[1].atan2(z[0]));
+            let rho_next = cycle.radius + (rho - cycle.radius) * (cycle.rate * self.dt).exp();
+            let psi_next = psi + cycle.omega * self.dt;
+            out[0] = rho_next * psi_next.cos();
+            out[1] = rho_next * psi_next.sin();
+        }
+        let r = self.transition.nrows();
+        for i in 0..r {
+            out[s + i] = (0..r).map(|j| self.transition[(i, j)] * z[s + j]).sum();
+        }
+    }
+
+    /// Sample `z_{k+1} ~ N(μ(z_k), diag σ²)`.
+    pub fn sample_step(&self, z: &[f64], rng: &mut impl Rng, out: &mut [f64]) {
+        self.mean_step(z, out);
+        for (o, s) in out.iter_mut().zip(&self.sigma) {
+            *o += s * Distribution::<f64>::sample(&StandardNormal, rng);
+        }
+    }
+
+    /// The continuous-time field `ż = v(z)` whose time-`dt` flow is [`mean_step`](Self::mean_step).
+    pub fn velocity<S: Scalar>(&self, z: &[S], out: &mut [S]) {
+        let s = self.linear_start();
+        if let Some(cycle) = self.cycle {
+            let rho = (z[0] * z[0] + z[1] * z[1]).sqrt();
+            let psi = z[1].atan2(z[0]);
+            let rho_dot = (rho + (-cycle.radius)) * cycle.rate;
+            out[0] = rho_dot * psi.cos() - z[1] * cycle.omega;
+            out[1] = rho_dot * psi.sin() + z[0] * cycle.omega;
+        }
+        let r = self.rate_matrix.nrows();
+        for i in 0..r {
+            let mut acc = S::constant(0.0);
+            for j in 0..r {
+                acc += z[s + j] * self.rate_matrix[(i, j)];
+            }
+            out[s + i] = acc;
+        }
+    }
+
+    /// The point of the attractor `z` is heading to: the origin, or on the cycle
+    /// `(ρ* cos ψ, ρ* sin ψ, 0, …)`.
+    pub fn project_onto_attractor(&self, z: &[f64], out: &mut [f64]) {
+        out.fill(0.0);
+        if let Some(cycle) = self.cycle {
+            let psi = z[1].atan2(z[0]);
+            out[0] = cycle.radius * psi.cos();
+            out[1] = cycle.radius * psi.sin();
+        }
+    }
+
+    /// `log N(z_next; μ(z), diag σ²)`, allocation-free.
+    pub fn log_transition(&self, z: &[f64], z_next: &[f64], mean: &mut [f64]) -> f64 {
+        self.mean_step(z, mean);
+        diagonal_gaussian_log_density(z_next, mean, &self.sigma)
+    }
+
+    /// `log N(z_k; μ^k(z), Σ_k)` of the `horizon`-step transition (see the module docs).
+    pub fn log_transition_multi(&self, z: &[f64], z_next: &[f64], horizon: usize) -> FlowResult<f64> {
+        if horizon == 0 {
+            return Err(FlowError::InvalidConfig("transition horizon must be >= 1".into()));
+        }
+        let d = z.len();
+        let mut mean = z.to_vec();
+        let mut next = vec![0.0; d];
+        for _ in 0..horizon {
+            self.mean_step(&mean, &mut next);
+            std::mem::swap(&mut mean, &mut next);
+        }
+        let covariance = self.multi_step_covariance(horizon);
+        let cholesky = Cholesky::new(covariance)
+            .ok_or_else(|| FlowError::InvalidConfig("k-step covariance is not positive definite".into()))?;
+        let residual = DVector::from_iterator(d, z_next.iter().zip(&mean).map(|(a, b)| a - b));
+        let whitened = cholesky.l().solve_lower_triangular(&residual).expect("positive diagonal");
+        let log_det: f64 = cholesky.l().diagonal().iter().map(|v| v.ln()).sum::<f64>() * 2.0;
+        Ok(-0.5 * (whitened.norm_squared() + log_det + d as f64 * LN_2PI))
+    }
+
+    /// `Σ_k`: exact on the linear part, `k σ²` on the cycle plane.
+    pub fn multi_step_covariance(&self, horizon: usize) -> DMatrix<f64> {
+        let d = self.sigma.len();
+        let s = self.linear_start();
+        let mut covariance = DMatrix::zeros(d, d);
+        for i in 0..s {
+            covariance[(i, i)] = horizon as f64 * self.sigma[i] * self.sigma[i];
+        }
+        let r = d - s;
+        let noise = DMatrix::from_diagonal(&DVector::from_iterator(r, self.sigma[s..].iter().map(|v| v * v)));
+        let mut power = DMatrix::identity(r, r);
+        let mut linear = DMatrix::zeros(r, r);
+        for _ in 0..horizon {
+            linear += &power * &noise * power.transpose();
+            power = &self.transition * power;
+        }
+        covariance.view_mut((s, s), (r, r)).copy_from(&linear);
+        covariance
+    }
+
+    /// `log N(z₀; 0, diag σ₀²)`.
+    pub fn log_initial(&self, z0: &[f64]) -> f64 {
+        z0.iter()
+            .zip(&self.sigma0)
+            .map(|(z, s)| gaussian_log_density(*z, 0.0, *s))
+            .sum()
+    }
+}
+
+/// `log N(x; μ, diag σ²)`.
+pub fn diagonal_gaussian_log_density(x: &[f64], mean: &[f64], sigma: &[f64]) -> f64 {
+    x.iter()
+        .zip(mean)
+        .zip(sigma)
+        .map(|((x, m), s)| gaussian_log_density(*x, *m, *s))
+        .sum()
+}
+
+fn gaussian_log_density(x: f64, mean: f64, sigma: f64) -> f64 {
+    -0.5 * (((x - mean) / sigma).powi(2) + LN_2PI) - sigma.ln()
+}
+
+fn exp_all(values: Vec<f64>) -> Vec<f64> {
+    values.into_iter().map(f64::exp).collect()
+}

@@ -1,0 +1,161 @@
+//! The conditioned invertible network `y = f(z, c)` in observation units:
+//!
+//! `f(z, c) = μ_y + σ_y ⊙ (g(z, c̃) + o(c))`, `c̃ = (c - μ_c) ⊘ σ_c`,
+//!
+//! where `g` is the stack of (LU mixing, coupling) blocks and the offset is
+//! `o(c) = (target(c) - μ_y) ⊘ σ_y - g(0, c̃)` for go-to tasks whose target is part of the
+//! context (so `f(0, c) = target(c)` exactly, for every `c`) and `o = 0` otherwise. For
+//! each `c`, `f(·, c)` is a bijection with `log|det ∂f/∂z| = Σ log σ_y + log|det ∂g/∂z|`.
+
+use super::config::FlowConfig;
+use super::coupling::{Coupling, CouplingScratch};
+use super::error::{FlowResult, check_input};
+use super::mixing::LuMixing;
+use super::scalar::Scalar;
+use super::weights::Weights;
+
+#[derive(Clone, Debug)]
+pub struct ConditionalFlow {
+    config: FlowConfig,
+    blocks: Vec<(LuMixing, Coupling)>,
+    log_state_scale: f64,
+}
+
+/// A context prepared for the network: normalised, with its anchor offset `o(c)`.
+/// Recomputed only when the raw context changes (the anchor costs one network pass).
+#[derive(Clone, Debug)]
+pub struct Conditioning {
+    raw: Vec<f64>,
+    normalised: Vec<f64>,
+    offset: Vec<f64>,
+    valid: bool,
+}
+
+impl Conditioning {
+    pub fn new(config: &FlowConfig) -> Self {
+        Self {
+            raw: vec![0.0; config.context_dim],
+            normalised: vec![0.0; config.context_dim],
+            offset: vec![0.0; config.state_dim],
+            valid: false,
+        }
+    }
+
+    pub fn normalised(&self) -> &[f64] {
+        &self.normalised
+    }
+}
+
+impl ConditionalFlow {
+    pub fn from_weights(config: &FlowConfig, weights: &mut Weights) -> FlowResult<Self> {
+        config.validate()?;
+        let blocks = (0..config.layers)
+            .map(|i| {
+                let prefix = format!("layers.{i}");
+                Ok((
+                    LuMixing::from_weights(weights, &format!("{prefix}.mixing"), config.state_dim)?,
+                    Coupling::from_weights(weights, &prefix, i, config)?,
+                ))
+            })
+            .collect::<FlowResult<Vec<_>>>()?;
+        Ok(Self {
+            config: config.clone(),
+            blocks,
+            log_state_scale: config.normalisation.state_std.iter().map(|s| s.ln()).sum(),
+        })
+    }
+
+    pub fn config(&self) -> &FlowConfig {
+        &self.config
+    }
+
+    /// Scratch for evaluations in scalar type `S`.
+    pub fn scratch<S: Scalar>(&self) -> CouplingScratch<S> {
+        CouplingScratch::new(&self.blocks[0].1)
+    }
+
+    /// `x ← g(x, c̃)`; returns `log|det ∂g/∂x|`.
+    fn g_forward<S: Scalar>(&self, x: &mut [S], context: &[f64], scratch: &mut CouplingScratch<S>) -> S {
+        let mut log_det = S::constant(0.0);
+        for (mixing, coupling) in &self.blocks {
+            log_det = log_det + mixing.forward(x);
+            log_det += coupling.forward(x, context, scratch);
+        }
+        log_det
+    }
+
+    /// `x ← g⁻¹(x, c̃)`; returns `log|det ∂g⁻¹/∂x|`.
+    fn g_inverse<S: Scalar>(&self, x: &mut [S], context: &[f64], scratch: &mut CouplingScratch<S>) -> S {
+        let mut log_det = S::constant(0.0);
+        for (mixing, coupling) in self.blocks.iter().rev() {
+            log_det += coupling.inverse(x, context, scratch);
+            log_det = log_det + mixing.inverse(x);
+        }
+        log_det
+    }
+
+    /// Validates the raw context `c` and prepares `conditioning` for it.
+    pub fn condition(
+        &self,
+        context: &[f64],
+        conditioning: &mut Conditioning,
+        scratch: &mut CouplingScratch<f64>,
+    ) -> FlowResult<()> {
+        if conditioning.valid && conditioning.raw == context {
+            return Ok(());
+        }
+        check_input("context", self.config.context_dim, context)?;
+        let norm = &self.config.normalisation;
+        conditioning.raw.copy_from_slice(context);
+        for ((n, c), (m, s)) in conditioning
+            .normalised
+            .iter_mut()
+            .zip(context)
+            .zip(norm.context_mean.iter().zip(&norm.context_std))
+        {
+            *n = (c - m) / s;
+        }
+        conditioning.offset.fill(0.0);
+        if let Some(indices) = &self.config.goal_context_indices {
+            self.g_forward(&mut conditioning.offset, &conditioning.normalised, scratch);
+            for (i, o) in conditioning.offset.iter_mut().enumerate() {
+                let target = (context[indices[i]] - norm.state_mean[i]) / norm.state_std[i];
+                *o = target - *o;
+            }
+        }
+        conditioning.valid = true;
+        Ok(())
+    }
+
+    /// `y = f(z, c)`; returns `log|det ∂f/∂z|`.
+    pub fn forward<S: Scalar>(
+        &self,
+        z: &[S],
+        conditioning: &Conditioning,
+        scratch: &mut CouplingScratch<S>,
+        y: &mut [S],
+    ) -> S {
+        y.copy_from_slice(z);
+        let log_det = self.g_forward(y, &conditioning.normalised, scratch);
+        let norm = &self.config.normalisation;
+        for (i, yi) in y.iter_mut().enumerate() {
+            *yi = (*yi + conditioning.offset[i]) * norm.state_std[i] + norm.state_mean[i];
+        }
+        log_det + self.log_state_scale
+    }
+
+    /// `z = f⁻¹(y, c)`; returns `log|det ∂f⁻¹/∂y|`.
+    pub fn inverse<S: Scalar>(
+        &self,
+        y: &[S],
+        conditioning: &Conditioning,
+        scratch: &mut CouplingScratch<S>,
+        z: &mut [S],
+    ) -> S {
+        let norm = &self.config.normalisation;
+        for (i, zi) in z.iter_mut().enumerate() {
+            *zi = (y[i] + (-norm.state_mean[i])) * (1.0 / norm.state_std[i]) + (-conditioning.offset[i]);
+        }
+        self.g_inverse(z, &conditioning.normalised, scratch) + (-self.log_state_scale)
+    }
+}

@@ -1,0 +1,318 @@
+//! The conditioned ImitationFlow policy: latent dynamics seen through `y = f(z, c)`.
+//!
+//! Everything is `f64` and allocation-free after [`Policy::workspace`]: the network,
+//! its Jacobian-vector products (dual numbers) and the densities (one-step).
+
+use std::path::Path;
+
+use rand::Rng;
+
+use super::checkpoint;
+use super::config::{CheckpointConfig, FlowConfig, LatentKind};
+use super::coupling::CouplingScratch;
+use super::error::{FlowError, FlowResult, check_input};
+use super::latent::LatentDynamics;
+use super::network::{ConditionalFlow, Conditioning};
+use super::scalar::Dual;
+use super::weights::Weights;
+
+type Dual2 = Dual<Dual<f64>>;
+
+#[derive(Clone, Debug)]
+pub struct Policy {
+    flow: ConditionalFlow,
+    latent: LatentDynamics,
+}
+
+/// Preallocated buffers for [`Policy`] calls (one per thread).
+#[derive(Clone, Debug)]
+pub struct PolicyWorkspace {
+    conditioning: Conditioning,
+    scratch: CouplingScratch<f64>,
+    scratch_dual: CouplingScratch<Dual<f64>>,
+    scratch_dual2: CouplingScratch<Dual2>,
+    z: Vec<f64>,
+    z_next: Vec<f64>,
+    /// `z_k` of a transition while `z` holds `z_{k-1}`.
+    z_later: Vec<f64>,
+    mean: Vec<f64>,
+    origin: Vec<f64>,
+    latent_velocity: Vec<f64>,
+    dual: Vec<Dual<f64>>,
+    dual_z: Vec<Dual<f64>>,
+    dual_velocity: Vec<Dual<f64>>,
+    dual2: Vec<Dual2>,
+    dual2_y: Vec<Dual2>,
+}
+
+impl Policy {
+    /// Builds the policy, taking every parameter of `config` out of `weights`; any
+    /// missing, extra or mis-shaped tensor is an error.
+    pub fn new(config: &FlowConfig, mut weights: Weights) -> FlowResult<Self> {
+        let flow = ConditionalFlow::from_weights(config, &mut weights)?;
+        let latent = LatentDynamics::from_weights(config, &mut weights)?;
+        weights.finish()?;
+        Ok(Self { flow, latent })
+    }
+
+    /// Loads a flow checkpoint directory; `expected_task` guards against the wrong task.
+    pub fn load(dir: &Path, expected_task: Option<&str>) -> FlowResult<Self> {
+        match checkpoint::read(dir, expected_task)? {
+            (CheckpointConfig::Flow(config), weights) => Self::new(&config, weights),
+            (other, _) => Err(FlowError::ModelMismatch {
+                expected: "flow",
+                found: other.model_name(),
+            }),
+        }
+    }
+
+    pub fn config(&self) -> &FlowConfig {
+        self.flow.config()
+    }
+
+    pub fn network(&self) -> &ConditionalFlow {
+        &self.flow
+    }
+
+    pub fn latent(&self) -> &LatentDynamics {
+        &self.latent
+    }
+
+    pub fn workspace(&self) -> PolicyWorkspace {
+        let config = self.config();
+        let d = config.state_dim;
+        PolicyWorkspace {
+            conditioning: Conditioning::new(config),
+            scratch: self.flow.scratch(),
+            scratch_dual: self.flow.scratch(),
+            scratch_dual2: self.flow.scratch(),
+            z: vec![0.0; d],
+            z_next: vec![0.0; d],
+            z_later: vec![0.0; d],
+            mean: vec![0.0; d],
+            origin: vec![0.0; d],
+            latent_velocity: vec![0.0; d],
+            dual: vec![Dual::new(0.0, 0.0); d],
+            dual_z: vec![Dual::new(0.0, 0.0); d],
+            dual_velocity: vec![Dual::new(0.0, 0.0); d],
+            dual2: vec![Dual::new(Dual::new(0.0, 0.0), Dual::new(0.0, 0.0)); d],
+            dual2_y: vec![Dual::new(Dual::new(0.0, 0.0), Dual::new(0.0, 0.0)); d],
+        }
+    }
+
+    /// Checks `y` and `c`, prepares the context and leaves `z = f⁻¹(y, c)` in `ws.z`;
+    /// returns `log|det ∂f⁻¹/∂y|`.
+    fn invert(&self, y: &[f64], context: &[f64], ws: &mut PolicyWorkspace) -> FlowResult<f64> {
+        check_input("state", self.config().state_dim, y)?;
+        self.flow.condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        Ok(self.flow.inverse(y, &ws.conditioning, &mut ws.scratch, &mut ws.z))
+    }
+
+    fn check_output(&self, out: &[f64]) -> FlowResult<()> {
+        crate::flow::error::check_dim("output", self.config().state_dim, out)
+    }
+
+    /// `z = f⁻¹(y, c)`.
+    pub fn latent_state(&self, y: &[f64], context: &[f64], ws: &mut PolicyWorkspace, z: &mut [f64]) -> FlowResult<()> {
+        self.check_output(z)?;
+        self.invert(y, context, ws)?;
+        z.copy_from_slice(&ws.z);
+        Ok(())
+    }
+
+    /// `y = f(z, c)`.
+    pub fn observe(&self, z: &[f64], context: &[f64], ws: &mut PolicyWorkspace, y: &mut [f64]) -> FlowResult<()> {
+        self.check_output(y)?;
+        check_input("latent state", self.config().state_dim, z)?;
+        self.flow.condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        self.flow.forward(z, &ws.conditioning, &mut ws.scratch, y);
+        Ok(())
+    }
+
+    /// Noise-free next state `y_{k+1} = f(μ(f⁻¹(y_k, c)), c)`.
+    pub fn mean_next(&self, y: &[f64], context: &[f64], ws: &mut PolicyWorkspace, out: &mut [f64]) -> FlowResult<()> {
+        self.check_output(out)?;
+        self.invert(y, context, ws)?;
+        self.latent.mean_step(&ws.z, &mut ws.z_next);
+        self.flow.forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, out);
+        Ok(())
+    }
+
+    /// A sample `y_{k+1} ~ p(· | y_k, c)`.
+    pub fn sample_next(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        rng: &mut impl Rng,
+        ws: &mut PolicyWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
+        self.check_output(out)?;
+        self.invert(y, context, ws)?;
+        self.latent.sample_step(&ws.z, rng, &mut ws.z_next);
+        self.flow.forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, out);
+        Ok(())
+    }
+
+    /// Desired velocity `ẏ_des = J_f(z) v(z)` at `z = f⁻¹(y, c)`: one forward pass in
+    /// dual numbers seeded with the latent velocity.
+    pub fn velocity(&self, y: &[f64], context: &[f64], ws: &mut PolicyWorkspace, out: &mut [f64]) -> FlowResult<()> {
+        self.check_output(out)?;
+        self.invert(y, context, ws)?;
+        self.latent.velocity(&ws.z, &mut ws.latent_velocity);
+        for ((d, z), v) in ws.dual_z.iter_mut().zip(&ws.z).zip(&ws.latent_velocity) {
+            *d = Dual::new(*z, *v);
+        }
+        self.flow
+            .forward(&ws.dual_z, &ws.conditioning, &mut ws.scratch_dual, &mut ws.dual);
+        for (o, d) in out.iter_mut().zip(&ws.dual) {
+            *o = d.du;
+        }
+        Ok(())
+    }
+
+    /// The full policy action of the benchmark: writes the mean next state and the
+    /// desired velocity (inverse, latent step, forward, and the Jacobian-vector product).
+    pub fn act(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        next: &mut [f64],
+        velocity: &mut [f64],
+    ) -> FlowResult<()> {
+        self.velocity(y, context, ws, velocity)?;
+        self.check_output(next)?;
+        self.latent.mean_step(&ws.z, &mut ws.z_next);
+        self.flow.forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, next);
+        Ok(())
+    }
+
+    /// Desired acceleration for a second-order robot at position `q` and velocity `q̇`:
+    ///
+    /// `q̈_des = (∂v_des/∂q) q̇ + K_v (v_des(q) - q̇)`, `v_des(q) = J_f(z) v(z)`, `z = f⁻¹(q, c)`.
+    ///
+    /// The first term is `d/dt v_des(q(t))` along the actual motion, so under
+    /// `q̈ = q̈_des` the velocity error `e = q̇ - v_des(q)` obeys `ė = -K_v e` exactly.
+    /// Computed with nested dual numbers: the inverse is differentiated along `q̇`, the
+    /// forward pass along `v(z)` and along that time direction at once.
+    /// Writes `q̈_des` to `acceleration` and `v_des(q)` to `velocity`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn acceleration(
+        &self,
+        q: &[f64],
+        qd: &[f64],
+        context: &[f64],
+        velocity_gain: f64,
+        ws: &mut PolicyWorkspace,
+        acceleration: &mut [f64],
+        velocity: &mut [f64],
+    ) -> FlowResult<()> {
+        let d = self.config().state_dim;
+        check_input("state", d, q)?;
+        check_input("velocity", d, qd)?;
+        self.check_output(acceleration)?;
+        self.check_output(velocity)?;
+        if !(velocity_gain.is_finite() && velocity_gain > 0.0) {
+            return Err(FlowError::InvalidConfig("velocity gain K_v must be finite and > 0".into()));
+        }
+        self.flow.condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        for ((d, q), qd) in ws.dual.iter_mut().zip(q).zip(qd) {
+            *d = Dual::new(*q, *qd);
+        }
+        self.flow
+            .inverse(&ws.dual, &ws.conditioning, &mut ws.scratch_dual, &mut ws.dual_z);
+        self.latent.velocity(&ws.dual_z, &mut ws.dual_velocity);
+        for ((x, z), v) in ws.dual2.iter_mut().zip(&ws.dual_z).zip(&ws.dual_velocity) {
+            *x = Dual::new(*z, *v);
+        }
+        self.flow
+            .forward(&ws.dual2, &ws.conditioning, &mut ws.scratch_dual2, &mut ws.dual2_y);
+        for i in 0..d {
+            let v_des = ws.dual2_y[i].du;
+            velocity[i] = v_des.re;
+            acceleration[i] = v_des.du + velocity_gain * (v_des.re - qd[i]);
+        }
+        Ok(())
+    }
+
+    /// The go-to attractor `y* = f(0, c)` (`= target(c)` for goal-conditioned tasks).
+    pub fn attractor(&self, context: &[f64], ws: &mut PolicyWorkspace, out: &mut [f64]) -> FlowResult<()> {
+        if self.latent.kind() != LatentKind::GoTo {
+            return Err(FlowError::InvalidConfig("only go-to policies have a fixed-point attractor".into()));
+        }
+        self.check_output(out)?;
+        self.flow.condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        self.flow.forward(&ws.origin, &ws.conditioning, &mut ws.scratch, out);
+        Ok(())
+    }
+
+    /// Distance (observation units) from `y` to the attractor: to `f(0, c)` for go-to, to
+    /// the point `f(π(z), c)` of the orbit with the same phase for limit cycles.
+    pub fn attractor_distance(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        scratch_point: &mut [f64],
+    ) -> FlowResult<f64> {
+        self.check_output(scratch_point)?;
+        self.invert(y, context, ws)?;
+        self.latent.project_onto_attractor(&ws.z, &mut ws.z_next);
+        self.flow
+            .forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, scratch_point);
+        Ok(y.iter()
+            .zip(scratch_point.iter())
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt())
+    }
+
+    /// Exact `log p(y_k | y_{k-1}, c) = log p(z_k | z_{k-1}) + log|det ∂f⁻¹/∂y (y_k)|`,
+    /// both states mapped with the same context (see the module docs for which one).
+    /// In the data's own units: the normalisation Jacobian is included.
+    pub fn log_transition(
+        &self,
+        y_prev: &[f64],
+        y_next: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+    ) -> FlowResult<f64> {
+        let log_det = self.latent_pair(y_prev, y_next, context, ws)?;
+        Ok(self.latent.log_transition(&ws.z, &ws.z_later, &mut ws.mean) + log_det)
+    }
+
+    /// `log p(y_{k+h} | y_k, c)` of the `horizon`-step model (allocates).
+    pub fn log_transition_multi(
+        &self,
+        y_prev: &[f64],
+        y_next: &[f64],
+        context: &[f64],
+        horizon: usize,
+        ws: &mut PolicyWorkspace,
+    ) -> FlowResult<f64> {
+        let log_det = self.latent_pair(y_prev, y_next, context, ws)?;
+        Ok(self.latent.log_transition_multi(&ws.z, &ws.z_later, horizon)? + log_det)
+    }
+
+    /// Leaves `z_{k-1}` in `ws.z` and `z_k` in `ws.z_later`; returns
+    /// `log|det ∂f⁻¹/∂y (y_k)|`.
+    fn latent_pair(
+        &self,
+        y_prev: &[f64],
+        y_next: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+    ) -> FlowResult<f64> {
+        let log_det = self.invert(y_next, context, ws)?;
+        std::mem::swap(&mut ws.z, &mut ws.z_later);
+        self.invert(y_prev, context, ws)?;
+        Ok(log_det)
+    }
+
+    /// `log p(y₀ | c₀) = log N(z₀; 0, diag σ₀²) + log|det ∂f⁻¹/∂y (y₀)|`.
+    pub fn log_initial(&self, y0: &[f64], context: &[f64], ws: &mut PolicyWorkspace) -> FlowResult<f64> {
+        let log_det = self.invert(y0, context, ws)?;
+        Ok(self.latent.log_initial(&ws.z) + log_det)
+    }
+}

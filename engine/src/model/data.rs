@@ -1,0 +1,60 @@
+//! The mutable workspace of the algorithms.
+
+use super::Model;
+use crate::math::{DMatrix, DVector, Matrix6};
+use crate::spatial::{Force, Inertia, Motion, Se3};
+
+/// Per-body buffers and results, allocated once by [`Data::new`] so that the algorithms
+/// never allocate. Results land in named fields, as in Pinocchio: `tau` (RNEA), `nle`
+/// (`C q̇ + g`), `g`, `m` (CRBA, full symmetric), `c` (Coriolis matrix), `ddq` (forward
+/// dynamics).
+#[derive(Clone, Debug)]
+pub struct Data {
+    /// `ᵖMᵢ`: body `i` in its parent.
+    pub(crate) li_m_i: Vec<Se3>,
+    /// `⁰Mᵢ`: body `i` in the base frame.
+    pub(crate) o_m_i: Vec<Se3>,
+    pub(crate) v: Vec<Motion>,
+    pub(crate) a: Vec<Motion>,
+    pub(crate) f: Vec<Force>,
+    /// Composite rigid-body inertias (CRBA), body frame.
+    pub(crate) ycrb: Vec<Inertia>,
+    /// World-frame quantities of the Coriolis algorithm: `S`, `Ṡ`, composite `I`, `B`.
+    pub(crate) s_world: Vec<Motion>,
+    pub(crate) s_dot_world: Vec<Motion>,
+    pub(crate) ic_world: Vec<Matrix6>,
+    pub(crate) bc_world: Vec<Matrix6>,
+    /// Cholesky factor `L` of `M` (lower triangle), forward dynamics.
+    pub(crate) cholesky: DMatrix,
+    pub tau: DVector,
+    pub nle: DVector,
+    pub g: DVector,
+    pub m: DMatrix,
+    pub c: DMatrix,
+    pub ddq: DVector,
+}
+
+impl Data {
+    pub fn new(model: &Model) -> Self {
+        let n = model.nv();
+        Self {
+            li_m_i: vec![Se3::identity(); n],
+            o_m_i: vec![Se3::identity(); n],
+            v: vec![Motion::zero(); n],
+            a: vec![Motion::zero(); n],
+            f: vec![Force::zero(); n],
+            ycrb: vec![Inertia::zero(); n],
+            s_world: vec![Motion::zero(); n],
+            s_dot_world: vec![Motion::zero(); n],
+            ic_world: vec![Matrix6::zeros(); n],
+            bc_world: vec![Matrix6::zeros(); n],
+            cholesky: DMatrix::zeros(n, n),
+            tau: DVector::zeros(n),
+            nle: DVector::zeros(n),
+            g: DVector::zeros(n),
+            m: DMatrix::zeros(n, n),
+            c: DMatrix::zeros(n, n),
+            ddq: DVector::zeros(n),
+        }
+    }
+}

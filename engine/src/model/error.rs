@@ -1,0 +1,43 @@
+//! Errors raised while building a [`Model`](super::Model).
+
+use thiserror::Error;
+
+#[derive(Debug, Error)]
+pub enum ModelError {
+    #[error("cannot parse URDF: {0}")]
+    Urdf(#[from] urdf_rs::UrdfError),
+    #[error(
+        "joint `{joint}` has type {kind}; only revolute, continuous and fixed joints are supported"
+    )]
+    UnsupportedJoint { joint: String, kind: String },
+    #[error("the URDF is not a serial chain: {0}")]
+    NotSerialChain(String),
+    #[error("{what} is not finite")]
+    NonFinite { what: String },
+    #[error("joint `{joint}` has a zero rotation axis")]
+    ZeroAxis { joint: String },
+    #[error("body `{body}` has an invalid inertia: {reason}")]
+    InvalidInertia { body: String, reason: &'static str },
+    #[error("frame `{frame}` refers to body {body}, but the model has {bodies} bodies")]
+    NoSuchBody {
+        frame: String,
+        body: usize,
+        bodies: usize,
+    },
+    #[error("no frame named `{0}`")]
+    NoSuchFrame(String),
+    #[error("frame name `{0}` is used twice")]
+    DuplicateFrame(String),
+    #[error("joint limit {what}[{joint}] is invalid: {reason}")]
+    InvalidLimits {
+        what: &'static str,
+        joint: usize,
+        reason: &'static str,
+    },
+    #[error("{what}: expected {expected} entries, got {actual}")]
+    Dimension {
+        what: &'static str,
+        expected: usize,
+        actual: usize,
+    },
+}

@@ -1,0 +1,188 @@
+//! A serial chain robot: a [`Model`] with its own [`Data`] workspace.
+
+use std::path::Path;
+
+use super::{DynamicsError, Frame, JointLimits, Robot, copy_matrix, copy_vector};
+use crate::algorithm;
+use crate::math::{DMatrix, DVector, Isometry3, Real, Vector3};
+use crate::model::{Data, Model, ModelError};
+
+/// A serial chain of revolute joints; [`Robot`] methods run the RNEA / CRBA / Coriolis /
+/// forward-dynamics algorithms in a preallocated workspace.
+#[derive(Clone, Debug)]
+pub struct SerialChain {
+    model: Model,
+    data: Data,
+    end_effector: usize,
+}
+
+impl SerialChain {
+    /// The tool frame is the last frame of the model (the last link if it has no extra
+    /// frames); see [`SerialChain::set_end_effector`].
+    pub fn new(model: Model) -> Self {
+        let data = Data::new(&model);
+        let end_effector = model.frames().len() - 1;
+        Self {
+            model,
+            data,
+            end_effector,
+        }
+    }
+
+    pub fn from_urdf_str(urdf: &str) -> Result<Self, ModelError> {
+        Ok(Self::new(Model::from_urdf_str(urdf)?))
+    }
+
+    pub fn from_urdf_file(path: impl AsRef<Path>) -> Result<Self, ModelError> {
+        let urdf = std::fs::read_to_string(path).map_err(urdf_rs::UrdfError::from)?;
+        Self::from_urdf_str(&urdf)
+    }
+
+    pub fn model(&self) -> &Model {
+        &self.model
+    }
+
+    /// The workspace, holding the results of the last algorithm calls.
+    pub fn data(&self) -> &Data {
+        &self.data
+    }
+
+    pub fn set_limits(&mut self, limits: JointLimits) -> Result<(), ModelError> {
+        self.model.set_limits(limits)
+    }
+
+    /// Gravity acceleration in the base frame (default `(0, 0, −9.81)`).
+    pub fn set_gravity(&mut self, gravity: Vector3) -> Result<(), ModelError> {
+        self.model.set_gravity(gravity)
+    }
+
+    /// Selects the tool frame by name.
+    pub fn set_end_effector(&mut self, frame: &str) -> Result<(), ModelError> {
+        self.end_effector = self
+            .model
+            .frame_index(frame)
+            .ok_or_else(|| ModelError::NoSuchFrame(frame.to_owned()))?;
+        Ok(())
+    }
+}
+
+impl Robot for SerialChain {
+    fn name(&self) -> &str {
+        self.model.name()
+    }
+
+    fn dof(&self) -> usize {
+        self.model.nv()
+    }
+
+    fn limits(&self) -> &JointLimits {
+        self.model.limits()
+    }
+
+    fn frames(&self) -> &[Frame] {
+        self.model.frames()
+    }
+
+    fn end_effector(&self) -> usize {
+        self.end_effector
+    }
+
+    fn link_count(&self) -> usize {
+        self.model.nv()
+    }
+
+    fn frame_placement(&self, q: &[Real], frame: usize) -> Result<Isometry3, DynamicsError> {
+        Ok(algorithm::frame_placement(&self.model, q, frame)?.to_isometry())
+    }
+
+    fn frame_jacobian(
+        &self,
+        q: &[Real],
+        frame: usize,
+        point: &Vector3,
+        jacobian: &mut DMatrix,
+    ) -> Result<(), DynamicsError> {
+        algorithm::frame_jacobian(&self.model, q, frame, point, jacobian)
+    }
+
+    fn wrench_to_joint_torque(
+        &self,
+        q: &[Real],
+        link: usize,
+        force: &Vector3,
+        torque: &Vector3,
+        tau: &mut DVector,
+    ) -> Result<(), DynamicsError> {
+        algorithm::wrench_to_joint_torque(&self.model, q, link, force, torque, tau)
+    }
+
+    fn mass_matrix(&mut self, q: &[Real], m: &mut DMatrix) -> Result<(), DynamicsError> {
+        copy_matrix("m", algorithm::crba(&self.model, &mut self.data, q)?, m)
+    }
+
+    fn gravity(&mut self, q: &[Real], g: &mut DVector) -> Result<(), DynamicsError> {
+        copy_vector(
+            "g",
+            algorithm::generalized_gravity(&self.model, &mut self.data, q)?,
+            g,
+        )
+    }
+
+    fn coriolis_matrix(
+        &mut self,
+        q: &[Real],
+        qd: &[Real],
+        c: &mut DMatrix,
+    ) -> Result<(), DynamicsError> {
+        copy_matrix(
+            "c",
+            algorithm::coriolis_matrix(&self.model, &mut self.data, q, qd)?,
+            c,
+        )
+    }
+
+    fn nonlinear_effects(
+        &mut self,
+        q: &[Real],
+        qd: &[Real],
+        nle: &mut DVector,
+    ) -> Result<(), DynamicsError> {
+        copy_vector(
+            "nle",
+            algorithm::nonlinear_effects(&self.model, &mut self.data, q, qd)?,
+            nle,
+        )
+    }
+
+    fn inverse_dynamics(
+        &mut self,
+        q: &[Real],
+        qd: &[Real],
+        qdd: &[Real],
+        tau: &mut DVector,
+    ) -> Result<(), DynamicsError> {
+        copy_vector(
+            "tau",
+            algorithm::rnea(&self.model, &mut self.data, q, qd, qdd)?,
+            tau,
+        )
+    }
+
+    fn forward_dynamics(
+        &mut self,
+        q: &[Real],
+        qd: &[Real],
+        tau: &[Real],
+        qdd: &mut DVector,
+    ) -> Result<(), DynamicsError> {
+        copy_vector(
+            "qdd",
+            algorithm::forward_dynamics(&self.model, &mut self.data, q, qd, tau)?,
+            qdd,
+        )
+    }
+
+    fn boxed_clone(&self) -> Box<dyn Robot> {
+        Box::new(self.clone())
+    }
+}

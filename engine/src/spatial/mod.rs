@@ -1,0 +1,28 @@
+//! Spatial (6-D) algebra for rigid bodies in the Featherstone / Pinocchio convention.
+//!
+//! Vectors are stored as `[linear; angular]` pairs of 3-vectors, so every operation is a
+//! handful of fixed-size 3×3 / 3×1 products instead of dense 6×6 algebra:
+//!
+//! - [`Motion`]: a twist `(v, ω)` (velocity, acceleration, joint motion subspace);
+//! - [`Force`]: a wrench `(f, n)`, `n` the moment about the frame origin;
+//! - [`Inertia`]: a spatial inertia `(m, h = m c, I_o)` about the frame origin;
+//! - [`Se3`]: a rigid transform `ᵃMᵦ = (R, p)` acting on all three.
+//!
+//! Reference: R. Featherstone, *Rigid Body Dynamics Algorithms*, Springer 2008, ch. 2.
+
+mod force;
+mod inertia;
+mod motion;
+mod se3;
+
+pub use force::Force;
+pub use inertia::Inertia;
+pub use motion::Motion;
+pub use se3::Se3;
+
+use crate::math::{Matrix3, Vector3};
+
+/// The cross-product matrix `[x]×` with `[x]× y = x × y`.
+pub fn skew(x: &Vector3) -> Matrix3 {
+    Matrix3::new(0.0, -x.z, x.y, x.z, 0.0, -x.x, -x.y, x.x, 0.0)
+}

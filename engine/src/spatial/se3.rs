@@ -1,0 +1,135 @@
+//! Rigid transforms and their action on spatial quantities.
+
+use std::ops::Mul;
+
+use super::{Force, Inertia, Motion, skew};
+use nalgebra::Rotation3;
+
+use crate::math::{Isometry3, Matrix3, Real, UnitQuaternion, Vector3};
+
+/// A rigid transform `ᵃMᵦ = (R, p)` taking coordinates in frame `b` to frame `a`:
+/// `xₐ = R x_b + p`. `act_*` maps a quantity from `b` to `a`, `act_inv_*` back.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Se3 {
+    pub rotation: Matrix3,
+    pub translation: Vector3,
+}
+
+impl Default for Se3 {
+    fn default() -> Self {
+        Self::identity()
+    }
+}
+
+impl Se3 {
+    pub const fn new(rotation: Matrix3, translation: Vector3) -> Self {
+        Self {
+            rotation,
+            translation,
+        }
+    }
+
+    pub fn identity() -> Self {
+        Self::new(Matrix3::identity(), Vector3::zeros())
+    }
+
+    pub fn from_translation(translation: Vector3) -> Self {
+        Self::new(Matrix3::identity(), translation)
+    }
+
+    pub fn from_rotation(rotation: Matrix3) -> Self {
+        Self::new(rotation, Vector3::zeros())
+    }
+
+    /// Rotation by `angle` about the unit `axis` (Rodrigues:
+    /// `R = 1 + sin θ [a]× + (1 − cos θ) [a]×²`).
+    pub fn rotation_about(axis: &Vector3, angle: Real) -> Matrix3 {
+        let (s, c) = angle.sin_cos();
+        let k = skew(axis);
+        Matrix3::identity() + k * s + k * k * (1.0 - c)
+    }
+
+    pub fn inverse(&self) -> Se3 {
+        let rt = self.rotation.transpose();
+        Se3::new(rt, -(rt * self.translation))
+    }
+
+    pub fn act_point(&self, point: &Vector3) -> Vector3 {
+        self.rotation * point + self.translation
+    }
+
+    /// `ᵃm = (R v + p × R ω, R ω)`.
+    pub fn act_motion(&self, m: &Motion) -> Motion {
+        let angular = self.rotation * m.angular;
+        Motion::new(
+            self.rotation * m.linear + self.translation.cross(&angular),
+            angular,
+        )
+    }
+
+    /// `ᵇm = (Rᵀ (v − p × ω), Rᵀ ω)`.
+    pub fn act_inv_motion(&self, m: &Motion) -> Motion {
+        Motion::new(
+            self.rotation
+                .tr_mul(&(m.linear - self.translation.cross(&m.angular))),
+            self.rotation.tr_mul(&m.angular),
+        )
+    }
+
+    /// `ᵃf = (R f, R n + p × R f)`.
+    pub fn act_force(&self, f: &Force) -> Force {
+        let linear = self.rotation * f.linear;
+        Force::new(
+            linear,
+            self.rotation * f.angular + self.translation.cross(&linear),
+        )
+    }
+
+    /// `ᵇf = (Rᵀ f, Rᵀ (n − p × f))`.
+    pub fn act_inv_force(&self, f: &Force) -> Force {
+        Force::new(
+            self.rotation.tr_mul(&f.linear),
+            self.rotation
+                .tr_mul(&(f.angular - self.translation.cross(&f.linear))),
+        )
+    }
+
+    /// The inertia `ᵃI = X* ᵇI X⁻¹` expressed about the origin of `a`:
+    /// `m` unchanged, `h' = R h + m p`,
+    /// `I_o' = R I_o Rᵀ − ([R h]×[p]× + [p]×[R h]× + m [p]×²)`.
+    pub fn act_inertia(&self, inertia: &Inertia) -> Inertia {
+        let rh = self.rotation * inertia.first_moment;
+        let p = skew(&self.translation);
+        let rh_skew = skew(&rh);
+        Inertia {
+            mass: inertia.mass,
+            first_moment: rh + self.translation * inertia.mass,
+            rotational: self.rotation * inertia.rotational * self.rotation.transpose()
+                - (rh_skew * p + p * rh_skew + p * p * inertia.mass),
+        }
+    }
+
+    pub fn to_isometry(&self) -> Isometry3 {
+        let rotation =
+            UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(self.rotation));
+        Isometry3::from_parts(self.translation.into(), rotation)
+    }
+
+    pub fn from_isometry(isometry: &Isometry3) -> Se3 {
+        Se3::new(
+            isometry.rotation.to_rotation_matrix().into_inner(),
+            isometry.translation.vector,
+        )
+    }
+}
+
+/// Composition `ᵃMᵦ ᵇM_c = ᵃM_c`.
+impl Mul for Se3 {
+    type Output = Se3;
+    fn mul(self, rhs: Se3) -> Se3 {
+        Se3::new(
+            self.rotation * rhs.rotation,
+            self.rotation * rhs.translation + self.translation,
+        )
+    }
+}

@@ -1,0 +1,146 @@
+//! Checkpoints round-trip, and every way of loading the wrong thing is a typed error.
+
+mod flow_common;
+
+use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
+use ciflow_engine::flow::{
+    BaselineConfig, CheckpointConfig, FlowError, Goal, LatentKind, Policy, Tensor, Weights,
+};
+use flow_common::*;
+
+fn temp_dir(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("ciflow-flow-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+#[test]
+fn saved_checkpoint_reloads_identically() {
+    let config = config(3, 2, LatentKind::GoTo, SPLINE);
+    let weights = random_weights(&config, 1);
+    let dir = temp_dir("roundtrip");
+    checkpoint::write(&dir, &CheckpointConfig::Flow(config.clone()), &weights).unwrap();
+    let loaded = Policy::load(&dir, Some("test")).unwrap();
+    let original = Policy::new(&config, weights).unwrap();
+    let (mut wa, mut wb) = (original.workspace(), loaded.workspace());
+    let (mut a, mut b) = (vec![0.0; 3], vec![0.0; 3]);
+    original
+        .mean_next(&[0.1, 0.2, 0.3], &[0.5, -0.5], &mut wa, &mut a)
+        .unwrap();
+    loaded
+        .mean_next(&[0.1, 0.2, 0.3], &[0.5, -0.5], &mut wb, &mut b)
+        .unwrap();
+    assert_eq!(a, b);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn wrong_task_model_or_shapes_are_typed_errors() {
+    let config = config(3, 2, LatentKind::GoTo, AFFINE);
+    let weights = random_weights(&config, 2);
+    let dir = temp_dir("errors");
+    checkpoint::write(&dir, &CheckpointConfig::Flow(config.clone()), &weights).unwrap();
+    assert!(matches!(
+        Policy::load(&dir, Some("pouring")),
+        Err(FlowError::TaskMismatch { .. })
+    ));
+
+    // Same names, different hidden width: shape mismatch.
+    let mut wider = config.clone();
+    wider.hidden = vec![16, 17];
+    assert!(matches!(
+        Policy::new(&wider, weights.clone()),
+        Err(FlowError::ShapeMismatch { .. })
+    ));
+    // More layers than the file holds: missing tensor.
+    let mut deeper = config.clone();
+    deeper.layers += 1;
+    assert!(matches!(
+        Policy::new(&deeper, weights.clone()),
+        Err(FlowError::MissingTensor { .. })
+    ));
+    // Fewer layers: leftover tensors.
+    let mut shallower = config.clone();
+    shallower.layers -= 1;
+    assert!(matches!(
+        Policy::new(&shallower, weights.clone()),
+        Err(FlowError::UnexpectedTensor { .. })
+    ));
+    // A NaN weight.
+    let mut poisoned = weights.clone();
+    poisoned.insert(
+        "latent.log_sigma",
+        Tensor {
+            shape: vec![3],
+            data: vec![0.0, f64::NAN, 0.0],
+        },
+    );
+    assert!(matches!(
+        Policy::new(&config, poisoned),
+        Err(FlowError::NonFinite { .. })
+    ));
+    // A baseline checkpoint is not a flow.
+    let baseline = BaselineConfig {
+        task: "test".into(),
+        state_dim: 3,
+        context_dim: 2,
+        dt: 0.1,
+        hidden: vec![8],
+        goal: Goal::State {
+            value: vec![0.0; 3],
+        },
+        normalisation: config.normalisation.clone(),
+        bounds: config.bounds.clone(),
+    };
+    let baseline_weights = Weights::random(&baseline.parameter_shapes(), 1.0, &mut rng(3));
+    let other = temp_dir("baseline");
+    checkpoint::write(
+        &other,
+        &CheckpointConfig::MlpBaseline(baseline),
+        &baseline_weights,
+    )
+    .unwrap();
+    assert!(matches!(
+        Policy::load(&other, None),
+        Err(FlowError::ModelMismatch { .. })
+    ));
+    // A truncated weights file.
+    std::fs::write(dir.join(WEIGHTS_FILE), b"not a safetensors file").unwrap();
+    assert!(matches!(
+        Policy::load(&dir, None),
+        Err(FlowError::SafeTensors(_))
+    ));
+    for d in [dir, other] {
+        std::fs::remove_dir_all(d).unwrap();
+    }
+}
+
+#[test]
+fn bad_inputs_are_typed_errors() {
+    let config = config(2, 1, LatentKind::GoTo, SPLINE);
+    let policy = random_policy(&config, 4);
+    let mut ws = policy.workspace();
+    let mut out = vec![0.0; 2];
+    assert!(matches!(
+        policy.mean_next(&[0.0, f64::NAN], &[0.0], &mut ws, &mut out),
+        Err(FlowError::NonFinite { .. })
+    ));
+    assert!(matches!(
+        policy.mean_next(&[0.0, 0.0], &[f64::INFINITY], &mut ws, &mut out),
+        Err(FlowError::NonFinite { .. })
+    ));
+    assert!(matches!(
+        policy.mean_next(&[0.0, 0.0, 0.0], &[0.0], &mut ws, &mut out),
+        Err(FlowError::Dimension { .. })
+    ));
+    assert!(matches!(
+        policy.velocity(&[0.0, 0.0], &[0.0, 1.0], &mut ws, &mut out),
+        Err(FlowError::Dimension { .. })
+    ));
+    let mut bad = config.clone();
+    bad.normalisation.state_std[0] = 0.0;
+    assert!(matches!(
+        Policy::new(&bad, random_weights(&config, 4)),
+        Err(FlowError::InvalidConfig(_))
+    ));
+}

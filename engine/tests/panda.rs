@@ -1,0 +1,99 @@
+//! The shipped Panda URDF and the modified-DH construction describe the same robot.
+
+mod common;
+
+use ciflow_engine::model::{Model, ModelError};
+use ciflow_engine::robot::{PANDA_HOME, Robot, panda, panda_from_dh, panda_limits};
+use common::*;
+
+#[test]
+fn urdf_and_dh_construction_agree() {
+    let mut from_urdf = panda();
+    let mut from_dh = panda_from_dh().unwrap();
+    let names = |robot: &dyn Robot| {
+        robot
+            .frames()
+            .iter()
+            .map(|f| f.name.clone())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(names(&from_urdf), names(&from_dh));
+    assert_eq!(from_urdf.frames()[0].name, "panda_link0");
+    assert_eq!(from_urdf.frames().len(), 10, "base, 7 links, flange, hand");
+    let mut rng = rng(40);
+    for _ in 0..20 {
+        let s = random_state(&from_urdf, &mut rng);
+        for frame in 0..from_urdf.frames().len() {
+            let a = from_urdf.frame_placement(s.q.as_slice(), frame).unwrap();
+            let b = from_dh.frame_placement(s.q.as_slice(), frame).unwrap();
+            assert!(
+                (a.translation.vector - b.translation.vector).norm() < 1e-12
+                    && a.rotation.angle_to(&b.rotation) < 1e-9,
+                "frame {frame}"
+            );
+        }
+        assert_matrix_close(
+            &mass_matrix(&mut from_urdf, &s.q),
+            &mass_matrix(&mut from_dh, &s.q),
+            1e-12,
+            "M",
+        );
+        let tau = inverse_dynamics(&mut from_urdf, &s.q, &s.qd, &s.qdd);
+        assert_close(
+            tau.as_slice(),
+            inverse_dynamics(&mut from_dh, &s.q, &s.qd, &s.qdd).as_slice(),
+            1e-12,
+            "τ",
+        );
+    }
+}
+
+#[test]
+fn limits_come_from_the_reference_data() {
+    let robot = panda();
+    let limits = robot.limits();
+    assert_eq!(limits, &panda_limits());
+    assert_eq!(limits.tau_max[0], 87.0);
+    assert_eq!(limits.tau_max[6], 12.0);
+    assert_eq!(limits.tau_rate_max[3], 1000.0);
+    let home_inside = PANDA_HOME
+        .iter()
+        .enumerate()
+        .all(|(i, &q)| limits.q_min[i] <= q && q <= limits.q_max[i]);
+    assert!(home_inside, "the home posture lies within the limits");
+}
+
+#[test]
+fn hand_mass_is_lumped_into_link_7() {
+    let total = |model: &Model| model.bodies().iter().map(|b| b.inertia.mass).sum::<f64>();
+    let expected =
+        4.970684 + 0.646926 + 3.228604 + 3.587895 + 1.225946 + 1.666555 + 0.735522 + 0.73;
+    assert!((total(panda().model()) - expected).abs() < 1e-12);
+}
+
+#[test]
+fn malformed_urdf_is_a_typed_error() {
+    assert!(matches!(
+        Model::from_urdf_str("<robot"),
+        Err(ModelError::Urdf(_))
+    ));
+    let prismatic = r#"<robot name="r">
+        <link name="a"/><link name="b"/>
+        <joint name="j" type="prismatic"><parent link="a"/><child link="b"/>
+        <axis xyz="0 0 1"/><limit lower="0" upper="1" effort="1" velocity="1"/></joint>
+    </robot>"#;
+    assert!(matches!(
+        Model::from_urdf_str(prismatic),
+        Err(ModelError::UnsupportedJoint { .. })
+    ));
+    let branching = r#"<robot name="r">
+        <link name="a"/><link name="b"><inertial><mass value="1"/><inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link>
+        <link name="c"><inertial><mass value="1"/><inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link>
+        <joint name="j1" type="continuous"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/></joint>
+        <joint name="j2" type="continuous"><parent link="a"/><child link="c"/><axis xyz="0 0 1"/></joint>
+    </robot>"#;
+    assert!(matches!(
+        Model::from_urdf_str(branching),
+        Err(ModelError::NotSerialChain(_))
+    ));
+}

@@ -1,0 +1,82 @@
+//! Training of the unconstrained behaviour-cloning baseline
+//! `ỹ_{k+1} = ỹ_k + dt · MLP(ỹ_k, c̃)` by least squares on the normalised finite
+//! differences — the negative control of the stability check.
+
+use std::path::Path;
+
+use ciflow_engine::flow::{BaselineConfig, CheckpointConfig, Goal};
+use serde::{Deserialize, Serialize};
+use tch::{Kind, Tensor, nn};
+
+use crate::data::{Demonstrations, Transitions};
+use crate::error::TrainResult;
+use crate::model::row;
+use crate::nets::Mlp;
+use crate::optimise::{OptimConfig, Progress, mean_value, optimise};
+use crate::trainer::{double_var_store, save_checkpoint, split};
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct BaselineTrainConfig {
+    pub task: String,
+    pub hidden: Vec<usize>,
+    /// Where the demonstrations go (used only to score convergence).
+    pub goal: Goal,
+    pub validation_fraction: f64,
+    pub threads: i32,
+    pub optim: OptimConfig,
+}
+
+#[derive(Debug)]
+pub struct TrainedBaseline {
+    pub config: BaselineConfig,
+    pub var_store: nn::VarStore,
+    pub history: Vec<Progress>,
+    pub best_epoch: usize,
+}
+
+impl TrainedBaseline {
+    pub fn save(&self, dir: &Path) -> TrainResult<()> {
+        save_checkpoint(dir, &CheckpointConfig::MlpBaseline(self.config.clone()), &self.var_store)
+    }
+}
+
+pub fn train_baseline(
+    data: &Demonstrations,
+    train: &BaselineTrainConfig,
+    progress: impl FnMut(&Progress),
+) -> TrainResult<TrainedBaseline> {
+    let (d, m) = data.validate()?;
+    let config = BaselineConfig {
+        task: train.task.clone(),
+        state_dim: d,
+        context_dim: m,
+        dt: data.dt,
+        hidden: train.hidden.clone(),
+        goal: train.goal.clone(),
+        normalisation: data.normalisation(),
+        bounds: data.bounds(),
+    };
+    config.validate()?;
+    tch::set_num_threads(train.threads);
+    tch::manual_seed(train.optim.seed as i64);
+    let vs = double_var_store();
+    let net = Mlp::new(&(vs.root() / "net"), &config.mlp_sizes(), false);
+    let norm = &config.normalisation;
+    let (state_mean, state_std) = (row(&norm.state_mean), row(&norm.state_std));
+    let (context_mean, context_std) = (row(&norm.context_mean), row(&norm.context_std));
+    let (train_set, validation_set) = split(data, train.validation_fraction, train.optim.seed);
+    let prepare = |t: &Transitions| {
+        let prev = (&t.prev - &state_mean) / &state_std;
+        let next = (&t.next - &state_mean) / &state_std;
+        let context = (&t.context - &context_mean) / &context_std;
+        (Tensor::cat(&[&prev, &context], 1), (next - prev) / data.dt)
+    };
+    let (inputs, targets) = prepare(&Transitions::new(&train_set, 1, d, m));
+    let (check_inputs, check_targets) = prepare(&Transitions::new(&validation_set, 1, d, m));
+    let mse = |x: &Tensor, y: &Tensor| (net.forward(x) - y).square().mean(Kind::Double);
+    let loss = |batch: &Tensor| mse(&inputs.index_select(0, batch), &targets.index_select(0, batch));
+    let validation = || mean_value(&mse(&check_inputs, &check_targets));
+    let samples = inputs.size()[0] as usize;
+    let (history, best_epoch) = optimise(&vs, samples, &train.optim, loss, validation, progress)?;
+    Ok(TrainedBaseline { config, var_store: vs, history, best_epoch })
+}

@@ -1,0 +1,180 @@
+//! Demonstrations: episodes of states `[T × d]` with contexts `[T × m]` or one per
+//! episode, sampled every `dt` seconds.
+
+use ciflow_engine::flow::{Bounds, Normalisation};
+use tch::{Kind, Tensor};
+
+use crate::error::{TrainError, TrainResult};
+
+/// Contexts of one episode.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Contexts {
+    /// One context per state (`c_t`).
+    PerStep(Vec<Vec<f64>>),
+    /// One context for the whole episode.
+    PerEpisode(Vec<f64>),
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Episode {
+    pub states: Vec<Vec<f64>>,
+    pub contexts: Contexts,
+}
+
+impl Episode {
+    pub fn context(&self, t: usize) -> &[f64] {
+        match &self.contexts {
+            Contexts::PerStep(c) => &c[t],
+            Contexts::PerEpisode(c) => c,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Demonstrations {
+    pub episodes: Vec<Episode>,
+    pub dt: f64,
+}
+
+/// Smallest standard deviation used for normalisation (a constant coordinate keeps scale 1).
+const MIN_STD: f64 = 1e-6;
+
+impl Demonstrations {
+    /// Checks shapes and values; returns `(d, m)`.
+    pub fn validate(&self) -> TrainResult<(usize, usize)> {
+        let invalid = |m: String| Err(TrainError::InvalidData(m));
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            return invalid("dt must be finite and > 0".into());
+        }
+        let Some(first) = self.episodes.first() else {
+            return invalid("no episodes".into());
+        };
+        let Some(state) = first.states.first() else {
+            return invalid("episode 0 is empty".into());
+        };
+        let (d, m) = (state.len(), first.context(0).len());
+        for (e, episode) in self.episodes.iter().enumerate() {
+            if episode.states.len() < 2 {
+                return invalid(format!("episode {e} has fewer than 2 states"));
+            }
+            if let Contexts::PerStep(c) = &episode.contexts
+                && c.len() != episode.states.len()
+            {
+                return invalid(format!("episode {e}: {} contexts for {} states", c.len(), episode.states.len()));
+            }
+            for t in 0..episode.states.len() {
+                let (y, c) = (&episode.states[t], episode.context(t));
+                if y.len() != d || c.len() != m {
+                    return invalid(format!("episode {e}, step {t}: state/context dimension differs from ({d}, {m})"));
+                }
+                if y.iter().chain(c).any(|v| !v.is_finite()) {
+                    return invalid(format!("episode {e}, step {t}: non-finite value"));
+                }
+            }
+        }
+        Ok((d, m))
+    }
+
+    fn rows(&self) -> impl Iterator<Item = (&[f64], &[f64])> + Clone {
+        self.episodes
+            .iter()
+            .flat_map(|e| (0..e.states.len()).map(move |t| (e.states[t].as_slice(), e.context(t))))
+    }
+
+    /// Per-coordinate mean and standard deviation of all states and contexts.
+    pub fn normalisation(&self) -> Normalisation {
+        let (state_mean, state_std) = moments(self.rows().map(|(y, _)| y));
+        let (context_mean, context_std) = moments(self.rows().map(|(_, c)| c));
+        Normalisation { state_mean, state_std, context_mean, context_std }
+    }
+
+    /// The bounding box of all states and contexts.
+    pub fn bounds(&self) -> Bounds {
+        let (state_min, state_max) = extent(self.rows().map(|(y, _)| y));
+        let (context_min, context_max) = extent(self.rows().map(|(_, c)| c));
+        Bounds { state_min, state_max, context_min, context_max }
+    }
+}
+
+fn moments<'a>(rows: impl Iterator<Item = &'a [f64]> + Clone) -> (Vec<f64>, Vec<f64>) {
+    let n = rows.clone().count() as f64;
+    let dim = rows.clone().next().map_or(0, <[f64]>::len);
+    let mut mean = vec![0.0; dim];
+    for r in rows.clone() {
+        for (m, v) in mean.iter_mut().zip(r) {
+            *m += v / n;
+        }
+    }
+    let mut var = vec![0.0; dim];
+    for r in rows {
+        for ((s, v), m) in var.iter_mut().zip(r).zip(&mean) {
+            *s += (v - m) * (v - m) / n;
+        }
+    }
+    (mean, var.into_iter().map(|v| v.sqrt().max(MIN_STD)).collect())
+}
+
+fn extent<'a>(rows: impl Iterator<Item = &'a [f64]>) -> (Vec<f64>, Vec<f64>) {
+    let mut lo: Vec<f64> = Vec::new();
+    let mut hi: Vec<f64> = Vec::new();
+    for r in rows {
+        if lo.is_empty() {
+            lo = r.to_vec();
+            hi = r.to_vec();
+        }
+        for ((l, h), v) in lo.iter_mut().zip(hi.iter_mut()).zip(r) {
+            *l = l.min(*v);
+            *h = h.max(*v);
+        }
+    }
+    (lo, hi)
+}
+
+/// Transition pairs `(y_t, y_{t+h}, c_t)` and initial pairs `(y_0, c_0)` as `[N, ·]` tensors.
+#[derive(Debug)]
+pub struct Transitions {
+    pub prev: Tensor,
+    pub next: Tensor,
+    pub context: Tensor,
+    pub initial: Tensor,
+    pub initial_context: Tensor,
+}
+
+fn matrix(rows: &[&[f64]], cols: usize) -> Tensor {
+    let flat: Vec<f64> = rows.iter().flat_map(|r| r.iter().copied()).collect();
+    Tensor::from_slice(&flat).to_kind(Kind::Double).reshape([rows.len() as i64, cols as i64])
+}
+
+impl Transitions {
+    pub fn new(episodes: &[&Episode], horizon: usize, d: usize, m: usize) -> Self {
+        let (mut prev, mut next, mut context) = (Vec::new(), Vec::new(), Vec::new());
+        for e in episodes {
+            for t in 0..e.states.len().saturating_sub(horizon) {
+                prev.push(e.states[t].as_slice());
+                next.push(e.states[t + horizon].as_slice());
+                context.push(e.context(t));
+            }
+        }
+        let initial: Vec<&[f64]> = episodes.iter().map(|e| e.states[0].as_slice()).collect();
+        let initial_context: Vec<&[f64]> = episodes.iter().map(|e| e.context(0)).collect();
+        Self {
+            prev: matrix(&prev, d),
+            next: matrix(&next, d),
+            context: matrix(&context, m),
+            initial: matrix(&initial, d),
+            initial_context: matrix(&initial_context, m),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.prev.size()[0] as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    pub fn episodes(&self) -> usize {
+        self.initial.size()[0] as usize
+    }
+}

@@ -1,0 +1,19 @@
+//! Typed errors of the trainer.
+
+use ciflow_engine::flow::FlowError;
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error("invalid training data: {0}")]
+    InvalidData(String),
+    #[error("invalid training configuration: {0}")]
+    InvalidConfig(String),
+    #[error("training diverged (non-finite loss) at epoch {epoch}")]
+    Diverged { epoch: usize },
+    #[error(transparent)]
+    Flow(#[from] FlowError),
+    #[error(transparent)]
+    Torch(#[from] tch::TchError),
+}
+
+pub type TrainResult<T> = Result<T, TrainError>;

@@ -1,0 +1,141 @@
+//! The conditioned ImitationFlow in tch: `y = μ_y + σ_y ⊙ (g(z, c̃) + o(c))` with the
+//! latent dynamics of [`LatentModel`], mirroring `ciflow_engine::flow` parameter for
+//! parameter, so `VarStore::save("weights.safetensors")` loads in the pure-Rust policy.
+
+use ciflow_engine::flow::FlowConfig;
+use tch::nn;
+use tch::{Device, Kind, Tensor};
+
+use crate::latent::{LatentInit, LatentModel};
+use crate::nets::{Coupling, LuMixing};
+
+#[derive(Debug)]
+pub struct FlowModel {
+    config: FlowConfig,
+    blocks: Vec<(LuMixing, Coupling)>,
+    latent: LatentModel,
+    state_mean: Tensor,
+    state_std: Tensor,
+    context_mean: Tensor,
+    context_std: Tensor,
+    goal_index: Option<Tensor>,
+}
+
+pub(crate) fn row(values: &[f64]) -> Tensor {
+    Tensor::from_slice(values).to_kind(Kind::Double).reshape([1, -1])
+}
+
+impl FlowModel {
+    /// Creates the variables under `path` (names as in the engine) — in a `VarStore`
+    /// whose kind is f64 ([`crate::trainer::double_var_store`]).
+    pub fn new(path: &nn::Path, config: &FlowConfig, init: LatentInit) -> Self {
+        let blocks = (0..config.layers)
+            .map(|i| {
+                let p = path / "layers" / i;
+                (LuMixing::new(&(&p / "mixing"), config.state_dim), Coupling::new(&p, i, config))
+            })
+            .collect();
+        let norm = &config.normalisation;
+        Self {
+            config: config.clone(),
+            blocks,
+            latent: LatentModel::new(&(path / "latent"), config, init),
+            state_mean: row(&norm.state_mean),
+            state_std: row(&norm.state_std),
+            context_mean: row(&norm.context_mean),
+            context_std: row(&norm.context_std),
+            goal_index: config.goal_context_indices.as_ref().map(|indices| {
+                Tensor::from_slice(&indices.iter().map(|&i| i as i64).collect::<Vec<_>>()).to_device(Device::Cpu)
+            }),
+        }
+    }
+
+    pub fn config(&self) -> &FlowConfig {
+        &self.config
+    }
+
+    pub fn latent(&self) -> &LatentModel {
+        &self.latent
+    }
+
+    fn log_state_scale(&self) -> Tensor {
+        self.state_std.log().sum(Kind::Double)
+    }
+
+    fn g_forward(&self, z: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
+        let mut x = z.shallow_clone();
+        let mut log_det = Tensor::zeros([z.size()[0]], (Kind::Double, z.device()));
+        for (mixing, coupling) in &self.blocks {
+            let (y, ld) = mixing.forward(&x);
+            let (y, lc) = coupling.apply(&y, context, false);
+            x = y;
+            log_det = log_det + ld + lc;
+        }
+        (x, log_det)
+    }
+
+    fn g_inverse(&self, y: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
+        let mut x = y.shallow_clone();
+        let mut log_det = Tensor::zeros([y.size()[0]], (Kind::Double, y.device()));
+        for (mixing, coupling) in self.blocks.iter().rev() {
+            let (u, lc) = coupling.apply(&x, context, true);
+            let (u, ld) = mixing.inverse(&u);
+            x = u;
+            log_det = log_det + ld + lc;
+        }
+        (x, log_det)
+    }
+
+    /// `(c̃, o(c))` for raw contexts `[B, m]`.
+    fn condition(&self, context: &Tensor) -> (Tensor, Tensor) {
+        let normalised = (context - &self.context_mean) / &self.context_std;
+        let rows = context.size()[0];
+        let d = self.config.state_dim as i64;
+        let offset = match &self.goal_index {
+            Some(index) => {
+                let target = (context.index_select(1, index) - &self.state_mean) / &self.state_std;
+                let origin = Tensor::zeros([rows, d], (Kind::Double, context.device()));
+                target - self.g_forward(&origin, &normalised).0
+            }
+            None => Tensor::zeros([rows, d], (Kind::Double, context.device())),
+        };
+        (normalised, offset)
+    }
+
+    /// `y = f(z, c)` and `log|det ∂f/∂z|` per row.
+    pub fn forward(&self, z: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
+        let (normalised, offset) = self.condition(context);
+        let (y, log_det) = self.g_forward(z, &normalised);
+        ((y + offset) * &self.state_std + &self.state_mean, log_det + self.log_state_scale())
+    }
+
+    /// `z = f⁻¹(y, c)` and `log|det ∂f⁻¹/∂y|` per row.
+    pub fn inverse(&self, y: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
+        let (normalised, offset) = self.condition(context);
+        let x = (y - &self.state_mean) / &self.state_std - offset;
+        let (z, log_det) = self.g_inverse(&x, &normalised);
+        (z, log_det - self.log_state_scale())
+    }
+
+    /// `log p(y_next | y_prev, c)` per row (the `horizon`-step model), with `c = c_{k-1}`.
+    pub fn log_transition(&self, y_prev: &Tensor, y_next: &Tensor, context: &Tensor, horizon: usize) -> Tensor {
+        let both = Tensor::cat(&[y_prev, y_next], 0);
+        let contexts = Tensor::cat(&[context, context], 0);
+        let (z, log_det) = self.inverse(&both, &contexts);
+        let rows = y_prev.size()[0];
+        let (z_prev, z_next) = (z.narrow(0, 0, rows), z.narrow(0, rows, rows));
+        self.latent.log_transition(&z_prev, &z_next, horizon) + log_det.narrow(0, rows, rows)
+    }
+
+    /// `log p(y₀ | c₀)` per row.
+    pub fn log_initial(&self, y0: &Tensor, context: &Tensor) -> Tensor {
+        let (z, log_det) = self.inverse(y0, context);
+        self.latent.log_initial(&z) + log_det
+    }
+
+    /// Noise-free next state `f(μ(f⁻¹(y, c)), c)`.
+    pub fn mean_next(&self, y: &Tensor, context: &Tensor) -> Tensor {
+        let (z, _) = self.inverse(y, context);
+        self.forward(&self.latent.mean_step(&z), context).0
+    }
+}

@@ -1,0 +1,138 @@
+//! The shared minibatch loop: Adam, cosine learning-rate decay, early stopping on a
+//! validation score with the best parameters restored, seeded shuffling.
+
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+use tch::nn::{self, OptimizerConfig};
+use tch::{Kind, Tensor};
+
+use crate::error::{TrainError, TrainResult};
+
+/// Optimiser settings common to the flow and the baseline.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct OptimConfig {
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub learning_rate: f64,
+    /// The cosine schedule decays to `learning_rate · final_lr_fraction`.
+    pub final_lr_fraction: f64,
+    /// Stop after this many epochs without a better validation score.
+    pub patience: usize,
+    /// Gradient-norm clip.
+    pub max_grad_norm: f64,
+    pub seed: u64,
+}
+
+impl Default for OptimConfig {
+    fn default() -> Self {
+        Self {
+            epochs: 200,
+            batch_size: 256,
+            learning_rate: 2e-3,
+            final_lr_fraction: 0.05,
+            patience: 30,
+            max_grad_norm: 50.0,
+            seed: 0,
+        }
+    }
+}
+
+impl OptimConfig {
+    pub fn validate(&self) -> TrainResult<()> {
+        if self.epochs == 0 || self.batch_size == 0 || !(self.learning_rate > 0.0 && self.learning_rate.is_finite()) {
+            return Err(TrainError::InvalidConfig("epochs, batch_size and learning_rate must be positive".into()));
+        }
+        Ok(())
+    }
+}
+
+/// One epoch's figures, handed to the progress callback.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Progress {
+    pub epoch: usize,
+    pub epochs: usize,
+    /// Mean training loss of the epoch.
+    pub train_loss: f64,
+    /// Validation score (lower is better): NLL per transition for flows, MSE for the baseline.
+    pub validation: f64,
+    pub best_validation: f64,
+    pub learning_rate: f64,
+}
+
+/// Runs the loop over `samples` minibatch rows; `loss(indices)` returns the batch loss,
+/// `validation()` the score. Returns the history and the best epoch; `vs` holds the best
+/// parameters on return.
+pub fn optimise(
+    vs: &nn::VarStore,
+    samples: usize,
+    config: &OptimConfig,
+    mut loss: impl FnMut(&Tensor) -> Tensor,
+    mut validation: impl FnMut() -> f64,
+    mut progress: impl FnMut(&Progress),
+) -> TrainResult<(Vec<Progress>, usize)> {
+    config.validate()?;
+    let mut opt = nn::Adam::default().build(vs, config.learning_rate)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+    let mut order: Vec<i64> = (0..samples as i64).collect();
+    let mut history = Vec::new();
+    let (mut best, mut best_epoch) = (f64::INFINITY, 0);
+    let mut snapshot = snapshot_of(vs);
+    for epoch in 0..config.epochs {
+        let phase = epoch as f64 / config.epochs.max(2).saturating_sub(1) as f64;
+        let floor = config.final_lr_fraction;
+        let lr = config.learning_rate * (floor + (1.0 - floor) * 0.5 * (1.0 + (std::f64::consts::PI * phase).cos()));
+        opt.set_lr(lr);
+        order.shuffle(&mut rng);
+        let (mut total, mut batches) = (0.0, 0);
+        for chunk in order.chunks(config.batch_size) {
+            let batch_loss = loss(&Tensor::from_slice(chunk));
+            let value = batch_loss.double_value(&[]);
+            if !value.is_finite() {
+                return Err(TrainError::Diverged { epoch });
+            }
+            opt.backward_step_clip_norm(&batch_loss, config.max_grad_norm);
+            total += value;
+            batches += 1;
+        }
+        let score = tch::no_grad(&mut validation);
+        if score < best {
+            best = score;
+            best_epoch = epoch;
+            snapshot = snapshot_of(vs);
+        }
+        let record = Progress {
+            epoch: epoch + 1,
+            epochs: config.epochs,
+            train_loss: total / batches as f64,
+            validation: score,
+            best_validation: best,
+            learning_rate: lr,
+        };
+        progress(&record);
+        history.push(record);
+        if epoch - best_epoch >= config.patience {
+            break;
+        }
+    }
+    restore(vs, &snapshot);
+    Ok((history, best_epoch + 1))
+}
+
+fn snapshot_of(vs: &nn::VarStore) -> Vec<(String, Tensor)> {
+    vs.variables().into_iter().map(|(name, t)| (name, t.detach().copy())).collect()
+}
+
+fn restore(vs: &nn::VarStore, snapshot: &[(String, Tensor)]) {
+    let variables = vs.variables();
+    tch::no_grad(|| {
+        for (name, value) in snapshot {
+            variables[name].shallow_clone().copy_(value);
+        }
+    });
+}
+
+/// Mean of a per-row tensor as `f64`.
+pub fn mean_value(t: &Tensor) -> f64 {
+    t.mean(Kind::Double).double_value(&[])
+}

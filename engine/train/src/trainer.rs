@@ -1,0 +1,190 @@
+//! Exact maximum-likelihood training of a conditioned ImitationFlow (the paper's
+//! Appendix "Behavioural Cloning Learning"):
+//!
+//! `max_θ Σ_i [log p(y₀ⁱ | c₀ⁱ) + Σ_t log p(y_tⁱ | y_{t-1}ⁱ, c_{t-1}ⁱ)]`,
+//!
+//! minibatched over transitions (the initial-state term enters every batch scaled by
+//! episodes / transitions, so an epoch's expected gradient is that of the full objective
+//! divided by the number of transitions).
+
+use std::path::Path;
+
+use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
+use ciflow_engine::flow::{CheckpointConfig, CouplingKind, FlowConfig, LatentKind};
+use serde::{Deserialize, Serialize};
+use tch::{Device, Kind, Tensor, nn};
+
+use crate::data::{Demonstrations, Episode, Transitions};
+use crate::error::{TrainError, TrainResult};
+use crate::latent::LatentInit;
+use crate::model::FlowModel;
+use crate::optimise::{OptimConfig, Progress, mean_value, optimise};
+
+/// Architecture and optimisation settings of [`train_flow`].
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TrainConfig {
+    pub task: String,
+    pub latent: LatentKind,
+    pub coupling: CouplingKind,
+    pub layers: usize,
+    pub hidden: Vec<usize>,
+    /// Guaranteed latent contraction rate `ε` (1/s).
+    pub min_rate: f64,
+    /// `target(c) = c[indices]` for go-to tasks whose target is in the context.
+    pub goal_context_indices: Option<Vec<usize>>,
+    /// Steps per modelled transition (`k` of the `k`-step density; 1 = the paper's).
+    pub horizon: usize,
+    /// Fraction of episodes held out for early stopping (at least one when there are two).
+    pub validation_fraction: f64,
+    /// libtorch intra-op threads (1 suits these small networks).
+    pub threads: i32,
+    pub optim: OptimConfig,
+}
+
+impl TrainConfig {
+    pub fn new(task: &str, latent: LatentKind) -> Self {
+        Self {
+            task: task.to_owned(),
+            latent,
+            coupling: CouplingKind::Spline { bins: 8, tail_bound: 4.0 },
+            layers: 6,
+            hidden: vec![64, 64],
+            min_rate: 0.1,
+            goal_context_indices: None,
+            horizon: 1,
+            validation_fraction: 0.2,
+            threads: 1,
+            optim: OptimConfig::default(),
+        }
+    }
+}
+
+/// A trained flow: its engine configuration and parameters.
+#[derive(Debug)]
+pub struct TrainedFlow {
+    pub config: FlowConfig,
+    pub var_store: nn::VarStore,
+    pub model: FlowModel,
+    pub history: Vec<Progress>,
+    /// The epoch whose parameters were kept (best validation NLL).
+    pub best_epoch: usize,
+}
+
+impl TrainedFlow {
+    /// Writes `config.json` and `weights.safetensors` (loadable by `Policy::load`).
+    pub fn save(&self, dir: &Path) -> TrainResult<()> {
+        save_checkpoint(dir, &CheckpointConfig::Flow(self.config.clone()), &self.var_store)
+    }
+}
+
+/// Writes a checkpoint directory from a `VarStore`.
+pub fn save_checkpoint(dir: &Path, config: &CheckpointConfig, vs: &nn::VarStore) -> TrainResult<()> {
+    std::fs::create_dir_all(dir).map_err(|source| {
+        TrainError::Flow(ciflow_engine::flow::FlowError::Io { path: dir.to_owned(), source })
+    })?;
+    checkpoint::write_config(dir, config)?;
+    vs.save(dir.join(WEIGHTS_FILE))?;
+    Ok(())
+}
+
+/// A CPU `VarStore` whose new variables are f64.
+pub fn double_var_store() -> nn::VarStore {
+    let mut vs = nn::VarStore::new(Device::Cpu);
+    vs.set_kind(Kind::Double);
+    vs
+}
+
+/// Splits episodes into (training, validation) with a seeded shuffle.
+pub(crate) fn split(data: &Demonstrations, fraction: f64, seed: u64) -> (Vec<&Episode>, Vec<&Episode>) {
+    use rand::SeedableRng;
+    use rand::seq::SliceRandom;
+    let mut episodes: Vec<&Episode> = data.episodes.iter().collect();
+    episodes.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5eed));
+    let n = episodes.len();
+    let held_out = if n >= 2 { ((fraction * n as f64).round() as usize).clamp(1, n - 1) } else { 0 };
+    let validation = episodes.split_off(n - held_out);
+    if validation.is_empty() {
+        return (episodes.clone(), episodes);
+    }
+    (episodes, validation)
+}
+
+/// The engine configuration for `data` under `train`.
+pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<FlowConfig> {
+    let (d, m) = data.validate()?;
+    let config = FlowConfig {
+        task: train.task.clone(),
+        state_dim: d,
+        context_dim: m,
+        dt: data.dt,
+        latent: train.latent,
+        min_rate: train.min_rate,
+        coupling: train.coupling.clone(),
+        layers: train.layers,
+        hidden: train.hidden.clone(),
+        goal_context_indices: train.goal_context_indices.clone(),
+        normalisation: data.normalisation(),
+        bounds: data.bounds(),
+    };
+    config.validate()?;
+    Ok(config)
+}
+
+/// Starting values of the latent noise and cycle frequency from the normalised data.
+fn latent_init(data: &Demonstrations, config: &FlowConfig) -> LatentInit {
+    let norm = &config.normalisation;
+    let normalised = |y: &[f64], i: usize| (y[i] - norm.state_mean[i]) / norm.state_std[i];
+    let (mut squares, mut angle, mut n) = (0.0, 0.0, 0.0);
+    for e in &data.episodes {
+        for w in e.states.windows(2) {
+            for i in 0..config.state_dim {
+                squares += (normalised(&w[1], i) - normalised(&w[0], i)).powi(2);
+            }
+            let psi = |y: &[f64]| normalised(y, 1).atan2(normalised(y, 0));
+            let delta = psi(&w[1]) - psi(&w[0]);
+            angle += delta.sin().atan2(delta.cos());
+            n += 1.0;
+        }
+    }
+    LatentInit {
+        sigma: (squares / (n * config.state_dim as f64)).sqrt().max(1e-3),
+        omega: angle / (n * config.dt),
+    }
+}
+
+/// Trains a flow by exact maximum likelihood; `progress` is called once per epoch.
+pub fn train_flow(
+    data: &Demonstrations,
+    train: &TrainConfig,
+    progress: impl FnMut(&Progress),
+) -> TrainResult<TrainedFlow> {
+    if train.horizon == 0 || !(0.0..1.0).contains(&train.validation_fraction) {
+        return Err(TrainError::InvalidConfig("horizon must be >= 1 and validation_fraction in [0, 1)".into()));
+    }
+    let config = flow_config(data, train)?;
+    tch::set_num_threads(train.threads);
+    tch::manual_seed(train.optim.seed as i64);
+    let vs = double_var_store();
+    let model = FlowModel::new(&vs.root(), &config, latent_init(data, &config));
+    let (train_set, validation_set) = split(data, train.validation_fraction, train.optim.seed);
+    let (d, m) = (config.state_dim, config.context_dim);
+    let fit = Transitions::new(&train_set, train.horizon, d, m);
+    let check = Transitions::new(&validation_set, 1, d, m);
+    if fit.is_empty() || check.is_empty() {
+        return Err(TrainError::InvalidData(format!("episodes are shorter than the horizon {}", train.horizon)));
+    }
+    let initial_weight = fit.episodes() as f64 / fit.len() as f64;
+    let loss = |batch: &Tensor| {
+        let transitions = model.log_transition(
+            &fit.prev.index_select(0, batch),
+            &fit.next.index_select(0, batch),
+            &fit.context.index_select(0, batch),
+            train.horizon,
+        );
+        let initial = model.log_initial(&fit.initial, &fit.initial_context);
+        -(transitions.mean(Kind::Double) + initial.mean(Kind::Double) * initial_weight)
+    };
+    let validation = || -mean_value(&model.log_transition(&check.prev, &check.next, &check.context, 1));
+    let (history, best_epoch) = optimise(&vs, fit.len(), &train.optim, loss, validation, progress)?;
+    Ok(TrainedFlow { config, var_store: vs, model, history, best_epoch })
+}

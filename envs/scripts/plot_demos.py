@@ -1,0 +1,99 @@
+"""Plots expert demonstrations of a `ciflow demos` dataset over the workspace (PNG).
+
+Usage: python plot_demos.py DATASET_DIR OUT.png [--episodes N]
+
+Reads the dataset with plain Minari (no ciflow import). Planar tasks: paths in the plane
+coloured by episode, with the task's scene from the context (obstacles and target, or the
+phase); pouring: the spout's path seen from above and from the side, pots from the context.
+"""
+
+import argparse
+import pathlib
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import minari  # noqa: E402
+import numpy as np  # noqa: E402
+
+OBSTACLE_RADIUS, SAFETY_RADIUS = 0.1, 0.16
+
+
+def plot_limit_cycle(episodes, axes):
+    by_phase = {}
+    for e in episodes:
+        by_phase.setdefault(round(float(e.infos["context"][0, 0]), 3), []).append(e)
+    phases = sorted(by_phase)
+    for ax, phase in zip(axes, phases):
+        for e in by_phase[phase]:
+            ax.plot(e.observations[:, 0], e.observations[:, 1], lw=0.8)
+            ax.plot(*e.observations[0, :2], "ko", ms=3)
+        ax.set_title(f"c = {phase}")
+    return len(phases)
+
+
+def plot_obstacles(episodes, axes):
+    for ax, e in zip(axes, episodes):
+        context = e.infos["context"][0]
+        for x, y in context[:-2].reshape(-1, 2):
+            ax.add_patch(plt.Circle((x, y), SAFETY_RADIUS, color="0.9"))
+            ax.add_patch(plt.Circle((x, y), OBSTACLE_RADIUS, color="0.5"))
+        ax.plot(*context[-2:], "g*", ms=12)
+        ax.plot(e.observations[:, 0], e.observations[:, 1], "b", lw=1)
+        ax.plot(*e.observations[0, :2], "ko", ms=3)
+        ax.set_xlim(-1.05, 1.05)
+        ax.set_ylim(-0.8, 0.8)
+    return len(episodes)
+
+
+def plot_pouring(episodes, axes):
+    top, side = axes[0], axes[1]
+    for e in episodes:
+        spout = np.stack([e.infos[k] for k in ("spout_x", "spout_y", "spout_z")], axis=1)
+        tilt = e.infos["tilt"]
+        pot = e.infos["context"][0]
+        top.scatter(spout[:, 0], spout[:, 1], c=tilt, s=2, cmap="viridis", vmin=0, vmax=1.5)
+        side.scatter(spout[:, 0], spout[:, 2], c=tilt, s=2, cmap="viridis", vmin=0, vmax=1.5)
+        top.add_patch(plt.Circle(pot[:2], 0.08, fill=False, color="tab:orange"))
+        yaw = pot[5]
+        lip = pot[:2] - 0.045 * np.array([np.cos(yaw), np.sin(yaw)])
+        top.plot(*lip, "r.", ms=6)
+        side.plot([pot[0] - 0.08, pot[0] + 0.08], [pot[2] + 0.12] * 2, color="tab:orange")
+    top.set_title("spout from above (colour: tilt, rad)")
+    side.set_title("spout from the side (x, z)")
+    return 2
+
+
+def main():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("dataset", type=pathlib.Path)
+    parser.add_argument("out", type=pathlib.Path)
+    parser.add_argument("--episodes", type=int, default=12)
+    args = parser.parse_args()
+    dataset = minari.MinariDataset(args.dataset / "data")
+    env_id = dataset.storage.metadata["ciflow"]["env_id"]
+    episodes = list(dataset.iterate_episodes())[: args.episodes]
+    fig, axes = plt.subplots(2, 5, figsize=(20, 8) if "Pouring" not in env_id else (20, 8))
+    axes = axes.ravel()
+    if "LimitCycle" in env_id:
+        used = plot_limit_cycle(list(dataset.iterate_episodes()), axes)
+    elif "ObstacleAvoidance" in env_id:
+        used = plot_obstacles(episodes[:10], axes)
+    elif "Pouring" in env_id:
+        plt.close(fig)
+        fig, axes = plt.subplots(1, 2, figsize=(14, 6))
+        used = plot_pouring(episodes, axes)
+    else:
+        raise SystemExit(f"no plot for {env_id}")
+    for ax in list(axes)[:used]:
+        ax.set_aspect("equal")
+    for ax in list(axes)[used:]:
+        ax.axis("off")
+    fig.suptitle(f"{dataset.spec.dataset_id}: expert demonstrations ({env_id})")
+    fig.tight_layout()
+    fig.savefig(args.out, dpi=70)
+
+
+if __name__ == "__main__":
+    main()

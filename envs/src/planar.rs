@@ -1,0 +1,317 @@
+//! The environment shared by the planar tasks: a point mass driven through the
+//! computed-torque layer, whose task supplies context, start state, expert field, reward
+//! and scene.
+//!
+//! State `(x, ẋ) ∈ R² × R²`, action `a = ẍ_des`, observation `[x, ẋ, c]`. The robot is
+//! the engine's [`PointMass2d`] (1 kg) under [`Simulator`], so perturbation forces act
+//! through the real dynamics: `ẍ = a + f_ext / m`.
+
+use std::collections::BTreeMap;
+
+use ciflow_engine::robot::PointMass2d;
+use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
+use nalgebra::Vector2;
+use rand_chacha::ChaCha8Rng;
+
+use crate::env::{Env, EnvError, EnvSpec, Info, ResetOptions, Step};
+use crate::expert::tracking::{VelocityField, tracking_acceleration};
+use crate::raster::{BLACK, BLUE, Canvas, View};
+use crate::seeding::EpisodeRng;
+use crate::space::{BoxSpace, Dtype};
+
+/// Mass of the point, kg.
+pub const MASS: f64 = 1.0;
+
+/// What a task tells about one state: Gymnasium's reward, termination and info.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Outcome {
+    pub reward: f64,
+    pub terminated: bool,
+    /// The same keys at every step and at reset (datasets store them as columns).
+    pub info: Info,
+}
+
+/// Fixed facts about a planar task.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlanarSetup {
+    /// Gymnasium id.
+    pub id: &'static str,
+    /// The region shown by `render` and from which starts are drawn.
+    pub workspace: View,
+    /// Bound of each action component, m/s² (or the task's length unit per s²).
+    pub max_acceleration: f64,
+    pub control_dt: f64,
+    pub physics_dt: f64,
+    pub max_episode_steps: u32,
+}
+
+/// A planar task: the parts of an environment that differ between tasks.
+pub trait PlanarTask: Send + 'static {
+    fn setup(&self) -> &PlanarSetup;
+    fn context_space(&self) -> &BoxSpace;
+    /// Applies task-specific reset options (`ResetOptions::extra`); unknown keys are errors.
+    fn configure(&mut self, extra: &BTreeMap<String, f64>) -> Result<(), EnvError>;
+    fn sample_context(&self, rng: &mut ChaCha8Rng) -> Vec<f64>;
+    /// Checks a context beyond its space (e.g. obstacles that overlap the target).
+    fn check_context(&self, _context: &[f64]) -> Result<(), EnvError> {
+        Ok(())
+    }
+    /// Makes `context` current (rebuilds the expert); it has passed the checks.
+    fn set_context(&mut self, context: &[f64]);
+    /// A start position for the current context.
+    fn sample_start(&self, rng: &mut ChaCha8Rng) -> Vector2<f64>;
+    /// Checks a start position given in the reset options.
+    fn check_start(&self, _x: &Vector2<f64>) -> Result<(), EnvError> {
+        Ok(())
+    }
+    /// The expert's first-order system for the current context.
+    fn field(&self) -> &dyn VelocityField;
+    /// `k_v` of the expert's [`tracking_acceleration`], 1/s.
+    fn velocity_gain(&self) -> f64;
+    fn evaluate(&self, x: &Vector2<f64>, xd: &Vector2<f64>) -> Outcome;
+    /// Draws the task's scene (targets, obstacles, outlines) under the trajectory.
+    fn draw(&self, canvas: &mut Canvas);
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    NeedsReset,
+    Running,
+    Ended,
+}
+
+/// A planar task as an [`Env`].
+pub struct PlanarEnv<T: PlanarTask> {
+    task: T,
+    spec: EnvSpec,
+    simulator: Simulator,
+    rng: EpisodeRng,
+    context: Vec<f64>,
+    phase: Phase,
+    steps: u32,
+    /// Positions visited this episode, drawn by `render`.
+    trail: Vec<Vector2<f64>>,
+}
+
+impl<T: PlanarTask> PlanarEnv<T> {
+    pub fn new(task: T) -> Result<Self, EnvError> {
+        let setup = task.setup().clone();
+        let config = SimConfig {
+            physics_dt: setup.physics_dt,
+            control_dt: setup.control_dt,
+            ..SimConfig::default()
+        };
+        let robot = PointMass2d::new(MASS).map_err(|e| EnvError::Simulation(e.to_string()))?;
+        let simulator = Simulator::new(Box::new(robot), config)
+            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        let context_space = task.context_space().clone();
+        let unbounded = |n: usize| vec![f64::INFINITY; n];
+        let observation_space = BoxSpace::new(
+            [vec![f64::NEG_INFINITY; 4], context_space.low.clone()].concat(),
+            [unbounded(4), context_space.high.clone()].concat(),
+            Dtype::Float64,
+        );
+        let a = setup.max_acceleration;
+        let spec = EnvSpec {
+            id: setup.id.to_string(),
+            observation_space,
+            action_space: BoxSpace::new(vec![-a; 2], vec![a; 2], Dtype::Float64),
+            context_space,
+            control_dt: setup.control_dt,
+            physics_dt: setup.physics_dt,
+            max_episode_steps: setup.max_episode_steps,
+        };
+        Ok(Self {
+            task,
+            spec,
+            simulator,
+            rng: EpisodeRng::default(),
+            context: Vec::new(),
+            phase: Phase::NeedsReset,
+            steps: 0,
+            trail: Vec::new(),
+        })
+    }
+
+    pub fn task(&self) -> &T {
+        &self.task
+    }
+
+    /// Position `x` and velocity `ẋ` now.
+    pub fn state(&self) -> (Vector2<f64>, Vector2<f64>) {
+        let (q, qd) = (self.simulator.q(), self.simulator.qd());
+        (Vector2::new(q[0], q[1]), Vector2::new(qd[0], qd[1]))
+    }
+
+    fn observation(&self) -> Vec<f64> {
+        let (x, xd) = self.state();
+        [&[x.x, x.y, xd.x, xd.y][..], &self.context].concat()
+    }
+
+    fn outcome(&self) -> Outcome {
+        let (x, xd) = self.state();
+        let mut outcome = self.task.evaluate(&x, &xd);
+        outcome.info.insert("time".into(), self.simulator.time());
+        outcome
+    }
+
+    fn check_context(&self, context: &[f64]) -> Result<(), EnvError> {
+        self.spec.context_space.check("context", context)?;
+        self.task.check_context(context)
+    }
+}
+
+fn vector2(what: &'static str, values: &[f64]) -> Result<Vector2<f64>, EnvError> {
+    match values {
+        [x, y] if x.is_finite() && y.is_finite() => Ok(Vector2::new(*x, *y)),
+        [_, _] => Err(EnvError::NotFinite { what }),
+        _ => Err(EnvError::WrongDimension {
+            what,
+            expected: 2,
+            got: values.len(),
+        }),
+    }
+}
+
+impl<T: PlanarTask> Env for PlanarEnv<T> {
+    fn spec(&self) -> &EnvSpec {
+        &self.spec
+    }
+
+    fn reset(
+        &mut self,
+        seed: Option<u64>,
+        options: &ResetOptions,
+    ) -> Result<(Vec<f64>, Info), EnvError> {
+        // A failed reset leaves no episode to step: the task may be half reconfigured.
+        self.phase = Phase::NeedsReset;
+        self.task.configure(&options.extra)?;
+        let rng = self.rng.reseed(seed);
+        let context = match &options.context {
+            Some(context) => context.clone(),
+            None => self.task.sample_context(rng),
+        };
+        self.check_context(&context)?;
+        self.task.set_context(&context);
+        let x0 = match &options.initial_position {
+            Some(x0) => {
+                let x0 = vector2("initial_position", x0)?;
+                self.task.check_start(&x0)?;
+                x0
+            }
+            None => self.task.sample_start(self.rng.reseed(None)),
+        };
+        let xd0 = match &options.initial_velocity {
+            Some(xd0) => vector2("initial_velocity", xd0)?,
+            None => Vector2::zeros(),
+        };
+        self.simulator
+            .reset(x0.as_slice(), xd0.as_slice())
+            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        self.context = context;
+        self.phase = Phase::Running;
+        self.steps = 0;
+        self.trail = vec![x0];
+        Ok((self.observation(), self.outcome().info))
+    }
+
+    fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
+        if self.phase != Phase::Running {
+            return Err(EnvError::NeedsReset);
+        }
+        self.spec.action_space.check("action", action)?;
+        self.simulator
+            .step(action)
+            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        self.steps += 1;
+        self.trail.push(self.state().0);
+        let outcome = self.outcome();
+        let truncated = !outcome.terminated && self.steps >= self.spec.max_episode_steps;
+        if outcome.terminated || truncated {
+            self.phase = Phase::Ended;
+        }
+        Ok(Step {
+            observation: self.observation(),
+            reward: outcome.reward,
+            terminated: outcome.terminated,
+            truncated,
+            info: outcome.info,
+        })
+    }
+
+    fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
+        if self.phase == Phase::NeedsReset {
+            return Err(EnvError::NeedsReset);
+        }
+        let (x, xd) = self.state();
+        let a = tracking_acceleration(self.task.field(), &x, &xd, self.task.velocity_gain());
+        Ok(self.spec.action_space.clip(a.as_slice()))
+    }
+
+    fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
+        if self.phase == Phase::NeedsReset {
+            return Err(EnvError::NeedsReset);
+        }
+        self.check_context(context)?;
+        self.task.set_context(context);
+        self.context = context.to_vec();
+        Ok(())
+    }
+
+    fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError> {
+        if self.phase == Phase::NeedsReset {
+            return Err(EnvError::NeedsReset);
+        }
+        self.simulator
+            .perturb(perturbation)
+            .map_err(|e| EnvError::InvalidPerturbation(e.to_string()))
+    }
+
+    fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
+        if width == 0 || height == 0 {
+            return Err(EnvError::InvalidOption {
+                name: "render size".into(),
+                detail: format!("{width} × {height} has no pixels"),
+            });
+        }
+        let mut canvas = Canvas::new(width, height, self.task.setup().workspace);
+        if self.phase != Phase::NeedsReset {
+            self.task.draw(&mut canvas);
+            canvas.polyline(&self.trail, false, BLUE, 2.0);
+            let radius =
+                0.012 * (self.task.setup().workspace.max - self.task.setup().workspace.min).norm();
+            canvas.disc(&self.state().0, radius, BLACK);
+        }
+        Ok(canvas.into_pixels())
+    }
+}
+
+/// Rejects option keys a task does not know.
+pub fn reject_unknown_options(
+    extra: &BTreeMap<String, f64>,
+    known: &[&str],
+) -> Result<(), EnvError> {
+    match extra.keys().find(|k| !known.contains(&k.as_str())) {
+        Some(key) => Err(EnvError::InvalidOption {
+            name: key.clone(),
+            detail: format!("not an option of this task (known: {})", known.join(", ")),
+        }),
+        None => Ok(()),
+    }
+}
+
+/// The option `name` as an index below `count`, if given.
+pub fn index_option(
+    options: &BTreeMap<String, f64>,
+    name: &str,
+    count: usize,
+) -> Result<Option<usize>, EnvError> {
+    match options.get(name) {
+        None => Ok(None),
+        Some(&v) if v.fract() == 0.0 && (0.0..count as f64).contains(&v) => Ok(Some(v as usize)),
+        Some(v) => Err(EnvError::InvalidOption {
+            name: name.into(),
+            detail: format!("{v} is not a whole number in [0, {count})"),
+        }),
+    }
+}

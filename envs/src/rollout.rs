@@ -1,0 +1,111 @@
+//! Recording episodes of the expert: what `ciflow demos` and the tests run.
+
+use crate::dataset::{DatasetSpec, Episode};
+use crate::env::{Env, EnvError, ResetOptions};
+
+/// Resets `env` with `seed` and `options`, then lets the expert act until the episode
+/// terminates or is truncated, recording everything a dataset holds.
+pub fn expert_episode(
+    env: &mut dyn Env,
+    seed: Option<u64>,
+    options: &ResetOptions,
+) -> Result<Episode, EnvError> {
+    let context_dim = env.spec().context_space.dim();
+    let context_of = |observation: &[f64]| observation[observation.len() - context_dim..].to_vec();
+    let (observation, info) = env.reset(seed, options)?;
+    let mut episode = Episode {
+        seed,
+        contexts: vec![context_of(&observation)],
+        observations: vec![observation],
+        infos: info.into_iter().map(|(k, v)| (k, vec![v])).collect(),
+        ..Episode::default()
+    };
+    loop {
+        let action = env.expert_action()?;
+        let step = env.step(&action)?;
+        episode.actions.push(action);
+        episode.contexts.push(context_of(&step.observation));
+        episode.observations.push(step.observation);
+        episode.rewards.push(step.reward);
+        episode.terminations.push(step.terminated);
+        episode.truncations.push(step.truncated);
+        for (key, value) in step.info {
+            episode.infos.entry(key).or_default().push(value);
+        }
+        if step.terminated || step.truncated {
+            return Ok(episode);
+        }
+    }
+}
+
+/// The dataset description of `env`'s expert demonstrations.
+pub fn expert_dataset_spec(env: &dyn Env, dataset_id: &str) -> DatasetSpec {
+    let spec = env.spec();
+    DatasetSpec {
+        dataset_id: dataset_id.to_string(),
+        env_id: spec.id.clone(),
+        observation_space: spec.observation_space.clone(),
+        action_space: spec.action_space.clone(),
+        context_space: spec.context_space.clone(),
+        control_dt: spec.control_dt,
+        algorithm_name: "expert".into(),
+    }
+}
+
+/// What [`record_expert_dataset`] records.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Recording {
+    /// Task name or Gymnasium id.
+    pub task: String,
+    /// Construction arguments of the task.
+    pub kwargs: crate::registry::Kwargs,
+    /// Reset options for every episode (`ResetOptions::extra`).
+    pub options: std::collections::BTreeMap<String, f64>,
+    pub episodes: u64,
+    /// Episode `i` is reset with seed `seed + i`.
+    pub seed: u64,
+    /// Minari dataset id; `ciflow/<task name>-expert-v0` when unset.
+    pub dataset_id: Option<String>,
+}
+
+/// Why a recording failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    #[error("episode {episode}: {source}")]
+    Env { episode: u64, source: EnvError },
+    #[error(transparent)]
+    Make(#[from] EnvError),
+    #[error(transparent)]
+    Dataset(#[from] crate::dataset::DatasetError),
+}
+
+/// Records expert episodes into a dataset at `out`, atomically; `on_episode` is called
+/// after each episode (for progress bars). Returns the dataset's description.
+pub fn record_expert_dataset(
+    recording: &Recording,
+    out: &std::path::Path,
+    overwrite: bool,
+    mut on_episode: impl FnMut(&Episode),
+) -> Result<DatasetSpec, RecordingError> {
+    let entry = crate::registry::entry(&recording.task)?;
+    let mut env = (entry.make_with)(&recording.kwargs)?;
+    let dataset_id = recording
+        .dataset_id
+        .clone()
+        .unwrap_or_else(|| format!("ciflow/{}-expert-v0", entry.name));
+    let spec = expert_dataset_spec(env.as_ref(), &dataset_id);
+    let options = ResetOptions {
+        extra: recording.options.clone(),
+        ..ResetOptions::default()
+    };
+    let mut writer = crate::dataset::DatasetWriter::create(out, spec.clone(), overwrite)?;
+    for episode in 0..recording.episodes {
+        let seed = recording.seed.wrapping_add(episode);
+        let data = expert_episode(env.as_mut(), Some(seed), &options)
+            .map_err(|source| RecordingError::Env { episode, source })?;
+        writer.append(&data)?;
+        on_episode(&data);
+    }
+    writer.finish()?;
+    Ok(spec)
+}

@@ -1,0 +1,205 @@
+//! `ciflow/LimitCycle-v0` — the conditioned "Vitruvian man" of the C-IFlows paper.
+//!
+//! ## Description
+//! A 1 kg point mass in the plane should circulate along the outline of a human figure
+//! whose arms and legs move with a phase context `c ∈ [0, 1]` ([`Outline`]): arms from
+//! slightly below horizontal (`c = 0`) to raised (`c = 1`), legs spreading apart. Each
+//! outline is a simple closed curve, the stable limit cycle of the expert.
+//!
+//! ## Action space
+//! `Box(-60, 60, (2,), float64)`: desired acceleration `ẍ_des` (m/s²) through the
+//! computed-torque layer; out-of-range actions are refused with `OutOfBounds`.
+//!
+//! ## Observation space
+//! `[x, y, ẋ, ẏ, c]`: position (m), velocity (m/s), the phase `c` (unitless, `[0, 1]`).
+//!
+//! ## Context distribution
+//! Option `context_set`: `0` (default) uniform over the ten training phases
+//! [`TRAINING_CONTEXTS`] `= {0, 1/9, …, 1}`; `1` uniform over the held-out phases
+//! [`HELD_OUT_CONTEXTS`]; `2` uniform on `[0, 1]`. `options.context` sets it directly.
+//!
+//! ## Expert
+//! [`LimitCycleField`] (converge radially, circulate counter-clockwise at 0.8 m/s)
+//! tracked with `k_v = 25 /s`, clipped to the action space.
+//!
+//! ## Rewards
+//! `−|ρ − r(θ, c)|`, the radial distance to the outline (m). `info`: `outline_error`
+//! (that distance), `is_success` (1 when it is below 3 cm), `time` (s).
+//!
+//! ## Starting state
+//! Position uniform in `[−1.2, 1.2]²` at least 0.2 m from the figure's centre; zero
+//! velocity. `options.initial_position` / `initial_velocity` override them.
+//!
+//! ## Episode end
+//! Never terminates (a limit cycle has no end); truncated after 1000 steps (10 s).
+//!
+//! ## Arguments
+//! None.
+//!
+//! ## Version history
+//! v0: initial version.
+
+use std::collections::BTreeMap;
+
+use nalgebra::Vector2;
+use rand::RngExt;
+use rand_chacha::ChaCha8Rng;
+
+use crate::env::{EnvError, Info};
+use crate::expert::limit_cycle::LimitCycleField;
+use crate::expert::tracking::VelocityField;
+use crate::planar::{Outcome, PlanarEnv, PlanarSetup, PlanarTask, reject_unknown_options};
+use crate::raster::{Canvas, GREY, View};
+use crate::space::{BoxSpace, Dtype};
+use crate::vitruvian::Outline;
+
+pub const ID: &str = "ciflow/LimitCycle-v0";
+/// The ten phases demonstrated for training, as in the paper.
+pub const TRAINING_CONTEXTS: [f64; 10] = [
+    0.0,
+    1.0 / 9.0,
+    2.0 / 9.0,
+    3.0 / 9.0,
+    4.0 / 9.0,
+    5.0 / 9.0,
+    6.0 / 9.0,
+    7.0 / 9.0,
+    8.0 / 9.0,
+    1.0,
+];
+/// Phases between the training ones, for generalisation tests (the paper shows 0.5).
+pub const HELD_OUT_CONTEXTS: [f64; 3] = [0.25, 0.5, 0.75];
+/// Radial distance below which the mass counts as on the outline, m.
+pub const SUCCESS_DISTANCE: f64 = 0.03;
+const CONTEXT_SET_OPTION: &str = "context_set";
+const MIN_START_RADIUS: f64 = 0.2;
+
+/// Where `reset` draws the phase from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ContextSet {
+    Training,
+    HeldOut,
+    Uniform,
+}
+
+/// The limit-cycle task (see the module docs).
+pub struct LimitCycle {
+    setup: PlanarSetup,
+    context_space: BoxSpace,
+    context_set: ContextSet,
+    field: LimitCycleField,
+}
+
+impl Default for LimitCycle {
+    fn default() -> Self {
+        Self {
+            setup: PlanarSetup {
+                id: ID,
+                workspace: View {
+                    min: Vector2::new(-1.2, -1.2),
+                    max: Vector2::new(1.2, 1.2),
+                },
+                max_acceleration: 60.0,
+                control_dt: 0.01,
+                physics_dt: 0.001,
+                max_episode_steps: 1000,
+            },
+            context_space: BoxSpace::new(vec![0.0], vec![1.0], Dtype::Float64),
+            context_set: ContextSet::Training,
+            field: LimitCycleField {
+                outline: Outline::new(0.0),
+            },
+        }
+    }
+}
+
+/// The environment.
+pub fn make() -> Result<PlanarEnv<LimitCycle>, EnvError> {
+    PlanarEnv::new(LimitCycle::default())
+}
+
+impl LimitCycle {
+    pub fn outline(&self) -> &Outline {
+        &self.field.outline
+    }
+}
+
+impl PlanarTask for LimitCycle {
+    fn setup(&self) -> &PlanarSetup {
+        &self.setup
+    }
+
+    fn context_space(&self) -> &BoxSpace {
+        &self.context_space
+    }
+
+    fn configure(&mut self, extra: &BTreeMap<String, f64>) -> Result<(), EnvError> {
+        reject_unknown_options(extra, &[CONTEXT_SET_OPTION])?;
+        self.context_set = match extra.get(CONTEXT_SET_OPTION).copied() {
+            None => ContextSet::Training,
+            Some(v) if v == 0.0 => ContextSet::Training,
+            Some(v) if v == 1.0 => ContextSet::HeldOut,
+            Some(v) if v == 2.0 => ContextSet::Uniform,
+            Some(v) => {
+                return Err(EnvError::InvalidOption {
+                    name: CONTEXT_SET_OPTION.into(),
+                    detail: format!("{v} is not 0 (training), 1 (held out) or 2 (uniform)"),
+                });
+            }
+        };
+        Ok(())
+    }
+
+    fn sample_context(&self, rng: &mut ChaCha8Rng) -> Vec<f64> {
+        let c = match self.context_set {
+            ContextSet::Training => TRAINING_CONTEXTS[rng.random_range(0..TRAINING_CONTEXTS.len())],
+            ContextSet::HeldOut => HELD_OUT_CONTEXTS[rng.random_range(0..HELD_OUT_CONTEXTS.len())],
+            ContextSet::Uniform => rng.random_range(0.0..=1.0),
+        };
+        vec![c]
+    }
+
+    fn set_context(&mut self, context: &[f64]) {
+        self.field.outline = Outline::new(context[0]);
+    }
+
+    fn sample_start(&self, rng: &mut ChaCha8Rng) -> Vector2<f64> {
+        let (low, high) = (self.setup.workspace.min, self.setup.workspace.max);
+        loop {
+            let x = Vector2::new(
+                rng.random_range(low.x..high.x),
+                rng.random_range(low.y..high.y),
+            );
+            if x.norm() >= MIN_START_RADIUS {
+                return x;
+            }
+        }
+    }
+
+    fn field(&self) -> &dyn VelocityField {
+        &self.field
+    }
+
+    fn velocity_gain(&self) -> f64 {
+        25.0
+    }
+
+    fn evaluate(&self, x: &Vector2<f64>, _xd: &Vector2<f64>) -> Outcome {
+        let error = self.field.outline.radial_error(x).abs();
+        Outcome {
+            reward: -error,
+            terminated: false,
+            info: Info::from([
+                ("outline_error".into(), error),
+                (
+                    "is_success".into(),
+                    f64::from(u8::from(error < SUCCESS_DISTANCE)),
+                ),
+            ]),
+        }
+    }
+
+    fn draw(&self, canvas: &mut Canvas) {
+        canvas.polyline(&self.field.outline.polyline(720), true, GREY, 2.0);
+    }
+}

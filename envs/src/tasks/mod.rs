@@ -1,0 +1,6 @@
+//! The tasks, one module each, documented like Gymnasium environments.
+
+pub mod lasa;
+pub mod limit_cycle;
+pub mod obstacle_avoidance;
+pub mod pouring;

@@ -1,0 +1,483 @@
+//! `ciflow/Pouring-v0` — the Franka Panda pours from a cup into a pot.
+//!
+//! ## Description
+//! The 7-DOF Panda with its identified dynamics (the engine's [`panda`] under the
+//! computed-torque [`Simulator`], 1 ms physics, 10 ms control) holds a cup. A pot stands
+//! at a 6-D pose; its rim has a lip on one side (local `−x`), and water must be poured
+//! over the lip: the cup has to reach a pre-pour pose above the lip upright, then tilt
+//! toward the pot's centre. Tilting anywhere else spills.
+//!
+//! ## Action space
+//! `Box(−q̈_max, q̈_max, (7,), float64)`: desired joint accelerations (rad/s²), Franka's
+//! limits `q̈_max = (15, 7.5, 10, 12.5, 15, 20, 20)`, through the computed-torque layer
+//! (which also applies the torque and torque-rate limits). Out-of-range actions are refused.
+//!
+//! ## Observation space
+//! `[q (7, rad), q̇ (7, rad/s), c (6)]` with the context
+//! `c = (x, y, z, roll, pitch, yaw)` of the pot: position of its base centre in the
+//! robot's base frame (m) and orientation `R = R_z(yaw) R_y(pitch) R_x(roll)` (rad).
+//!
+//! ## Context distribution
+//! `x ∈ [0.42, 0.6]`, `y ∈ [−0.25, 0.25]`, `z ∈ [0, 0.1]`, `roll, pitch ∈ [−0.1, 0.1]`,
+//! `yaw ∈ [−0.6, 0.6]`, uniform (the context space is this box).
+//!
+//! ## Expert
+//! [`crate::expert::pouring`]: resolved-acceleration control of the spout toward the pour
+//! point (6 cm above the lip) with the cup upright until 5 cm away, then tilted by
+//! 1.45 rad toward the pot's centre; redundancy resolved toward a nominal posture.
+//!
+//! ## Rewards
+//! `−‖spout − p*‖` (m) per step, `−100` on a spill. `info`: `spout_x/y/z` (m), `tilt`
+//! (rad), `pour_distance` (m), `over_pot` (0/1), `spill` (0/1), `is_success` (1 while
+//! pouring: tilt ≥ [`POURING_TILT`] with the spout over the pot's opening), `time` (s).
+//!
+//! ## Starting state
+//! `q = PANDA_HOME + U(−0.05, 0.05)⁷`, `q̇ = 0`; the cup is upright above the table.
+//! `options.initial_position` / `initial_velocity` override them (within joint limits).
+//!
+//! ## Episode end
+//! Terminated on a spill: tilt ≥ [`SPILL_TILT`] with the spout not over the opening.
+//! Truncated after 600 steps (6 s).
+//!
+//! ## Arguments
+//! None.
+//!
+//! ## Version history
+//! v0: initial version.
+
+use ciflow_engine::math::{Isometry3, Vector3};
+use ciflow_engine::robot::{PANDA_HOME, Robot, panda};
+use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
+use nalgebra::{Rotation3, Translation3, UnitQuaternion, Vector2};
+use rand::RngExt;
+
+use crate::env::{Env, EnvError, EnvSpec, Info, ResetOptions, Step};
+use crate::expert::pouring::{CupPose, PourTarget, expert_acceleration};
+use crate::planar::reject_unknown_options;
+use crate::raster::{BLACK, BLUE, Canvas, GREY, ORANGE, RED, View};
+use crate::seeding::EpisodeRng;
+use crate::space::{BoxSpace, Dtype};
+
+pub const ID: &str = "ciflow/Pouring-v0";
+/// The pot: a cylinder of this radius and height, m.
+pub const POT_RADIUS: f64 = 0.08;
+pub const POT_HEIGHT: f64 = 0.12;
+/// The lip: distance from the pot's axis (on its local `−x` side), m.
+pub const LIP_OFFSET: f64 = 0.045;
+/// Height of the pour point above the lip, m.
+pub const POUR_CLEARANCE: f64 = 0.06;
+/// Tilt beyond which water leaves the cup, rad.
+pub const SPILL_TILT: f64 = 0.5;
+/// Tilt that counts as pouring, rad.
+pub const POURING_TILT: f64 = 1.2;
+pub const SPILL_REWARD: f64 = -100.0;
+const START_NOISE: f64 = 0.05;
+const CONTEXT_LOW: [f64; 6] = [0.42, -0.25, 0.0, -0.1, -0.1, -0.6];
+const CONTEXT_HIGH: [f64; 6] = [0.6, 0.25, 0.1, 0.1, 0.1, 0.6];
+const DOF: usize = 7;
+
+/// The pot's pose from a context `(x, y, z, roll, pitch, yaw)`.
+pub fn pot_pose(context: &[f64]) -> Isometry3 {
+    Isometry3::from_parts(
+        Translation3::new(context[0], context[1], context[2]),
+        UnitQuaternion::from_euler_angles(context[3], context[4], context[5]),
+    )
+}
+
+/// Where and which way to pour into the pot at `pot`.
+pub fn pour_target(pot: &Isometry3) -> PourTarget {
+    let lip = pot * nalgebra::Point3::new(-LIP_OFFSET, 0.0, POT_HEIGHT);
+    let inward = pot.rotation * Vector3::x();
+    PourTarget {
+        point: lip.coords + POUR_CLEARANCE * Vector3::z(),
+        direction: Vector3::new(inward.x, inward.y, 0.0).normalize(),
+    }
+}
+
+/// Whether `point` lies above the pot's opening (within its radius, horizontally).
+fn over_opening(pot: &Isometry3, point: &Vector3) -> bool {
+    let opening = pot * nalgebra::Point3::new(0.0, 0.0, POT_HEIGHT);
+    let horizontal = Vector2::new(point.x - opening.x, point.y - opening.y);
+    horizontal.norm() < POT_RADIUS && point.z > opening.z
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    NeedsReset,
+    Running,
+    Ended,
+}
+
+/// The pouring environment (see the module docs).
+pub struct Pouring {
+    spec: EnvSpec,
+    simulator: Simulator,
+    rng: EpisodeRng,
+    context: Vec<f64>,
+    pot: Isometry3,
+    target: PourTarget,
+    phase: Phase,
+    steps: u32,
+    spout_trail: Vec<Vector3>,
+}
+
+impl Pouring {
+    pub fn new() -> Result<Self, EnvError> {
+        let robot = panda();
+        let limits = robot.limits().clone();
+        let config = SimConfig {
+            physics_dt: 0.001,
+            control_dt: 0.01,
+            ..SimConfig::default()
+        };
+        let simulator = Simulator::new(Box::new(robot), config)
+            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        let context_space =
+            BoxSpace::new(CONTEXT_LOW.to_vec(), CONTEXT_HIGH.to_vec(), Dtype::Float64);
+        let observation_space = BoxSpace::new(
+            [
+                limits.q_min.as_slice(),
+                (-&limits.qd_max).as_slice(),
+                &CONTEXT_LOW[..],
+            ]
+            .concat(),
+            [
+                limits.q_max.as_slice(),
+                limits.qd_max.as_slice(),
+                &CONTEXT_HIGH[..],
+            ]
+            .concat(),
+            Dtype::Float64,
+        );
+        let observation_space = BoxSpace {
+            // Velocities can exceed their nominal limits under perturbations.
+            low: observation_space
+                .low
+                .iter()
+                .enumerate()
+                .map(|(i, v)| {
+                    if (DOF..2 * DOF).contains(&i) {
+                        f64::NEG_INFINITY
+                    } else {
+                        *v
+                    }
+                })
+                .collect(),
+            high: observation_space
+                .high
+                .iter()
+                .enumerate()
+                .map(|(i, v)| {
+                    if (DOF..2 * DOF).contains(&i) {
+                        f64::INFINITY
+                    } else {
+                        *v
+                    }
+                })
+                .collect(),
+            ..observation_space
+        };
+        let spec = EnvSpec {
+            id: ID.into(),
+            observation_space,
+            action_space: BoxSpace::new(
+                (-&limits.qdd_max).as_slice().to_vec(),
+                limits.qdd_max.as_slice().to_vec(),
+                Dtype::Float64,
+            ),
+            context_space,
+            control_dt: config.control_dt,
+            physics_dt: config.physics_dt,
+            max_episode_steps: 600,
+        };
+        let context = CONTEXT_LOW
+            .iter()
+            .zip(&CONTEXT_HIGH)
+            .map(|(l, h)| (l + h) / 2.0)
+            .collect::<Vec<_>>();
+        let pot = pot_pose(&context);
+        Ok(Self {
+            spec,
+            simulator,
+            rng: EpisodeRng::default(),
+            target: pour_target(&pot),
+            pot,
+            context,
+            phase: Phase::NeedsReset,
+            steps: 0,
+            spout_trail: vec![],
+        })
+    }
+
+    fn robot(&self) -> &dyn Robot {
+        self.simulator.robot()
+    }
+
+    /// The cup now.
+    pub fn cup(&self) -> Result<CupPose, EnvError> {
+        let hand = self
+            .robot()
+            .frame_placement(self.simulator.q().as_slice(), self.robot().end_effector())
+            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        Ok(CupPose::of_hand(&hand))
+    }
+
+    pub fn pour_target(&self) -> &PourTarget {
+        &self.target
+    }
+
+    fn observation(&self) -> Vec<f64> {
+        [
+            self.simulator.q().as_slice(),
+            self.simulator.qd().as_slice(),
+            &self.context,
+        ]
+        .concat()
+    }
+
+    /// Reward, termination and info of the current state.
+    fn outcome(&self) -> Result<(f64, bool, Info), EnvError> {
+        let cup = self.cup()?;
+        let tilt = cup.tilt();
+        let distance = (cup.spout - self.target.point).norm();
+        let over = over_opening(&self.pot, &cup.spout);
+        let spill = tilt >= SPILL_TILT && !over;
+        let success = tilt >= POURING_TILT && over;
+        let flag = |b: bool| f64::from(u8::from(b));
+        let info = Info::from([
+            ("spout_x".into(), cup.spout.x),
+            ("spout_y".into(), cup.spout.y),
+            ("spout_z".into(), cup.spout.z),
+            ("tilt".into(), tilt),
+            ("pour_distance".into(), distance),
+            ("over_pot".into(), flag(over)),
+            ("spill".into(), flag(spill)),
+            ("is_success".into(), flag(success)),
+            ("time".into(), self.simulator.time()),
+        ]);
+        let reward = if spill { SPILL_REWARD } else { -distance };
+        Ok((reward, spill, info))
+    }
+
+    fn apply_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
+        self.spec.context_space.check("context", context)?;
+        self.context = context.to_vec();
+        self.pot = pot_pose(context);
+        self.target = pour_target(&self.pot);
+        Ok(())
+    }
+
+    fn joint_vector(&self, what: &'static str, values: &[f64]) -> Result<Vec<f64>, EnvError> {
+        if values.len() != DOF {
+            return Err(EnvError::WrongDimension {
+                what,
+                expected: DOF,
+                got: values.len(),
+            });
+        }
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(EnvError::NotFinite { what });
+        }
+        Ok(values.to_vec())
+    }
+}
+
+impl Env for Pouring {
+    fn spec(&self) -> &EnvSpec {
+        &self.spec
+    }
+
+    fn reset(
+        &mut self,
+        seed: Option<u64>,
+        options: &ResetOptions,
+    ) -> Result<(Vec<f64>, Info), EnvError> {
+        reject_unknown_options(&options.extra, &[])?;
+        let rng = self.rng.reseed(seed);
+        let context = match &options.context {
+            Some(context) => context.clone(),
+            None => CONTEXT_LOW
+                .iter()
+                .zip(&CONTEXT_HIGH)
+                .map(|(l, h)| rng.random_range(*l..=*h))
+                .collect(),
+        };
+        let q0 = match &options.initial_position {
+            Some(q0) => {
+                let q0 = self.joint_vector("initial_position", q0)?;
+                let limits = self.robot().limits();
+                if let Some(i) =
+                    (0..DOF).find(|&i| q0[i] < limits.q_min[i] || q0[i] > limits.q_max[i])
+                {
+                    return Err(EnvError::OutOfBounds {
+                        what: "initial_position",
+                        detail: format!("joint {i} = {} is outside its limits", q0[i]),
+                    });
+                }
+                q0
+            }
+            None => PANDA_HOME
+                .iter()
+                .map(|q| q + rng.random_range(-START_NOISE..=START_NOISE))
+                .collect(),
+        };
+        let qd0 = match &options.initial_velocity {
+            Some(qd0) => self.joint_vector("initial_velocity", qd0)?,
+            None => vec![0.0; DOF],
+        };
+        self.apply_context(&context)?;
+        self.simulator
+            .reset(&q0, &qd0)
+            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        self.phase = Phase::Running;
+        self.steps = 0;
+        self.spout_trail = vec![self.cup()?.spout];
+        Ok((self.observation(), self.outcome()?.2))
+    }
+
+    fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
+        if self.phase != Phase::Running {
+            return Err(EnvError::NeedsReset);
+        }
+        self.spec.action_space.check("action", action)?;
+        self.simulator
+            .step(action)
+            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        self.steps += 1;
+        self.spout_trail.push(self.cup()?.spout);
+        let (reward, terminated, info) = self.outcome()?;
+        let truncated = !terminated && self.steps >= self.spec.max_episode_steps;
+        if terminated || truncated {
+            self.phase = Phase::Ended;
+        }
+        Ok(Step {
+            observation: self.observation(),
+            reward,
+            terminated,
+            truncated,
+            info,
+        })
+    }
+
+    fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
+        if self.phase == Phase::NeedsReset {
+            return Err(EnvError::NeedsReset);
+        }
+        let qdd = expert_acceleration(
+            self.robot(),
+            &self.target,
+            &PANDA_HOME,
+            self.simulator.q().as_slice(),
+            self.simulator.qd().as_slice(),
+        )
+        .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        Ok(self.spec.action_space.clip(qdd.as_slice()))
+    }
+
+    fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
+        if self.phase == Phase::NeedsReset {
+            return Err(EnvError::NeedsReset);
+        }
+        self.apply_context(context)
+    }
+
+    fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError> {
+        if self.phase == Phase::NeedsReset {
+            return Err(EnvError::NeedsReset);
+        }
+        self.simulator
+            .perturb(perturbation)
+            .map_err(|e| EnvError::InvalidPerturbation(e.to_string()))
+    }
+
+    fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
+        if width == 0 || height == 0 {
+            return Err(EnvError::InvalidOption {
+                name: "render size".into(),
+                detail: format!("{width} × {height} has no pixels"),
+            });
+        }
+        let mut canvas = Canvas::new(width, height, VIEW);
+        if self.phase == Phase::NeedsReset {
+            return Ok(canvas.into_pixels());
+        }
+        // The table top around the robot and the pot, in perspective.
+        let table: Vec<_> = [(-0.3, -0.5), (0.85, -0.5), (0.85, 0.5), (-0.3, 0.5)]
+            .iter()
+            .map(|&(x, y)| project(&Vector3::new(x, y, 0.0)))
+            .collect();
+        canvas.polyline(&table, true, GREY, 1.0);
+        // The arm: a line through the frame origins; the fingers: hand to cup centre.
+        let q = self.simulator.q().as_slice();
+        let placements = (0..self.robot().frames().len())
+            .map(|f| self.robot().frame_placement(q, f))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        let joints: Vec<_> = placements
+            .iter()
+            .map(|m| project(&m.translation.vector))
+            .collect();
+        canvas.polyline(&joints, false, BLACK, 4.0);
+        let cup = self.cup()?;
+        let hand = &placements[self.robot().end_effector()].translation.vector;
+        canvas.line(
+            &project(hand),
+            &project(&((cup.bottom + cup.top) / 2.0)),
+            BLACK,
+            3.0,
+        );
+        canvas.line(&project(&cup.bottom), &project(&cup.top), BLUE, 10.0);
+        canvas.disc(&project(&cup.spout), 0.01, RED);
+        let trail: Vec<_> = self.spout_trail.iter().map(project).collect();
+        canvas.polyline(&trail, false, GREY, 1.0);
+        // The pot, nearer to the camera than the arm: rims, silhouette edges, the lip.
+        let rim = |height: f64| -> Vec<Vector2<f64>> {
+            (0..48)
+                .map(|i| {
+                    let a = i as f64 * std::f64::consts::TAU / 48.0;
+                    let local =
+                        nalgebra::Point3::new(POT_RADIUS * a.cos(), POT_RADIUS * a.sin(), height);
+                    project(&(self.pot * local).coords)
+                })
+                .collect()
+        };
+        let (bottom, top) = (rim(0.0), rim(POT_HEIGHT));
+        canvas.polyline(&bottom, true, ORANGE, 2.0);
+        canvas.polyline(&top, true, ORANGE, 2.0);
+        // The silhouette edges join the rims' leftmost and rightmost points.
+        let sides = |rim: &[Vector2<f64>]| {
+            let by_x = |a: &&Vector2<f64>, b: &&Vector2<f64>| a.x.total_cmp(&b.x);
+            let (left, right) = (rim.iter().min_by(by_x), rim.iter().max_by(by_x));
+            [
+                *left.expect("a rim has points"),
+                *right.expect("a rim has points"),
+            ]
+        };
+        for (low, high) in sides(&bottom).iter().zip(&sides(&top)) {
+            canvas.line(low, high, ORANGE, 2.0);
+        }
+        let lip = self.pot * nalgebra::Point3::new(-LIP_OFFSET, 0.0, POT_HEIGHT);
+        canvas.disc(&project(&lip.coords), 0.012, RED);
+        Ok(canvas.into_pixels())
+    }
+}
+
+/// The region of the projection plane shown by `render`, m: the table, the arm over its
+/// workspace and the pot.
+const VIEW: View = View {
+    min: Vector2::new(-0.35, -0.3),
+    max: Vector2::new(0.7, 0.75),
+};
+/// Azimuth of the camera, rad: it stands at the robot's front right.
+const CAMERA_AZIMUTH: f64 = -0.6;
+/// Elevation of the camera above the horizon, rad (20°).
+const CAMERA_ELEVATION: f64 = 0.35;
+
+/// Orthographic projection onto the screen of a camera at azimuth `φ` and elevation `e`
+/// looking at the robot's base: with `v = R_z(−φ) p` (the camera on the `+x` axis),
+/// `s = (v_y, v_z cos e − v_x sin e)`, so nearer points appear lower.
+fn project(p: &Vector3) -> Vector2<f64> {
+    let v = Rotation3::from_euler_angles(0.0, 0.0, -CAMERA_AZIMUTH) * p;
+    let (sin_e, cos_e) = CAMERA_ELEVATION.sin_cos();
+    Vector2::new(v.y, v.z * cos_e - v.x * sin_e)
+}

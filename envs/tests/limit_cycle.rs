@@ -1,0 +1,161 @@
+//! `ciflow/LimitCycle-v0`: seeding, the expert, options and rendering.
+
+use ciflow_envs::rollout::expert_episode;
+use ciflow_envs::tasks::limit_cycle::{
+    self, HELD_OUT_CONTEXTS, SUCCESS_DISTANCE, TRAINING_CONTEXTS,
+};
+use ciflow_envs::{Env, EnvError, ResetOptions};
+
+fn options_with(key: &str, value: f64) -> ResetOptions {
+    ResetOptions {
+        extra: [(key.to_string(), value)].into(),
+        ..ResetOptions::default()
+    }
+}
+
+#[test]
+fn same_seed_gives_identical_episodes_and_unseeded_resets_continue_the_rng() {
+    let run = || {
+        let mut env = limit_cycle::make().unwrap();
+        let first = expert_episode(&mut env, Some(42), &ResetOptions::default()).unwrap();
+        let second = expert_episode(&mut env, None, &ResetOptions::default()).unwrap();
+        (first, second)
+    };
+    let (a, b) = (run(), run());
+    assert_eq!(a, b);
+    assert_ne!(a.0.observations[0], a.1.observations[0]);
+}
+
+#[test]
+fn default_contexts_are_the_training_phases_and_held_out_ones_differ() {
+    let mut env = limit_cycle::make().unwrap();
+    for seed in 0..20 {
+        let (obs, _) = env.reset(Some(seed), &ResetOptions::default()).unwrap();
+        assert!(TRAINING_CONTEXTS.contains(&obs[4]));
+        let (obs, _) = env
+            .reset(Some(seed), &options_with("context_set", 1.0))
+            .unwrap();
+        assert!(HELD_OUT_CONTEXTS.contains(&obs[4]));
+    }
+}
+
+#[test]
+fn expert_converges_onto_the_outline_for_99_percent_of_uniform_phases() {
+    let mut env = limit_cycle::make().unwrap();
+    let uniform = options_with("context_set", 2.0);
+    let episodes = 100;
+    let successes = (0..episodes)
+        .filter(|&seed| {
+            let episode = expert_episode(&mut env, Some(seed), &uniform).unwrap();
+            assert!(episode.truncations.last().copied().unwrap());
+            // On the outline for the whole last 2 s, i.e. circulating on the limit cycle.
+            let errors = &episode.infos["outline_error"];
+            errors[errors.len() - 200..]
+                .iter()
+                .all(|e| *e < SUCCESS_DISTANCE)
+        })
+        .count();
+    assert!(
+        successes * 100 >= 99 * episodes as usize,
+        "{successes}/{episodes}"
+    );
+}
+
+#[test]
+fn expert_circulates_counter_clockwise_around_the_figure() {
+    let mut env = limit_cycle::make().unwrap();
+    let episode = expert_episode(&mut env, Some(3), &ResetOptions::default()).unwrap();
+    // Accumulated polar angle over the episode: 10 s at 0.8 m/s on a ~5 m outline.
+    let angle: f64 = episode
+        .observations
+        .windows(2)
+        .map(|w| {
+            let (a, b) = (w[0][1].atan2(w[0][0]), w[1][1].atan2(w[1][0]));
+            (b - a + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI)
+                - std::f64::consts::PI
+        })
+        .sum();
+    assert!(angle > 2.0 * std::f64::consts::PI, "turned {angle} rad");
+}
+
+#[test]
+fn changing_the_context_mid_episode_moves_the_target_outline() {
+    let mut env = limit_cycle::make().unwrap();
+    let options = ResetOptions {
+        context: Some(vec![0.0]),
+        ..ResetOptions::default()
+    };
+    env.reset(Some(1), &options).unwrap();
+    for _ in 0..600 {
+        let a = env.expert_action().unwrap();
+        env.step(&a).unwrap();
+    }
+    env.set_context(&[1.0]).unwrap();
+    let mut last = None;
+    for _ in 0..390 {
+        let a = env.expert_action().unwrap();
+        last = Some(env.step(&a).unwrap());
+    }
+    let last = last.unwrap();
+    assert_eq!(last.observation[4], 1.0);
+    assert!(last.info["outline_error"] < SUCCESS_DISTANCE);
+}
+
+#[test]
+fn invalid_options_are_typed_errors() {
+    let mut env = limit_cycle::make().unwrap();
+    let mut err = |options: ResetOptions| env_reset_error(&mut env, options);
+    assert!(matches!(
+        err(options_with("context_set", 7.0)),
+        EnvError::InvalidOption { .. }
+    ));
+    assert!(matches!(
+        err(options_with("shape", 1.0)),
+        EnvError::InvalidOption { .. }
+    ));
+    let context = |c: Vec<f64>| ResetOptions {
+        context: Some(c),
+        ..ResetOptions::default()
+    };
+    assert!(matches!(
+        err(context(vec![1.5])),
+        EnvError::OutOfBounds { .. }
+    ));
+    assert!(matches!(
+        err(context(vec![f64::NAN])),
+        EnvError::NotFinite { .. }
+    ));
+    assert!(matches!(
+        err(context(vec![0.1, 0.2])),
+        EnvError::WrongDimension { .. }
+    ));
+    let start = ResetOptions {
+        initial_position: Some(vec![0.5]),
+        ..ResetOptions::default()
+    };
+    assert!(matches!(err(start), EnvError::WrongDimension { .. }));
+}
+
+fn env_reset_error(env: &mut dyn Env, options: ResetOptions) -> EnvError {
+    env.reset(Some(0), &options).unwrap_err()
+}
+
+#[test]
+fn render_draws_the_outline_and_the_trajectory() {
+    let mut env = limit_cycle::make().unwrap();
+    let blank = env.render(64, 48).unwrap();
+    assert_eq!(blank.len(), 64 * 48 * 3);
+    assert!(blank.iter().all(|&v| v == 255));
+    env.reset(Some(0), &ResetOptions::default()).unwrap();
+    for _ in 0..50 {
+        let a = env.expert_action().unwrap();
+        env.step(&a).unwrap();
+    }
+    let frame = env.render(64, 48).unwrap();
+    let inked = frame.chunks(3).filter(|p| p != &[255, 255, 255]).count();
+    assert!(inked > 100, "{inked} pixels drawn");
+    assert!(matches!(
+        env.render(0, 10),
+        Err(EnvError::InvalidOption { .. })
+    ));
+}

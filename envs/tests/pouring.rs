@@ -1,0 +1,184 @@
+//! `ciflow/Pouring-v0`: the expert pours without spilling, continuity, perturbations.
+
+use ciflow_engine::sim::{Perturbation, PerturbationKind};
+use ciflow_envs::rollout::expert_episode;
+use ciflow_envs::tasks::pouring::Pouring;
+use ciflow_envs::{Env, EnvError, ResetOptions};
+
+#[test]
+fn expert_pours_into_the_pot_and_never_spills() {
+    let mut env = Pouring::new().unwrap();
+    let episodes = 40;
+    let mut successes = 0;
+    for seed in 0..episodes {
+        let episode = expert_episode(&mut env, Some(seed), &ResetOptions::default()).unwrap();
+        assert!(
+            episode.infos["spill"].iter().all(|&s| s == 0.0),
+            "seed {seed} spilled"
+        );
+        assert!(episode.truncations.last().copied().unwrap());
+        let tilts = &episode.infos["tilt"];
+        let pouring = &episode.infos["is_success"];
+        // Upright (no tilt beyond 0.3 rad) until the spout is over the pot.
+        for ((tilt, over), distance) in tilts
+            .iter()
+            .zip(&episode.infos["over_pot"])
+            .zip(&episode.infos["pour_distance"])
+        {
+            assert!(
+                *tilt < 0.3 || *over == 1.0,
+                "seed {seed}: tilt {tilt} at {distance} m"
+            );
+        }
+        successes += usize::from(pouring[pouring.len() - 50..].iter().all(|&s| s == 1.0));
+    }
+    assert!(
+        successes * 100 >= 99 * episodes as usize,
+        "{successes}/{episodes}"
+    );
+}
+
+#[test]
+fn the_final_posture_varies_continuously_with_the_pot_pose() {
+    let mut env = Pouring::new().unwrap();
+    let final_posture = |env: &mut Pouring, context: Vec<f64>| {
+        let options = ResetOptions {
+            context: Some(context),
+            initial_position: Some(ciflow_engine::robot::PANDA_HOME.to_vec()),
+            ..ResetOptions::default()
+        };
+        let episode = expert_episode(env, None, &options).unwrap();
+        episode.observations.last().unwrap()[..7].to_vec()
+    };
+    let base = vec![0.5, 0.0, 0.05, 0.0, 0.0, 0.0];
+    let reference = final_posture(&mut env, base.clone());
+    for axis in 0..6 {
+        let mut shifted = base.clone();
+        shifted[axis] += 0.01;
+        let posture = final_posture(&mut env, shifted);
+        let change = reference
+            .iter()
+            .zip(&posture)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(
+            change < 0.1,
+            "a 0.01 change of context {axis} moved a joint by {change} rad"
+        );
+        assert!(change > 0.0);
+    }
+}
+
+#[test]
+fn a_push_on_the_hand_moves_the_arm_and_the_expert_recovers() {
+    let mut env = Pouring::new().unwrap();
+    let options = ResetOptions {
+        context: Some(vec![0.5, 0.0, 0.05, 0.0, 0.0, 0.0]),
+        initial_position: Some(ciflow_engine::robot::PANDA_HOME.to_vec()),
+        ..ResetOptions::default()
+    };
+    env.reset(None, &options).unwrap();
+    // Free motion (q̈_des = 0) from rest under a lateral push on link 7: the joint
+    // velocities follow q̈ = M⁻¹ Jᵀ f, so only a push makes the arm move.
+    let mut quiet = env.step(&[0.0; 7]).unwrap().observation;
+    assert!(quiet[7..14].iter().all(|v| v.abs() < 1e-6));
+    env.perturb(Perturbation {
+        kind: PerturbationKind::LinkWrench {
+            link: 6,
+            force: [0.0, 20.0, 0.0],
+            torque: [0.0; 3],
+        },
+        start: 0.01,
+        duration: 0.1,
+    })
+    .unwrap();
+    for _ in 0..10 {
+        quiet = env.step(&[0.0; 7]).unwrap().observation;
+    }
+    let joint_speed: f64 = quiet[7..14].iter().map(|v| v * v).sum::<f64>().sqrt();
+    assert!(
+        joint_speed > 0.05,
+        "the push moved the joints at {joint_speed} rad/s"
+    );
+    // The expert still pours without spilling after the push.
+    let mut last = None;
+    for _ in 0..500 {
+        let action = env.expert_action().unwrap();
+        let step = env.step(&action).unwrap();
+        assert_eq!(step.info["spill"], 0.0);
+        last = Some(step);
+    }
+    assert_eq!(last.unwrap().info["is_success"], 1.0);
+}
+
+#[test]
+fn invalid_inputs_are_typed_errors() {
+    let mut env = Pouring::new().unwrap();
+    assert_eq!(env.expert_action().unwrap_err(), EnvError::NeedsReset);
+    let context = |c: Vec<f64>| ResetOptions {
+        context: Some(c),
+        ..ResetOptions::default()
+    };
+    assert!(matches!(
+        env.reset(None, &context(vec![0.5; 5])),
+        Err(EnvError::WrongDimension { .. })
+    ));
+    assert!(matches!(
+        env.reset(None, &context(vec![2.0, 0.0, 0.0, 0.0, 0.0, 0.0])),
+        Err(EnvError::OutOfBounds { .. })
+    ));
+    let outside_limits = ResetOptions {
+        initial_position: Some(vec![0.0, 0.0, 0.0, 0.5, 0.0, 1.0, 0.0]),
+        ..ResetOptions::default()
+    };
+    assert!(matches!(
+        env.reset(None, &outside_limits),
+        Err(EnvError::OutOfBounds { .. })
+    ));
+    env.reset(Some(0), &ResetOptions::default()).unwrap();
+    assert!(matches!(
+        env.step(&[100.0; 7]),
+        Err(EnvError::OutOfBounds { .. })
+    ));
+    assert!(matches!(
+        env.step(&[0.0; 6]),
+        Err(EnvError::WrongDimension { .. })
+    ));
+    let frame = env.render(96, 96).unwrap();
+    assert!(frame.chunks(3).filter(|p| p != &[255, 255, 255]).count() > 200);
+}
+
+#[test]
+fn render_shows_the_cup_held_by_the_hand_above_the_pot() {
+    const SIZE: usize = 240;
+    let mut env = Pouring::new().unwrap();
+    env.reset(Some(0), &ResetOptions::default()).unwrap();
+    for step in 0..600 {
+        if step % 200 == 0 {
+            let frame = env.render(SIZE as u32, SIZE as u32).unwrap();
+            let pixels_of = |colour: [u8; 3]| -> Vec<(i64, i64)> {
+                frame
+                    .chunks(3)
+                    .enumerate()
+                    .filter(|(_, p)| *p == colour)
+                    .map(|(i, _)| ((i % SIZE) as i64, (i / SIZE) as i64))
+                    .collect()
+            };
+            let (cup, arm) = (pixels_of(ciflow_envs::raster::BLUE), pixels_of([0, 0, 0]));
+            assert!(!cup.is_empty() && !arm.is_empty());
+            // The fingers (black) touch the cup (blue): no gap between hand and cup.
+            let touching = cup.iter().any(|(x, y)| {
+                arm.iter()
+                    .any(|(u, v)| (x - u).abs() <= 1 && (y - v).abs() <= 1)
+            });
+            assert!(touching, "step {step}: the cup floats apart from the hand");
+            // The pot (orange) is in frame, below the cup on screen.
+            let pot = pixels_of(ciflow_envs::raster::ORANGE);
+            let lowest_cup = cup.iter().map(|p| p.1).max().unwrap();
+            let lowest_pot = pot.iter().map(|p| p.1).max().unwrap();
+            assert!(lowest_pot > lowest_cup, "step {step}");
+        }
+        let action = env.expert_action().unwrap();
+        env.step(&action).unwrap();
+    }
+}

@@ -1,0 +1,42 @@
+"""ciflow: provably stable learned robot motions as Gymnasium environments over Zenoh.
+
+``import ciflow`` registers the tasks with Gymnasium::
+
+    import gymnasium as gym
+    import ciflow
+
+    env = gym.make("ciflow/Pouring-v0", context=[0.5, 0.1], render_mode="rgb_array")
+    envs = gym.make_vec("ciflow/LimitCycle-v0", num_envs=1024)   # one request per step
+
+The environments live in an engine. ``engine=`` (or ``CIFLOW_ENGINE``) selects one:
+an endpoint such as ``"tcp/10.0.0.5:7447"`` or an engine name. Without it, the engine on
+``tcp/127.0.0.1:7447`` is used, and if none runs there, one is started inside this
+process and announced on Zenoh so that other processes can reach its sessions.
+``zenoh_config=`` (or ``CIFLOW_ZENOH_CONFIG``) points at a standard Zenoh JSON5 file.
+"""
+
+from ciflow._native import (
+    DEFAULT_ENDPOINT,
+    PROTOCOL_VERSION,
+    CiflowError,
+    EngineUnreachable,
+)
+from ciflow.connection import discover, shutdown_embedded_engine
+from ciflow.env import CiflowEnv
+from ciflow.registration import TASK_IDS, register_tasks
+from ciflow.vector import CiflowVectorEnv
+
+__all__ = [
+    "DEFAULT_ENDPOINT",
+    "PROTOCOL_VERSION",
+    "TASK_IDS",
+    "CiflowEnv",
+    "CiflowError",
+    "CiflowVectorEnv",
+    "EngineUnreachable",
+    "discover",
+    "register_tasks",
+    "shutdown_embedded_engine",
+]
+
+register_tasks()

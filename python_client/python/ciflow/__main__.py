@@ -1,0 +1,37 @@
+"""``python -m ciflow serve``: the embedded engine as a stand-alone process (the same
+server as ``ciflow serve``, for machines with only the Python package)."""
+
+import argparse
+import sys
+import time
+
+from ciflow import _native
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m ciflow")
+    commands = parser.add_subparsers(dest="command", required=True)
+    serve = commands.add_parser("serve", help="host every task over Zenoh")
+    serve.add_argument("--config", help="standard Zenoh JSON5 configuration file")
+    serve.add_argument("--mode", choices=["peer", "client", "router"])
+    serve.add_argument("--connect", action="append", help="endpoint to connect to")
+    serve.add_argument("--listen", action="append", help="endpoint to listen on")
+    serve.add_argument("--name", help="engine name used in key expressions")
+    args = parser.parse_args(argv)
+
+    engine = _native.Engine(
+        config=args.config, mode=args.mode, connect=args.connect, listen=args.listen,
+        name=args.name,
+    )
+    endpoints = ", ".join(args.listen or [_native.DEFAULT_ENDPOINT])
+    print(f"ciflow engine `{engine.name}` ready on [{endpoints}]", flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        engine.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,145 @@
+"""Finding an engine: an explicit one (``engine=`` / ``CIFLOW_ENGINE``), the one on the
+default loopback endpoint, or — when none is reachable — one embedded in this process."""
+
+from __future__ import annotations
+
+import os
+import threading
+
+from ciflow import _native
+
+_lock = threading.Lock()
+_clients: dict[tuple, _native.ClientHandle] = {}
+_embedded: _native.Engine | None = None
+
+_HOW_TO_START = (
+    "Start an engine with `ciflow serve --listen tcp/0.0.0.0:7447` on that machine "
+    "(or leave engine= unset to use one embedded in this process)."
+)
+
+
+def _looks_like_endpoint(text: str) -> bool:
+    return "/" in text and ":" in text
+
+
+def default_endpoint() -> str:
+    """Where the zero-configuration engine lives: ``CIFLOW_DEFAULT_ENDPOINT`` or
+    ``tcp/127.0.0.1:7447`` (the variable lets tests use a private port)."""
+    return os.environ.get("CIFLOW_DEFAULT_ENDPOINT") or _native.DEFAULT_ENDPOINT
+
+
+def _client(connect: str | None, zenoh_config: str | None) -> _native.ClientHandle:
+    key = (connect, zenoh_config)
+    client = _clients.get(key)
+    if client is None:
+        if connect is None and zenoh_config is None:
+            connect = default_endpoint()
+        client = _native.ClientHandle.open(
+            config=zenoh_config, connect=[connect] if connect else None
+        )
+        _clients[key] = client
+    return client
+
+
+def _embedded_client() -> _native.ClientHandle:
+    """A client of the engine embedded in this process, starting it if needed."""
+    global _embedded
+    key = ("embedded", None)
+    if key in _clients:
+        return _clients[key]
+    _embedded = _native.Engine(listen=[default_endpoint()])
+    client = _native.ClientHandle.for_engine(_embedded)
+    _clients[key] = client
+    return client
+
+
+def _pick(client: _native.ClientHandle, task: str | None) -> str | None:
+    for engine in client.discover():
+        names = {t["spec"]["id"] for t in engine["tasks"]} | {t["name"] for t in engine["tasks"]}
+        if task is None or task in names:
+            return engine["name"]
+    return None
+
+
+def resolve(
+    task: str | None, engine: str | None = None, zenoh_config: str | None = None
+) -> tuple[_native.ClientHandle, str]:
+    """Returns a client and the name of an engine that serves ``task``."""
+    engine = engine or os.environ.get("CIFLOW_ENGINE") or None
+    zenoh_config = zenoh_config or os.environ.get("CIFLOW_ZENOH_CONFIG") or None
+    with _lock:
+        if engine is None and zenoh_config is None:
+            return _default(task)
+        connect = engine if engine and _looks_like_endpoint(engine) else None
+        try:
+            client = _client(connect, zenoh_config)
+        except _native.EngineUnreachable as error:
+            raise _native.EngineUnreachable(
+                f"no ciflow engine reachable at {engine or zenoh_config}: {error}. {_HOW_TO_START}"
+            ) from None
+        if engine and not connect:
+            client.engine_info(engine)  # raises EngineUnreachable if it does not answer
+            return client, engine
+        name = _pick(client, task)
+        if name is None:
+            raise _native.EngineUnreachable(
+                f"no ciflow engine serving {task} answered via {engine or zenoh_config}. "
+                + _HOW_TO_START
+            )
+        return client, name
+
+
+def _default(task: str | None) -> tuple[_native.ClientHandle, str]:
+    if ("embedded", None) in _clients:
+        return _clients[("embedded", None)], _embedded.name
+    try:
+        client = _client(None, None)
+        name = _pick(client, task)
+        if name is not None:
+            return client, name
+    except _native.EngineUnreachable:
+        pass
+    try:
+        client = _embedded_client()
+    except _native.EngineUnreachable:
+        # Another process started an engine on the default endpoint just now.
+        client = _client(None, None)
+        name = _pick(client, task)
+        if name is None:
+            raise
+        return client, name
+    return client, _embedded.name
+
+
+def discover(engine: str | None = None, zenoh_config: str | None = None) -> list[dict]:
+    """Lists reachable engines with their tasks (``[{"name", "tasks", "policies"}]``).
+
+    With no argument, looks at the default endpoint and at the engine embedded in this
+    process, if any. Never starts an engine.
+    """
+    engine = engine or os.environ.get("CIFLOW_ENGINE") or None
+    zenoh_config = zenoh_config or os.environ.get("CIFLOW_ZENOH_CONFIG") or None
+    connect = engine if engine and _looks_like_endpoint(engine) else None
+    with _lock:
+        found: dict[str, dict] = {}
+        candidates = []
+        if ("embedded", None) in _clients:
+            candidates.append(_clients[("embedded", None)])
+        try:
+            candidates.append(_client(connect, zenoh_config))
+        except _native.EngineUnreachable:
+            pass
+        for client in candidates:
+            for info in client.discover():
+                found.setdefault(info["name"], info)
+    return [found[name] for name in sorted(found) if not engine or connect or name == engine]
+
+
+def shutdown_embedded_engine() -> None:
+    """Stops the engine embedded in this process (its sessions close)."""
+    global _embedded
+    with _lock:
+        _clients.pop(("embedded", None), None)
+        if _embedded is not None:
+            _embedded.close()
+            _embedded = None

@@ -1,0 +1,152 @@
+"""``gymnasium.Env`` for one ciflow task hosted by an engine."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import numpy as np
+
+from ciflow import connection
+from ciflow.spaces import box, construction_kwargs, from_wire, options_json, to_wire
+
+
+class CiflowEnv(gym.Env):
+    """A ciflow task stepped by an engine over Zenoh, one request per ``step``.
+
+    Arguments:
+        task: Gymnasium id or short name of the task.
+        context: the context ``c`` for every reset (default: drawn by the task).
+        render_mode: ``None`` or ``"rgb_array"``.
+        engine: an endpoint (``"tcp/host:7447"``) or an engine name; default: the
+            ``CIFLOW_ENGINE`` variable, else the local engine (started in-process if none).
+        zenoh_config: a Zenoh JSON5 file (default: ``CIFLOW_ZENOH_CONFIG``).
+        width, height: size of rendered frames.
+        initial_position, initial_velocity: reset defaults (default: drawn by the task).
+        **kwargs: the task's numeric construction arguments (e.g. ``obstacles=2``).
+
+    Observations are numpy arrays in the task's observation space (state then context);
+    actions are desired accelerations. ``truncated`` is set by the task after
+    ``max_episode_steps``. Extra methods: ``expert_action``, ``set_context``,
+    ``perturb_joint_torque``, ``perturb_link_wrench``.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(
+        self,
+        task: str,
+        context=None,
+        render_mode: str | None = None,
+        engine: str | None = None,
+        zenoh_config: str | None = None,
+        width: int = 480,
+        height: int = 480,
+        initial_position=None,
+        initial_velocity=None,
+        **kwargs,
+    ):
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode {render_mode!r} is not supported; use 'rgb_array'")
+        self._session = None
+        self.render_mode = render_mode
+        client, engine_name = connection.resolve(task, engine, zenoh_config)
+        self._session = client.make(engine_name, task, 1, construction_kwargs(kwargs))
+        spec = self._session.spec
+        self.task_spec = spec
+        self.observation_space = box(spec["observation_space"])
+        self.action_space = box(spec["action_space"])
+        self.context_space = box(spec["context_space"])
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / spec["control_dt"])}
+        self._reset_defaults = {
+            "context": context,
+            "initial_position": initial_position,
+            "initial_velocity": initial_velocity,
+        }
+        self._size = (int(width), int(height))
+        self._last_time = 0.0
+
+    @property
+    def session_id(self) -> str:
+        """The ``<session>`` chunk of the session's keys (telemetry:
+        ``ciflow/v1/engine/<engine>/session/<session>/telemetry``)."""
+        return self._session.session_id
+
+    @property
+    def engine_name(self) -> str:
+        return self._session.engine
+
+    @property
+    def sim_time(self) -> float:
+        """Simulated seconds since the last reset."""
+        return self._last_time
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        observation, info = self._session.reset(
+            seed, options_json(self._reset_defaults, options)
+        )
+        self._last_time = 0.0
+        return from_wire(observation, self.observation_space.dtype), dict(info)
+
+    def step(self, action):
+        observation, reward, terminated, truncated, info, time = self._session.step(
+            to_wire(action)
+        )
+        self._last_time = time
+        info = dict(info)
+        info["time"] = time
+        return (
+            from_wire(observation, self.observation_space.dtype),
+            float(reward),
+            bool(terminated),
+            bool(truncated),
+            info,
+        )
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        width, height = self._size
+        pixels = self._session.render(width, height)
+        return np.frombuffer(pixels, dtype=np.uint8).reshape(height, width, 3).copy()
+
+    def expert_action(self) -> np.ndarray:
+        """The task expert's desired acceleration for the current state."""
+        return from_wire(self._session.expert(), self.action_space.dtype)
+
+    def set_context(self, context) -> float:
+        """Replaces the context mid-episode; returns the simulated time it took effect."""
+        return self._session.set_context(to_wire(context))
+
+    def perturb_joint_torque(self, torque, duration: float, start: float | None = None) -> float:
+        """Adds joint torques during ``[start, start + duration)`` simulated seconds
+        (``start`` default: now). Returns the simulated time of acceptance."""
+        return self._perturb(
+            {"kind": "joint_torque", "torque": [float(t) for t in torque]}, duration, start
+        )
+
+    def perturb_link_wrench(
+        self, link: int, force, torque=(0.0, 0.0, 0.0), duration: float = 0.1,
+        start: float | None = None,
+    ) -> float:
+        """Applies a world-aligned wrench at movable link ``link``."""
+        return self._perturb(
+            {
+                "kind": "link_wrench",
+                "link": int(link),
+                "force": [float(f) for f in force],
+                "torque": [float(t) for t in torque],
+            },
+            duration,
+            start,
+        )
+
+    def _perturb(self, kind: dict, duration: float, start: float | None) -> float:
+        message = {**kind, "duration": float(duration), "start": start}
+        return self._session.perturb(json.dumps(message, allow_nan=False))
+
+    def close(self):
+        if self._session is not None:
+            self._session.close()
+        super().close()

@@ -1,0 +1,25 @@
+"""Gymnasium registration of every ciflow task (single and vector entry points)."""
+
+import gymnasium
+
+TASK_IDS = (
+    "ciflow/LimitCycle-v0",
+    "ciflow/Obstacle-v0",
+    "ciflow/Pouring-v0",
+    "ciflow/Lasa-v0",
+)
+
+
+def register_tasks() -> None:
+    """Registers each task id; idempotent. Time limits come from the engine (the task
+    sets ``truncated``), so no ``TimeLimit`` wrapper is added."""
+    for task_id in TASK_IDS:
+        if task_id in gymnasium.registry:
+            continue
+        gymnasium.register(
+            id=task_id,
+            entry_point="ciflow.env:CiflowEnv",
+            vector_entry_point="ciflow.vector:CiflowVectorEnv",
+            kwargs={"task": task_id},
+            disable_env_checker=False,
+        )

@@ -1,0 +1,61 @@
+"""Conversions between the engine's wire values and numpy/Gymnasium objects."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from gymnasium import spaces
+
+_OPTION_FIELDS = ("context", "initial_position", "initial_velocity")
+
+
+def box(space: dict) -> spaces.Box:
+    """A Gymnasium ``Box`` from the engine's ``{low, high, dtype}``."""
+    dtype = np.dtype(space["dtype"])
+    return spaces.Box(
+        low=np.asarray(space["low"], dtype=dtype),
+        high=np.asarray(space["high"], dtype=dtype),
+        dtype=dtype,
+    )
+
+
+def to_wire(values) -> bytes:
+    """Little-endian float64 bytes of a 1-D (or row-major 2-D) array."""
+    array = np.ascontiguousarray(values, dtype="<f8")
+    return array.tobytes()
+
+
+def from_wire(data: bytes, dtype, shape=None) -> np.ndarray:
+    array = np.frombuffer(data, dtype="<f8")
+    if shape is not None:
+        array = array.reshape(shape)
+    return array.astype(dtype, copy=True)
+
+
+def options_json(defaults: dict, options: dict | None) -> str | None:
+    """Reset options as the engine's JSON: known fields as lists, everything else in
+    ``extra`` (task-specific numbers such as ``obstacles``)."""
+    merged = dict(defaults)
+    merged.update(options or {})
+    if not merged:
+        return None
+    wire: dict = {"extra": {}}
+    for key, value in merged.items():
+        if value is None:
+            continue
+        if key in _OPTION_FIELDS:
+            wire[key] = [float(v) for v in np.asarray(value, dtype=float).ravel()]
+        elif key == "extra":
+            wire["extra"].update({k: float(v) for k, v in value.items()})
+        else:
+            wire["extra"][key] = float(value)
+    return json.dumps(wire, allow_nan=False)
+
+
+def construction_kwargs(kwargs: dict) -> dict:
+    """The task's construction arguments: numbers only, as the engine takes them."""
+    try:
+        return {key: float(value) for key, value in kwargs.items()}
+    except (TypeError, ValueError):
+        raise TypeError(f"task arguments must be numbers, got {kwargs!r}") from None

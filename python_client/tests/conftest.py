@@ -1,0 +1,53 @@
+"""Shared fixtures: an engine in a separate process on a private loopback port."""
+
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_engine(endpoint: str, name: str) -> subprocess.Popen:
+    """``python -m ciflow serve`` on ``endpoint``; returns once it announced itself."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "ciflow", "serve", "--listen", endpoint, "--name", name],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        line = process.stdout.readline()
+        if "ready" in line:
+            return process
+        if process.poll() is not None:
+            break
+    process.kill()
+    raise RuntimeError(f"engine on {endpoint} did not start: {process.stdout.read()}")
+
+
+@pytest.fixture(scope="session")
+def engine():
+    """(endpoint, name) of an engine running in its own process."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    name = "pytest-engine"
+    process = start_engine(endpoint, name)
+    yield endpoint, name
+    process.terminate()
+    process.wait(timeout=10)
+
+
+@pytest.fixture
+def private_default_endpoint(monkeypatch):
+    """Points the zero-configuration default at a fresh port, for this test and its
+    subprocesses."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    monkeypatch.setenv("CIFLOW_DEFAULT_ENDPOINT", endpoint)
+    return endpoint

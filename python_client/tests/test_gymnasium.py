@@ -1,0 +1,119 @@
+"""Every task through ``gymnasium.make`` / ``gymnasium.make_vec`` against an engine in
+another process."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import ciflow
+
+
+@pytest.fixture(params=ciflow.TASK_IDS)
+def task_id(request):
+    return request.param
+
+
+def test_import_registers_every_task():
+    for task_id in ciflow.TASK_IDS:
+        spec = gym.spec(task_id)
+        assert spec.entry_point == "ciflow.env:CiflowEnv"
+        assert spec.vector_entry_point == "ciflow.vector:CiflowVectorEnv"
+
+
+def test_discover_lists_the_engine_and_every_task(engine):
+    endpoint, name = engine
+    engines = ciflow.discover(engine=endpoint)
+    found = {e["name"]: e for e in engines}
+    assert name in found
+    served = {t["spec"]["id"] for t in found[name]["tasks"]}
+    assert set(ciflow.TASK_IDS) <= served
+
+
+def test_check_env_passes(task_id, engine):
+    env = gym.make(task_id, engine=engine[0], render_mode="rgb_array")
+    try:
+        check_env(env.unwrapped)
+    finally:
+        env.close()
+
+
+def test_episode_with_expert_context_and_frames(task_id, engine):
+    env = gym.make(task_id, engine=engine[0], render_mode="rgb_array", width=64, height=48)
+    try:
+        inner = env.unwrapped
+        context = inner.context_space.sample()
+        first, _ = env.reset(seed=5, options={"context": context})
+        again, _ = env.reset(seed=5, options={"context": context})
+        np.testing.assert_array_equal(first, again)
+        assert first.shape == env.observation_space.shape
+        k = inner.context_space.shape[0]
+        np.testing.assert_allclose(first[-k:], context, rtol=1e-6, atol=1e-6)
+
+        for _ in range(3):
+            action = inner.expert_action()
+            assert env.action_space.contains(action.astype(env.action_space.dtype))
+            observation, reward, terminated, truncated, info = env.step(action)
+            assert np.isfinite(observation).all() and np.isfinite(reward)
+        assert info["time"] == pytest.approx(3 * inner.task_spec["control_dt"])
+
+        new_context = inner.context_space.sample()
+        assert inner.set_context(new_context) == pytest.approx(info["time"])
+        observation, *_ = env.step(inner.expert_action())
+        np.testing.assert_allclose(observation[-k:], new_context, rtol=1e-6, atol=1e-6)
+
+        dof = env.action_space.shape[0]
+        accepted = inner.perturb_joint_torque(np.ones(dof), duration=0.05)
+        assert accepted == pytest.approx(4 * inner.task_spec["control_dt"])
+
+        frame = env.render()
+        assert frame.shape == (48, 64, 3) and frame.dtype == np.uint8
+    finally:
+        env.close()
+
+
+def test_bad_input_raises_typed_errors_and_the_env_stays_usable(engine):
+    env = gym.make("ciflow/LimitCycle-v0", engine=engine[0]).unwrapped
+    try:
+        env.reset(seed=0)
+        with pytest.raises(ciflow.CiflowError) as nan:
+            env.step(np.full(env.action_space.shape, np.nan))
+        assert nan.value.code == "not_finite"
+        with pytest.raises(ciflow.CiflowError) as shape:
+            env.step(np.zeros(env.action_space.shape[0] + 1))
+        assert shape.value.code == "wrong_dimension"
+        with pytest.raises(ciflow.CiflowError) as context:
+            env.reset(options={"context": env.context_space.high + 1.0})
+        assert context.value.code == "out_of_bounds"
+        env.reset(seed=0)
+        observation, *_ = env.step(env.expert_action())
+        assert np.isfinite(observation).all()
+    finally:
+        env.close()
+
+
+def test_make_vec_steps_all_environments_in_one_request(task_id, engine):
+    n = 8
+    envs = gym.make_vec(task_id, num_envs=n, engine=engine[0])
+    try:
+        assert isinstance(envs.unwrapped, ciflow.CiflowVectorEnv)
+        assert envs.unwrapped._session.num_envs == n
+        observations, _ = envs.reset(seed=100)
+        assert observations.shape == (n,) + envs.single_observation_space.shape
+        single = gym.make(task_id, engine=engine[0])
+        first, _ = single.reset(seed=103)
+        single.close()
+        np.testing.assert_array_equal(observations[3], first)
+        envs.action_space.seed(0)
+        for _ in range(5):
+            observations, rewards, terminated, truncated, info = envs.step(envs.action_space.sample())
+            assert observations.shape[0] == rewards.shape[0] == terminated.shape[0] == n
+            assert envs.observation_space.contains(observations) or np.isfinite(observations).all()
+    finally:
+        envs.close()
+
+
+def test_unreachable_engine_says_how_to_start_one():
+    with pytest.raises(ciflow.EngineUnreachable) as error:
+        gym.make("ciflow/LimitCycle-v0", engine="tcp/127.0.0.1:9")
+    assert "ciflow serve" in str(error.value)

@@ -1,0 +1,243 @@
+//! `ciflow robot`: kinematics and dynamics of a robot model at a given state, as JSON.
+
+use anyhow::{Context, Result, bail};
+use ciflow_engine::math::{DMatrix, DVector, Real, Vector3};
+use ciflow_engine::robot::{PointMass2d, Robot, panda};
+use clap::{Args, Subcommand};
+use serde_json::{Value, json};
+
+#[derive(Args, Debug)]
+pub struct RobotArgs {
+    #[command(subcommand)]
+    robot: RobotChoice,
+}
+
+#[derive(Subcommand, Debug)]
+enum RobotChoice {
+    /// The Franka Emika Panda (7 joints, shipped URDF, hand as tool frame).
+    Panda {
+        #[command(subcommand)]
+        query: Query,
+    },
+    /// A point mass in a horizontal plane (2 coordinates x, y).
+    PointMass {
+        /// Mass in kg.
+        #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
+        mass: Real,
+        #[command(subcommand)]
+        query: Query,
+    },
+}
+
+/// Joint values as a comma-separated list, e.g. `0,-0.78,0,-2.35,0,1.57,0.78`.
+#[derive(Args, Debug)]
+struct Position {
+    /// Joint positions q (rad or m), comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        required = true
+    )]
+    q: Vec<Real>,
+}
+
+#[derive(Args, Debug)]
+struct Velocity {
+    /// Joint velocities q̇, comma-separated (default: zero).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    qd: Option<Vec<Real>>,
+}
+
+#[derive(Subcommand, Debug)]
+enum Query {
+    /// τ = M(q) q̈ + C(q, q̇) q̇ + g(q) (RNEA).
+    InverseDynamics {
+        #[command(flatten)]
+        position: Position,
+        #[command(flatten)]
+        velocity: Velocity,
+        /// Joint accelerations q̈, comma-separated (default: zero).
+        #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+        qdd: Option<Vec<Real>>,
+    },
+    /// q̈ = M(q)⁻¹ (τ − C(q, q̇) q̇ − g(q)).
+    ForwardDynamics {
+        #[command(flatten)]
+        position: Position,
+        #[command(flatten)]
+        velocity: Velocity,
+        /// Joint torques τ, comma-separated (default: zero).
+        #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+        tau: Option<Vec<Real>>,
+    },
+    /// The joint-space inertia matrix M(q) (CRBA).
+    MassMatrix {
+        #[command(flatten)]
+        position: Position,
+    },
+    /// The generalized gravity g(q).
+    Gravity {
+        #[command(flatten)]
+        position: Position,
+    },
+    /// The Coriolis matrix C(q, q̇) (Ṁ = C + Cᵀ).
+    Coriolis {
+        #[command(flatten)]
+        position: Position,
+        #[command(flatten)]
+        velocity: Velocity,
+    },
+    /// Placements of the frames in the base frame (one frame with --link).
+    ForwardKinematics {
+        #[command(flatten)]
+        position: Position,
+        /// A frame, by index or name (default: all frames).
+        #[arg(long)]
+        link: Option<String>,
+    },
+    /// The world-aligned geometric Jacobian [linear; angular] of a frame's origin.
+    Jacobian {
+        #[command(flatten)]
+        position: Position,
+        /// A frame, by index or name (default: the tool frame).
+        #[arg(long)]
+        link: Option<String>,
+    },
+}
+
+pub fn run(args: RobotArgs) -> Result<()> {
+    let (mut robot, query): (Box<dyn Robot>, Query) = match args.robot {
+        RobotChoice::Panda { query } => (Box::new(panda()), query),
+        RobotChoice::PointMass { mass, query } => (
+            Box::new(PointMass2d::new(mass).context("invalid point mass")?),
+            query,
+        ),
+    };
+    let output = evaluate(robot.as_mut(), query)?;
+    println!("{}", serde_json::to_string_pretty(&output)?);
+    Ok(())
+}
+
+fn evaluate(robot: &mut dyn Robot, query: Query) -> Result<Value> {
+    let n = robot.dof();
+    let name = robot.name().to_owned();
+    let or_zero = |values: Option<Vec<Real>>| values.unwrap_or_else(|| vec![0.0; n]);
+    let mut vector = DVector::zeros(n);
+    let mut matrix = DMatrix::zeros(n, n);
+    let value = match query {
+        Query::InverseDynamics {
+            position,
+            velocity,
+            qdd,
+        } => {
+            let (qd, qdd) = (or_zero(velocity.qd), or_zero(qdd));
+            robot
+                .inverse_dynamics(&position.q, &qd, &qdd, &mut vector)
+                .context("inverse dynamics")?;
+            json!({ "robot": name, "tau": vector.as_slice() })
+        }
+        Query::ForwardDynamics {
+            position,
+            velocity,
+            tau,
+        } => {
+            let (qd, tau) = (or_zero(velocity.qd), or_zero(tau));
+            robot
+                .forward_dynamics(&position.q, &qd, &tau, &mut vector)
+                .context("forward dynamics")?;
+            json!({ "robot": name, "qdd": vector.as_slice() })
+        }
+        Query::MassMatrix { position } => {
+            robot
+                .mass_matrix(&position.q, &mut matrix)
+                .context("mass matrix")?;
+            json!({ "robot": name, "mass_matrix": rows(&matrix) })
+        }
+        Query::Gravity { position } => {
+            robot.gravity(&position.q, &mut vector).context("gravity")?;
+            json!({ "robot": name, "gravity": vector.as_slice() })
+        }
+        Query::Coriolis { position, velocity } => {
+            let qd = or_zero(velocity.qd);
+            robot
+                .coriolis_matrix(&position.q, &qd, &mut matrix)
+                .context("Coriolis matrix")?;
+            json!({ "robot": name, "coriolis": rows(&matrix) })
+        }
+        Query::ForwardKinematics { position, link } => {
+            let frames = match link {
+                Some(link) => vec![frame_index(robot, &link)?],
+                None => (0..robot.frames().len()).collect(),
+            };
+            let placements = frames
+                .into_iter()
+                .map(|frame| placement(robot, &position.q, frame))
+                .collect::<Result<Vec<_>>>()?;
+            json!({ "robot": name, "frames": placements })
+        }
+        Query::Jacobian { position, link } => {
+            let frame = match link {
+                Some(link) => frame_index(robot, &link)?,
+                None => robot.end_effector(),
+            };
+            let mut jacobian = DMatrix::zeros(6, n);
+            robot
+                .frame_jacobian(&position.q, frame, &Vector3::zeros(), &mut jacobian)
+                .context("Jacobian")?;
+            json!({
+                "robot": name,
+                "frame": robot.frames()[frame].name,
+                "jacobian": rows(&jacobian),
+            })
+        }
+    };
+    Ok(value)
+}
+
+/// A frame by index or by name.
+fn frame_index(robot: &dyn Robot, link: &str) -> Result<usize> {
+    let count = robot.frames().len();
+    let index = match link.parse::<usize>() {
+        Ok(index) => index,
+        Err(_) => match robot.frame_index(link) {
+            Some(index) => index,
+            None => bail!(
+                "no frame named `{link}`; frames: {}",
+                robot
+                    .frames()
+                    .iter()
+                    .map(|f| f.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        },
+    };
+    if index >= count {
+        bail!("frame index {index} is out of range (the robot has {count} frames)");
+    }
+    Ok(index)
+}
+
+fn placement(robot: &dyn Robot, q: &[Real], frame: usize) -> Result<Value> {
+    let isometry = robot
+        .frame_placement(q, frame)
+        .context("forward kinematics")?;
+    let rotation = isometry.rotation.to_rotation_matrix().into_inner();
+    let quaternion = isometry.rotation.coords;
+    Ok(json!({
+        "index": frame,
+        "name": robot.frames()[frame].name,
+        "translation": isometry.translation.vector.as_slice(),
+        "rotation": (0..3).map(|i| (0..3).map(|j| rotation[(i, j)]).collect::<Vec<_>>()).collect::<Vec<_>>(),
+        "quaternion_xyzw": quaternion.as_slice(),
+    }))
+}
+
+/// A matrix as a list of rows.
+fn rows(matrix: &DMatrix) -> Vec<Vec<Real>> {
+    matrix
+        .row_iter()
+        .map(|row| row.iter().copied().collect())
+        .collect()
+}
