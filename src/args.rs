@@ -22,6 +22,9 @@ pub enum Command {
     Train(commands::train::TrainArgs),
     /// Measure how many noise-free rollouts of a trained policy converge.
     Stability(commands::stability::StabilityArgs),
+    /// LASA handwriting benchmark: per shape, a stable flow against a behaviour-cloning
+    /// MLP with the same budget; writes tables (DTW, swept area, final error, time) and plots.
+    Lasa(commands::lasa::LasaArgs),
     /// Start an engine that serves every task as a Gymnasium environment over Zenoh.
     Serve(commands::serve::ServeArgs),
 }

@@ -12,12 +12,8 @@ use std::time::{Duration, Instant};
 use ciflow_bridge::protocol::{self, ByteBuf, ErrorCode, F64s, StepRequest, keys};
 use ciflow_bridge::{BridgeError, Client, NetworkOptions, Role, query_all};
 
-const TASKS: [&str; 4] = [
-    "ciflow/LimitCycle-v0",
-    "ciflow/Obstacle-v0",
-    "ciflow/Pouring-v0",
-    "ciflow/Lasa-v0",
-];
+/// The 2-D task used where any task will do.
+const LIMIT_CYCLE: &str = "ciflow/LimitCycle-v0";
 
 /// A child process killed when dropped.
 struct Process(Child);
@@ -66,7 +62,13 @@ fn serve_hosts_every_task_for_clients_in_other_processes() {
         .iter()
         .find(|e| e.name == "every-task")
         .expect("discovered");
-    for task in TASKS {
+    let tasks: Vec<&str> = ciflow_envs::tasks().iter().map(|t| t.id).collect();
+    assert_eq!(
+        tasks.len(),
+        4,
+        "limit cycle, obstacle avoidance, pouring, LASA: {tasks:?}"
+    );
+    for task in tasks {
         let info = engine.tasks.iter().find(|t| t.spec.id == task);
         let info = info.unwrap_or_else(|| panic!("{task} is served"));
         let env = client
@@ -115,7 +117,11 @@ fn child_client_process() {
     let engine = std::env::var("CIFLOW_TEST_ENGINE").unwrap();
     let client = connect(port);
     let sessions: Vec<_> = (0..2)
-        .map(|_| client.make(&engine, TASKS[0], 1, &BTreeMap::new()).unwrap())
+        .map(|_| {
+            client
+                .make(&engine, LIMIT_CYCLE, 1, &BTreeMap::new())
+                .unwrap()
+        })
         .collect();
     for env in &sessions {
         env.reset(Some(0), None).unwrap();
@@ -146,7 +152,8 @@ fn killed_client_sessions_are_reclaimed() {
     let sessions: Vec<(String, Vec<u8>)> = stdout
         .lines()
         .map(|line| line.unwrap())
-        .filter_map(|line| line.strip_prefix("SESSION ").map(str::to_owned))
+        // libtest may print `test child_client_process ... ` in front of the first line.
+        .filter_map(|line| line.split_once("SESSION ").map(|(_, rest)| rest.to_owned()))
         .take(2)
         .map(|line| {
             let (session, token) = line.split_once(' ').unwrap();
@@ -206,10 +213,10 @@ fn hostile_payloads_get_errors_while_a_parallel_session_keeps_stepping() {
     let _server = serve(27433, "hostile");
     let client = Arc::new(connect(27433));
     let steady = client
-        .make("hostile", TASKS[0], 1, &BTreeMap::new())
+        .make("hostile", LIMIT_CYCLE, 1, &BTreeMap::new())
         .unwrap();
     let target = client
-        .make("hostile", TASKS[0], 1, &BTreeMap::new())
+        .make("hostile", LIMIT_CYCLE, 1, &BTreeMap::new())
         .unwrap();
     let action_dim = target.spec().action_space.dim();
     let stop = Arc::new(AtomicBool::new(false));

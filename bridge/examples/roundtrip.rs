@@ -48,7 +48,25 @@ fn micros(d: Duration) -> f64 {
     d.as_secs_f64() * 1e6
 }
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
+/// Env-steps per second of the task called directly (what the engine cannot beat per
+/// core), with the same zero action as the batched runs.
+fn local_rate() -> Result<f64, Box<dyn std::error::Error + Send + Sync>> {
+    let mut env = ciflow_envs::make(TASK)?;
+    let options = ciflow_envs::ResetOptions::default();
+    env.reset(Some(0), &options)?;
+    let action = vec![0.0; env.spec().action_space.dim()];
+    let steps = 200_000;
+    let start = Instant::now();
+    for _ in 0..steps {
+        let step = env.step(&action)?;
+        if step.terminated || step.truncated {
+            env.reset(None, &options)?;
+        }
+    }
+    Ok(steps as f64 / start.elapsed().as_secs_f64())
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let (endpoint, _local_engine) = match args.first() {
         Some(endpoint) => (endpoint.clone(), None),
@@ -133,6 +151,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
 
     println!("batched stepping ({TASK}, step_batch, next-step autoreset)");
+    println!(
+        "  reference: the task alone, one thread, no network: {:.0} env-steps/s",
+        local_rate()?
+    );
     for n in BATCH_SIZES {
         let batch = client.make(&engine, TASK, n, &BTreeMap::new())?;
         batch.reset_batch(Some(0), None)?;

@@ -12,8 +12,20 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 fn pouring_policy(coupling: CouplingKind) -> Policy {
-    let config = FlowConfig::new("pouring", 7, 6, LatentKind::GoTo, coupling, 10, vec![64, 64]);
-    let weights = Weights::random(&config.parameter_shapes(), 0.5, &mut ChaCha8Rng::seed_from_u64(0));
+    let config = FlowConfig::new(
+        "pouring",
+        7,
+        6,
+        LatentKind::GoTo,
+        coupling,
+        10,
+        vec![64, 64],
+    );
+    let weights = Weights::random(
+        &config.parameter_shapes(),
+        0.5,
+        &mut ChaCha8Rng::seed_from_u64(0),
+    );
     Policy::new(&config, weights).expect("valid policy")
 }
 
@@ -23,7 +35,13 @@ fn bench(c: &mut Criterion) {
     let context = [0.5, 0.2, 0.3, 0.0, 0.1, -0.2];
     for (name, coupling) in [
         ("affine", CouplingKind::Affine { scale_bound: 2.0 }),
-        ("spline", CouplingKind::Spline { bins: 8, tail_bound: 4.0 }),
+        (
+            "spline",
+            CouplingKind::Spline {
+                bins: 8,
+                tail_bound: 4.0,
+            },
+        ),
     ] {
         let policy = pouring_policy(coupling);
         let mut ws = policy.workspace();
@@ -31,7 +49,13 @@ fn bench(c: &mut Criterion) {
         c.bench_function(&format!("flow/act/{name}"), |b| {
             b.iter(|| {
                 policy
-                    .act(black_box(&y), black_box(&context), &mut ws, &mut next, &mut velocity)
+                    .act(
+                        black_box(&y),
+                        black_box(&context),
+                        &mut ws,
+                        &mut next,
+                        &mut velocity,
+                    )
                     .unwrap();
                 black_box(&next);
             })
@@ -39,7 +63,15 @@ fn bench(c: &mut Criterion) {
         c.bench_function(&format!("flow/acceleration/{name}"), |b| {
             b.iter(|| {
                 policy
-                    .acceleration(black_box(&y), &qd, &context, 5.0, &mut ws, &mut acceleration, &mut velocity)
+                    .acceleration(
+                        black_box(&y),
+                        &qd,
+                        &context,
+                        5.0,
+                        &mut ws,
+                        &mut acceleration,
+                        &mut velocity,
+                    )
                     .unwrap();
                 black_box(&acceleration);
             })

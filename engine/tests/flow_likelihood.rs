@@ -153,3 +153,41 @@ fn limit_cycle_transition_is_the_cartesian_gaussian_around_the_polar_step() {
         assert!(rho_next > 0.0 && cycle.rate < 0.0);
     }
 }
+
+#[test]
+fn samples_follow_the_transition_density() {
+    let config = config(3, 1, LatentKind::LimitCycle, SPLINE);
+    let policy = random_policy(&config, 31);
+    let mut ws = policy.workspace();
+    let mut r = rng(32);
+    let (y, c) = (vec![0.4, -0.2, 0.7], vec![0.3]);
+    let mut z = vec![0.0; 3];
+    policy.latent_state(&y, &c, &mut ws, &mut z).unwrap();
+    let mut mean = vec![0.0; 3];
+    policy.latent().mean_step(&z, &mut mean);
+    let sigma = policy.latent().sigma().to_vec();
+    let n = 20_000;
+    let (mut sum, mut sum_sq) = (vec![0.0; 3], vec![0.0; 3]);
+    let (mut sample, mut z_sample) = (vec![0.0; 3], vec![0.0; 3]);
+    for _ in 0..n {
+        policy
+            .sample_next(&y, &c, &mut r, &mut ws, &mut sample)
+            .unwrap();
+        policy
+            .latent_state(&sample, &c, &mut ws, &mut z_sample)
+            .unwrap();
+        for i in 0..3 {
+            let w = (z_sample[i] - mean[i]) / sigma[i];
+            sum[i] += w;
+            sum_sq[i] += w * w;
+        }
+    }
+    // Whitened latent residuals are standard normal: mean within 4 standard errors,
+    // variance within 5%.
+    for i in 0..3 {
+        let m = sum[i] / n as f64;
+        assert!(m.abs() < 4.0 / (n as f64).sqrt(), "dim {i}: mean {m}");
+        let v = sum_sq[i] / n as f64 - m * m;
+        assert!((v - 1.0).abs() < 0.05, "dim {i}: variance {v}");
+    }
+}

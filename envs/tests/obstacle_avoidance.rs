@@ -1,4 +1,4 @@
-//! `ciflow/ObstacleAvoidance-v0`: the expert, contexts, options.
+//! `ciflow/Obstacle-v0`: the expert, contexts, options.
 
 use ciflow_envs::rollout::expert_episode;
 use ciflow_envs::tasks::obstacle_avoidance::{self, OBSTACLE_RADIUS};

@@ -397,8 +397,18 @@ fn info_dict<'py>(py: Python<'py>, info: &ciflow_envs::Info) -> PyResult<Bound<'
     Ok(dict)
 }
 
+/// `[(gymnasium id, short name)]` of every task this build's engine serves.
+#[pyfunction]
+fn tasks() -> Vec<(&'static str, &'static str)> {
+    ciflow_envs::tasks()
+        .iter()
+        .map(|t| (t.id, t.name))
+        .collect()
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(tasks, m)?)?;
     m.add_class::<Engine>()?;
     m.add_class::<ClientHandle>()?;
     m.add_class::<Session>()?;

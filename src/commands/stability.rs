@@ -55,10 +55,13 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
             .progress_chars("=> "),
     );
     let tick = |done: usize| bar.set_position(done as u64);
-    let read = checkpoint::read_config(dir).with_context(|| format!("reading {}", dir.display()))?;
+    let read =
+        checkpoint::read_config(dir).with_context(|| format!("reading {}", dir.display()))?;
     let report: StabilityReport = match read {
         CheckpointConfig::Flow(_) => measure(&Policy::load(dir, task)?, &config, tick)?,
-        CheckpointConfig::MlpBaseline(_) => measure(&BehaviourCloning::load(dir, task)?, &config, tick)?,
+        CheckpointConfig::MlpBaseline(_) => {
+            measure(&BehaviourCloning::load(dir, task)?, &config, tick)?
+        }
     };
     bar.finish_and_clear();
     if args.json {

@@ -1,18 +1,25 @@
-//! `ciflow train`: fit a stable conditioned INN policy to demonstrations by exact maximum
-//! likelihood (and, with `--baseline`, the unconstrained behaviour-cloning MLP used as the
-//! stability check's negative control).
+//! `ciflow train`: fit a stable conditioned INN policy to a demonstration dataset by exact
+//! maximum likelihood (and, with `--baseline`, the unconstrained behaviour-cloning MLP used
+//! as the stability check's negative control).
+//!
+//! The dataset is the Minari directory `ciflow demos` writes (`envs/DATASET.md`). The
+//! policy's state `y` is the position part `q` of each observation `[q, q̇, c]` (planar
+//! tasks: the 2-D position; pouring: the 7 joint positions), its context the per-step
+//! context `c`, its period the dataset's `control_dt`.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use ciflow_engine::flow::{CouplingKind, Goal, LatentKind};
+use ciflow_envs::dataset::{self, DatasetSpec};
+use ciflow_envs::registry::{self, TaskEntry};
+use ciflow_envs::tasks::{lasa, limit_cycle, obstacle_avoidance};
 use ciflow_train::{
     BaselineTrainConfig, Contexts, Demonstrations, Episode, OptimConfig, Progress, TrainConfig,
     train_baseline, train_flow,
 };
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
-use serde::Deserialize;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum LatentArg {
@@ -20,6 +27,15 @@ pub enum LatentArg {
     GoTo,
     /// Limit cycle in the first two latent dimensions.
     LimitCycle,
+}
+
+impl From<LatentArg> for LatentKind {
+    fn from(latent: LatentArg) -> Self {
+        match latent {
+            LatentArg::GoTo => LatentKind::GoTo,
+            LatentArg::LimitCycle => LatentKind::LimitCycle,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -30,30 +46,17 @@ pub enum CouplingArg {
     Spline,
 }
 
-#[derive(clap::Args, Debug)]
-pub struct TrainArgs {
-    /// Task name, recorded in the checkpoint (loading into another task fails).
-    #[arg(long)]
-    pub task: String,
-    /// Demonstrations file.
-    #[arg(long)]
-    pub demos: PathBuf,
-    /// Checkpoint directory to write (config.json + weights.safetensors).
-    #[arg(long)]
-    pub out: PathBuf,
-    #[arg(long, value_enum, default_value = "go-to")]
-    pub latent: LatentArg,
+/// Architecture and optimisation settings shared by every command that trains policies.
+#[derive(clap::Args, Debug, Clone)]
+pub struct ModelArgs {
     #[arg(long, value_enum, default_value = "spline")]
     pub coupling: CouplingArg,
     /// Number of (mixing, coupling) blocks.
     #[arg(long, default_value_t = 6)]
     pub layers: usize,
-    /// Hidden widths of each conditioner MLP, comma-separated.
+    /// Hidden widths of each conditioner MLP (and of the baseline MLP), comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "64,64")]
     pub hidden: Vec<usize>,
-    /// Context indices holding the go-to target (one per state dimension), comma-separated.
-    #[arg(long, value_delimiter = ',')]
-    pub goal_context_indices: Option<Vec<usize>>,
     /// Guaranteed latent contraction rate (1/s).
     #[arg(long, default_value_t = 0.1)]
     pub min_rate: f64,
@@ -74,52 +77,156 @@ pub struct TrainArgs {
     /// libtorch threads.
     #[arg(long, default_value_t = 1)]
     pub threads: i32,
+}
+
+impl ModelArgs {
+    pub fn optim(&self) -> OptimConfig {
+        OptimConfig {
+            epochs: self.epochs,
+            batch_size: self.batch_size,
+            learning_rate: self.learning_rate,
+            patience: self.patience,
+            seed: self.seed,
+            ..OptimConfig::default()
+        }
+    }
+
+    /// The flow's training configuration for `task` with this latent and target.
+    pub fn flow(
+        &self,
+        task: &str,
+        latent: LatentKind,
+        goal_context_indices: Option<Vec<usize>>,
+    ) -> TrainConfig {
+        let coupling = match self.coupling {
+            CouplingArg::Affine => CouplingKind::Affine { scale_bound: 2.0 },
+            CouplingArg::Spline => CouplingKind::Spline {
+                bins: 8,
+                tail_bound: 4.0,
+            },
+        };
+        TrainConfig {
+            coupling,
+            layers: self.layers,
+            hidden: self.hidden.clone(),
+            min_rate: self.min_rate,
+            goal_context_indices,
+            horizon: self.horizon,
+            threads: self.threads,
+            optim: self.optim(),
+            ..TrainConfig::new(task, latent)
+        }
+    }
+
+}
+
+#[derive(clap::Args, Debug)]
+pub struct TrainArgs {
+    /// Task (command-line name or Gymnasium id); recorded in the checkpoint, and the
+    /// dataset must have been recorded on it.
+    #[arg(long)]
+    pub task: String,
+    /// Dataset directory written by `ciflow demos` (Minari Arrow layout).
+    #[arg(long)]
+    pub demos: PathBuf,
+    /// Checkpoint directory to write (config.json + weights.safetensors).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Latent attractor [default: the task's: limit-cycle for limit-cycle, else go-to].
+    #[arg(long, value_enum)]
+    pub latent: Option<LatentArg>,
+    /// Context indices holding the go-to target (one per state dimension),
+    /// comma-separated [default: the task's: the target of obstacle-avoidance, the goal
+    /// of lasa, none otherwise].
+    #[arg(long, value_delimiter = ',')]
+    pub goal_context_indices: Option<Vec<usize>>,
+    #[command(flatten)]
+    pub model: ModelArgs,
     /// Also train the behaviour-cloning baseline into `<out>/baseline`.
     #[arg(long)]
     pub baseline: bool,
 }
 
-/// One episode of the provisional demonstrations format.
-#[derive(Deserialize)]
-struct EpisodeFile {
-    states: Vec<Vec<f64>>,
-    #[serde(default)]
-    contexts: Option<Vec<Vec<f64>>>,
-    #[serde(default)]
-    context: Option<Vec<f64>>,
+/// How a task's policy is shaped unless the command line says otherwise.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TaskDefaults {
+    pub latent: LatentKind,
+    /// Where the go-to target sits in the context, when it is there.
+    pub goal_context_indices: Option<Vec<usize>>,
 }
 
-#[derive(Deserialize)]
-struct DemonstrationsFile {
-    dt: f64,
-    episodes: Vec<EpisodeFile>,
+/// The defaults of `task` for a context of dimension `context_dim`: a limit cycle for
+/// the limit-cycle task; go-to elsewhere, with the target read from the context where
+/// the task puts it there (obstacle avoidance: its last two entries, `[…, g_x, g_y]`;
+/// LASA: the goal `[g_x, g_y]`); pouring's attractor is learned as `f(0, c)`.
+pub fn task_defaults(task: &TaskEntry, context_dim: usize) -> anyhow::Result<TaskDefaults> {
+    let go_to = |goal_context_indices| TaskDefaults {
+        latent: LatentKind::GoTo,
+        goal_context_indices,
+    };
+    let planar_target = || match context_dim.checked_sub(2) {
+        Some(x) => Ok(Some(vec![x, x + 1])),
+        None => anyhow::bail!(
+            "task `{}` needs its 2-D target in the context, found a {context_dim}-D context",
+            task.name
+        ),
+    };
+    Ok(match task.id {
+        limit_cycle::ID => TaskDefaults {
+            latent: LatentKind::LimitCycle,
+            goal_context_indices: None,
+        },
+        obstacle_avoidance::ID | lasa::ID => go_to(planar_target()?),
+        _ => go_to(None),
+    })
 }
 
-/// Reads demonstrations. Provisional format until the environments define theirs — JSON
-/// `{"dt": s, "episodes": [{"states": [[..]..], "contexts": [[..]..] | "context": [..]}]}`;
-/// this is the only function to change when the real format lands.
-pub fn read_demonstrations(path: &Path) -> anyhow::Result<Demonstrations> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let file: DemonstrationsFile =
-        serde_json::from_str(&text).with_context(|| format!("parsing demonstrations {}", path.display()))?;
-    let episodes = file
-        .episodes
+/// Reads a `ciflow demos` dataset of `task` as the policy's demonstrations: positions
+/// `q` of each observation `[q, q̇, c]`, the per-step contexts, `dt = control_dt`.
+pub fn read_demonstrations(
+    dir: &Path,
+    task: &TaskEntry,
+) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
+    let (spec, episodes) =
+        dataset::read(dir).with_context(|| format!("reading the dataset {}", dir.display()))?;
+    anyhow::ensure!(
+        spec.env_id == task.id,
+        "{} holds demonstrations of `{}` ({}), not of task `{}` ({})",
+        dir.display(),
+        spec.env_id,
+        spec.dataset_id,
+        task.name,
+        task.id
+    );
+    let (observation_dim, context_dim) = (spec.observation_space.dim(), spec.context_space.dim());
+    let velocity_and_position = observation_dim.checked_sub(context_dim).unwrap_or(0);
+    anyhow::ensure!(
+        velocity_and_position > 0 && velocity_and_position % 2 == 0,
+        "{}: observations of dimension {observation_dim} with a {context_dim}-D context are \
+         not [q, q̇, c]",
+        dir.display()
+    );
+    let position_dim = velocity_and_position / 2;
+    let episodes = episodes
         .into_iter()
-        .enumerate()
-        .map(|(i, e)| {
-            let contexts = match (e.contexts, e.context) {
-                (Some(per_step), None) => Contexts::PerStep(per_step),
-                (None, Some(one)) => Contexts::PerEpisode(one),
-                (None, None) => Contexts::PerEpisode(Vec::new()),
-                (Some(_), Some(_)) => anyhow::bail!("episode {i} has both `contexts` and `context`"),
-            };
-            Ok(Episode { states: e.states, contexts })
+        .map(|episode| Episode {
+            states: episode
+                .observations
+                .iter()
+                .map(|o| o[..position_dim].to_vec())
+                .collect(),
+            contexts: Contexts::PerStep(episode.contexts),
         })
-        .collect::<anyhow::Result<_>>()?;
-    Ok(Demonstrations { episodes, dt: file.dt })
+        .collect();
+    let data = Demonstrations {
+        episodes,
+        dt: spec.control_dt,
+    };
+    Ok((spec, data))
 }
 
-fn progress_bar(epochs: usize, what: &str) -> ProgressBar {
+/// A bar over `epochs` epochs, prefixed with `what`.
+pub fn epoch_bar(epochs: usize, what: &str) -> ProgressBar {
     let bar = ProgressBar::new(epochs as u64);
     bar.set_style(
         ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} epochs {msg} ({elapsed})")
@@ -130,44 +237,84 @@ fn progress_bar(epochs: usize, what: &str) -> ProgressBar {
     bar
 }
 
+/// The demonstrations' mean final state: the go-to goal when the context does not hold it.
+pub fn mean_final_state(data: &Demonstrations) -> Vec<f64> {
+    let n = data.episodes.len() as f64;
+    let d = data.episodes.first().map_or(0, |e| e.states[0].len());
+    let mut goal = vec![0.0; d];
+    for e in &data.episodes {
+        if let Some(last) = e.states.last() {
+            for (g, v) in goal.iter_mut().zip(last) {
+                *g += v / n;
+            }
+        }
+    }
+    goal
+}
+
+/// Where the baseline's rollouts should end, as the flow's target is configured.
+pub fn baseline_goal(goal_context_indices: &Option<Vec<usize>>, data: &Demonstrations) -> Goal {
+    match goal_context_indices {
+        Some(indices) => Goal::ContextIndices {
+            indices: indices.clone(),
+        },
+        None => Goal::State {
+            value: mean_final_state(data),
+        },
+    }
+}
+
+/// The baseline's training configuration: the budget, widths and validation split of `flow`.
+pub fn baseline_config(flow: &TrainConfig, goal: Goal) -> BaselineTrainConfig {
+    BaselineTrainConfig {
+        task: flow.task.clone(),
+        hidden: flow.hidden.clone(),
+        goal,
+        validation_fraction: flow.validation_fraction,
+        threads: flow.threads,
+        optim: flow.optim.clone(),
+    }
+}
+
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
-    let data = read_demonstrations(&args.demos)?;
-    let optim = OptimConfig {
-        epochs: args.epochs,
-        batch_size: args.batch_size,
-        learning_rate: args.learning_rate,
-        patience: args.patience,
-        seed: args.seed,
-        ..OptimConfig::default()
-    };
-    let latent = match args.latent {
-        LatentArg::GoTo => LatentKind::GoTo,
-        LatentArg::LimitCycle => LatentKind::LimitCycle,
-    };
-    let coupling = match args.coupling {
-        CouplingArg::Affine => CouplingKind::Affine { scale_bound: 2.0 },
-        CouplingArg::Spline => CouplingKind::Spline { bins: 8, tail_bound: 4.0 },
-    };
-    let config = TrainConfig {
-        coupling,
-        layers: args.layers,
-        hidden: args.hidden.clone(),
-        min_rate: args.min_rate,
-        goal_context_indices: args.goal_context_indices.clone(),
-        horizon: args.horizon,
-        threads: args.threads,
-        optim: optim.clone(),
-        ..TrainConfig::new(&args.task, latent)
-    };
-    let bar = progress_bar(args.epochs, "flow");
+    let task = registry::entry(&args.task)?;
+    let (spec, data) = read_demonstrations(&args.demos, task)?;
+    let defaults = task_defaults(task, spec.context_space.dim())?;
+    let latent = args.latent.map_or(defaults.latent, LatentKind::from);
+    let goal_context_indices = args
+        .goal_context_indices
+        .clone()
+        .or(defaults.goal_context_indices);
+    let config = args
+        .model
+        .flow(task.name, latent, goal_context_indices.clone());
+    println!(
+        "{}: {} episodes, state {}-D, context {}-D, dt = {} s; latent {latent:?}, target in \
+         context {goal_context_indices:?}",
+        spec.dataset_id,
+        data.episodes.len(),
+        data.episodes.first().map_or(0, |e| e.states[0].len()),
+        spec.context_space.dim(),
+        data.dt
+    );
+    let bar = epoch_bar(args.model.epochs, "flow");
     let trained = train_flow(&data, &config, |p: &Progress| {
         bar.set_position(p.epoch as u64);
-        bar.set_message(format!("loss {:.3} val NLL/transition {:.3}", p.train_loss, p.validation));
+        bar.set_message(format!(
+            "loss {:.3} val NLL/transition {:.3}",
+            p.train_loss, p.validation
+        ));
     })
     .context("training the flow")?;
     bar.finish();
-    trained.save(&args.out).with_context(|| format!("writing {}", args.out.display()))?;
-    let best = trained.history.iter().map(|p| p.validation).fold(f64::INFINITY, f64::min);
+    trained
+        .save(&args.out)
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    let best = trained
+        .history
+        .iter()
+        .map(|p| p.validation)
+        .fold(f64::INFINITY, f64::min);
     println!(
         "flow: best validation NLL per transition {best:.4} (epoch {}), checkpoint {}",
         trained.best_epoch,
@@ -175,44 +322,26 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     );
 
     if args.baseline {
-        let goal = match &args.goal_context_indices {
-            Some(indices) => Goal::ContextIndices { indices: indices.clone() },
-            None => Goal::State { value: mean_final_state(&data) },
-        };
-        let bar = progress_bar(args.epochs, "baseline");
+        let goal = baseline_goal(&goal_context_indices, &data);
+        let bar = epoch_bar(args.model.epochs, "baseline");
         let baseline = train_baseline(
             &data,
-            &BaselineTrainConfig {
-                task: args.task.clone(),
-                hidden: args.hidden.clone(),
-                goal,
-                validation_fraction: config.validation_fraction,
-                threads: args.threads,
-                optim,
-            },
+            &baseline_config(&config, goal),
             |p: &Progress| {
                 bar.set_position(p.epoch as u64);
-                bar.set_message(format!("loss {:.4} val MSE {:.4}", p.train_loss, p.validation));
+                bar.set_message(format!(
+                    "loss {:.4} val MSE {:.4}",
+                    p.train_loss, p.validation
+                ));
             },
         )
         .context("training the baseline")?;
         bar.finish();
         let dir = args.out.join("baseline");
-        baseline.save(&dir).with_context(|| format!("writing {}", dir.display()))?;
+        baseline
+            .save(&dir)
+            .with_context(|| format!("writing {}", dir.display()))?;
         println!("baseline: checkpoint {}", dir.display());
     }
     Ok(())
-}
-
-/// The demonstrations' mean final state: the go-to goal when the context does not hold it.
-fn mean_final_state(data: &Demonstrations) -> Vec<f64> {
-    let n = data.episodes.len() as f64;
-    let d = data.episodes[0].states[0].len();
-    let mut goal = vec![0.0; d];
-    for e in &data.episodes {
-        for (g, v) in goal.iter_mut().zip(e.states.last().expect("validated non-empty")) {
-            *g += v / n;
-        }
-    }
-    goal
 }

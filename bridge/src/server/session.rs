@@ -302,10 +302,15 @@ fn info_columns(infos: &[Info]) -> BTreeMap<String, F64s> {
     let mut columns: BTreeMap<String, F64s> = BTreeMap::new();
     for (i, info) in infos.iter().enumerate() {
         for (key, value) in info {
-            let column = columns
-                .entry(key.clone())
-                .or_insert_with(|| F64s(vec![f64::NAN; infos.len()]));
-            column.0[i] = *value;
+            // Look up before inserting: the key is cloned once per column, not per env.
+            match columns.get_mut(key) {
+                Some(column) => column.0[i] = *value,
+                None => {
+                    let mut column = vec![f64::NAN; infos.len()];
+                    column[i] = *value;
+                    columns.insert(key.clone(), F64s(column));
+                }
+            }
         }
     }
     columns

@@ -3,20 +3,23 @@
 //! With world-frame body velocities `vₖ`, inertias `Iₖ`, joint motion subspaces `Sⱼ` and
 //! their rates `Ṡⱼ = vⱼ × Sⱼ`, the Christoffel-consistent factorisation is
 //! `C = Σₖ Jₖᵀ (Iₖ J̇ₖ + Bₖ Jₖ)` with
-//! `Bₖ = ½ [(vₖ×*) Iₖ − Iₖ (vₖ×) + (Iₖ vₖ)×̄*]` (S. Echeandia, P. M. Wensing, "Numerical
-//! methods to compute the Coriolis matrix and Christoffel symbols for rigid-body
-//! systems", J. Comput. Nonlinear Dyn. 2021). For a serial chain, with the composites
-//! `Iᶜⱼ = Σ_{k ≥ j} Iₖ` and `Bᶜⱼ = Σ_{k ≥ j} Bₖ`:
+//! `Bₖ = ½ [(vₖ×*) Iₖ − Iₖ (vₖ×) + (Iₖ vₖ)×̄*] = ½ [İₖ + (Iₖ vₖ)×̄*]` (S. Echeandia,
+//! P. M. Wensing, "Numerical methods to compute the Coriolis matrix and Christoffel symbols
+//! for rigid-body systems", J. Comput. Nonlinear Dyn. 2021). For a serial chain, with the
+//! composites `Iᶜⱼ = Σ_{k ≥ j} Iₖ`, `İᶜⱼ = Σ_{k ≥ j} İₖ` and `hᶜⱼ = Σ_{k ≥ j} Iₖ vₖ`, so that
+//! `Bᶜⱼ x = ½ (İᶜⱼ x + x ×* hᶜⱼ)` and `Bᶜⱼᵀ x = ½ (İᶜⱼ x − x ×* hᶜⱼ)` (`İ` is symmetric,
+//! `×̄*` skew):
 //!
 //! - `Cᵢⱼ = Sᵢᵀ (Iᶜⱼ Ṡⱼ + Bᶜⱼ Sⱼ)` for `i ≤ j`,
 //! - `Cᵢⱼ = (Iᶜᵢ Sᵢ)ᵀ Ṡⱼ + (Bᶜᵢᵀ Sᵢ)ᵀ Sⱼ` for `i > j`.
 //!
-//! Then `C q̇` is the velocity product of the RNEA and `Ṁ = C + Cᵀ`.
+//! Then `C q̇` is the velocity product of the RNEA and `Ṁ = C + Cᵀ`. Every product is a
+//! structured spatial operation (no 6 × 6 matrix is formed).
 
 use super::{DynamicsError, check_vector};
 use crate::math::{DMatrix, Real};
 use crate::model::{Data, Model};
-use crate::spatial::{Motion, Se3};
+use crate::spatial::{Force, Motion, Se3};
 
 /// `C(q, q̇)` (n × n) into `data.c`; also leaves `⁰Mᵢ` in `data.o_m_i`.
 pub fn coriolis_matrix<'d>(
@@ -35,36 +38,40 @@ pub fn coriolis_matrix<'d>(
         let s = o_m_i.act_motion(&body.joint.motion_subspace());
         v += s * qd[i];
         let inertia = o_m_i.act_inertia(&body.inertia);
-        let inertia_matrix = inertia.to_matrix6();
         data.o_m_i[i] = o_m_i;
         data.s_world[i] = s;
         data.s_dot_world[i] = v.cross(&s);
-        data.ic_world[i] = inertia_matrix;
-        data.bc_world[i] = (v.cross_force_matrix() * inertia_matrix
-            - inertia_matrix * v.cross_matrix()
-            + (inertia * v).cross_bar_matrix())
-            * 0.5;
+        data.ic_world[i] = inertia;
+        data.ic_dot_world[i] = inertia.variation(&v);
+        data.hc_world[i] = inertia * v;
     }
     for k in (0..n.saturating_sub(1)).rev() {
-        let (ic_child, bc_child) = (data.ic_world[k + 1], data.bc_world[k + 1]);
-        data.ic_world[k] += ic_child;
-        data.bc_world[k] += bc_child;
+        let (ic, ic_dot, hc) = (
+            data.ic_world[k + 1],
+            data.ic_dot_world[k + 1],
+            data.hc_world[k + 1],
+        );
+        data.ic_world[k] += ic;
+        data.ic_dot_world[k] += ic_dot;
+        data.hc_world[k] += hc;
     }
+    // `2 Bᶜ x` (sign +1) or `2 Bᶜᵀ x` (sign −1) of composite `k`.
+    let twice_b = |data: &Data, k: usize, x: &Motion, sign: Real| -> Force {
+        data.ic_dot_world[k] * *x + x.cross_force(&data.hc_world[k]) * sign
+    };
     for j in 0..n {
-        let s_j = data.s_world[j].to_vector6();
-        let s_dot_j = data.s_dot_world[j].to_vector6();
-        let column = data.ic_world[j] * s_dot_j + data.bc_world[j] * s_j;
+        let (s_j, s_dot_j) = (data.s_world[j], data.s_dot_world[j]);
+        let column = data.ic_world[j] * s_dot_j + twice_b(data, j, &s_j, 1.0) * 0.5;
         for i in 0..=j {
-            data.c[(i, j)] = data.s_world[i].to_vector6().dot(&column);
+            data.c[(i, j)] = column.dot(&data.s_world[i]);
         }
     }
     for i in 1..n {
-        let s_i = data.s_world[i].to_vector6();
+        let s_i = data.s_world[i];
         let inertia_s = data.ic_world[i] * s_i;
-        let bias_s = data.bc_world[i].tr_mul(&s_i);
+        let bt_s = twice_b(data, i, &s_i, -1.0);
         for j in 0..i {
-            data.c[(i, j)] = inertia_s.dot(&data.s_dot_world[j].to_vector6())
-                + bias_s.dot(&data.s_world[j].to_vector6());
+            data.c[(i, j)] = inertia_s.dot(&data.s_dot_world[j]) + 0.5 * bt_s.dot(&data.s_world[j]);
         }
     }
     Ok(&data.c)

@@ -13,10 +13,19 @@ pub fn crba<'d>(
     q: &[Real],
 ) -> Result<&'d DMatrix, DynamicsError> {
     check_vector("q", q, model.nv())?;
-    let bodies = model.bodies();
-    for (i, body) in bodies.iter().enumerate() {
+    for (i, body) in model.bodies().iter().enumerate() {
         data.li_m_i[i] = body.joint.transform(q[i]);
-        data.ycrb[i] = body.inertia;
+    }
+    composite_rigid_body(model, data);
+    Ok(&data.m)
+}
+
+/// The CRBA proper, on the placements `ᵖMᵢ(q)` already in `data.li_m_i` (forward
+/// dynamics reuses those of the RNEA).
+pub(crate) fn composite_rigid_body(model: &Model, data: &mut Data) {
+    let bodies = model.bodies();
+    for (ycrb, body) in data.ycrb.iter_mut().zip(bodies) {
+        *ycrb = body.inertia;
     }
     for i in (0..bodies.len()).rev() {
         let mut force = data.ycrb[i] * bodies[i].joint.motion_subspace();
@@ -32,5 +41,4 @@ pub fn crba<'d>(
             data.ycrb[i - 1] += composite;
         }
     }
-    Ok(&data.m)
 }

@@ -1,7 +1,8 @@
 //! Forward dynamics `q̈ = M(q)⁻¹ (τ − C(q, q̇) q̇ − g(q))` by CRBA, RNEA and an in-place
 //! Cholesky factorisation `M = L Lᵀ`.
 
-use super::{DynamicsError, check_vector, crba, nonlinear_effects};
+use super::crba::composite_rigid_body;
+use super::{DynamicsError, check_vector, nonlinear_effects};
 use crate::math::{DMatrix, DVector, Real};
 use crate::model::{Data, Model};
 
@@ -14,8 +15,9 @@ pub fn forward_dynamics<'d>(
     tau: &[Real],
 ) -> Result<&'d DVector, DynamicsError> {
     check_vector("tau", tau, model.nv())?;
+    // The RNEA leaves the joint placements `ᵖMᵢ(q)` in `data.li_m_i` for the CRBA.
     nonlinear_effects(model, data, q, qd)?;
-    crba(model, data, q)?;
+    composite_rigid_body(model, data);
     data.cholesky.copy_from(&data.m);
     cholesky_in_place(&mut data.cholesky)?;
     for (i, ddq) in data.ddq.iter_mut().enumerate() {
@@ -33,7 +35,8 @@ fn cholesky_in_place(matrix: &mut DMatrix) -> Result<(), DynamicsError> {
         for k in 0..j {
             diagonal -= matrix[(j, k)] * matrix[(j, k)];
         }
-        if !(diagonal > 0.0) {
+        // Also rejects a NaN pivot.
+        if diagonal.is_nan() || diagonal <= 0.0 {
             return Err(DynamicsError::NotPositiveDefinite);
         }
         let l_jj = diagonal.sqrt();

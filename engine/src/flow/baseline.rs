@@ -29,7 +29,10 @@ impl BehaviourCloning {
         config.validate()?;
         let net = Mlp::from_weights(&mut weights, "net", &config.mlp_sizes())?;
         weights.finish()?;
-        Ok(Self { config: config.clone(), net })
+        Ok(Self {
+            config: config.clone(),
+            net,
+        })
     }
 
     pub fn load(dir: &Path, expected_task: Option<&str>) -> FlowResult<Self> {
@@ -55,7 +58,13 @@ impl BehaviourCloning {
     }
 
     /// `y_{k+1} = y_k + dt · σ_y ⊙ MLP(ỹ_k, c̃)`.
-    pub fn mean_next(&self, y: &[f64], context: &[f64], ws: &mut BaselineWorkspace, out: &mut [f64]) -> FlowResult<()> {
+    pub fn mean_next(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut BaselineWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
         let (d, norm) = (self.config.state_dim, &self.config.normalisation);
         check_input("state", d, y)?;
         check_input("context", self.config.context_dim, context)?;

@@ -69,10 +69,16 @@ impl Normalisation {
             ("context_std", &self.context_std, context_dim, true),
         ] {
             if v.len() != n {
-                return Err(invalid(format!("normalisation.{name} has {} entries, expected {n}", v.len())));
+                return Err(invalid(format!(
+                    "normalisation.{name} has {} entries, expected {n}",
+                    v.len()
+                )));
             }
             if v.iter().any(|x| !x.is_finite() || (positive && *x <= 0.0)) {
-                return Err(invalid(format!("normalisation.{name} must be finite{}", if positive { " and > 0" } else { "" })));
+                return Err(invalid(format!(
+                    "normalisation.{name} must be finite{}",
+                    if positive { " and > 0" } else { "" }
+                )));
             }
         }
         Ok(())
@@ -97,8 +103,14 @@ impl Bounds {
             if lo.len() != n || hi.len() != n {
                 return Err(invalid(format!("bounds.{name}_min/max need {n} entries")));
             }
-            if lo.iter().zip(hi).any(|(a, b)| !a.is_finite() || !b.is_finite() || a > b) {
-                return Err(invalid(format!("bounds.{name}_min must be finite and <= {name}_max")));
+            if lo
+                .iter()
+                .zip(hi)
+                .any(|(a, b)| !a.is_finite() || !b.is_finite() || a > b)
+            {
+                return Err(invalid(format!(
+                    "bounds.{name}_min must be finite and <= {name}_max"
+                )));
             }
         }
         Ok(())
@@ -246,7 +258,9 @@ impl FlowConfig {
             return Err(invalid("layers and hidden widths must be >= 1".into()));
         }
         match self.coupling {
-            CouplingKind::Affine { scale_bound } if !(scale_bound.is_finite() && scale_bound > 0.0) => {
+            CouplingKind::Affine { scale_bound }
+                if !(scale_bound.is_finite() && scale_bound > 0.0) =>
+            {
                 return Err(invalid("affine scale_bound must be finite and > 0".into()));
             }
             CouplingKind::Spline { bins, tail_bound }
@@ -254,7 +268,9 @@ impl FlowConfig {
                     || !(tail_bound.is_finite() && tail_bound > 0.0)
                     || (bins as f64) * SPLINE_MIN_BIN >= 1.0 =>
             {
-                return Err(invalid("spline needs bins in [2, 999] and a finite tail_bound > 0".into()));
+                return Err(invalid(
+                    "spline needs bins in [2, 999] and a finite tail_bound > 0".into(),
+                ));
             }
             _ => {}
         }
@@ -311,14 +327,20 @@ impl BaselineConfig {
     pub fn validate(&self) -> FlowResult<()> {
         let (d, m) = (self.state_dim, self.context_dim);
         if d == 0 || !(self.dt.is_finite() && self.dt > 0.0) {
-            return Err(invalid("state_dim must be >= 1 and dt finite and > 0".into()));
+            return Err(invalid(
+                "state_dim must be >= 1 and dt finite and > 0".into(),
+            ));
         }
         if self.hidden.is_empty() || self.hidden.contains(&0) {
             return Err(invalid("hidden widths must be >= 1".into()));
         }
         match &self.goal {
-            Goal::ContextIndices { indices } if indices.len() != d || indices.iter().any(|&i| i >= m) => {
-                return Err(invalid(format!("goal needs {d} indices into a context of dimension {m}")));
+            Goal::ContextIndices { indices }
+                if indices.len() != d || indices.iter().any(|&i| i >= m) =>
+            {
+                return Err(invalid(format!(
+                    "goal needs {d} indices into a context of dimension {m}"
+                )));
             }
             Goal::State { value } if value.len() != d || value.iter().any(|v| !v.is_finite()) => {
                 return Err(invalid(format!("goal state needs {d} finite entries")));

@@ -80,7 +80,7 @@ impl Coupling {
         config: &FlowConfig,
     ) -> FlowResult<Self> {
         let (d, kept_dim) = (config.state_dim, config.kept_dim());
-        let (kept, transformed) = if index % 2 == 0 {
+        let (kept, transformed) = if index.is_multiple_of(2) {
             (0..kept_dim, kept_dim..d)
         } else {
             (d - kept_dim..d, 0..d - kept_dim)
@@ -133,12 +133,22 @@ impl Coupling {
     }
 
     /// `x ← coupling(x)`; returns `log|det ∂y/∂x|`.
-    pub fn forward<S: Scalar>(&self, x: &mut [S], context: &[f64], scratch: &mut CouplingScratch<S>) -> S {
+    pub fn forward<S: Scalar>(
+        &self,
+        x: &mut [S],
+        context: &[f64],
+        scratch: &mut CouplingScratch<S>,
+    ) -> S {
         self.apply(x, context, scratch, false)
     }
 
     /// `x ← coupling⁻¹(x)`; returns `log|det ∂x/∂y|`.
-    pub fn inverse<S: Scalar>(&self, x: &mut [S], context: &[f64], scratch: &mut CouplingScratch<S>) -> S {
+    pub fn inverse<S: Scalar>(
+        &self,
+        x: &mut [S],
+        context: &[f64],
+        scratch: &mut CouplingScratch<S>,
+    ) -> S {
         self.apply(x, context, scratch, true)
     }
 }

@@ -56,7 +56,11 @@ pub struct LatentDynamics {
 }
 
 /// `A = -(F Fᵀ + ε I) + (W_l - W_lᵀ)`.
-pub fn stable_rate_matrix(factor: &DMatrix<f64>, skew: &DMatrix<f64>, min_rate: f64) -> DMatrix<f64> {
+pub fn stable_rate_matrix(
+    factor: &DMatrix<f64>,
+    skew: &DMatrix<f64>,
+    min_rate: f64,
+) -> DMatrix<f64> {
     let r = factor.nrows();
     let lower = skew.lower_triangle() - DMatrix::from_diagonal(&skew.diagonal());
     -(factor * factor.transpose() + DMatrix::identity(r, r) * min_rate) + &lower - lower.transpose()
@@ -78,7 +82,8 @@ impl LatentDynamics {
         let cycle = match config.latent {
             LatentKind::GoTo => None,
             LatentKind::LimitCycle => {
-                let mut scalar = |name: &str| weights.take(&format!("latent.{name}"), &[1]).map(|v| v[0]);
+                let mut scalar =
+                    |name: &str| weights.take(&format!("latent.{name}"), &[1]).map(|v| v[0]);
                 Some(Cycle {
                     radius: scalar("log_radius")?.exp(),
                     rate: -scalar("log_rate")?.exp(),
@@ -86,9 +91,15 @@ impl LatentDynamics {
                 })
             }
         };
-        let transition = if r > 0 { (&rate_matrix * config.dt).exp() } else { DMatrix::zeros(0, 0) };
+        let transition = if r > 0 {
+            (&rate_matrix * config.dt).exp()
+        } else {
+            DMatrix::zeros(0, 0)
+        };
         if transition.iter().any(|v| !v.is_finite()) {
-            return Err(FlowError::NonFinite { what: "latent transition matrix" });
+            return Err(FlowError::NonFinite {
+                what: "latent transition matrix",
+            });
         }
         Ok(Self {
             kind: config.latent,
@@ -191,9 +202,16 @@ impl LatentDynamics {
     }
 
     /// `log N(z_k; μ^k(z), Σ_k)` of the `horizon`-step transition (see the module docs).
-    pub fn log_transition_multi(&self, z: &[f64], z_next: &[f64], horizon: usize) -> FlowResult<f64> {
+    pub fn log_transition_multi(
+        &self,
+        z: &[f64],
+        z_next: &[f64],
+        horizon: usize,
+    ) -> FlowResult<f64> {
         if horizon == 0 {
-            return Err(FlowError::InvalidConfig("transition horizon must be >= 1".into()));
+            return Err(FlowError::InvalidConfig(
+                "transition horizon must be >= 1".into(),
+            ));
         }
         let d = z.len();
         let mut mean = z.to_vec();
@@ -203,10 +221,14 @@ impl LatentDynamics {
             std::mem::swap(&mut mean, &mut next);
         }
         let covariance = self.multi_step_covariance(horizon);
-        let cholesky = Cholesky::new(covariance)
-            .ok_or_else(|| FlowError::InvalidConfig("k-step covariance is not positive definite".into()))?;
+        let cholesky = Cholesky::new(covariance).ok_or_else(|| {
+            FlowError::InvalidConfig("k-step covariance is not positive definite".into())
+        })?;
         let residual = DVector::from_iterator(d, z_next.iter().zip(&mean).map(|(a, b)| a - b));
-        let whitened = cholesky.l().solve_lower_triangular(&residual).expect("positive diagonal");
+        let whitened = cholesky
+            .l()
+            .solve_lower_triangular(&residual)
+            .expect("positive diagonal");
         let log_det: f64 = cholesky.l().diagonal().iter().map(|v| v.ln()).sum::<f64>() * 2.0;
         Ok(-0.5 * (whitened.norm_squared() + log_det + d as f64 * LN_2PI))
     }
@@ -220,7 +242,10 @@ impl LatentDynamics {
             covariance[(i, i)] = horizon as f64 * self.sigma[i] * self.sigma[i];
         }
         let r = d - s;
-        let noise = DMatrix::from_diagonal(&DVector::from_iterator(r, self.sigma[s..].iter().map(|v| v * v)));
+        let noise = DMatrix::from_diagonal(&DVector::from_iterator(
+            r,
+            self.sigma[s..].iter().map(|v| v * v),
+        ));
         let mut power = DMatrix::identity(r, r);
         let mut linear = DMatrix::zeros(r, r);
         for _ in 0..horizon {

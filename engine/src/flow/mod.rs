@@ -67,6 +67,7 @@ pub mod mixing;
 pub mod mlp;
 pub mod network;
 pub mod policy;
+pub mod robot_loop;
 pub mod scalar;
 pub mod spline;
 pub mod stability;

@@ -75,7 +75,12 @@ impl ConditionalFlow {
     }
 
     /// `x ← g(x, c̃)`; returns `log|det ∂g/∂x|`.
-    fn g_forward<S: Scalar>(&self, x: &mut [S], context: &[f64], scratch: &mut CouplingScratch<S>) -> S {
+    fn g_forward<S: Scalar>(
+        &self,
+        x: &mut [S],
+        context: &[f64],
+        scratch: &mut CouplingScratch<S>,
+    ) -> S {
         let mut log_det = S::constant(0.0);
         for (mixing, coupling) in &self.blocks {
             log_det = log_det + mixing.forward(x);
@@ -85,7 +90,12 @@ impl ConditionalFlow {
     }
 
     /// `x ← g⁻¹(x, c̃)`; returns `log|det ∂g⁻¹/∂x|`.
-    fn g_inverse<S: Scalar>(&self, x: &mut [S], context: &[f64], scratch: &mut CouplingScratch<S>) -> S {
+    fn g_inverse<S: Scalar>(
+        &self,
+        x: &mut [S],
+        context: &[f64],
+        scratch: &mut CouplingScratch<S>,
+    ) -> S {
         let mut log_det = S::constant(0.0);
         for (mixing, coupling) in self.blocks.iter().rev() {
             log_det += coupling.inverse(x, context, scratch);
@@ -154,7 +164,8 @@ impl ConditionalFlow {
     ) -> S {
         let norm = &self.config.normalisation;
         for (i, zi) in z.iter_mut().enumerate() {
-            *zi = (y[i] + (-norm.state_mean[i])) * (1.0 / norm.state_std[i]) + (-conditioning.offset[i]);
+            *zi = (y[i] + (-norm.state_mean[i])) * (1.0 / norm.state_std[i])
+                + (-conditioning.offset[i]);
         }
         self.g_inverse(z, &conditioning.normalised, scratch) + (-self.log_state_scale)
     }

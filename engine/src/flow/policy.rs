@@ -104,8 +104,11 @@ impl Policy {
     /// returns `log|det ∂f⁻¹/∂y|`.
     fn invert(&self, y: &[f64], context: &[f64], ws: &mut PolicyWorkspace) -> FlowResult<f64> {
         check_input("state", self.config().state_dim, y)?;
-        self.flow.condition(context, &mut ws.conditioning, &mut ws.scratch)?;
-        Ok(self.flow.inverse(y, &ws.conditioning, &mut ws.scratch, &mut ws.z))
+        self.flow
+            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        Ok(self
+            .flow
+            .inverse(y, &ws.conditioning, &mut ws.scratch, &mut ws.z))
     }
 
     fn check_output(&self, out: &[f64]) -> FlowResult<()> {
@@ -113,7 +116,13 @@ impl Policy {
     }
 
     /// `z = f⁻¹(y, c)`.
-    pub fn latent_state(&self, y: &[f64], context: &[f64], ws: &mut PolicyWorkspace, z: &mut [f64]) -> FlowResult<()> {
+    pub fn latent_state(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        z: &mut [f64],
+    ) -> FlowResult<()> {
         self.check_output(z)?;
         self.invert(y, context, ws)?;
         z.copy_from_slice(&ws.z);
@@ -121,20 +130,34 @@ impl Policy {
     }
 
     /// `y = f(z, c)`.
-    pub fn observe(&self, z: &[f64], context: &[f64], ws: &mut PolicyWorkspace, y: &mut [f64]) -> FlowResult<()> {
+    pub fn observe(
+        &self,
+        z: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        y: &mut [f64],
+    ) -> FlowResult<()> {
         self.check_output(y)?;
         check_input("latent state", self.config().state_dim, z)?;
-        self.flow.condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        self.flow
+            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
         self.flow.forward(z, &ws.conditioning, &mut ws.scratch, y);
         Ok(())
     }
 
     /// Noise-free next state `y_{k+1} = f(μ(f⁻¹(y_k, c)), c)`.
-    pub fn mean_next(&self, y: &[f64], context: &[f64], ws: &mut PolicyWorkspace, out: &mut [f64]) -> FlowResult<()> {
+    pub fn mean_next(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
         self.check_output(out)?;
         self.invert(y, context, ws)?;
         self.latent.mean_step(&ws.z, &mut ws.z_next);
-        self.flow.forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, out);
+        self.flow
+            .forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, out);
         Ok(())
     }
 
@@ -150,21 +173,32 @@ impl Policy {
         self.check_output(out)?;
         self.invert(y, context, ws)?;
         self.latent.sample_step(&ws.z, rng, &mut ws.z_next);
-        self.flow.forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, out);
+        self.flow
+            .forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, out);
         Ok(())
     }
 
     /// Desired velocity `ẏ_des = J_f(z) v(z)` at `z = f⁻¹(y, c)`: one forward pass in
     /// dual numbers seeded with the latent velocity.
-    pub fn velocity(&self, y: &[f64], context: &[f64], ws: &mut PolicyWorkspace, out: &mut [f64]) -> FlowResult<()> {
+    pub fn velocity(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
         self.check_output(out)?;
         self.invert(y, context, ws)?;
         self.latent.velocity(&ws.z, &mut ws.latent_velocity);
         for ((d, z), v) in ws.dual_z.iter_mut().zip(&ws.z).zip(&ws.latent_velocity) {
             *d = Dual::new(*z, *v);
         }
-        self.flow
-            .forward(&ws.dual_z, &ws.conditioning, &mut ws.scratch_dual, &mut ws.dual);
+        self.flow.forward(
+            &ws.dual_z,
+            &ws.conditioning,
+            &mut ws.scratch_dual,
+            &mut ws.dual,
+        );
         for (o, d) in out.iter_mut().zip(&ws.dual) {
             *o = d.du;
         }
@@ -184,7 +218,8 @@ impl Policy {
         self.velocity(y, context, ws, velocity)?;
         self.check_output(next)?;
         self.latent.mean_step(&ws.z, &mut ws.z_next);
-        self.flow.forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, next);
+        self.flow
+            .forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, next);
         Ok(())
     }
 
@@ -214,20 +249,31 @@ impl Policy {
         self.check_output(acceleration)?;
         self.check_output(velocity)?;
         if !(velocity_gain.is_finite() && velocity_gain > 0.0) {
-            return Err(FlowError::InvalidConfig("velocity gain K_v must be finite and > 0".into()));
+            return Err(FlowError::InvalidConfig(
+                "velocity gain K_v must be finite and > 0".into(),
+            ));
         }
-        self.flow.condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        self.flow
+            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
         for ((d, q), qd) in ws.dual.iter_mut().zip(q).zip(qd) {
             *d = Dual::new(*q, *qd);
         }
-        self.flow
-            .inverse(&ws.dual, &ws.conditioning, &mut ws.scratch_dual, &mut ws.dual_z);
+        self.flow.inverse(
+            &ws.dual,
+            &ws.conditioning,
+            &mut ws.scratch_dual,
+            &mut ws.dual_z,
+        );
         self.latent.velocity(&ws.dual_z, &mut ws.dual_velocity);
         for ((x, z), v) in ws.dual2.iter_mut().zip(&ws.dual_z).zip(&ws.dual_velocity) {
             *x = Dual::new(*z, *v);
         }
-        self.flow
-            .forward(&ws.dual2, &ws.conditioning, &mut ws.scratch_dual2, &mut ws.dual2_y);
+        self.flow.forward(
+            &ws.dual2,
+            &ws.conditioning,
+            &mut ws.scratch_dual2,
+            &mut ws.dual2_y,
+        );
         for i in 0..d {
             let v_des = ws.dual2_y[i].du;
             velocity[i] = v_des.re;
@@ -237,13 +283,22 @@ impl Policy {
     }
 
     /// The go-to attractor `y* = f(0, c)` (`= target(c)` for goal-conditioned tasks).
-    pub fn attractor(&self, context: &[f64], ws: &mut PolicyWorkspace, out: &mut [f64]) -> FlowResult<()> {
+    pub fn attractor(
+        &self,
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
         if self.latent.kind() != LatentKind::GoTo {
-            return Err(FlowError::InvalidConfig("only go-to policies have a fixed-point attractor".into()));
+            return Err(FlowError::InvalidConfig(
+                "only go-to policies have a fixed-point attractor".into(),
+            ));
         }
         self.check_output(out)?;
-        self.flow.condition(context, &mut ws.conditioning, &mut ws.scratch)?;
-        self.flow.forward(&ws.origin, &ws.conditioning, &mut ws.scratch, out);
+        self.flow
+            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        self.flow
+            .forward(&ws.origin, &ws.conditioning, &mut ws.scratch, out);
         Ok(())
     }
 
@@ -292,7 +347,10 @@ impl Policy {
         ws: &mut PolicyWorkspace,
     ) -> FlowResult<f64> {
         let log_det = self.latent_pair(y_prev, y_next, context, ws)?;
-        Ok(self.latent.log_transition_multi(&ws.z, &ws.z_later, horizon)? + log_det)
+        Ok(self
+            .latent
+            .log_transition_multi(&ws.z, &ws.z_later, horizon)?
+            + log_det)
     }
 
     /// Leaves `z_{k-1}` in `ws.z` and `z_k` in `ws.z_later`; returns
@@ -311,7 +369,12 @@ impl Policy {
     }
 
     /// `log p(y₀ | c₀) = log N(z₀; 0, diag σ₀²) + log|det ∂f⁻¹/∂y (y₀)|`.
-    pub fn log_initial(&self, y0: &[f64], context: &[f64], ws: &mut PolicyWorkspace) -> FlowResult<f64> {
+    pub fn log_initial(
+        &self,
+        y0: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+    ) -> FlowResult<f64> {
         let log_det = self.invert(y0, context, ws)?;
         Ok(self.latent.log_initial(&ws.z) + log_det)
     }

@@ -22,11 +22,23 @@ pub trait Scalar:
     + Mul<f64, Output = Self>
     + Add<f64, Output = Self>
 {
+    /// Number of `f64` components: 1 for `f64`, twice the inner count per dual level.
+    ///
+    /// A linear map with `f64` coefficients acts on every component independently, so
+    /// the MLPs evaluate `W x` for all components as one matrix product sharing the loads
+    /// of `W`.
+    const LANES: usize;
+    /// Component `lane` (`0` is the primal value, `1..` the derivative parts).
+    fn lane(self, lane: usize) -> f64;
+    /// The value whose component `l` is `component(l)`.
+    fn from_lanes(component: impl Fn(usize) -> f64) -> Self;
     /// A constant (zero derivative).
     fn constant(value: f64) -> Self;
     /// The primal value; branches (spline bins, tails) are decided on it.
     fn value(self) -> f64;
     fn exp(self) -> Self;
+    /// `e^x` for `x <= 0` (see [`exp_non_positive`]); faster than [`exp`](Self::exp).
+    fn exp_non_positive(self) -> Self;
     fn ln(self) -> Self;
     fn tanh(self) -> Self;
     fn sqrt(self) -> Self;
@@ -90,21 +102,39 @@ impl<S: Scalar> Dual<S> {
     }
 
     /// Applies a function with value `value` and derivative `derivative` at `self.re`.
+    #[inline]
     fn chain(self, value: S, derivative: S) -> Self {
         Self::new(value, self.du * derivative)
     }
 }
 
 impl Scalar for f64 {
+    const LANES: usize = 1;
+    #[inline(always)]
+    fn lane(self, _lane: usize) -> f64 {
+        self
+    }
+    #[inline(always)]
+    fn from_lanes(component: impl Fn(usize) -> f64) -> Self {
+        component(0)
+    }
+    #[inline]
     fn constant(value: f64) -> Self {
         value
     }
+    #[inline]
     fn value(self) -> f64 {
         self
     }
+    #[inline]
     fn exp(self) -> Self {
         f64::exp(self)
     }
+    #[inline(always)]
+    fn exp_non_positive(self) -> Self {
+        exp_non_positive(self)
+    }
+    #[inline]
     fn ln(self) -> Self {
         f64::ln(self)
     }
@@ -116,65 +146,101 @@ impl Scalar for f64 {
         let e = exp_non_positive(-2.0 * self.abs());
         ((1.0 - e) / (1.0 + e)).copysign(self)
     }
+    #[inline]
     fn sqrt(self) -> Self {
         f64::sqrt(self)
     }
+    #[inline]
     fn sin(self) -> Self {
         f64::sin(self)
     }
+    #[inline]
     fn cos(self) -> Self {
         f64::cos(self)
     }
+    #[inline]
     fn atan2(self, x: Self) -> Self {
         f64::atan2(self, x)
     }
+    #[inline]
     fn sigmoid(self) -> Self {
         1.0 / (1.0 + f64::exp(-self))
     }
+    #[inline]
     fn softplus(self) -> Self {
         self.max(0.0) + f64::ln_1p(f64::exp(-self.abs()))
     }
 }
 
 impl<S: Scalar> Scalar for Dual<S> {
+    /// `re`'s components, then `du`'s.
+    const LANES: usize = 2 * S::LANES;
+    #[inline(always)]
+    fn lane(self, lane: usize) -> f64 {
+        if lane < S::LANES {
+            self.re.lane(lane)
+        } else {
+            self.du.lane(lane - S::LANES)
+        }
+    }
+    #[inline(always)]
+    fn from_lanes(component: impl Fn(usize) -> f64) -> Self {
+        Self::new(
+            S::from_lanes(&component),
+            S::from_lanes(|l| component(l + S::LANES)),
+        )
+    }
+    #[inline]
     fn constant(value: f64) -> Self {
         Self::new(S::constant(value), S::constant(0.0))
     }
+    #[inline]
     fn value(self) -> f64 {
         self.re.value()
     }
+    #[inline]
     fn exp(self) -> Self {
         let e = self.re.exp();
         self.chain(e, e)
     }
+    #[inline]
+    fn exp_non_positive(self) -> Self {
+        let e = self.re.exp_non_positive();
+        self.chain(e, e)
+    }
+    #[inline]
     fn ln(self) -> Self {
         self.chain(self.re.ln(), S::constant(1.0) / self.re)
     }
+    #[inline]
     fn tanh(self) -> Self {
         let t = self.re.tanh();
         self.chain(t, -(t * t) + 1.0)
     }
+    #[inline]
     fn sqrt(self) -> Self {
         let s = self.re.sqrt();
         self.chain(s, S::constant(0.5) / s)
     }
+    #[inline]
     fn sin(self) -> Self {
         self.chain(self.re.sin(), self.re.cos())
     }
+    #[inline]
     fn cos(self) -> Self {
         self.chain(self.re.cos(), -self.re.sin())
     }
+    #[inline]
     fn atan2(self, x: Self) -> Self {
         let r2 = x.re * x.re + self.re * self.re;
-        Self::new(
-            self.re.atan2(x.re),
-            (x.re * self.du - self.re * x.du) / r2,
-        )
+        Self::new(self.re.atan2(x.re), (x.re * self.du - self.re * x.du) / r2)
     }
+    #[inline]
     fn sigmoid(self) -> Self {
         let s = self.re.sigmoid();
         self.chain(s, s * (-s + 1.0))
     }
+    #[inline]
     fn softplus(self) -> Self {
         self.chain(self.re.softplus(), self.re.sigmoid())
     }
@@ -182,24 +248,28 @@ impl<S: Scalar> Scalar for Dual<S> {
 
 impl<S: Scalar> Add for Dual<S> {
     type Output = Self;
+    #[inline]
     fn add(self, rhs: Self) -> Self {
         Self::new(self.re + rhs.re, self.du + rhs.du)
     }
 }
 impl<S: Scalar> Sub for Dual<S> {
     type Output = Self;
+    #[inline]
     fn sub(self, rhs: Self) -> Self {
         Self::new(self.re - rhs.re, self.du - rhs.du)
     }
 }
 impl<S: Scalar> Mul for Dual<S> {
     type Output = Self;
+    #[inline]
     fn mul(self, rhs: Self) -> Self {
         Self::new(self.re * rhs.re, self.re * rhs.du + self.du * rhs.re)
     }
 }
 impl<S: Scalar> Div for Dual<S> {
     type Output = Self;
+    #[inline]
     fn div(self, rhs: Self) -> Self {
         let inv = S::constant(1.0) / rhs.re;
         let q = self.re * inv;
@@ -208,11 +278,13 @@ impl<S: Scalar> Div for Dual<S> {
 }
 impl<S: Scalar> Neg for Dual<S> {
     type Output = Self;
+    #[inline]
     fn neg(self) -> Self {
         Self::new(-self.re, -self.du)
     }
 }
 impl<S: Scalar> AddAssign for Dual<S> {
+    #[inline]
     fn add_assign(&mut self, rhs: Self) {
         self.re += rhs.re;
         self.du += rhs.du;
@@ -220,12 +292,14 @@ impl<S: Scalar> AddAssign for Dual<S> {
 }
 impl<S: Scalar> Mul<f64> for Dual<S> {
     type Output = Self;
+    #[inline]
     fn mul(self, rhs: f64) -> Self {
         Self::new(self.re * rhs, self.du * rhs)
     }
 }
 impl<S: Scalar> Add<f64> for Dual<S> {
     type Output = Self;
+    #[inline]
     fn add(self, rhs: f64) -> Self {
         Self::new(self.re + rhs, self.du)
     }
@@ -240,7 +314,12 @@ mod tests {
         let fd = (g(x + h) - g(x - h)) / (2.0 * h);
         let d = f(Dual::new(x, 1.0));
         assert!((d.re - g(x)).abs() < 1e-14 * (1.0 + g(x).abs()));
-        assert!((d.du - fd).abs() < 1e-7 * (1.0 + fd.abs()), "{} vs {}", d.du, fd);
+        assert!(
+            (d.du - fd).abs() < 1e-7 * (1.0 + fd.abs()),
+            "{} vs {}",
+            d.du,
+            fd
+        );
     }
 
     #[test]
@@ -250,9 +329,21 @@ mod tests {
             check(|d| d.exp(), f64::exp, x);
             check(|d| d.sin() * d.cos(), |v| v.sin() * v.cos(), x);
             check(|d| d.softplus(), |v| v.softplus(), x);
-            check(|d| d.sigmoid() / (d * d + 1.0), |v| v.sigmoid() / (v * v + 1.0), x);
-            check(|d| (d * d + 1.0).sqrt().ln(), |v| (v * v + 1.0).sqrt().ln(), x);
-            check(|d| d.atan2(Dual::constant(0.3) - d), |v| v.atan2(0.3 - v), x);
+            check(
+                |d| d.sigmoid() / (d * d + 1.0),
+                |v| v.sigmoid() / (v * v + 1.0),
+                x,
+            );
+            check(
+                |d| (d * d + 1.0).sqrt().ln(),
+                |v| (v * v + 1.0).sqrt().ln(),
+                x,
+            );
+            check(
+                |d| d.atan2(Dual::constant(0.3) - d),
+                |v| v.atan2(0.3 - v),
+                x,
+            );
         }
     }
 

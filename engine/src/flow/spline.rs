@@ -28,26 +28,40 @@ fn derivative_shift() -> f64 {
     (1.0 - SPLINE_MIN_DERIVATIVE).exp_m1().ln()
 }
 
-/// Knot positions of one spline: `x_0..x_K`, `y_0..y_K`, `δ_0..δ_K`.
+/// Knot positions `x_0..x_K`, `y_0..y_K` of one spline and its raw derivative parameters.
 struct Knots<'a, S> {
     xs: &'a [S],
     ys: &'a [S],
-    derivatives: &'a [S],
+    raw_derivatives: &'a [S],
+}
+
+impl<S: Scalar> Knots<'_, S> {
+    /// `δ_k`; only the two knots of the active bin are ever evaluated.
+    fn derivative(&self, k: usize) -> S {
+        if k == 0 || k == self.xs.len() - 1 {
+            S::constant(1.0)
+        } else {
+            (self.raw_derivatives[k - 1] + derivative_shift()).softplus() + SPLINE_MIN_DERIVATIVE
+        }
+    }
 }
 
 impl SplineTransform {
     /// Scratch length [`forward`](Self::forward) and [`inverse`](Self::inverse) need.
     pub fn scratch_len(&self) -> usize {
-        3 * (self.bins + 1)
+        2 * (self.bins + 1)
     }
 
     /// Cumulative knot positions of softmax-normalised bin sizes on `[-B, B]`.
     fn cumulative<S: Scalar>(&self, raw: &[S], out: &mut [S]) {
         let k = self.bins;
-        let max = raw.iter().map(|v| v.value()).fold(f64::NEG_INFINITY, f64::max);
+        let max = raw
+            .iter()
+            .map(|v| v.value())
+            .fold(f64::NEG_INFINITY, f64::max);
         let mut total = S::constant(0.0);
         for (o, r) in out[1..].iter_mut().zip(raw) {
-            *o = (*r + (-max)).exp();
+            *o = (*r + (-max)).exp_non_positive();
             total += *o;
         }
         let inv_total = S::constant(1.0) / total;
@@ -62,19 +76,16 @@ impl SplineTransform {
         out[k] = S::constant(self.tail_bound);
     }
 
-    fn knots<'a, S: Scalar>(&self, params: &[S], scratch: &'a mut [S]) -> Knots<'a, S> {
+    fn knots<'a, S: Scalar>(&self, params: &'a [S], scratch: &'a mut [S]) -> Knots<'a, S> {
         let k = self.bins;
-        let (xs, rest) = scratch.split_at_mut(k + 1);
-        let (ys, derivatives) = rest.split_at_mut(k + 1);
+        let (xs, ys) = scratch.split_at_mut(k + 1);
         self.cumulative(&params[..k], xs);
         self.cumulative(&params[k..2 * k], ys);
-        let shift = derivative_shift();
-        derivatives[0] = S::constant(1.0);
-        derivatives[k] = S::constant(1.0);
-        for (d, raw) in derivatives[1..k].iter_mut().zip(&params[2 * k..3 * k - 1]) {
-            *d = (*raw + shift).softplus() + SPLINE_MIN_DERIVATIVE;
+        Knots {
+            xs,
+            ys,
+            raw_derivatives: &params[2 * k..3 * k - 1],
         }
-        Knots { xs, ys, derivatives }
     }
 
     fn inside(&self, v: f64) -> bool {
@@ -82,11 +93,10 @@ impl SplineTransform {
     }
 
     /// `log(dy/dx)` at bin parameter `ξ` of bin `k`.
-    fn log_derivative<S: Scalar>(knots: &Knots<S>, k: usize, xi: S) -> S {
+    fn log_derivative<S: Scalar>(knots: &Knots<S>, k: usize, xi: S, (d0, d1): (S, S)) -> S {
         let w = knots.xs[k + 1] - knots.xs[k];
         let h = knots.ys[k + 1] - knots.ys[k];
         let s = h / w;
-        let (d0, d1) = (knots.derivatives[k], knots.derivatives[k + 1]);
         let one_minus = -xi + 1.0;
         let mix = xi * one_minus;
         let denominator = s + (d0 + d1 - s * 2.0) * mix;
@@ -105,11 +115,11 @@ impl SplineTransform {
         let w = knots.xs[k + 1] - knots.xs[k];
         let h = knots.ys[k + 1] - knots.ys[k];
         let s = h / w;
-        let (d0, d1) = (knots.derivatives[k], knots.derivatives[k + 1]);
+        let (d0, d1) = (knots.derivative(k), knots.derivative(k + 1));
         let xi = (x - knots.xs[k]) / w;
         let mix = xi * (-xi + 1.0);
         let y = knots.ys[k] + h * (s * xi * xi + d0 * mix) / (s + (d0 + d1 - s * 2.0) * mix);
-        (y, Self::log_derivative(&knots, k, xi))
+        (y, Self::log_derivative(&knots, k, xi, (d0, d1)))
     }
 
     /// Returns `(x, log|dx/dy|)`.
@@ -122,7 +132,7 @@ impl SplineTransform {
         let w = knots.xs[k + 1] - knots.xs[k];
         let h = knots.ys[k + 1] - knots.ys[k];
         let s = h / w;
-        let (d0, d1) = (knots.derivatives[k], knots.derivatives[k + 1]);
+        let (d0, d1) = (knots.derivative(k), knots.derivative(k + 1));
         let dy = y - knots.ys[k];
         let curvature = d0 + d1 - s * 2.0;
         let a = h * (s - d0) + dy * curvature;
@@ -130,10 +140,14 @@ impl SplineTransform {
         let c = -(s * dy);
         // Rounding can push a zero discriminant (a knot hit exactly) below zero.
         let discriminant = b * b - a * c * 4.0;
-        let discriminant = if discriminant.value() < 0.0 { S::constant(0.0) } else { discriminant };
+        let discriminant = if discriminant.value() < 0.0 {
+            S::constant(0.0)
+        } else {
+            discriminant
+        };
         let xi = c * 2.0 / (-b - discriminant.sqrt());
         let x = xi * w + knots.xs[k];
-        (x, -Self::log_derivative(&knots, k, xi))
+        (x, -Self::log_derivative(&knots, k, xi, (d0, d1)))
     }
 
     /// Index of the bin holding `v` among the knots `edges` (the last bin includes its end).

@@ -24,7 +24,13 @@ pub trait MeanDynamics {
     type Workspace;
     fn workspace(&self) -> Self::Workspace;
     fn bounds(&self) -> &Bounds;
-    fn mean_next(&self, y: &[f64], context: &[f64], ws: &mut Self::Workspace, out: &mut [f64]) -> FlowResult<()>;
+    fn mean_next(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut Self::Workspace,
+        out: &mut [f64],
+    ) -> FlowResult<()>;
     /// Distance from `y` to the attractor; `scratch` has the state dimension.
     fn attractor_distance(
         &self,
@@ -43,10 +49,22 @@ impl MeanDynamics for Policy {
     fn bounds(&self) -> &Bounds {
         &self.config().bounds
     }
-    fn mean_next(&self, y: &[f64], context: &[f64], ws: &mut PolicyWorkspace, out: &mut [f64]) -> FlowResult<()> {
+    fn mean_next(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
         Policy::mean_next(self, y, context, ws, out)
     }
-    fn attractor_distance(&self, y: &[f64], context: &[f64], ws: &mut PolicyWorkspace, scratch: &mut [f64]) -> FlowResult<f64> {
+    fn attractor_distance(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        scratch: &mut [f64],
+    ) -> FlowResult<f64> {
         Policy::attractor_distance(self, y, context, ws, scratch)
     }
 }
@@ -59,10 +77,22 @@ impl MeanDynamics for BehaviourCloning {
     fn bounds(&self) -> &Bounds {
         &self.config().bounds
     }
-    fn mean_next(&self, y: &[f64], context: &[f64], ws: &mut BaselineWorkspace, out: &mut [f64]) -> FlowResult<()> {
+    fn mean_next(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut BaselineWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
         BehaviourCloning::mean_next(self, y, context, ws, out)
     }
-    fn attractor_distance(&self, y: &[f64], context: &[f64], _: &mut BaselineWorkspace, scratch: &mut [f64]) -> FlowResult<f64> {
+    fn attractor_distance(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        _: &mut BaselineWorkspace,
+        scratch: &mut [f64],
+    ) -> FlowResult<f64> {
         self.goal(context, scratch);
         Ok(distance(y, scratch))
     }
@@ -119,9 +149,13 @@ pub fn measure<M: MeanDynamics>(
     config: &StabilityConfig,
     mut progress: impl FnMut(usize),
 ) -> FlowResult<StabilityReport> {
-    if config.starts == 0 || config.check_every == 0 || !(config.scale > 0.0 && config.tolerance > 0.0) {
+    if config.starts == 0
+        || config.check_every == 0
+        || !(config.scale > 0.0 && config.tolerance > 0.0)
+    {
         return Err(FlowError::InvalidConfig(
-            "stability check needs starts, check_every >= 1 and positive scale and tolerance".into(),
+            "stability check needs starts, check_every >= 1 and positive scale and tolerance"
+                .into(),
         ));
     }
     let bounds = model.bounds();
@@ -141,8 +175,20 @@ pub fn measure<M: MeanDynamics>(
         diverged_to_non_finite: 0,
     };
     for trial in 0..config.starts {
-        sample_box(&bounds.state_min, &bounds.state_max, config.scale, &mut rng, &mut y);
-        sample_box(&bounds.context_min, &bounds.context_max, 1.0, &mut rng, &mut context);
+        sample_box(
+            &bounds.state_min,
+            &bounds.state_max,
+            config.scale,
+            &mut rng,
+            &mut y,
+        );
+        sample_box(
+            &bounds.context_min,
+            &bounds.context_max,
+            1.0,
+            &mut rng,
+            &mut context,
+        );
         let mut outcome = None;
         for step in 1..=config.max_steps {
             model.mean_next(&y, &context, &mut ws, &mut next)?;
@@ -182,5 +228,9 @@ fn sample_box(lo: &[f64], hi: &[f64], scale: f64, rng: &mut impl Rng, out: &mut 
 }
 
 fn distance(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>().sqrt()
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<f64>()
+        .sqrt()
 }

@@ -49,7 +49,13 @@ impl Weights {
             let data = (0..n)
                 .map(|_| std * Distribution::<f64>::sample(&StandardNormal, rng))
                 .collect::<Vec<f64>>();
-            weights.insert(name.clone(), Tensor { shape: shape.clone(), data });
+            weights.insert(
+                name.clone(),
+                Tensor {
+                    shape: shape.clone(),
+                    data,
+                },
+            );
         }
         weights
     }
@@ -76,7 +82,13 @@ impl Weights {
                     });
                 }
             };
-            weights.insert(name, Tensor { shape: view.shape().to_vec(), data });
+            weights.insert(
+                name,
+                Tensor {
+                    shape: view.shape().to_vec(),
+                    data,
+                },
+            );
         }
         Ok(weights)
     }
@@ -101,7 +113,9 @@ impl Weights {
             .collect();
         let views = bytes
             .iter()
-            .map(|(name, raw, shape)| Ok((*name, TensorView::new(Dtype::F64, shape.to_vec(), raw)?)))
+            .map(|(name, raw, shape)| {
+                Ok((*name, TensorView::new(Dtype::F64, shape.to_vec(), raw)?))
+            })
             .collect::<FlowResult<Vec<_>>>()?;
         safetensors::serialize_to_file(views, None, path)?;
         Ok(())
@@ -109,9 +123,12 @@ impl Weights {
 
     /// Removes and returns the tensor `name`, checking its shape.
     pub fn take(&mut self, name: &str, shape: &[usize]) -> FlowResult<Vec<f64>> {
-        let tensor = self.tensors.remove(name).ok_or_else(|| FlowError::MissingTensor {
-            name: name.to_owned(),
-        })?;
+        let tensor = self
+            .tensors
+            .remove(name)
+            .ok_or_else(|| FlowError::MissingTensor {
+                name: name.to_owned(),
+            })?;
         if tensor.shape != shape {
             return Err(FlowError::ShapeMismatch {
                 name: name.to_owned(),
@@ -120,7 +137,9 @@ impl Weights {
             });
         }
         if tensor.data.iter().any(|v| !v.is_finite()) {
-            return Err(FlowError::NonFinite { what: "checkpoint weight" });
+            return Err(FlowError::NonFinite {
+                what: "checkpoint weight",
+            });
         }
         Ok(tensor.data)
     }

@@ -1,7 +1,7 @@
 //! The mutable workspace of the algorithms.
 
 use super::Model;
-use crate::math::{DMatrix, DVector, Matrix6};
+use crate::math::{DMatrix, DVector};
 use crate::spatial::{Force, Inertia, Motion, Se3};
 
 /// Per-body buffers and results, allocated once by [`Data::new`] so that the algorithms
@@ -19,11 +19,13 @@ pub struct Data {
     pub(crate) f: Vec<Force>,
     /// Composite rigid-body inertias (CRBA), body frame.
     pub(crate) ycrb: Vec<Inertia>,
-    /// World-frame quantities of the Coriolis algorithm: `S`, `Ṡ`, composite `I`, `B`.
+    /// World-frame quantities of the Coriolis algorithm: `S`, `Ṡ`, and the composites of
+    /// the inertias `I`, their rates `İ` and the momenta `I v`.
     pub(crate) s_world: Vec<Motion>,
     pub(crate) s_dot_world: Vec<Motion>,
-    pub(crate) ic_world: Vec<Matrix6>,
-    pub(crate) bc_world: Vec<Matrix6>,
+    pub(crate) ic_world: Vec<Inertia>,
+    pub(crate) ic_dot_world: Vec<Inertia>,
+    pub(crate) hc_world: Vec<Force>,
     /// Cholesky factor `L` of `M` (lower triangle), forward dynamics.
     pub(crate) cholesky: DMatrix,
     pub tau: DVector,
@@ -46,8 +48,9 @@ impl Data {
             ycrb: vec![Inertia::zero(); n],
             s_world: vec![Motion::zero(); n],
             s_dot_world: vec![Motion::zero(); n],
-            ic_world: vec![Matrix6::zeros(); n],
-            bc_world: vec![Matrix6::zeros(); n],
+            ic_world: vec![Inertia::zero(); n],
+            ic_dot_world: vec![Inertia::zero(); n],
+            hc_world: vec![Force::zero(); n],
             cholesky: DMatrix::zeros(n, n),
             tau: DVector::zeros(n),
             nle: DVector::zeros(n),

@@ -57,24 +57,23 @@ impl Integrator {
             Integrator::Rk4 => {
                 const OFFSETS: [Real; 4] = [0.0, 0.5, 0.5, 1.0];
                 const WEIGHTS: [Real; 4] = [1.0, 2.0, 2.0, 1.0];
-                for stage in 0..4 {
+                for (stage, offset) in OFFSETS.iter().enumerate() {
                     stages.q.copy_from(q);
                     stages.qd.copy_from(qd);
                     if stage > 0 {
-                        let c = OFFSETS[stage] * h;
-                        stages.q.axpy(c, &stages.k_q[stage - 1], 1.0);
-                        stages.qd.axpy(c, &stages.k_qd[stage - 1], 1.0);
+                        stages.q.axpy(offset * h, &stages.k_q[stage - 1], 1.0);
+                        stages.qd.axpy(offset * h, &stages.k_qd[stage - 1], 1.0);
                     }
                     stages.k_q[stage].copy_from(&stages.qd);
                     acceleration(
-                        time + OFFSETS[stage] * h,
+                        time + offset * h,
                         &stages.q,
                         &stages.qd,
                         &mut stages.k_qd[stage],
                     )?;
                 }
-                for stage in 0..4 {
-                    let w = WEIGHTS[stage] * h / 6.0;
+                for (stage, weight) in WEIGHTS.iter().enumerate() {
+                    let w = weight * h / 6.0;
                     q.axpy(w, &stages.k_q[stage], 1.0);
                     qd.axpy(w, &stages.k_qd[stage], 1.0);
                 }

@@ -1,6 +1,6 @@
 //! Spatial force vectors (wrenches).
 
-use std::ops::{Add, AddAssign, Sub};
+use std::ops::{Add, AddAssign, Mul, Sub};
 
 use super::{Motion, skew};
 use crate::math::{Matrix6, Real, Vector3, Vector6};
@@ -69,5 +69,12 @@ impl AddAssign for Force {
     fn add_assign(&mut self, rhs: Force) {
         self.linear += rhs.linear;
         self.angular += rhs.angular;
+    }
+}
+
+impl Mul<Real> for Force {
+    type Output = Force;
+    fn mul(self, rhs: Real) -> Force {
+        Force::new(self.linear * rhs, self.angular * rhs)
     }
 }

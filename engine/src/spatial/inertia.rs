@@ -65,6 +65,29 @@ impl Inertia {
         out
     }
 
+    /// The rate of change `İ = (v ×*) I − I (v ×)` of this inertia, expressed in a fixed
+    /// frame, while its body moves with `v`. It has the shape of an inertia of zero mass:
+    ///
+    /// ```text
+    ///     ⎡ 0      −[c]× ⎤    c = m v + ω × h,
+    /// İ = ⎣ [c]×    D    ⎦    D = A + Aᵀ − h vᵀ − v hᵀ + 2 (v · h) 1,  A = [ω]× I_o,
+    /// ```
+    ///
+    /// from `[a]×[b]× − [b]×[a]× = [a × b]×` and `[a]×[b]× = b aᵀ − (a · b) 1`
+    /// (Featherstone 2008, eq. 2.63, worked out block by block).
+    pub fn variation(&self, v: &Motion) -> Inertia {
+        let (omega, velocity) = (&v.angular, &v.linear);
+        let h = &self.first_moment;
+        let a = skew(omega) * self.rotational;
+        let hv = h * velocity.transpose();
+        Inertia {
+            mass: 0.0,
+            first_moment: velocity * self.mass + omega.cross(h),
+            rotational: a + a.transpose() - hv - hv.transpose()
+                + Matrix3::from_diagonal_element(2.0 * velocity.dot(h)),
+        }
+    }
+
     /// Kinetic energy `½ vᵀ I v` of the body moving with `v`.
     pub fn kinetic_energy(&self, v: &Motion) -> Real {
         0.5 * (*self * *v).dot(v)
@@ -95,5 +118,61 @@ impl AddAssign for Inertia {
         self.mass += rhs.mass;
         self.first_moment += rhs.first_moment;
         self.rotational += rhs.rotational;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::*;
+    use crate::spatial::Se3;
+
+    fn vector(rng: &mut ChaCha8Rng) -> Vector3 {
+        Vector3::from_fn(|_, _| rng.random_range(-1.0..=1.0))
+    }
+
+    fn motion(rng: &mut ChaCha8Rng) -> Motion {
+        Motion::new(vector(rng), vector(rng))
+    }
+
+    /// A physically valid inertia: positive mass, offset centre of mass, `I_c = A Aᵀ`.
+    fn inertia(rng: &mut ChaCha8Rng) -> Inertia {
+        let a = Matrix3::from_fn(|_, _| rng.random_range(-1.0..=1.0));
+        Inertia::from_com(rng.random_range(0.5..=3.0), vector(rng), a * a.transpose())
+    }
+
+    #[test]
+    fn variation_matches_the_dense_product_formula() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        for _ in 0..100 {
+            let (body, v) = (inertia(&mut rng), motion(&mut rng));
+            let dense = body.to_matrix6();
+            let expected = v.cross_force_matrix() * dense - dense * v.cross_matrix();
+            let actual = body.variation(&v).to_matrix6();
+            assert!(
+                (actual - expected).amax() < 1e-12 * (1.0 + expected.amax()),
+                "İ = (v×*) I − I (v×): {actual} vs {expected}"
+            );
+        }
+    }
+
+    #[test]
+    fn transformed_inertia_maps_transformed_motion_to_transformed_momentum() {
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        for _ in 0..100 {
+            let body = inertia(&mut rng);
+            let angle = rng.random_range(-3.0..=3.0);
+            let a_m_b = Se3::new(
+                Se3::rotation_about(&vector(&mut rng).normalize(), angle),
+                vector(&mut rng),
+            );
+            let m = motion(&mut rng);
+            let expected = a_m_b.act_force(&(body * a_m_b.act_inv_motion(&m)));
+            let actual = a_m_b.act_inertia(&body) * m;
+            let error = (actual - expected).to_vector6().amax();
+            assert!(error < 1e-12, "ᵃI m = X* (ᵇI (X⁻¹ m)): error {error}");
+        }
     }
 }

@@ -96,16 +96,21 @@ impl Se3 {
 
     /// The inertia `ᵃI = X* ᵇI X⁻¹` expressed about the origin of `a`:
     /// `m` unchanged, `h' = R h + m p`,
-    /// `I_o' = R I_o Rᵀ − ([R h]×[p]× + [p]×[R h]× + m [p]×²)`.
+    /// `I_o' = R I_o Rᵀ − ([R h]×[p]× + [p]×[R h]× + m [p]×²)`, which with
+    /// `[a]×[b]× = b aᵀ − (a · b) 1` and `u = R h + ½ m p` is
+    /// `I_o' = R I_o Rᵀ − (p uᵀ + u pᵀ) + 2 (u · p) 1`.
     pub fn act_inertia(&self, inertia: &Inertia) -> Inertia {
+        let p = &self.translation;
         let rh = self.rotation * inertia.first_moment;
-        let p = skew(&self.translation);
-        let rh_skew = skew(&rh);
+        let u = rh + p * (0.5 * inertia.mass);
+        let pu = p * u.transpose();
         Inertia {
             mass: inertia.mass,
-            first_moment: rh + self.translation * inertia.mass,
+            first_moment: rh + p * inertia.mass,
             rotational: self.rotation * inertia.rotational * self.rotation.transpose()
-                - (rh_skew * p + p * rh_skew + p * p * inertia.mass),
+                - pu
+                - pu.transpose()
+                + Matrix3::from_diagonal_element(2.0 * u.dot(p)),
         }
     }
 

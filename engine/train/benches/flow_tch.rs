@@ -43,27 +43,59 @@ fn tch_action(model: &FlowModel, y: &Tensor, c: &Tensor) -> (Tensor, Tensor) {
     let (y_out, _) = model.forward(&z, c);
     let u = Tensor::zeros_like(&y_out).set_requires_grad(true);
     let vjp = Tensor::run_backward(&[(&y_out * &u).sum(Kind::Double)], &[&z], true, true);
-    let jvp = Tensor::run_backward(&[(&vjp[0] * &latent_velocity).sum(Kind::Double)], &[&u], false, false);
+    let jvp = Tensor::run_backward(
+        &[(&vjp[0] * &latent_velocity).sum(Kind::Double)],
+        &[&u],
+        false,
+        false,
+    );
     (next, jvp[0].shallow_clone())
 }
 
 fn main() {
     tch::set_num_threads(1);
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    println!("pouring-size action (d=7, m=6, 10 layers, 2×64 hidden), f64; load average {}", load.trim());
-    println!("{:<8} {:>14} {:>14} {:>10} {:>14}", "coupling", "rust act µs", "tch eager µs", "tch/rust", "max |Δv|");
+    println!(
+        "pouring-size action (d=7, m=6, 10 layers, 2×64 hidden), f64; load average {}",
+        load.trim()
+    );
+    println!(
+        "{:<8} {:>14} {:>14} {:>10} {:>14}",
+        "coupling", "rust act µs", "tch eager µs", "tch/rust", "rel. |Δv|"
+    );
     let dir = std::env::temp_dir().join(format!("ciflow-bench-{}", std::process::id()));
     for (name, coupling) in [
         ("affine", CouplingKind::Affine { scale_bound: 2.0 }),
-        ("spline", CouplingKind::Spline { bins: 8, tail_bound: 4.0 }),
+        (
+            "spline",
+            CouplingKind::Spline {
+                bins: 8,
+                tail_bound: 4.0,
+            },
+        ),
     ] {
-        let config = FlowConfig::new("pouring", 7, 6, LatentKind::GoTo, coupling, 10, vec![64, 64]);
+        let config = FlowConfig::new(
+            "pouring",
+            7,
+            6,
+            LatentKind::GoTo,
+            coupling,
+            10,
+            vec![64, 64],
+        );
         let vs = double_var_store();
-        let model = FlowModel::new(&vs.root(), &config, LatentInit { sigma: 0.1, omega: 0.0 });
+        let model = FlowModel::new(
+            &vs.root(),
+            &config,
+            LatentInit {
+                sigma: 0.1,
+                omega: 0.0,
+            },
+        );
         tch::manual_seed(0);
         tch::no_grad(|| {
             for (_, mut v) in vs.variables() {
-                v.copy_(&(Tensor::randn(v.size(), (Kind::Double, v.device())) * 0.3));
+                v.copy_(&(Tensor::randn(v.size(), (Kind::Double, v.device())) * 0.1));
             }
         });
         save_checkpoint(&dir, &CheckpointConfig::Flow(config), &vs).expect("checkpoint");
@@ -71,18 +103,30 @@ fn main() {
         let mut ws = policy.workspace();
         let (mut next, mut velocity) = ([0.0; 7], [0.0; 7]);
         let rust = time_us(21, 2_000, || {
-            policy.act(black_box(&Y), &CONTEXT, &mut ws, &mut next, &mut velocity).unwrap();
+            policy
+                .act(black_box(&Y), &CONTEXT, &mut ws, &mut next, &mut velocity)
+                .unwrap();
             black_box(&velocity);
         });
         let y = Tensor::from_slice(&Y).reshape([1, 7]);
         let c = Tensor::from_slice(&CONTEXT).reshape([1, 6]);
         let eager = time_us(11, 50, || {
-            black_box(tch_action(&model, &y, &c));
+            let _ = black_box(tch_action(&model, &y, &c));
         });
         let (_, tch_velocity) = tch_action(&model, &y, &c);
+
         let tch_velocity = Vec::<f64>::try_from(tch_velocity.reshape([-1])).unwrap();
-        let difference = tch_velocity.iter().zip(&velocity).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-        println!("{name:<8} {rust:>14.1} {eager:>14.1} {:>10.1} {difference:>14.2e}", eager / rust);
+        let scale = velocity.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let difference = tch_velocity
+            .iter()
+            .zip(&velocity)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max)
+            / scale;
+        println!(
+            "{name:<8} {rust:>14.1} {eager:>14.1} {:>10.1} {difference:>14.2e}",
+            eager / rust
+        );
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

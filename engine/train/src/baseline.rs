@@ -36,7 +36,11 @@ pub struct TrainedBaseline {
 
 impl TrainedBaseline {
     pub fn save(&self, dir: &Path) -> TrainResult<()> {
-        save_checkpoint(dir, &CheckpointConfig::MlpBaseline(self.config.clone()), &self.var_store)
+        save_checkpoint(
+            dir,
+            &CheckpointConfig::MlpBaseline(self.config.clone()),
+            &self.var_store,
+        )
     }
 }
 
@@ -74,9 +78,19 @@ pub fn train_baseline(
     let (inputs, targets) = prepare(&Transitions::new(&train_set, 1, d, m));
     let (check_inputs, check_targets) = prepare(&Transitions::new(&validation_set, 1, d, m));
     let mse = |x: &Tensor, y: &Tensor| (net.forward(x) - y).square().mean(Kind::Double);
-    let loss = |batch: &Tensor| mse(&inputs.index_select(0, batch), &targets.index_select(0, batch));
+    let loss = |batch: &Tensor| {
+        mse(
+            &inputs.index_select(0, batch),
+            &targets.index_select(0, batch),
+        )
+    };
     let validation = || mean_value(&mse(&check_inputs, &check_targets));
     let samples = inputs.size()[0] as usize;
     let (history, best_epoch) = optimise(&vs, samples, &train.optim, loss, validation, progress)?;
-    Ok(TrainedBaseline { config, var_store: vs, history, best_epoch })
+    Ok(TrainedBaseline {
+        config,
+        var_store: vs,
+        history,
+        best_epoch,
+    })
 }

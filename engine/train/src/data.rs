@@ -60,12 +60,18 @@ impl Demonstrations {
             if let Contexts::PerStep(c) = &episode.contexts
                 && c.len() != episode.states.len()
             {
-                return invalid(format!("episode {e}: {} contexts for {} states", c.len(), episode.states.len()));
+                return invalid(format!(
+                    "episode {e}: {} contexts for {} states",
+                    c.len(),
+                    episode.states.len()
+                ));
             }
             for t in 0..episode.states.len() {
                 let (y, c) = (&episode.states[t], episode.context(t));
                 if y.len() != d || c.len() != m {
-                    return invalid(format!("episode {e}, step {t}: state/context dimension differs from ({d}, {m})"));
+                    return invalid(format!(
+                        "episode {e}, step {t}: state/context dimension differs from ({d}, {m})"
+                    ));
                 }
                 if y.iter().chain(c).any(|v| !v.is_finite()) {
                     return invalid(format!("episode {e}, step {t}: non-finite value"));
@@ -85,14 +91,24 @@ impl Demonstrations {
     pub fn normalisation(&self) -> Normalisation {
         let (state_mean, state_std) = moments(self.rows().map(|(y, _)| y));
         let (context_mean, context_std) = moments(self.rows().map(|(_, c)| c));
-        Normalisation { state_mean, state_std, context_mean, context_std }
+        Normalisation {
+            state_mean,
+            state_std,
+            context_mean,
+            context_std,
+        }
     }
 
     /// The bounding box of all states and contexts.
     pub fn bounds(&self) -> Bounds {
         let (state_min, state_max) = extent(self.rows().map(|(y, _)| y));
         let (context_min, context_max) = extent(self.rows().map(|(_, c)| c));
-        Bounds { state_min, state_max, context_min, context_max }
+        Bounds {
+            state_min,
+            state_max,
+            context_min,
+            context_max,
+        }
     }
 }
 
@@ -111,7 +127,10 @@ fn moments<'a>(rows: impl Iterator<Item = &'a [f64]> + Clone) -> (Vec<f64>, Vec<
             *s += (v - m) * (v - m) / n;
         }
     }
-    (mean, var.into_iter().map(|v| v.sqrt().max(MIN_STD)).collect())
+    (
+        mean,
+        var.into_iter().map(|v| v.sqrt().max(MIN_STD)).collect(),
+    )
 }
 
 fn extent<'a>(rows: impl Iterator<Item = &'a [f64]>) -> (Vec<f64>, Vec<f64>) {
@@ -142,7 +161,9 @@ pub struct Transitions {
 
 fn matrix(rows: &[&[f64]], cols: usize) -> Tensor {
     let flat: Vec<f64> = rows.iter().flat_map(|r| r.iter().copied()).collect();
-    Tensor::from_slice(&flat).to_kind(Kind::Double).reshape([rows.len() as i64, cols as i64])
+    Tensor::from_slice(&flat)
+        .to_kind(Kind::Double)
+        .reshape([rows.len() as i64, cols as i64])
 }
 
 impl Transitions {

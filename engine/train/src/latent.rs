@@ -40,8 +40,14 @@ impl LatentModel {
         let d = config.state_dim as i64;
         let r = config.linear_latent_dim() as i64;
         let linear = (r > 0).then(|| {
-            let small = nn::Init::Randn { mean: 0.0, stdev: 0.1 };
-            (path.var("factor", &[r, r], small), path.var("skew", &[r, r], small))
+            let small = nn::Init::Randn {
+                mean: 0.0,
+                stdev: 0.1,
+            };
+            (
+                path.var("factor", &[r, r], small),
+                path.var("skew", &[r, r], small),
+            )
         });
         let cycle = (config.latent == LatentKind::LimitCycle).then(|| Cycle {
             log_radius: path.var("log_radius", &[1], nn::Init::Const(0.0)),
@@ -89,7 +95,10 @@ impl LatentModel {
             let contraction = (-cycle.log_rate.exp() * self.dt).exp();
             let rho_next = &radius + (rho - &radius) * contraction;
             let psi_next = psi + &cycle.omega * self.dt;
-            parts.push(Tensor::stack(&[&rho_next * psi_next.cos(), rho_next * psi_next.sin()], 1));
+            parts.push(Tensor::stack(
+                &[&rho_next * psi_next.cos(), rho_next * psi_next.sin()],
+                1,
+            ));
         }
         if let Some(phi) = self.transition() {
             let r = phi.size()[0];
@@ -113,7 +122,7 @@ impl LatentModel {
         let mut log_p = Tensor::zeros([z.size()[0]], (Kind::Double, z.device()));
         if s > 0 {
             let plane = variance.narrow(0, 0, s) * horizon as f64;
-            log_p = log_p + diagonal_gaussian(&residual.narrow(1, 0, s), &(plane.log() * 0.5));
+            log_p += diagonal_gaussian(&residual.narrow(1, 0, s), &(plane.log() * 0.5));
         }
         if let Some(phi) = self.transition() {
             let r = phi.size()[0];
@@ -121,7 +130,7 @@ impl LatentModel {
             let mut power = Tensor::eye(r, (Kind::Double, phi.device()));
             let mut covariance = Tensor::zeros([r, r], (Kind::Double, phi.device()));
             for _ in 0..horizon {
-                covariance = covariance + power.matmul(&noise).matmul(&power.tr());
+                covariance += power.matmul(&noise).matmul(&power.tr());
                 power = phi.matmul(&power);
             }
             let cholesky = covariance.linalg_cholesky(false);
@@ -129,7 +138,7 @@ impl LatentModel {
             let whitened = cholesky.linalg_solve_triangular(&x.tr(), false, true, false);
             let quad = whitened.square().sum_dim_intlist(0, false, Kind::Double);
             let log_det = cholesky.diagonal(0, 0, 1).log().sum(Kind::Double) * 2.0;
-            log_p = log_p - (quad + log_det + r as f64 * LN_2PI) * 0.5;
+            log_p -= (quad + log_det + r as f64 * LN_2PI) * 0.5;
         }
         log_p
     }

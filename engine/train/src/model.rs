@@ -22,7 +22,9 @@ pub struct FlowModel {
 }
 
 pub(crate) fn row(values: &[f64]) -> Tensor {
-    Tensor::from_slice(values).to_kind(Kind::Double).reshape([1, -1])
+    Tensor::from_slice(values)
+        .to_kind(Kind::Double)
+        .reshape([1, -1])
 }
 
 impl FlowModel {
@@ -32,7 +34,10 @@ impl FlowModel {
         let blocks = (0..config.layers)
             .map(|i| {
                 let p = path / "layers" / i;
-                (LuMixing::new(&(&p / "mixing"), config.state_dim), Coupling::new(&p, i, config))
+                (
+                    LuMixing::new(&(&p / "mixing"), config.state_dim),
+                    Coupling::new(&p, i, config),
+                )
             })
             .collect();
         let norm = &config.normalisation;
@@ -45,7 +50,8 @@ impl FlowModel {
             context_mean: row(&norm.context_mean),
             context_std: row(&norm.context_std),
             goal_index: config.goal_context_indices.as_ref().map(|indices| {
-                Tensor::from_slice(&indices.iter().map(|&i| i as i64).collect::<Vec<_>>()).to_device(Device::Cpu)
+                Tensor::from_slice(&indices.iter().map(|&i| i as i64).collect::<Vec<_>>())
+                    .to_device(Device::Cpu)
             }),
         }
     }
@@ -106,7 +112,10 @@ impl FlowModel {
     pub fn forward(&self, z: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
         let (normalised, offset) = self.condition(context);
         let (y, log_det) = self.g_forward(z, &normalised);
-        ((y + offset) * &self.state_std + &self.state_mean, log_det + self.log_state_scale())
+        (
+            (y + offset) * &self.state_std + &self.state_mean,
+            log_det + self.log_state_scale(),
+        )
     }
 
     /// `z = f⁻¹(y, c)` and `log|det ∂f⁻¹/∂y|` per row.
@@ -118,7 +127,13 @@ impl FlowModel {
     }
 
     /// `log p(y_next | y_prev, c)` per row (the `horizon`-step model), with `c = c_{k-1}`.
-    pub fn log_transition(&self, y_prev: &Tensor, y_next: &Tensor, context: &Tensor, horizon: usize) -> Tensor {
+    pub fn log_transition(
+        &self,
+        y_prev: &Tensor,
+        y_next: &Tensor,
+        context: &Tensor,
+        horizon: usize,
+    ) -> Tensor {
         let both = Tensor::cat(&[y_prev, y_next], 0);
         let contexts = Tensor::cat(&[context, context], 0);
         let (z, log_det) = self.inverse(&both, &contexts);

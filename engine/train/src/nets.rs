@@ -38,7 +38,9 @@ impl Mlp {
 
     pub fn forward(&self, x: &Tensor) -> Tensor {
         let (last, hidden) = self.layers.split_last().expect("an MLP has a layer");
-        let h = hidden.iter().fold(x.shallow_clone(), |h, l| l.forward(&h).tanh());
+        let h = hidden
+            .iter()
+            .fold(x.shallow_clone(), |h, l| l.forward(&h).tanh());
         last.forward(&h)
     }
 }
@@ -55,7 +57,10 @@ pub struct LuMixing {
 impl LuMixing {
     pub fn new(path: &nn::Path, d: usize) -> Self {
         let d = d as i64;
-        let small = nn::Init::Randn { mean: 0.0, stdev: 0.1 };
+        let small = nn::Init::Randn {
+            mean: 0.0,
+            stdev: 0.1,
+        };
         Self {
             lower: path.var("lower", &[d, d], small),
             upper: path.var("upper", &[d, d], small),
@@ -74,12 +79,18 @@ impl LuMixing {
 
     /// Returns `(y, log|det|)`, the log-determinant a scalar tensor.
     pub fn forward(&self, x: &Tensor) -> (Tensor, Tensor) {
-        (x.matmul(&self.matrix().tr()) + &self.bias, self.log_diag.sum(Kind::Double))
+        (
+            x.matmul(&self.matrix().tr()) + &self.bias,
+            self.log_diag.sum(Kind::Double),
+        )
     }
 
     pub fn inverse(&self, y: &Tensor) -> (Tensor, Tensor) {
         let inv = self.matrix().inverse();
-        ((y - &self.bias).matmul(&inv.tr()), -self.log_diag.sum(Kind::Double))
+        (
+            (y - &self.bias).matmul(&inv.tr()),
+            -self.log_diag.sum(Kind::Double),
+        )
     }
 }
 
@@ -96,8 +107,12 @@ pub struct Coupling {
 impl Coupling {
     pub fn new(path: &nn::Path, index: usize, config: &FlowConfig) -> Self {
         let (d, k) = (config.state_dim as i64, config.kept_dim() as i64);
-        let kept_first = index % 2 == 0;
-        let (kept, transformed) = if kept_first { ((0, k), (k, d - k)) } else { ((d - k, k), (0, d - k)) };
+        let kept_first = index.is_multiple_of(2);
+        let (kept, transformed) = if kept_first {
+            ((0, k), (k, d - k))
+        } else {
+            ((d - k, k), (0, d - k))
+        };
         Self {
             kind: config.coupling.clone(),
             conditioner: Mlp::new(&(path / "conditioner"), &config.conditioner_sizes(), true),
@@ -113,7 +128,10 @@ impl Coupling {
         let x_t = x.narrow(1, self.transformed.0, self.transformed.1);
         let input = Tensor::cat(&[&x_kept, context], 1);
         let rows = x.size()[0];
-        let params = self.conditioner.forward(&input).reshape([rows, self.transformed.1, -1]);
+        let params = self
+            .conditioner
+            .forward(&input)
+            .reshape([rows, self.transformed.1, -1]);
         let (y_t, log_det) = match self.kind {
             CouplingKind::Affine { scale_bound } => affine(&x_t, &params, scale_bound, inverse),
             CouplingKind::Spline { bins, tail_bound } => {
@@ -128,7 +146,11 @@ impl Coupling {
                 (y.reshape([rows, -1]), ld.reshape([rows, -1]))
             }
         };
-        let y = if self.kept_first { Tensor::cat(&[&x_kept, &y_t], 1) } else { Tensor::cat(&[&y_t, &x_kept], 1) };
+        let y = if self.kept_first {
+            Tensor::cat(&[&x_kept, &y_t], 1)
+        } else {
+            Tensor::cat(&[&y_t, &x_kept], 1)
+        };
         (y, log_det.sum_dim_intlist(1, false, Kind::Double))
     }
 }
@@ -137,12 +159,17 @@ impl Coupling {
 fn affine(x: &Tensor, params: &Tensor, bound: f64, inverse: bool) -> (Tensor, Tensor) {
     let s = (params.select(2, 0) / bound).tanh() * bound;
     let t = params.select(2, 1);
-    if inverse { ((x - t) * (-&s).exp(), -s) } else { (x * s.exp() + t, s) }
+    if inverse {
+        ((x - t) * (-&s).exp(), -s)
+    } else {
+        (x * s.exp() + t, s)
+    }
 }
 
 /// Knots `[N, K+1]` from unnormalised sizes `[N, K]` (softmax, minimum size, `[-B, B]`).
 fn knots(raw: &Tensor, bins: i64, bound: f64) -> Tensor {
-    let sizes = raw.softmax(-1, Kind::Double) * (1.0 - SPLINE_MIN_BIN * bins as f64) + SPLINE_MIN_BIN;
+    let sizes =
+        raw.softmax(-1, Kind::Double) * (1.0 - SPLINE_MIN_BIN * bins as f64) + SPLINE_MIN_BIN;
     let cumulative = sizes.cumsum(-1, Kind::Double) * (2.0 * bound) - bound;
     let n = raw.size()[0];
     let left = Tensor::full([n, 1], -bound, (Kind::Double, raw.device()));
@@ -156,7 +183,13 @@ fn gather(t: &Tensor, index: &Tensor) -> Tensor {
 
 /// Rational-quadratic spline on `[-B, B]`, identity outside (Durkan et al. 2019).
 /// `x: [N]`, `params: [N, 3K-1]`; returns `(y, log|dy/dx|)` (or the inverse's).
-pub fn rational_quadratic_spline(x: &Tensor, params: &Tensor, bins: i64, bound: f64, inverse: bool) -> (Tensor, Tensor) {
+pub fn rational_quadratic_spline(
+    x: &Tensor,
+    params: &Tensor,
+    bins: i64,
+    bound: f64,
+    inverse: bool,
+) -> (Tensor, Tensor) {
     let inside = x.ge(-bound).logical_and(&x.le(bound));
     // Discarded branches still get gradients: keep them finite by clamping.
     let xc = x.clamp(-bound, bound);
@@ -165,7 +198,8 @@ pub fn rational_quadratic_spline(x: &Tensor, params: &Tensor, bins: i64, bound: 
     let n = x.size()[0];
     let shift = (1.0 - SPLINE_MIN_DERIVATIVE).exp_m1().ln();
     let ones = Tensor::ones([n, 1], (Kind::Double, x.device()));
-    let interior = (params.narrow(1, 2 * bins, bins - 1) + shift).softplus() + SPLINE_MIN_DERIVATIVE;
+    let interior =
+        (params.narrow(1, 2 * bins, bins - 1) + shift).softplus() + SPLINE_MIN_DERIVATIVE;
     let derivatives = Tensor::cat(&[&ones, &interior, &ones], 1);
     let edges = if inverse { &ys } else { &xs };
     let index = xc
@@ -198,7 +232,14 @@ pub fn rational_quadratic_spline(x: &Tensor, params: &Tensor, bins: i64, bound: 
     let denominator = &s + &curvature * &mix;
     let numerator = &s * &s * (&d1 * &xi * &xi + &s * &mix * 2.0 + &d0 * &one_minus * &one_minus);
     let log_derivative = numerator.log() - denominator.log() * 2.0;
-    let log_derivative = if inverse { -log_derivative } else { log_derivative };
+    let log_derivative = if inverse {
+        -log_derivative
+    } else {
+        log_derivative
+    };
     let zero = Tensor::zeros_like(&log_derivative);
-    (out.where_self(&inside, x), log_derivative.where_self(&inside, &zero))
+    (
+        out.where_self(&inside, x),
+        log_derivative.where_self(&inside, &zero),
+    )
 }

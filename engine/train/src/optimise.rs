@@ -40,8 +40,13 @@ impl Default for OptimConfig {
 
 impl OptimConfig {
     pub fn validate(&self) -> TrainResult<()> {
-        if self.epochs == 0 || self.batch_size == 0 || !(self.learning_rate > 0.0 && self.learning_rate.is_finite()) {
-            return Err(TrainError::InvalidConfig("epochs, batch_size and learning_rate must be positive".into()));
+        if self.epochs == 0
+            || self.batch_size == 0
+            || !(self.learning_rate > 0.0 && self.learning_rate.is_finite())
+        {
+            return Err(TrainError::InvalidConfig(
+                "epochs, batch_size and learning_rate must be positive".into(),
+            ));
         }
         Ok(())
     }
@@ -81,7 +86,8 @@ pub fn optimise(
     for epoch in 0..config.epochs {
         let phase = epoch as f64 / config.epochs.max(2).saturating_sub(1) as f64;
         let floor = config.final_lr_fraction;
-        let lr = config.learning_rate * (floor + (1.0 - floor) * 0.5 * (1.0 + (std::f64::consts::PI * phase).cos()));
+        let lr = config.learning_rate
+            * (floor + (1.0 - floor) * 0.5 * (1.0 + (std::f64::consts::PI * phase).cos()));
         opt.set_lr(lr);
         order.shuffle(&mut rng);
         let (mut total, mut batches) = (0.0, 0);
@@ -120,7 +126,10 @@ pub fn optimise(
 }
 
 fn snapshot_of(vs: &nn::VarStore) -> Vec<(String, Tensor)> {
-    vs.variables().into_iter().map(|(name, t)| (name, t.detach().copy())).collect()
+    vs.variables()
+        .into_iter()
+        .map(|(name, t)| (name, t.detach().copy()))
+        .collect()
 }
 
 fn restore(vs: &nn::VarStore, snapshot: &[(String, Tensor)]) {

@@ -25,14 +25,23 @@ pub struct Spiral {
 
 impl Default for Spiral {
     fn default() -> Self {
-        Self { decay: 1.0, omega: 2.0, bend: 0.5, dt: 0.05, noise: 0.005 }
+        Self {
+            decay: 1.0,
+            omega: 2.0,
+            bend: 0.5,
+            dt: 0.05,
+            noise: 0.005,
+        }
     }
 }
 
 impl Spiral {
     /// One exact noise-free step `x ← exp(A dt) x`.
     pub fn step(&self, x: [f64; 2]) -> [f64; 2] {
-        let (r, (s, c)) = ((-self.decay * self.dt).exp(), (self.omega * self.dt).sin_cos());
+        let (r, (s, c)) = (
+            (-self.decay * self.dt).exp(),
+            (self.omega * self.dt).sin_cos(),
+        );
         [r * (c * x[0] + s * x[1]), r * (-s * x[0] + c * x[1])]
     }
 
@@ -69,12 +78,21 @@ impl Spiral {
                 let mut states = vec![self.observe(x)];
                 for _ in 0..steps {
                     let next = self.step(x);
-                    x = [next[0] + noise.sample(&mut rng), next[1] + noise.sample(&mut rng)];
+                    x = [
+                        next[0] + noise.sample(&mut rng),
+                        next[1] + noise.sample(&mut rng),
+                    ];
                     states.push(self.observe(x));
                 }
-                Episode { states, contexts: Contexts::PerEpisode(Vec::new()) }
+                Episode {
+                    states,
+                    contexts: Contexts::PerEpisode(Vec::new()),
+                }
             })
             .collect();
-        Demonstrations { episodes, dt: self.dt }
+        Demonstrations {
+            episodes,
+            dt: self.dt,
+        }
     }
 }

@@ -46,7 +46,10 @@ impl TrainConfig {
         Self {
             task: task.to_owned(),
             latent,
-            coupling: CouplingKind::Spline { bins: 8, tail_bound: 4.0 },
+            coupling: CouplingKind::Spline {
+                bins: 8,
+                tail_bound: 4.0,
+            },
             layers: 6,
             hidden: vec![64, 64],
             min_rate: 0.1,
@@ -73,14 +76,25 @@ pub struct TrainedFlow {
 impl TrainedFlow {
     /// Writes `config.json` and `weights.safetensors` (loadable by `Policy::load`).
     pub fn save(&self, dir: &Path) -> TrainResult<()> {
-        save_checkpoint(dir, &CheckpointConfig::Flow(self.config.clone()), &self.var_store)
+        save_checkpoint(
+            dir,
+            &CheckpointConfig::Flow(self.config.clone()),
+            &self.var_store,
+        )
     }
 }
 
 /// Writes a checkpoint directory from a `VarStore`.
-pub fn save_checkpoint(dir: &Path, config: &CheckpointConfig, vs: &nn::VarStore) -> TrainResult<()> {
+pub fn save_checkpoint(
+    dir: &Path,
+    config: &CheckpointConfig,
+    vs: &nn::VarStore,
+) -> TrainResult<()> {
     std::fs::create_dir_all(dir).map_err(|source| {
-        TrainError::Flow(ciflow_engine::flow::FlowError::Io { path: dir.to_owned(), source })
+        TrainError::Flow(ciflow_engine::flow::FlowError::Io {
+            path: dir.to_owned(),
+            source,
+        })
     })?;
     checkpoint::write_config(dir, config)?;
     vs.save(dir.join(WEIGHTS_FILE))?;
@@ -95,13 +109,21 @@ pub fn double_var_store() -> nn::VarStore {
 }
 
 /// Splits episodes into (training, validation) with a seeded shuffle.
-pub(crate) fn split(data: &Demonstrations, fraction: f64, seed: u64) -> (Vec<&Episode>, Vec<&Episode>) {
+pub(crate) fn split(
+    data: &Demonstrations,
+    fraction: f64,
+    seed: u64,
+) -> (Vec<&Episode>, Vec<&Episode>) {
     use rand::SeedableRng;
     use rand::seq::SliceRandom;
     let mut episodes: Vec<&Episode> = data.episodes.iter().collect();
     episodes.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5eed));
     let n = episodes.len();
-    let held_out = if n >= 2 { ((fraction * n as f64).round() as usize).clamp(1, n - 1) } else { 0 };
+    let held_out = if n >= 2 {
+        ((fraction * n as f64).round() as usize).clamp(1, n - 1)
+    } else {
+        0
+    };
     let validation = episodes.split_off(n - held_out);
     if validation.is_empty() {
         return (episodes.clone(), episodes);
@@ -159,7 +181,9 @@ pub fn train_flow(
     progress: impl FnMut(&Progress),
 ) -> TrainResult<TrainedFlow> {
     if train.horizon == 0 || !(0.0..1.0).contains(&train.validation_fraction) {
-        return Err(TrainError::InvalidConfig("horizon must be >= 1 and validation_fraction in [0, 1)".into()));
+        return Err(TrainError::InvalidConfig(
+            "horizon must be >= 1 and validation_fraction in [0, 1)".into(),
+        ));
     }
     let config = flow_config(data, train)?;
     tch::set_num_threads(train.threads);
@@ -171,7 +195,10 @@ pub fn train_flow(
     let fit = Transitions::new(&train_set, train.horizon, d, m);
     let check = Transitions::new(&validation_set, 1, d, m);
     if fit.is_empty() || check.is_empty() {
-        return Err(TrainError::InvalidData(format!("episodes are shorter than the horizon {}", train.horizon)));
+        return Err(TrainError::InvalidData(format!(
+            "episodes are shorter than the horizon {}",
+            train.horizon
+        )));
     }
     let initial_weight = fit.episodes() as f64 / fit.len() as f64;
     let loss = |batch: &Tensor| {
@@ -184,7 +211,14 @@ pub fn train_flow(
         let initial = model.log_initial(&fit.initial, &fit.initial_context);
         -(transitions.mean(Kind::Double) + initial.mean(Kind::Double) * initial_weight)
     };
-    let validation = || -mean_value(&model.log_transition(&check.prev, &check.next, &check.context, 1));
+    let validation =
+        || -mean_value(&model.log_transition(&check.prev, &check.next, &check.context, 1));
     let (history, best_epoch) = optimise(&vs, fit.len(), &train.optim, loss, validation, progress)?;
-    Ok(TrainedFlow { config, var_store: vs, model, history, best_epoch })
+    Ok(TrainedFlow {
+        config,
+        var_store: vs,
+        model,
+        history,
+        best_epoch,
+    })
 }

@@ -3,7 +3,9 @@
 //! unconstrained behaviour-cloning baseline trained on the same data does not.
 
 use ciflow_engine::flow::stability::{StabilityConfig, measure};
-use ciflow_engine::flow::{BehaviourCloning, CheckpointConfig, CouplingKind, Goal, LatentKind, Policy};
+use ciflow_engine::flow::{
+    BehaviourCloning, CheckpointConfig, CouplingKind, Goal, LatentKind, Policy,
+};
 use ciflow_train::latent::LatentInit;
 use ciflow_train::model::FlowModel;
 use ciflow_train::synthetic::Spiral;
@@ -22,11 +24,20 @@ fn temp_dir(name: &str) -> std::path::PathBuf {
 
 fn train_config() -> TrainConfig {
     TrainConfig {
-        coupling: CouplingKind::Spline { bins: 8, tail_bound: 4.0 },
+        coupling: CouplingKind::Spline {
+            bins: 8,
+            tail_bound: 4.0,
+        },
         layers: 4,
         hidden: vec![32, 32],
         min_rate: 0.05,
-        optim: OptimConfig { epochs: 200, batch_size: 128, learning_rate: 5e-3, patience: 60, ..OptimConfig::default() },
+        optim: OptimConfig {
+            epochs: 200,
+            batch_size: 128,
+            learning_rate: 5e-3,
+            patience: 60,
+            ..OptimConfig::default()
+        },
         ..TrainConfig::new("spiral", LatentKind::GoTo)
     }
 }
@@ -63,7 +74,14 @@ fn flow_learns_a_known_stable_system_and_stays_stable_while_bc_does_not() {
     let untrained_dir = temp_dir("untrained");
     let vs = double_var_store();
     let flow = flow_config(&data, &config).unwrap();
-    FlowModel::new(&vs.root(), &flow, LatentInit { sigma: 0.1, omega: 0.0 });
+    FlowModel::new(
+        &vs.root(),
+        &flow,
+        LatentInit {
+            sigma: 0.1,
+            omega: 0.0,
+        },
+    );
     save_checkpoint(&untrained_dir, &CheckpointConfig::Flow(flow), &vs).unwrap();
     let untrained = Policy::load(&untrained_dir, Some("spiral")).unwrap();
     let untrained_error = rollout_error(&untrained, &spiral);
@@ -78,11 +96,21 @@ fn flow_learns_a_known_stable_system_and_stays_stable_while_bc_does_not() {
         "rollout error: trained {error:.4}, untrained {untrained_error:.4}; validation NLL {:.3} after {} epochs",
         last.best_validation, last.epoch
     );
-    assert!(error < MAX_RELATIVE_ROLLOUT_ERROR, "trained rollout error {error}");
-    assert!(untrained_error > MAX_RELATIVE_ROLLOUT_ERROR, "untrained rollout error {untrained_error}");
+    assert!(
+        error < MAX_RELATIVE_ROLLOUT_ERROR,
+        "trained rollout error {error}"
+    );
+    assert!(
+        untrained_error > MAX_RELATIVE_ROLLOUT_ERROR,
+        "untrained rollout error {untrained_error}"
+    );
     assert!(last.best_validation < trained.history[0].validation);
 
-    let check = StabilityConfig { starts: 100, max_steps: 20_000, ..StabilityConfig::default() };
+    let check = StabilityConfig {
+        starts: 100,
+        max_steps: 20_000,
+        ..StabilityConfig::default()
+    };
     for model in [&untrained, &policy] {
         let report = measure(model, &check, |_| {}).unwrap();
         assert_eq!(report.fraction, 1.0, "{report:?}");
@@ -93,7 +121,9 @@ fn flow_learns_a_known_stable_system_and_stays_stable_while_bc_does_not() {
         &BaselineTrainConfig {
             task: "spiral".into(),
             hidden: vec![32, 32],
-            goal: Goal::State { value: vec![0.0, 0.0] },
+            goal: Goal::State {
+                value: vec![0.0, 0.0],
+            },
             validation_fraction: 0.2,
             threads: 1,
             optim: config.optim.clone(),

@@ -10,7 +10,13 @@ use tch::{Kind, Tensor};
 
 fn configs() -> Vec<FlowConfig> {
     let mut out = Vec::new();
-    for coupling in [CouplingKind::Affine { scale_bound: 2.0 }, CouplingKind::Spline { bins: 6, tail_bound: 2.5 }] {
+    for coupling in [
+        CouplingKind::Affine { scale_bound: 2.0 },
+        CouplingKind::Spline {
+            bins: 6,
+            tail_bound: 2.5,
+        },
+    ] {
         for latent in [LatentKind::GoTo, LatentKind::LimitCycle] {
             let mut c = FlowConfig::new("parity", 3, 2, latent, coupling.clone(), 3, vec![12, 12]);
             c.normalisation.state_mean = vec![0.2, -0.4, 1.0];
@@ -19,7 +25,15 @@ fn configs() -> Vec<FlowConfig> {
             c.normalisation.context_std = vec![2.0, 0.3];
             out.push(c);
         }
-        let mut goal = FlowConfig::new("parity", 2, 3, LatentKind::GoTo, coupling.clone(), 3, vec![12]);
+        let mut goal = FlowConfig::new(
+            "parity",
+            2,
+            3,
+            LatentKind::GoTo,
+            coupling.clone(),
+            3,
+            vec![12],
+        );
         goal.goal_context_indices = Some(vec![2, 1]);
         out.push(goal);
     }
@@ -39,11 +53,16 @@ fn randomise(vs: &tch::nn::VarStore, seed: i64) {
 
 fn rows(t: &Tensor) -> Vec<Vec<f64>> {
     let n = t.size()[0];
-    (0..n).map(|i| Vec::<f64>::try_from(t.get(i)).unwrap()).collect()
+    (0..n)
+        .map(|i| Vec::<f64>::try_from(t.get(i)).unwrap())
+        .collect()
 }
 
 fn relative_close(a: f64, b: f64, what: &str) {
-    assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs().max(b.abs())), "{what}: tch {a} vs rust {b}");
+    assert!(
+        (a - b).abs() <= 1e-5 * (1.0 + a.abs().max(b.abs())),
+        "{what}: tch {a} vs rust {b}"
+    );
 }
 
 #[test]
@@ -51,7 +70,14 @@ fn saved_var_store_loads_in_the_pure_rust_policy_and_agrees() {
     let dir = std::env::temp_dir().join(format!("ciflow-parity-{}", std::process::id()));
     for (k, config) in configs().iter().enumerate() {
         let vs = double_var_store();
-        let model = FlowModel::new(&vs.root(), config, LatentInit { sigma: 0.1, omega: 1.0 });
+        let model = FlowModel::new(
+            &vs.root(),
+            config,
+            LatentInit {
+                sigma: 0.1,
+                omega: 1.0,
+            },
+        );
         randomise(&vs, k as i64);
         save_checkpoint(&dir, &CheckpointConfig::Flow(config.clone()), &vs).unwrap();
         let policy = Policy::load(&dir, Some("parity")).unwrap();
@@ -71,7 +97,9 @@ fn saved_var_store_loads_in_the_pure_rust_policy_and_agrees() {
         let (zs, means) = (rows(&z), rows(&mean_next));
         for i in 0..n as usize {
             let mut out = vec![0.0; d as usize];
-            policy.latent_state(&ys[i], &cs[i], &mut ws, &mut out).unwrap();
+            policy
+                .latent_state(&ys[i], &cs[i], &mut ws, &mut out)
+                .unwrap();
             for j in 0..d as usize {
                 relative_close(zs[i][j], out[j], "f⁻¹");
             }
@@ -80,13 +108,25 @@ fn saved_var_store_loads_in_the_pure_rust_policy_and_agrees() {
                 relative_close(means[i][j], out[j], "mean next state");
             }
             let at = |t: &Tensor| t.double_value(&[i as i64]);
-            relative_close(at(&log_transition), policy.log_transition(&ys[i], &ns[i], &cs[i], &mut ws).unwrap(), "log p");
+            relative_close(
+                at(&log_transition),
+                policy
+                    .log_transition(&ys[i], &ns[i], &cs[i], &mut ws)
+                    .unwrap(),
+                "log p",
+            );
             relative_close(
                 at(&log_transition3),
-                policy.log_transition_multi(&ys[i], &ns[i], &cs[i], 3, &mut ws).unwrap(),
+                policy
+                    .log_transition_multi(&ys[i], &ns[i], &cs[i], 3, &mut ws)
+                    .unwrap(),
                 "3-step log p",
             );
-            relative_close(at(&log_initial), policy.log_initial(&ys[i], &cs[i], &mut ws).unwrap(), "log p(y0)");
+            relative_close(
+                at(&log_initial),
+                policy.log_initial(&ys[i], &cs[i], &mut ws).unwrap(),
+                "log p(y0)",
+            );
         }
     }
     std::fs::remove_dir_all(&dir).unwrap();
@@ -96,12 +136,20 @@ fn saved_var_store_loads_in_the_pure_rust_policy_and_agrees() {
 fn log_determinant_equals_the_autograd_jacobian() {
     for (k, config) in configs().iter().enumerate() {
         let vs = double_var_store();
-        let model = FlowModel::new(&vs.root(), config, LatentInit { sigma: 0.1, omega: 1.0 });
+        let model = FlowModel::new(
+            &vs.root(),
+            config,
+            LatentInit {
+                sigma: 0.1,
+                omega: 1.0,
+            },
+        );
         randomise(&vs, 50 + k as i64);
         let (d, m) = (config.state_dim as i64, config.context_dim as i64);
         for point in 0..5 {
             tch::manual_seed(200 + point);
-            let z = (Tensor::randn([1, d], (Kind::Double, tch::Device::Cpu)) * 1.5).set_requires_grad(true);
+            let z = (Tensor::randn([1, d], (Kind::Double, tch::Device::Cpu)) * 1.5)
+                .set_requires_grad(true);
             let c = Tensor::randn([1, m], (Kind::Double, tch::Device::Cpu));
             let (y, log_det) = model.forward(&z, &c);
             let jacobian = Tensor::stack(

@@ -46,6 +46,10 @@
 //! goal at up to 20 mm/s and stop there abruptly. Truncated after 1500 steps (15 s; the
 //! longest demonstration lasts 8.7 s).
 //!
+//! ## Rendering
+//! The shape's seven demonstrations (grey), the path so far (blue), the mass (black) and
+//! the goal (green), framed on the demonstrations.
+//!
 //! ## Arguments
 //! `shape` (index into [`SHAPES`], `0..30`; default 0, `Angle`): the shape drawn unless a
 //! reset's `shape` option picks another. Numbers only cross the registry and the bridge;
@@ -58,6 +62,7 @@
 //! v0: initial version.
 
 use std::collections::BTreeMap;
+use std::collections::btree_map::Entry;
 
 use nalgebra::Vector2;
 use rand::RngExt;
@@ -114,6 +119,8 @@ pub const MAX_GOAL_OFFSET: f64 = 10.0;
 pub const SHAPE_OPTION: &str = "shape";
 pub const DEMO_OPTION: &str = "demo";
 pub const START_NOISE_OPTION: &str = "start_noise";
+/// Space around the shape in `render`, mm.
+const VIEW_MARGIN: f64 = 5.0;
 /// Every fifth sample of a demonstration is enough to draw it.
 const DRAWN_POINT_STRIDE: usize = 5;
 
@@ -135,6 +142,8 @@ struct ShapeModel {
     starts: Vec<Vector2<f64>>,
     /// Demonstrated paths, for `render`.
     paths: Vec<Vec<Vector2<f64>>>,
+    /// What `render` shows: the paths wherever the goal may move them.
+    view: View,
 }
 
 impl ShapeModel {
@@ -161,7 +170,14 @@ impl ShapeModel {
             .collect();
         let field = DemoField::new(&demos)
             .ok_or_else(|| failed(format!("shape `{}` has no samples", SHAPES[shape])))?;
+        let margin = Vector2::repeat(MAX_GOAL_OFFSET + VIEW_MARGIN);
+        let positions = || demos.iter().flatten().map(|s| s.position);
+        let view = View {
+            min: positions().fold(Vector2::zeros(), |a, p| a.inf(&p)) - margin,
+            max: positions().fold(Vector2::zeros(), |a, p| a.sup(&p)) + margin,
+        };
         Ok(Self {
+            view,
             field,
             starts: demos.iter().map(|d| d[0].position).collect(),
             paths: demos
@@ -213,6 +229,7 @@ impl Lasa {
         Ok(Self {
             setup: PlanarSetup {
                 id: ID,
+                // Every shape fits; `reset` narrows it to the shape's demonstrations.
                 workspace: View {
                     min: Vector2::new(-60.0, -60.0),
                     max: Vector2::new(60.0, 60.0),
@@ -269,11 +286,12 @@ impl PlanarTask for Lasa {
                 detail: format!("{start_noise} is not a radius in mm"),
             });
         }
-        if !self.models.contains_key(&shape) {
-            self.models.insert(shape, ShapeModel::load(shape)?);
+        if let Entry::Vacant(slot) = self.models.entry(shape) {
+            slot.insert(ShapeModel::load(shape)?);
         }
         let demos = self.models[&shape].starts.len();
         self.demo = index_option(extra, DEMO_OPTION, demos)?;
+        self.setup.workspace = self.models[&shape].view;
         self.shape = shape;
         self.start_noise = start_noise;
         Ok(())

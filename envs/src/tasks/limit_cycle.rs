@@ -137,9 +137,9 @@ impl PlanarTask for LimitCycle {
         reject_unknown_options(extra, &[CONTEXT_SET_OPTION])?;
         self.context_set = match extra.get(CONTEXT_SET_OPTION).copied() {
             None => ContextSet::Training,
-            Some(v) if v == 0.0 => ContextSet::Training,
-            Some(v) if v == 1.0 => ContextSet::HeldOut,
-            Some(v) if v == 2.0 => ContextSet::Uniform,
+            Some(0.0) => ContextSet::Training,
+            Some(1.0) => ContextSet::HeldOut,
+            Some(2.0) => ContextSet::Uniform,
             Some(v) => {
                 return Err(EnvError::InvalidOption {
                     name: CONTEXT_SET_OPTION.into(),

@@ -1,4 +1,4 @@
-//! `ciflow/ObstacleAvoidance-v0` — reach a target among circular obstacles.
+//! `ciflow/Obstacle-v0` — reach a target among circular obstacles.
 //!
 //! ## Description
 //! A 1 kg point mass in the plane must reach a target while keeping out of 1–3 circular
@@ -58,7 +58,7 @@ use crate::planar::{Outcome, PlanarEnv, PlanarSetup, PlanarTask, reject_unknown_
 use crate::raster::{Canvas, GREEN, GREY, LIGHT_GREY, View};
 use crate::space::{BoxSpace, Dtype};
 
-pub const ID: &str = "ciflow/ObstacleAvoidance-v0";
+pub const ID: &str = "ciflow/Obstacle-v0";
 /// Radius of an obstacle's body: entering it is a collision, m.
 pub const OBSTACLE_RADIUS: f64 = 0.1;
 /// Radius of the disc the expert keeps out of, m.

@@ -28,7 +28,11 @@ def ciflow_binary() -> pathlib.Path:
 def datasets(tmp_path_factory):
     root = tmp_path_factory.mktemp("minari")
     made = {}
-    for task, extra in [("limit-cycle", []), ("obstacle-avoidance", ["--kwarg", "obstacles=2"])]:
+    for task, extra in [
+        ("limit-cycle", []),
+        ("obstacle-avoidance", ["--kwarg", "obstacles=2"]),
+        ("lasa", ["--kwarg", "shape=Sshape", "--option", "start_noise=3"]),
+    ]:
         out = root / "ciflow" / f"{task}-expert-v0"
         subprocess.run(
             [str(ciflow_binary()), "demos", "--task", task, "--episodes", "3", "--seed", "5",
@@ -78,3 +82,18 @@ def test_episode_metadata_and_files_follow_minari_layout(datasets):
         "observations", "actions", "rewards", "terminations", "truncations", "infos"]
     episode = next(iter(minari.MinariDataset(data).iterate_episodes()))
     assert episode.truncations[-1]
+
+
+def test_lasa_dataset_is_in_millimetres_and_ends_at_the_goal(datasets):
+    _, made = datasets
+    dataset = minari.MinariDataset(made["lasa"] / "data")
+    assert dataset.storage.metadata["ciflow"]["env_id"] == "ciflow/Lasa-v0"
+    assert dataset.observation_space.shape == (6,)
+    for episode in dataset.iterate_episodes():
+        # The shape given by name is stored by index (Sshape is the 25th of 30).
+        assert set(episode.infos["shape"]) == {24.0}
+        # The goal context is the dataset's origin; the paths start tens of mm from it.
+        np.testing.assert_array_equal(episode.infos["context"], 0.0)
+        assert 30.0 < np.linalg.norm(episode.observations[0, :2]) < 70.0
+        assert episode.terminations[-1] and episode.infos["is_success"][-1] == 1.0
+        assert np.linalg.norm(episode.observations[-1, :2]) < 1.0

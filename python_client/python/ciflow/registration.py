@@ -2,12 +2,10 @@
 
 import gymnasium
 
-TASK_IDS = (
-    "ciflow/LimitCycle-v0",
-    "ciflow/Obstacle-v0",
-    "ciflow/Pouring-v0",
-    "ciflow/Lasa-v0",
-)
+from ciflow import _native
+
+#: Gymnasium ids of every task, as the engine built into this package lists them.
+TASK_IDS = tuple(task_id for task_id, _name in _native.tasks())
 
 
 def register_tasks() -> None:

@@ -1,0 +1,160 @@
+//! Measured closed-loop stability through the computed-torque simulator: the policy's
+//! desired acceleration ([`Policy::acceleration`]) drives [`Simulator::step`] from random
+//! joint configurations drawn uniformly inside the robot's position limits (at rest), for
+//! random contexts. This is where torque and rate saturation and the end stops — which the
+//! module-level claims exclude — are measured rather than assumed.
+//!
+//! A rollout converges when, within `duration`, the joint state reaches the attractor:
+//! `‖q - q*‖ ≤ tolerance` and `‖q̇‖ ≤ tolerance`/s for go-to policies, distance to the
+//! orbit `≤ tolerance` for limit cycles.
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+
+use super::config::LatentKind;
+use super::error::FlowError;
+use super::policy::Policy;
+use crate::sim::{SimError, Simulator};
+
+#[derive(Debug, thiserror::Error)]
+pub enum RobotLoopError {
+    #[error(transparent)]
+    Flow(#[from] FlowError),
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    #[error("robot-loop check: {0}")]
+    Invalid(String),
+}
+
+/// Settings of [`measure_robot_loop`].
+#[derive(Clone, Debug, Serialize)]
+pub struct RobotLoopConfig {
+    pub starts: usize,
+    /// `K_v` of the acceleration policy (1/s).
+    pub velocity_gain: f64,
+    /// Simulated time per rollout, s.
+    pub duration: f64,
+    /// Joint-space convergence radius (rad or m).
+    pub tolerance: f64,
+    /// Convergence is checked every this many control periods.
+    pub check_every: usize,
+    pub seed: u64,
+}
+
+impl Default for RobotLoopConfig {
+    fn default() -> Self {
+        Self {
+            starts: 20,
+            velocity_gain: 10.0,
+            duration: 20.0,
+            tolerance: 1e-3,
+            check_every: 10,
+            seed: 0,
+        }
+    }
+}
+
+/// Outcome of [`measure_robot_loop`].
+#[derive(Clone, Debug, Serialize)]
+pub struct RobotLoopReport {
+    pub rollouts: usize,
+    pub converged: usize,
+    pub fraction: f64,
+    /// Rollouts in which the torque or rate limits changed the computed torque at least once.
+    pub saturated: usize,
+    /// Rollouts in which a joint hit an end stop.
+    pub hit_end_stops: usize,
+}
+
+/// Runs the closed-loop check on `simulator` (whose robot has `policy`'s state dimension
+/// and finite position limits); `progress` is called after each rollout.
+pub fn measure_robot_loop(
+    policy: &Policy,
+    simulator: &mut Simulator,
+    config: &RobotLoopConfig,
+    mut progress: impl FnMut(usize),
+) -> Result<RobotLoopReport, RobotLoopError> {
+    let d = policy.config().state_dim;
+    let limits = simulator.robot().limits().clone();
+    if limits.q_min.len() != d {
+        return Err(RobotLoopError::Invalid(format!(
+            "robot has {} joints, the policy {d} states",
+            limits.q_min.len()
+        )));
+    }
+    if limits
+        .q_min
+        .iter()
+        .chain(limits.q_max.iter())
+        .any(|v| !v.is_finite())
+    {
+        return Err(RobotLoopError::Invalid(
+            "starts need finite position limits".into(),
+        ));
+    }
+    if config.starts == 0
+        || config.check_every == 0
+        || !(config.duration > 0.0 && config.tolerance > 0.0)
+    {
+        return Err(RobotLoopError::Invalid(
+            "starts, check_every, duration and tolerance must be positive".into(),
+        ));
+    }
+    let periods = (config.duration / simulator.config().control_dt).ceil() as usize;
+    let bounds = &policy.config().bounds;
+    let go_to = policy.latent().kind() == LatentKind::GoTo;
+    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+    let mut ws = policy.workspace();
+    let (mut acceleration, mut velocity, mut scratch) = (vec![0.0; d], vec![0.0; d], vec![0.0; d]);
+    let mut context = vec![0.0; bounds.context_min.len()];
+    let mut report = RobotLoopReport {
+        rollouts: config.starts,
+        converged: 0,
+        fraction: 0.0,
+        saturated: 0,
+        hit_end_stops: 0,
+    };
+    for trial in 0..config.starts {
+        let q0: Vec<f64> = (0..d)
+            .map(|i| rng.random_range(limits.q_min[i]..=limits.q_max[i]))
+            .collect();
+        for (c, (lo, hi)) in context
+            .iter_mut()
+            .zip(bounds.context_min.iter().zip(&bounds.context_max))
+        {
+            *c = rng.random_range(*lo..=*hi);
+        }
+        simulator.reset(&q0, &vec![0.0; d])?;
+        let (mut saturated, mut end_stop) = (false, false);
+        for period in 1..=periods {
+            let (q, qd) = (simulator.q().as_slice(), simulator.qd().as_slice());
+            policy.acceleration(
+                q,
+                qd,
+                &context,
+                config.velocity_gain,
+                &mut ws,
+                &mut acceleration,
+                &mut velocity,
+            )?;
+            let step = simulator.step(&acceleration)?;
+            saturated |= step.saturation.is_active();
+            end_stop |= !step.end_stops.is_empty();
+            if period % config.check_every == 0 {
+                let (q, qd) = (simulator.q().as_slice(), simulator.qd().as_slice());
+                let distance = policy.attractor_distance(q, &context, &mut ws, &mut scratch)?;
+                let speed = qd.iter().map(|v| v * v).sum::<f64>().sqrt();
+                if distance <= config.tolerance && (!go_to || speed <= config.tolerance) {
+                    report.converged += 1;
+                    break;
+                }
+            }
+        }
+        report.saturated += usize::from(saturated);
+        report.hit_end_stops += usize::from(end_stop);
+        progress(trial + 1);
+    }
+    report.fraction = report.converged as f64 / report.rollouts as f64;
+    Ok(report)
+}

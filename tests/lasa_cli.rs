@@ -1,0 +1,114 @@
+//! `ciflow lasa` on two shapes with a tiny budget: the table, CSV and plots are written,
+//! every flow score is finite, and the stable flow's reproductions end near the goal.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+const SHAPES: [&str; 2] = ["Angle", "Line"];
+/// Bound on the flow's mean final-point error after the tiny budget, mm. The shapes span
+/// about 40 mm and start 20–45 mm from the goal; the attractor sits exactly on the goal.
+const FINAL_ERROR_BOUND_MM: f64 = 5.0;
+
+fn ciflow(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ciflow"))
+        .args(args)
+        .output()
+        .expect("run ciflow")
+}
+
+struct Scratch(PathBuf);
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+#[test]
+fn lasa_writes_finite_scores_and_plots_and_the_flow_ends_near_the_goal() {
+    let out = Scratch(std::env::temp_dir().join(format!("ciflow-lasa-{}", std::process::id())));
+    let _ = std::fs::remove_dir_all(&out.0);
+    let dir = out.0.to_string_lossy().into_owned();
+    let output = ciflow(&[
+        "lasa",
+        "--shapes",
+        &SHAPES.join(","),
+        "--epochs",
+        "4",
+        "--layers",
+        "3",
+        "--hidden",
+        "16,16",
+        "--out",
+        &dir,
+    ]);
+    assert!(
+        output.status.success(),
+        "ciflow lasa failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+
+    let csv = std::fs::read_to_string(out.0.join("lasa.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(
+        header,
+        [
+            "shape",
+            "model",
+            "dtw_mm",
+            "swept_area_mm2",
+            "final_error_mm",
+            "train_seconds",
+            "best_epoch",
+            "epochs_run"
+        ]
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 2 * SHAPES.len());
+    for shape in SHAPES {
+        for model in ["flow", "baseline"] {
+            let row = rows
+                .iter()
+                .find(|r| r[0] == shape && r[1] == model)
+                .unwrap_or_else(|| panic!("no row for {shape} {model}: {csv}"));
+            let numbers: Vec<f64> = row[2..].iter().map(|v| v.parse().unwrap()).collect();
+            assert!(numbers[3] > 0.0, "training takes time: {row:?}");
+            if model == "flow" {
+                // The flow cannot diverge: every score is a finite number.
+                assert!(numbers.iter().all(|v| v.is_finite()), "{row:?}");
+                assert!(
+                    numbers[2] <= FINAL_ERROR_BOUND_MM,
+                    "{shape}: flow final-point error {} mm > {FINAL_ERROR_BOUND_MM} mm",
+                    numbers[2]
+                );
+            }
+        }
+    }
+
+    let table = std::fs::read_to_string(out.0.join("lasa.md")).unwrap();
+    for shape in SHAPES {
+        assert!(table.contains(&format!("| {shape} |")), "{table}");
+    }
+    assert!(table.contains("| **mean** |"), "{table}");
+
+    let png_signature = b"\x89PNG\r\n\x1a\n";
+    let mut pngs = vec![out.0.join("lasa.png")];
+    pngs.extend(SHAPES.map(|s| out.0.join("plots").join(format!("{s}.png"))));
+    for png in pngs {
+        let bytes = std::fs::read(&png).unwrap_or_else(|e| panic!("{}: {e}", png.display()));
+        assert!(bytes.starts_with(png_signature), "{}", png.display());
+    }
+    for shape in SHAPES {
+        let checkpoint = out.0.join("checkpoints").join(shape).join("flow");
+        assert!(checkpoint.join("config.json").exists());
+    }
+}
+
+#[test]
+fn lasa_rejects_an_unknown_shape() {
+    let output = ciflow(&["lasa", "--shapes", "Angle,NoSuchShape", "--out", "unused"]);
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(stderr.contains("unknown LASA shape `NoSuchShape`"), "{stderr}");
+}

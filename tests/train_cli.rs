@@ -1,0 +1,168 @@
+//! `ciflow demos` → `ciflow train` → `ciflow stability`, as separate processes: the
+//! dataset one command writes trains a policy in the next, whose checkpoint is globally
+//! stable and, rolled out from the demonstrations' starts, reaches their targets.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use ciflow_engine::flow::Policy;
+use serde_json::Value;
+
+/// Converged: within 2 mm of the target (the task's workspace is about 2 m wide).
+const GOAL_TOLERANCE: f64 = 2e-3;
+/// 30 s at the task's 10 ms period; the demonstrations arrive within 8 s.
+const ROLLOUT_STEPS: usize = 3000;
+
+fn ciflow(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ciflow"))
+        .args(args)
+        .output()
+        .expect("run ciflow")
+}
+
+fn succeed(args: &[&str]) -> Output {
+    let output = ciflow(args);
+    assert!(
+        output.status.success(),
+        "ciflow {args:?} failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    output
+}
+
+/// A fresh directory under the system's temporary directory, removed on drop.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn new(name: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!("ciflow-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        Self(dir)
+    }
+
+    fn path(&self, name: &str) -> String {
+        self.0.join(name).to_string_lossy().into_owned()
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn distance(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<f64>()
+        .sqrt()
+}
+
+#[test]
+fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targets() {
+    let scratch = Scratch::new("train-cli");
+    let (demos, policy) = (scratch.path("demos"), scratch.path("policy"));
+    succeed(&[
+        "demos",
+        "--task",
+        "obstacle-avoidance",
+        "--episodes",
+        "8",
+        "--kwarg",
+        "obstacles=1",
+        "--out",
+        &demos,
+    ]);
+    // No --latent or --goal-context-indices: the task's defaults must apply.
+    succeed(&[
+        "train",
+        "--task",
+        "obstacle-avoidance",
+        "--demos",
+        &demos,
+        "--out",
+        &policy,
+        "--epochs",
+        "15",
+        "--layers",
+        "4",
+        "--hidden",
+        "32,32",
+    ]);
+    let report: Value = serde_json::from_slice(
+        &succeed(&[
+            "stability",
+            "--checkpoint",
+            &policy,
+            "--task",
+            "obstacle-avoidance",
+            "--starts",
+            "50",
+            "--json",
+        ])
+        .stdout,
+    )
+    .expect("JSON report");
+    assert_eq!(report["fraction"].as_f64(), Some(1.0), "{report}");
+    assert_eq!(report["converged"].as_u64(), Some(50), "{report}");
+
+    let policy = Policy::load(Path::new(&policy), Some("obstacle-avoidance")).unwrap();
+    // Context [o_x, o_y, g_x, g_y]: the go-to target is its tail.
+    assert_eq!(policy.config().goal_context_indices, Some(vec![2, 3]));
+    assert_eq!(policy.config().state_dim, 2);
+    let (_, episodes) = ciflow_envs::dataset::read(Path::new(&demos)).unwrap();
+    assert_eq!(episodes.len(), 8);
+    let mut ws = policy.workspace();
+    for (i, episode) in episodes.iter().enumerate() {
+        let context = &episode.contexts[0];
+        let target = &context[2..];
+        let mut y = episode.observations[0][..2].to_vec();
+        let mut next = vec![0.0; 2];
+        let start_distance = distance(&y, target);
+        for _ in 0..ROLLOUT_STEPS {
+            policy.mean_next(&y, context, &mut ws, &mut next).unwrap();
+            std::mem::swap(&mut y, &mut next);
+        }
+        let end_distance = distance(&y, target);
+        assert!(
+            end_distance < GOAL_TOLERANCE,
+            "episode {i}: {start_distance:.3} m from the target at the start, \
+             {end_distance:.2e} m after {ROLLOUT_STEPS} steps"
+        );
+    }
+}
+
+#[test]
+fn train_refuses_a_dataset_of_another_task() {
+    let scratch = Scratch::new("train-cli-task");
+    let (demos, policy) = (scratch.path("demos"), scratch.path("policy"));
+    succeed(&[
+        "demos",
+        "--task",
+        "limit-cycle",
+        "--episodes",
+        "1",
+        "--out",
+        &demos,
+    ]);
+    let output = ciflow(&[
+        "train",
+        "--task",
+        "obstacle-avoidance",
+        "--demos",
+        &demos,
+        "--out",
+        &policy,
+        "--epochs",
+        "1",
+    ]);
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        stderr.contains("ciflow/LimitCycle-v0") && stderr.contains("obstacle-avoidance"),
+        "{stderr}"
+    );
+    assert!(!Path::new(&policy).exists(), "no checkpoint may be written");
+}
