@@ -5,9 +5,10 @@ use std::path::PathBuf;
 use std::process::{Command, Output};
 
 const SHAPES: [&str; 2] = ["Angle", "Line"];
-/// Bound on the flow's mean final-point error after the tiny budget, mm. The shapes span
-/// about 40 mm and start 20–45 mm from the goal; the attractor sits exactly on the goal.
-const FINAL_ERROR_BOUND_MM: f64 = 5.0;
+/// Bound on the flow's mean final-point error after the tiny budget, mm: under a fifth of
+/// the 40–50 mm the shapes start from the goal (the attractor sits exactly on the goal;
+/// measured 4.0 mm on Angle, 2.0 mm on Line, where the baseline ends 25 and 7 mm off).
+const FINAL_ERROR_BOUND_MM: f64 = 8.0;
 
 fn ciflow(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_ciflow"))
@@ -110,5 +111,8 @@ fn lasa_rejects_an_unknown_shape() {
     let output = ciflow(&["lasa", "--shapes", "Angle,NoSuchShape", "--out", "unused"]);
     assert!(!output.status.success());
     let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(stderr.contains("unknown LASA shape `NoSuchShape`"), "{stderr}");
+    assert!(
+        stderr.contains("unknown LASA shape `NoSuchShape`"),
+        "{stderr}"
+    );
 }

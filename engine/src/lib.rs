@@ -10,10 +10,10 @@
 //! - [`flow`]: stable conditioned invertible-network policies (inference only; training
 //!   lives in the `ciflow-train` crate, the only libtorch user).
 
-pub mod flow;
-pub mod math;
 pub mod algorithm;
 pub mod control;
+pub mod flow;
+pub mod math;
 pub mod model;
 pub mod robot;
 pub mod sim;

@@ -19,15 +19,17 @@ use std::time::Instant;
 
 use anyhow::Context;
 use ciflow_engine::flow::stability::MeanDynamics;
-use ciflow_engine::flow::{BehaviourCloning, Goal, LatentKind, Policy};
+use ciflow_engine::flow::{BehaviourCloning, Goal, Policy};
 use ciflow_envs::lasa::{self, Shape};
 use ciflow_envs::tasks::lasa::GOAL_TOLERANCE;
-use ciflow_train::{Contexts, Demonstrations, Episode, Progress, train_baseline, train_flow};
+use ciflow_train::{
+    Contexts, Demonstrations, Episode, Progress, TrainConfig, train_baseline, train_flow,
+};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use serde_json::json;
 
-use super::train::{ModelArgs, baseline_config};
+use super::train::{ModelArgs, baseline_config, task_defaults};
 use metrics::{Point, dtw_distance, final_point_error, swept_error_area};
 
 /// The plotting script, embedded so the command runs from any directory.
@@ -140,10 +142,7 @@ fn mean(values: impl Iterator<Item = f64>) -> f64 {
 }
 
 /// The field `(F(y, g) − y) / dt` on a grid: `(xs, ys, u[j][i], v[j][i])` at `(xs[i], ys[j])`.
-fn vector_field<M: MeanDynamics>(
-    model: &M,
-    shape: &Shape,
-) -> anyhow::Result<serde_json::Value> {
+fn vector_field<M: MeanDynamics>(model: &M, shape: &Shape) -> anyhow::Result<serde_json::Value> {
     let points = || shape.demos.iter().flat_map(|d| d.positions.iter());
     let (mut lo, mut hi) = ([GOAL[0], GOAL[1]], [GOAL[0], GOAL[1]]);
     for p in points() {
@@ -180,7 +179,7 @@ fn vector_field<M: MeanDynamics>(
 fn thinned(path: &[Point]) -> Vec<Point> {
     let mut kept: Vec<Point> = path.iter().step_by(PLOT_STRIDE).copied().collect();
     if let Some(last) = path.last()
-        && (path.len() - 1) % PLOT_STRIDE != 0
+        && !(path.len() - 1).is_multiple_of(PLOT_STRIDE)
     {
         kept.push(*last);
     }
@@ -233,11 +232,9 @@ impl RunProgress {
     fn new(shapes: usize, epochs: usize) -> Self {
         let bar = ProgressBar::new((shapes * Model::ALL.len() * epochs) as u64);
         bar.set_style(
-            ProgressStyle::with_template(
-                "lasa [{bar:30}] {percent}% {msg} ({elapsed}, eta {eta})",
-            )
-            .expect("valid template")
-            .progress_chars("=> "),
+            ProgressStyle::with_template("lasa [{bar:30}] {percent}% {msg} ({elapsed}, eta {eta})")
+                .expect("valid template")
+                .progress_chars("=> "),
         );
         Self {
             bar,
@@ -264,6 +261,13 @@ impl RunProgress {
     }
 }
 
+/// The flow's configuration: `ciflow train`'s for `ciflow/Lasa-v0` (go-to, the goal as
+/// context).
+fn flow_config(args: &ModelArgs) -> anyhow::Result<TrainConfig> {
+    let task = ciflow_envs::registry::entry(TASK)?;
+    Ok(args.flow(task.name, task_defaults(task, GOAL.len())?))
+}
+
 fn train_shape_flow(
     shape: &Shape,
     data: &Demonstrations,
@@ -271,10 +275,12 @@ fn train_shape_flow(
     progress: &RunProgress,
     dir: &Path,
 ) -> anyhow::Result<Trained<Policy>> {
-    let config = args.flow(TASK, LatentKind::GoTo, Some(vec![0, 1]));
+    let config = flow_config(args)?;
     let start = Instant::now();
-    let trained = train_flow(data, &config, |p| progress.epoch(&shape.name, Model::Flow, p))
-        .with_context(|| format!("training the flow on {}", shape.name))?;
+    let trained = train_flow(data, &config, |p| {
+        progress.epoch(&shape.name, Model::Flow, p)
+    })
+    .with_context(|| format!("training the flow on {}", shape.name))?;
     let seconds = start.elapsed().as_secs_f64();
     trained
         .save(dir)
@@ -294,13 +300,11 @@ fn train_shape_baseline(
     progress: &RunProgress,
     dir: &Path,
 ) -> anyhow::Result<Trained<BehaviourCloning>> {
-    let flow = args.flow(TASK, LatentKind::GoTo, Some(vec![0, 1]));
-    let config = baseline_config(
-        &flow,
-        Goal::ContextIndices {
-            indices: vec![0, 1],
-        },
-    );
+    let flow = flow_config(args)?;
+    let goal = Goal::ContextIndices {
+        indices: flow.goal_context_indices.clone().unwrap_or_default(),
+    };
+    let config = baseline_config(&flow, goal);
     let start = Instant::now();
     let trained = train_baseline(data, &config, |p| {
         progress.epoch(&shape.name, Model::Baseline, p)
@@ -412,8 +416,8 @@ fn table_row(label: &str, [flow, baseline]: [&Scores; 2]) -> String {
         cell(baseline.swept_area, 0),
         cell(flow.final_error, 2),
         cell(baseline.final_error, 2),
-        cell(flow.train_seconds, 1),
-        cell(baseline.train_seconds, 1),
+        cell(flow.train_seconds, 2),
+        cell(baseline.train_seconds, 2),
     )
 }
 
@@ -430,7 +434,12 @@ fn mean_scores(results: &[ShapeResult], model: usize) -> Scores {
     }
 }
 
-fn markdown(results: &[ShapeResult], args: &ModelArgs, total_seconds: f64) -> String {
+fn markdown(
+    results: &[ShapeResult],
+    args: &ModelArgs,
+    flow: &TrainConfig,
+    total_seconds: f64,
+) -> String {
     let mut text = format!(
         "# LASA handwriting benchmark\n\n\
          Stable C-IFlow (go-to latent, {:?} coupling, {} layers, hidden {:?}, min rate {} /s, \
@@ -452,7 +461,7 @@ fn markdown(results: &[ShapeResult], args: &ModelArgs, total_seconds: f64) -> St
         args.coupling,
         args.layers,
         args.hidden,
-        args.min_rate,
+        flow.min_rate,
         args.hidden,
         args.epochs,
         args.patience,
@@ -507,7 +516,10 @@ pub fn run(args: LasaArgs) -> anyhow::Result<()> {
     anyhow::ensure!(!names.is_empty(), "--shapes names no shape");
     let known = lasa::shape_names()?;
     if let Some(unknown) = names.iter().find(|n| !known.contains(n)) {
-        anyhow::bail!("unknown LASA shape `{unknown}`; known: {}", known.join(", "));
+        anyhow::bail!(
+            "unknown LASA shape `{unknown}`; known: {}",
+            known.join(", ")
+        );
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
@@ -518,7 +530,12 @@ pub fn run(args: LasaArgs) -> anyhow::Result<()> {
         .map(|name| run_shape(name, &args, &mut progress))
         .collect::<anyhow::Result<Vec<_>>>()?;
     progress.bar.finish_and_clear();
-    let table = markdown(&results, &args.model, start.elapsed().as_secs_f64());
+    let table = markdown(
+        &results,
+        &args.model,
+        &flow_config(&args.model)?,
+        start.elapsed().as_secs_f64(),
+    );
     for (file, text) in [("lasa.md", &table), ("lasa.csv", &csv(&results))] {
         let path = args.out.join(file);
         std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;

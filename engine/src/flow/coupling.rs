@@ -14,7 +14,7 @@ use super::affine::AffineTransform;
 use super::config::{CouplingKind, FlowConfig};
 use super::error::FlowResult;
 use super::mlp::{Mlp, MlpScratch};
-use super::scalar::Scalar;
+use super::scalar::{Dual, Scalar};
 use super::spline::SplineTransform;
 use super::weights::Weights;
 
@@ -29,8 +29,27 @@ impl Transform {
         match *kind {
             CouplingKind::Affine { scale_bound } => Self::Affine(AffineTransform { scale_bound }),
             CouplingKind::Spline { bins, tail_bound } => {
-                Self::Spline(SplineTransform { bins, tail_bound })
+                Self::Spline(SplineTransform::new(bins, tail_bound))
             }
+        }
+    }
+
+    /// `(h(x; θ), log|h'|)`, or `h⁻¹` and its log-derivative when `inverse`; the
+    /// log-derivative may be left zero unless `log_det`.
+    #[inline(always)]
+    fn apply<S: Scalar>(
+        &self,
+        x: S,
+        theta: &[S],
+        scratch: &mut [S],
+        inverse: bool,
+        log_det: bool,
+    ) -> (S, S) {
+        match (self, inverse) {
+            (Self::Affine(t), false) => t.forward(x, theta),
+            (Self::Affine(t), true) => t.inverse(x, theta),
+            (Self::Spline(t), false) => t.forward(x, theta, scratch, log_det),
+            (Self::Spline(t), true) => t.inverse(x, theta, scratch, log_det),
         }
     }
 
@@ -54,6 +73,8 @@ pub struct Coupling {
 /// Buffers of one coupling evaluation.
 #[derive(Clone, Debug)]
 pub struct CouplingScratch<S> {
+    /// A state-sized buffer for the layers around the coupling (the mixing).
+    pub(super) state: Vec<S>,
     input: Vec<S>,
     params: Vec<S>,
     transform: Vec<S>,
@@ -63,9 +84,68 @@ pub struct CouplingScratch<S> {
 impl<S: Scalar> CouplingScratch<S> {
     pub fn new(coupling: &Coupling) -> Self {
         Self {
+            state: vec![S::constant(0.0); coupling.state_dim()],
             input: vec![S::constant(0.0); coupling.conditioner.input_dim()],
             params: vec![S::constant(0.0); coupling.conditioner.output_dim()],
             transform: vec![S::constant(0.0); coupling.transform.scratch_len()],
+            mlp: MlpScratch::new(&coupling.conditioner),
+        }
+    }
+}
+
+/// Primal values of one coupling evaluation that its forward tangent reuses.
+#[derive(Clone, Debug)]
+pub struct CouplingRecord {
+    /// Hidden activations of the conditioner.
+    activations: Vec<f64>,
+    /// `θ`.
+    params: Vec<f64>,
+    /// The transformed coordinates on the input side of the forward transform `h`.
+    input: Vec<f64>,
+}
+
+impl CouplingRecord {
+    pub fn new(coupling: &Coupling) -> Self {
+        Self {
+            activations: vec![0.0; coupling.conditioner.record_len()],
+            params: vec![0.0; coupling.conditioner.output_dim()],
+            input: vec![0.0; coupling.transformed.len()],
+        }
+    }
+}
+
+/// Buffers of [`Coupling::tangent`] and [`Coupling::forward_with_tangent`].
+#[derive(Clone, Debug)]
+pub struct TangentScratch {
+    /// A state-sized buffer for the layers around the coupling (the mixing).
+    pub(super) state: Vec<f64>,
+    input: Vec<f64>,
+    input_tangent: Vec<f64>,
+    params: Vec<f64>,
+    params_tangent: Vec<f64>,
+    dual_params: Vec<Dual<f64>>,
+    transform: Vec<f64>,
+    dual_transform: Vec<Dual<f64>>,
+    mlp: MlpScratch<Dual<f64>>,
+}
+
+impl TangentScratch {
+    pub fn new(coupling: &Coupling) -> Self {
+        let zero = Dual::new(0.0, 0.0);
+        let (inputs, outputs) = (
+            coupling.conditioner.input_dim(),
+            coupling.conditioner.output_dim(),
+        );
+        let transform = coupling.transform.scratch_len();
+        Self {
+            state: vec![0.0; coupling.state_dim()],
+            input: vec![0.0; inputs],
+            input_tangent: vec![0.0; inputs],
+            params: vec![0.0; outputs],
+            params_tangent: vec![0.0; outputs],
+            dual_params: vec![zero; outputs],
+            transform: vec![0.0; transform],
+            dual_transform: vec![zero; transform],
             mlp: MlpScratch::new(&coupling.conditioner),
         }
     }
@@ -98,36 +178,100 @@ impl Coupling {
         })
     }
 
-    fn condition<S: Scalar>(&self, x: &[S], context: &[f64], scratch: &mut CouplingScratch<S>) {
+    /// `d`, the dimension of the state the coupling acts on.
+    pub fn state_dim(&self) -> usize {
+        self.kept.len() + self.transformed.len()
+    }
+
+    fn condition<S: Scalar>(
+        &self,
+        x: &[S],
+        context: &[f64],
+        scratch: &mut CouplingScratch<S>,
+        record: Option<&mut CouplingRecord>,
+    ) {
         let kept = self.kept.len();
         scratch.input[..kept].copy_from_slice(&x[self.kept.clone()]);
         for (slot, c) in scratch.input[kept..].iter_mut().zip(context) {
             *slot = S::constant(*c);
         }
-        self.conditioner
-            .eval(&scratch.input, &mut scratch.mlp, &mut scratch.params);
+        let CouplingScratch {
+            input, params, mlp, ..
+        } = scratch;
+        match record {
+            Some(record) => {
+                self.conditioner
+                    .eval_recorded(input, mlp, params, &mut record.activations)
+            }
+            None => self.conditioner.eval(input, mlp, params),
+        }
     }
 
-    /// Applies `h` (or `h⁻¹` when `inverse`) in place; returns the log-determinant.
+    /// Applies `h` (or `h⁻¹` when `inverse`) in place; returns the log-determinant, or
+    /// zero when recording (a recorded pass serves Jacobian-vector products, not densities).
+    ///
+    /// On x86-64 CPUs with AVX2 and FMA it runs compiled for them, so the transforms'
+    /// loops (the spline's softmax) use 4-wide vectors.
     fn apply<S: Scalar>(
         &self,
         x: &mut [S],
         context: &[f64],
         scratch: &mut CouplingScratch<S>,
         inverse: bool,
+        record: Option<&mut CouplingRecord>,
     ) -> S {
-        self.condition(x, context, scratch);
+        #[cfg(target_arch = "x86_64")]
+        if avx2_fma() {
+            // SAFETY: AVX2 and FMA support were detected.
+            return unsafe { self.apply_avx2(x, context, scratch, inverse, record) };
+        }
+        self.apply_with(x, context, scratch, inverse, record)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn apply_avx2<S: Scalar>(
+        &self,
+        x: &mut [S],
+        context: &[f64],
+        scratch: &mut CouplingScratch<S>,
+        inverse: bool,
+        record: Option<&mut CouplingRecord>,
+    ) -> S {
+        self.apply_with(x, context, scratch, inverse, record)
+    }
+
+    #[inline(always)]
+    fn apply_with<S: Scalar>(
+        &self,
+        x: &mut [S],
+        context: &[f64],
+        scratch: &mut CouplingScratch<S>,
+        inverse: bool,
+        mut record: Option<&mut CouplingRecord>,
+    ) -> S {
+        let want_log_det = record.is_none();
+        self.condition(x, context, scratch, record.as_deref_mut());
         let mut log_det = S::constant(0.0);
         let params = scratch.params.chunks_exact(self.params_per_dim);
-        for (xi, theta) in x[self.transformed.clone()].iter_mut().zip(params) {
-            let (value, ld) = match (&self.transform, inverse) {
-                (Transform::Affine(t), false) => t.forward(*xi, theta),
-                (Transform::Affine(t), true) => t.inverse(*xi, theta),
-                (Transform::Spline(t), false) => t.forward(*xi, theta, &mut scratch.transform),
-                (Transform::Spline(t), true) => t.inverse(*xi, theta, &mut scratch.transform),
-            };
+        for (i, (xi, theta)) in x[self.transformed.clone()]
+            .iter_mut()
+            .zip(params)
+            .enumerate()
+        {
+            let (value, ld) =
+                self.transform
+                    .apply(*xi, theta, &mut scratch.transform, inverse, want_log_det);
+            if let Some(record) = record.as_deref_mut() {
+                record.input[i] = if inverse { value } else { *xi }.value();
+            }
             *xi = value;
             log_det += ld;
+        }
+        if let Some(record) = record {
+            for (r, p) in record.params.iter_mut().zip(&scratch.params) {
+                *r = p.value();
+            }
         }
         log_det
     }
@@ -139,7 +283,7 @@ impl Coupling {
         context: &[f64],
         scratch: &mut CouplingScratch<S>,
     ) -> S {
-        self.apply(x, context, scratch, false)
+        self.apply(x, context, scratch, false, None)
     }
 
     /// `x ← coupling⁻¹(x)`; returns `log|det ∂x/∂y|`.
@@ -149,6 +293,141 @@ impl Coupling {
         context: &[f64],
         scratch: &mut CouplingScratch<S>,
     ) -> S {
-        self.apply(x, context, scratch, true)
+        self.apply(x, context, scratch, true, None)
     }
+
+    /// `x ← coupling⁻¹(x)`, keeping in `record` what [`tangent`](Self::tangent) needs at
+    /// the point it returns (no log-determinant).
+    pub fn inverse_recorded<S: Scalar>(
+        &self,
+        x: &mut [S],
+        context: &[f64],
+        scratch: &mut CouplingScratch<S>,
+        record: &mut CouplingRecord,
+    ) {
+        self.apply(x, context, scratch, true, Some(record));
+    }
+
+    /// `dx ← ∂coupling/∂x · dx` at the point `record` was taken (the context is fixed):
+    /// the conditioner's tangent `dθ` from its recorded activations, then `h` in dual
+    /// numbers on `(x + dx ε, θ + dθ ε)`.
+    pub fn tangent(&self, record: &CouplingRecord, dx: &mut [f64], scratch: &mut TangentScratch) {
+        self.sweep(record, dx, None, scratch);
+    }
+
+    /// `x ← coupling(x)` and the [`tangent`](Self::tangent) `dx` at the recorded point, in
+    /// one sweep over the conditioner's weights.
+    pub fn forward_with_tangent(
+        &self,
+        x: &mut [f64],
+        context: &[f64],
+        record: &CouplingRecord,
+        dx: &mut [f64],
+        scratch: &mut TangentScratch,
+    ) {
+        self.sweep(record, dx, Some((x, context)), scratch);
+    }
+
+    /// Tangent, and primal when given, in place; dispatched like [`apply`](Self::apply).
+    fn sweep(
+        &self,
+        record: &CouplingRecord,
+        dx: &mut [f64],
+        primal: Option<(&mut [f64], &[f64])>,
+        scratch: &mut TangentScratch,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if avx2_fma() {
+            // SAFETY: AVX2 and FMA support were detected.
+            return unsafe { self.sweep_avx2(record, dx, primal, scratch) };
+        }
+        self.sweep_with(record, dx, primal, scratch)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn sweep_avx2(
+        &self,
+        record: &CouplingRecord,
+        dx: &mut [f64],
+        primal: Option<(&mut [f64], &[f64])>,
+        scratch: &mut TangentScratch,
+    ) {
+        self.sweep_with(record, dx, primal, scratch)
+    }
+
+    #[inline(always)]
+    fn sweep_with(
+        &self,
+        record: &CouplingRecord,
+        dx: &mut [f64],
+        primal: Option<(&mut [f64], &[f64])>,
+        scratch: &mut TangentScratch,
+    ) {
+        let kept = self.kept.len();
+        scratch.input_tangent[..kept].copy_from_slice(&dx[self.kept.clone()]);
+        scratch.input_tangent[kept..].fill(0.0);
+        let TangentScratch {
+            input,
+            input_tangent,
+            params,
+            params_tangent,
+            mlp,
+            ..
+        } = scratch;
+        match &primal {
+            Some((x, context)) => {
+                input[..kept].copy_from_slice(&x[self.kept.clone()]);
+                input[kept..].copy_from_slice(context);
+                self.conditioner.eval_and_tangent(
+                    input,
+                    params,
+                    &record.activations,
+                    input_tangent,
+                    params_tangent,
+                    mlp,
+                );
+            }
+            None => {
+                self.conditioner
+                    .tangent(&record.activations, input_tangent, mlp, params_tangent)
+            }
+        }
+        for ((d, p), dp) in scratch
+            .dual_params
+            .iter_mut()
+            .zip(&record.params)
+            .zip(&scratch.params_tangent)
+        {
+            *d = Dual::new(*p, *dp);
+        }
+        let duals = scratch.dual_params.chunks_exact(self.params_per_dim);
+        for ((dxi, xi), theta) in dx[self.transformed.clone()]
+            .iter_mut()
+            .zip(&record.input)
+            .zip(duals)
+        {
+            let x = Dual::new(*xi, *dxi);
+            *dxi = self
+                .transform
+                .apply(x, theta, &mut scratch.dual_transform, false, false)
+                .0
+                .du;
+        }
+        if let Some((x, _)) = primal {
+            let params = scratch.params.chunks_exact(self.params_per_dim);
+            for (xi, theta) in x[self.transformed.clone()].iter_mut().zip(params) {
+                *xi = self
+                    .transform
+                    .apply(*xi, theta, &mut scratch.transform, false, false)
+                    .0;
+            }
+        }
+    }
+}
+
+/// Whether this CPU has AVX2 and FMA (detected once, then cached by the standard library).
+#[cfg(target_arch = "x86_64")]
+fn avx2_fma() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }

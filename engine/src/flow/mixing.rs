@@ -2,7 +2,8 @@
 //!
 //! `L` is unit lower-triangular, `U` upper-triangular with diagonal `exp(s)`, so
 //! `det(LU) = exp(Σ s) > 0` for every weight value: the layer is invertible by
-//! construction, `log|det| = Σ s`, and the inverse is two triangular solves.
+//! construction, `log|det| = Σ s`, and `W⁻¹ = U⁻¹ L⁻¹` follows from two triangular solves
+//! (done once, at load time).
 
 use super::error::FlowResult;
 use super::scalar::Scalar;
@@ -11,15 +12,19 @@ use super::weights::Weights;
 #[derive(Clone, Debug)]
 pub struct LuMixing {
     dim: usize,
-    /// Row-major; only the strictly lower part is used (unit diagonal implied).
-    lower: Vec<f64>,
-    /// Row-major; strictly upper part from the weights, diagonal `exp(log_diag)`.
-    upper: Vec<f64>,
+    /// `W = L U`, row-major.
+    matrix: Vec<f64>,
     bias: Vec<f64>,
+    /// `W⁻¹ = U⁻¹ L⁻¹`, row-major.
+    inverse_matrix: Vec<f64>,
+    /// `W⁻¹ b`.
+    inverse_shift: Vec<f64>,
     log_det: f64,
 }
 
 impl LuMixing {
+    /// Multiplies the factors out once: a dense `d × d` product is one short loop per
+    /// row, cheaper than two triangular sweeps of ever-changing length at small `d`.
     pub fn from_weights(weights: &mut Weights, prefix: &str, dim: usize) -> FlowResult<Self> {
         let lower = weights.take(&format!("{prefix}.lower"), &[dim, dim])?;
         let mut upper = weights.take(&format!("{prefix}.upper"), &[dim, dim])?;
@@ -28,56 +33,98 @@ impl LuMixing {
         for (i, s) in log_diag.iter().enumerate() {
             upper[i * dim + i] = s.exp();
         }
+        let (mut matrix, mut inverse_matrix) = (vec![0.0; dim * dim], vec![0.0; dim * dim]);
+        let mut column = vec![0.0; dim];
+        for j in 0..dim {
+            column.fill(0.0);
+            column[j] = 1.0;
+            lu_multiply(&lower, &upper, &mut column);
+            for (i, v) in column.iter().enumerate() {
+                matrix[i * dim + j] = *v;
+            }
+            column.fill(0.0);
+            column[j] = 1.0;
+            lu_solve(&lower, &upper, &mut column);
+            for (i, v) in column.iter().enumerate() {
+                inverse_matrix[i * dim + j] = *v;
+            }
+        }
+        let mut inverse_shift = bias.clone();
+        lu_solve(&lower, &upper, &mut inverse_shift);
         Ok(Self {
             dim,
-            lower,
-            upper,
+            matrix,
             bias,
+            inverse_matrix,
+            inverse_shift,
             log_det: log_diag.iter().sum(),
         })
     }
 
-    /// `x ← L U x + b`; returns `log|det|`.
-    pub fn forward<S: Scalar>(&self, x: &mut [S]) -> f64 {
-        let d = self.dim;
-        for i in 0..d {
-            let row = &self.upper[i * d..(i + 1) * d];
-            let mut acc = x[i] * row[i];
-            for j in i + 1..d {
-                acc += x[j] * row[j];
-            }
-            x[i] = acc;
-        }
-        for i in (0..d).rev() {
-            let row = &self.lower[i * d..(i + 1) * d];
-            let mut acc = x[i] + self.bias[i];
-            for j in 0..i {
-                acc += x[j] * row[j];
-            }
-            x[i] = acc;
-        }
+    /// `x ← W x + b`; returns `log|det|`. `buffer` holds at least `d` values.
+    pub fn forward<S: Scalar>(&self, x: &mut [S], buffer: &mut [S]) -> f64 {
+        self.affine(&self.matrix, Some((&self.bias, 1.0)), x, buffer);
         self.log_det
     }
 
-    /// `x ← U⁻¹ L⁻¹ (x - b)`; returns `log|det|` of the inverse.
-    pub fn inverse<S: Scalar>(&self, x: &mut [S]) -> f64 {
-        let d = self.dim;
-        for i in 0..d {
-            let row = &self.lower[i * d..(i + 1) * d];
-            let mut acc = x[i] + (-self.bias[i]);
-            for j in 0..i {
-                acc += x[j] * (-row[j]);
-            }
-            x[i] = acc;
-        }
-        for i in (0..d).rev() {
-            let row = &self.upper[i * d..(i + 1) * d];
-            let mut acc = x[i];
-            for j in i + 1..d {
-                acc += x[j] * (-row[j]);
-            }
-            x[i] = acc * (1.0 / row[i]);
-        }
+    /// `dx ← W dx`, the tangent of [`forward`](Self::forward) (the layer is affine).
+    pub fn tangent<S: Scalar>(&self, dx: &mut [S], buffer: &mut [S]) {
+        self.affine(&self.matrix, None, dx, buffer);
+    }
+
+    /// `x ← W⁻¹ (x - b)`; returns `log|det|` of the inverse.
+    pub fn inverse<S: Scalar>(&self, x: &mut [S], buffer: &mut [S]) -> f64 {
+        self.affine(
+            &self.inverse_matrix,
+            Some((&self.inverse_shift, -1.0)),
+            x,
+            buffer,
+        );
         -self.log_det
+    }
+
+    /// `x ← M x + sign · shift`.
+    #[inline]
+    fn affine<S: Scalar>(
+        &self,
+        matrix: &[f64],
+        shift: Option<(&[f64], f64)>,
+        x: &mut [S],
+        buffer: &mut [S],
+    ) {
+        let d = self.dim;
+        let (x, buffer) = (&mut x[..d], &mut buffer[..d]);
+        for (i, out) in buffer.iter_mut().enumerate() {
+            let row = &matrix[i * d..(i + 1) * d];
+            let mut acc = S::constant(shift.map_or(0.0, |(s, sign)| sign * s[i]));
+            for (xj, w) in x.iter().zip(row) {
+                acc += *xj * *w;
+            }
+            *out = acc;
+        }
+        x.copy_from_slice(buffer);
+    }
+}
+
+/// `x ← L U x` in place (`L` unit lower-triangular, `U` upper-triangular, row-major).
+fn lu_multiply(lower: &[f64], upper: &[f64], x: &mut [f64]) {
+    let d = x.len();
+    for i in 0..d {
+        x[i] = (i..d).map(|j| upper[i * d + j] * x[j]).sum();
+    }
+    for i in (0..d).rev() {
+        x[i] += (0..i).map(|j| lower[i * d + j] * x[j]).sum::<f64>();
+    }
+}
+
+/// `x ← U⁻¹ L⁻¹ x` in place: forward then backward substitution.
+fn lu_solve(lower: &[f64], upper: &[f64], x: &mut [f64]) {
+    let d = x.len();
+    for i in 0..d {
+        x[i] -= (0..i).map(|j| lower[i * d + j] * x[j]).sum::<f64>();
+    }
+    for i in (0..d).rev() {
+        let tail: f64 = (i + 1..d).map(|j| upper[i * d + j] * x[j]).sum();
+        x[i] = (x[i] - tail) / upper[i * d + i];
     }
 }

@@ -1,15 +1,21 @@
 //! Multilayer perceptron `h_{j+1} = tanh(W_j h_j + b_j)`, linear last layer.
 //!
 //! `tanh` keeps the network smooth (the acceleration feed-forward differentiates it twice)
-//! and its Jacobian bounded. Weights are stored transposed (`[in][out]`) so each input
-//! adds a contiguous row to the output, a loop the compiler vectorises; dual-number
-//! activations are split into their `f64` components ([`Scalar::LANES`]) so `W`
-//! multiplies the values and all their derivative parts in one sweep over the weights.
+//! and its Jacobian bounded.
+//!
+//! The weights dominate the cost: a 2×64 conditioner holds ~40 KiB of them, so ten
+//! layers do not fit in the L1 cache and every pass streams them in again. Everything is
+//! therefore arranged to load each weight once per sweep and use it as often as possible:
+//! dual-number activations are split into planes of their `f64` components
+//! ([`Scalar::LANES`]) so `W` multiplies the values and all their derivative parts at
+//! once, and [`Mlp::eval_and_tangent`] evaluates one point and a Jacobian-vector product
+//! at another (recorded) point in the same sweep.
 
 use std::marker::PhantomData;
+use std::ops::Range;
 
 use super::error::FlowResult;
-use super::scalar::Scalar;
+use super::scalar::{Dual, Scalar, tanh_with};
 use super::weights::Weights;
 
 /// Names and shapes `{prefix}.{j}.weight: [out, in]`, `{prefix}.{j}.bias: [out]`, as
@@ -90,38 +96,55 @@ impl Linear {
         panels(wide, WIDE, 0).chain(panels(narrow, NARROW, self.wide_outputs))
     }
 
-    /// `out_l = W x_l + [l = 0 and with_bias] b` for the `lanes` components of the
-    /// activations, stored interleaved (`x[i * lanes + l]`, the memory layout of a `[S]`)
-    /// over the first `inputs` entries of `x` and `padded_outputs` entries of `out`.
+    /// `out_l = W x_l + [l = 0 and with_bias] b` for `lanes` component planes: plane `l`
+    /// of `x` holds `inputs` values at `l * stride`, plane `l` of `out` receives
+    /// `padded_outputs` values at `l * stride`.
     ///
-    /// The bias is a constant, so it enters the primal component only.
-    fn apply(&self, x: &[f64], lanes: usize, with_bias: bool, out: &mut [f64], simd: Simd) {
-        let (x, out) = (
-            &x[..self.inputs * lanes],
-            &mut out[..self.padded_outputs * lanes],
+    /// The bias is a constant, so it enters the primal component only. `epilogue` follows
+    /// on the outputs.
+    fn apply(
+        &self,
+        planes: Planes,
+        x: &[f64],
+        out: &mut [f64],
+        with_bias: bool,
+        epilogue: Epilogue,
+        simd: Simd,
+    ) {
+        let Planes { lanes, stride } = planes;
+        assert!(
+            lanes > 0
+                && self.inputs.max(self.padded_outputs) <= stride
+                && x.len() >= lanes * stride
+                && out.len() >= lanes * stride,
+            "activation planes too small for the layer"
         );
         match simd {
             #[cfg(target_arch = "x86_64")]
-            Simd::Avx2Fma => {
-                // SAFETY: `Simd::Avx2Fma` is only chosen once both features were detected.
-                unsafe { avx2::apply(self, x, lanes, with_bias, out) }
+            // SAFETY: `Simd::Avx2Fma` is only chosen once both features were detected, and
+            // the planes were just checked.
+            Simd::Avx2Fma => unsafe { avx2::apply(self, planes, x, out, with_bias, epilogue) },
+            Simd::Portable => {
+                self.apply_portable(planes, x, out, with_bias);
+                epilogue.apply(simd, planes, out, 0..self.padded_outputs);
             }
-            Simd::Portable => self.apply_portable(x, lanes, with_bias, out),
         }
     }
 
-    fn apply_portable(&self, x: &[f64], lanes: usize, with_bias: bool, out: &mut [f64]) {
-        for (o, outputs) in out.chunks_exact_mut(lanes).enumerate() {
-            outputs.fill(0.0);
-            if with_bias {
-                outputs[0] = self.bias[o];
+    fn apply_portable(&self, planes: Planes, x: &[f64], out: &mut [f64], with_bias: bool) {
+        let Planes { lanes, stride } = planes;
+        for l in 0..lanes {
+            let out = &mut out[l * stride..][..self.padded_outputs];
+            if with_bias && l == 0 {
+                out.copy_from_slice(&self.bias);
+            } else {
+                out.fill(0.0);
             }
-        }
-        for (first, width, panel) in self.panels() {
-            let out = &mut out[first * lanes..(first + width) * lanes];
-            for (w, x) in panel.chunks_exact(width).zip(x.chunks_exact(lanes)) {
-                for (w, outputs) in w.iter().zip(out.chunks_exact_mut(lanes)) {
-                    for (o, x) in outputs.iter_mut().zip(x) {
+            let x = &x[l * stride..][..self.inputs];
+            for (first, width, panel) in self.panels() {
+                let out = &mut out[first..first + width];
+                for (w, x) in panel.chunks_exact(width).zip(x) {
+                    for (o, w) in out.iter_mut().zip(w) {
                         *o += x * w;
                     }
                 }
@@ -130,7 +153,70 @@ impl Linear {
     }
 }
 
-/// Which instruction set [`Mlp::eval`] runs on.
+/// Activations as `lanes` planes of `stride` values (plane `l`: component `l`).
+#[derive(Clone, Copy, Debug)]
+struct Planes {
+    lanes: usize,
+    stride: usize,
+}
+
+/// What a layer applies to its outputs. The SIMD kernel runs it on each block of outputs
+/// as soon as the block is complete, so the activation's arithmetic overlaps the loads of
+/// the next block's weights.
+#[derive(Clone, Copy, Debug)]
+enum Epilogue<'a> {
+    /// Nothing: the linear output layer, or activations of more than two lanes (done by
+    /// the caller).
+    None,
+    /// `h ← tanh(h)` in plane 0 and, for `Dual<f64>` (`dual`), `ḣ ← (1 - h²) ḣ` in plane 1.
+    Tanh { dual: bool },
+    /// The tangent `ḣ ← (1 - r²) ḣ` in the last plane, with `r` the recorded activations,
+    /// and `h ← tanh(h)` in plane 0 when it holds a `primal` point.
+    Tangent { record: &'a [f64], primal: bool },
+}
+
+impl Epilogue<'_> {
+    /// Applies to outputs `range` of the planes `h`.
+    #[inline(always)]
+    fn apply(self, simd: Simd, planes: Planes, h: &mut [f64], range: Range<usize>) {
+        let (values, rest) = h.split_at_mut(planes.stride);
+        match self {
+            Self::None => {}
+            Self::Tanh { dual: false } => {
+                for v in &mut values[range] {
+                    *v = simd.tanh(*v);
+                }
+            }
+            Self::Tanh { dual: true } => {
+                for (v, d) in values[range.clone()].iter_mut().zip(&mut rest[range]) {
+                    let t = simd.tanh(*v);
+                    *v = t;
+                    *d *= 1.0 - t * t;
+                }
+            }
+            Self::Tangent {
+                record,
+                primal: false,
+            } => {
+                for (d, r) in values[range.clone()].iter_mut().zip(&record[range]) {
+                    *d *= 1.0 - r * r;
+                }
+            }
+            Self::Tangent {
+                record,
+                primal: true,
+            } => {
+                let tangents = rest[range.clone()].iter_mut().zip(&record[range.clone()]);
+                for (v, (d, r)) in values[range].iter_mut().zip(tangents) {
+                    *v = simd.tanh(*v);
+                    *d *= 1.0 - r * r;
+                }
+            }
+        }
+    }
+}
+
+/// Which instruction set the layers run on.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Simd {
     Portable,
@@ -140,13 +226,22 @@ enum Simd {
 
 impl Simd {
     fn detect() -> Self {
-        if std::env::var_os("B3_PORTABLE").is_some() { return Self::Portable; }
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             return Self::Avx2Fma;
         }
         Self::Portable
+    }
+
+    /// `tanh(x)`, with fused multiply-adds where they are single instructions.
+    #[inline(always)]
+    fn tanh(self, x: f64) -> f64 {
+        if self == Self::Portable {
+            tanh_with::<false>(x)
+        } else {
+            tanh_with::<true>(x)
+        }
     }
 }
 
@@ -161,80 +256,97 @@ impl Simd {
 mod avx2 {
     use std::arch::x86_64::*;
 
-    use super::{Linear, NARROW, WIDE};
+    use super::{Epilogue, Linear, NARROW, Planes, Simd, WIDE};
 
     /// # Safety
-    /// The CPU supports AVX2 and FMA; `x` holds `linear.inputs * lanes` values and `out`
-    /// `linear.padded_outputs * lanes`.
+    /// The CPU supports AVX2 and FMA; `x` and `out` hold `planes.lanes` planes of
+    /// `planes.stride >= max(inputs, padded_outputs)` values.
     #[target_feature(enable = "avx2,fma")]
     pub(super) unsafe fn apply(
         linear: &Linear,
+        planes: Planes,
         x: &[f64],
-        lanes: usize,
-        with_bias: bool,
         out: &mut [f64],
+        with_bias: bool,
+        epilogue: Epilogue,
     ) {
-        assert!(x.len() == linear.inputs * lanes && out.len() == linear.padded_outputs * lanes);
-        // SAFETY (all blocks): the assertion above and the panel layout of `Linear::new`
-        // keep every access in bounds.
+        // SAFETY (all blocks): the caller's guarantee and the panel layout of
+        // `Linear::new` keep every access in bounds.
         unsafe {
-            match lanes {
-                1 => lane_group::<1, 8, 4>(linear, x, 1, 0, with_bias, out),
-                2 => lane_group::<2, 4, 2>(linear, x, 2, 0, with_bias, out),
-                _ => {
-                    for first in (0..lanes).step_by(4) {
-                        lane_group::<4, 2, 1>(linear, x, lanes, first, with_bias, out);
+            match planes.lanes {
+                1 => lane_group::<1, 8, 4>(linear, planes, 0, x, out, with_bias, epilogue),
+                2 => lane_group::<2, 4, 2>(linear, planes, 0, x, out, with_bias, epilogue),
+                lanes => {
+                    if lanes % 4 == 0 {
+                        for first in (0..lanes).step_by(4) {
+                            let none = Epilogue::None;
+                            lane_group::<4, 2, 1>(linear, planes, first, x, out, with_bias, none);
+                        }
+                    } else {
+                        linear.apply_portable(planes, x, out, with_bias);
                     }
+                    let all = 0..linear.padded_outputs;
+                    epilogue.apply(Simd::Avx2Fma, planes, out, all);
                 }
             }
         }
     }
 
     /// Lanes `first..first + L`: blocks of `4 V` outputs of the wide panels, then the
-    /// narrow panels with `SPLIT` partial sums.
+    /// narrow panels with `SPLIT` partial sums; `epilogue` after each block.
     #[target_feature(enable = "avx2,fma")]
     unsafe fn lane_group<const L: usize, const V: usize, const SPLIT: usize>(
         linear: &Linear,
-        x: &[f64],
-        lanes: usize,
+        planes: Planes,
         first: usize,
-        with_bias: bool,
+        x: &[f64],
         out: &mut [f64],
+        with_bias: bool,
+        epilogue: Epilogue,
     ) {
+        let stride = planes.stride;
         let bias = (with_bias && first == 0).then_some(linear.bias.as_ptr());
         let inputs = linear.inputs;
-        let x = unsafe { x.as_ptr().add(first) };
-        let out = unsafe { out.as_mut_ptr().add(first) };
+        let x = unsafe { x.as_ptr().add(first * stride) };
         let panels = linear.panels.as_ptr();
         for start in (0..linear.wide_outputs).step_by(4 * V) {
             let panel_start = start - start % WIDE;
             let weights = unsafe { panels.add(panel_start * inputs + start - panel_start) };
-            let block = Block::<WIDE> { weights, inputs, x, lanes };
-            unsafe { block.run::<L, V, 1>(bias.map(|b| b.add(start)), out.add(start * lanes)) };
+            let block = Block::<WIDE> {
+                weights,
+                inputs,
+                x,
+                stride,
+            };
+            let at = unsafe { out.as_mut_ptr().add(first * stride + start) };
+            unsafe { block.run::<L, V, 1>(bias.map(|b| b.add(start)), at) };
+            epilogue.apply(Simd::Avx2Fma, planes, out, start..start + 4 * V);
         }
         for start in (linear.wide_outputs..linear.padded_outputs).step_by(NARROW) {
             let weights = unsafe { panels.add(start * inputs) };
-            let block = Block::<NARROW> { weights, inputs, x, lanes };
-            unsafe {
-                block.run::<L, { NARROW / 4 }, SPLIT>(
-                    bias.map(|b| b.add(start)),
-                    out.add(start * lanes),
-                )
+            let block = Block::<NARROW> {
+                weights,
+                inputs,
+                x,
+                stride,
             };
+            let at = unsafe { out.as_mut_ptr().add(first * stride + start) };
+            unsafe { block.run::<L, { NARROW / 4 }, SPLIT>(bias.map(|b| b.add(start)), at) };
+            epilogue.apply(Simd::Avx2Fma, planes, out, start..start + NARROW);
         }
     }
 
     /// A block of outputs: `weights` points at its first column in a panel of width `W`,
-    /// `x` at the first lane of input 0.
+    /// `x` at input 0 of the first lane, lane `l` at `x + l * stride`.
     struct Block<const W: usize> {
         weights: *const f64,
         inputs: usize,
         x: *const f64,
-        lanes: usize,
+        stride: usize,
     }
 
     impl<const W: usize> Block<W> {
-        /// `out[o * lanes + l] = Σ_i w[i][o] x[i * lanes + l] (+ bias[o] for l = 0)` for
+        /// `out[l * stride + o] = Σ_i w[i][o] x[l * stride + i] (+ bias[o] for l = 0)` for
         /// `o < 4 V`, `l < L`, the inputs summed in `P` interleaved partial sums.
         #[target_feature(enable = "avx2,fma")]
         unsafe fn run<const L: usize, const V: usize, const P: usize>(
@@ -259,23 +371,17 @@ mod avx2 {
             }
             let (total, partials) = acc.split_first_mut().expect("P >= 1");
             for partial in partials.iter() {
-                for (t, p) in total.as_flattened_mut().iter_mut().zip(partial.as_flattened()) {
+                for (t, p) in total
+                    .as_flattened_mut()
+                    .iter_mut()
+                    .zip(partial.as_flattened())
+                {
                     *t = _mm256_add_pd(*t, *p);
                 }
             }
-            if L == 1 && self.lanes == 1 {
-                for (v, t) in total[0].iter().enumerate() {
-                    unsafe { _mm256_storeu_pd(out.add(4 * v), *t) };
-                }
-                return;
-            }
             for (l, lane) in total.iter().enumerate() {
                 for (v, t) in lane.iter().enumerate() {
-                    let mut values = [0.0; 4];
-                    unsafe { _mm256_storeu_pd(values.as_mut_ptr(), *t) };
-                    for (k, value) in values.into_iter().enumerate() {
-                        unsafe { *out.add((4 * v + k) * self.lanes + l) = value };
-                    }
+                    unsafe { _mm256_storeu_pd(out.add(l * self.stride + 4 * v), *t) };
                 }
             }
         }
@@ -291,9 +397,8 @@ mod avx2 {
             let row = unsafe { self.weights.add(input * W) };
             let w: [__m256d; V] =
                 std::array::from_fn(|v| unsafe { _mm256_loadu_pd(row.add(4 * v)) });
-            let x = unsafe { self.x.add(input * self.lanes) };
             for (l, acc) in acc.iter_mut().enumerate() {
-                let x = unsafe { _mm256_broadcast_sd(&*x.add(l)) };
+                let x = unsafe { _mm256_broadcast_sd(&*self.x.add(l * self.stride + input)) };
                 for (a, w) in acc.iter_mut().zip(&w) {
                     *a = _mm256_fmadd_pd(x, *w, *a);
                 }
@@ -308,22 +413,24 @@ pub struct Mlp {
     layers: Vec<Linear>,
 }
 
-/// Hidden-activation buffers of an [`Mlp`] evaluation in scalar type `S`, as
-/// interleaved [`Scalar::LANES`] components (`h[j * LANES + l]`).
+/// Activation buffers of an [`Mlp`] evaluation in scalar type `S`: planes of its
+/// [`Scalar::LANES`] components.
 #[derive(Clone, Debug)]
 pub struct MlpScratch<S> {
     front: Vec<f64>,
     back: Vec<f64>,
+    stride: usize,
     scalar: PhantomData<S>,
 }
 
 impl<S: Scalar> MlpScratch<S> {
     pub fn new(mlp: &Mlp) -> Self {
         let widest_output = mlp.layers.iter().map(|l| l.padded_outputs).max();
-        let width = mlp.sizes[0].max(widest_output.unwrap_or(0));
+        let stride = mlp.sizes[0].max(widest_output.unwrap_or(0));
         Self {
-            front: vec![0.0; S::LANES * width],
-            back: vec![0.0; S::LANES * width],
+            front: vec![0.0; S::LANES * stride],
+            back: vec![0.0; S::LANES * stride],
+            stride,
             scalar: PhantomData,
         }
     }
@@ -357,24 +464,27 @@ impl Mlp {
     /// run on a 4-wide fused multiply-add kernel and the activations compile for 4-wide
     /// vectors (detected once, at run time).
     pub fn eval<S: Scalar>(&self, input: &[S], scratch: &mut MlpScratch<S>, out: &mut [S]) {
-        with_simd(|simd| self.eval_with(simd, input, scratch, out, None))
+        self.eval_dispatch(input, scratch, out, None)
     }
 
     /// Length of the record [`eval_recorded`](Self::eval_recorded) keeps.
     pub fn record_len(&self) -> usize {
-        self.hidden_layers().map(|l| l.padded_outputs).sum()
+        self.layers[..self.layers.len() - 1]
+            .iter()
+            .map(|l| l.padded_outputs)
+            .sum()
     }
 
-    /// [`eval`](Self::eval) in `f64` that keeps the hidden activations `h_j` in `record`
+    /// [`eval`](Self::eval) that keeps the (primal) hidden activations `h_j` in `record`
     /// (of [`record_len`](Self::record_len)) for [`tangent`](Self::tangent).
-    pub fn eval_recorded(
+    pub fn eval_recorded<S: Scalar>(
         &self,
-        input: &[f64],
-        scratch: &mut MlpScratch<f64>,
-        out: &mut [f64],
+        input: &[S],
+        scratch: &mut MlpScratch<S>,
+        out: &mut [S],
         record: &mut [f64],
     ) {
-        with_simd(|simd| self.eval_with(simd, input, scratch, out, Some(record)))
+        self.eval_dispatch(input, scratch, out, Some(record))
     }
 
     /// The Jacobian-vector product `dout = ∂MLP/∂x · dx` at the input of the
@@ -385,14 +495,54 @@ impl Mlp {
         &self,
         record: &[f64],
         dx: &[f64],
-        scratch: &mut MlpScratch<f64>,
+        scratch: &mut MlpScratch<Dual<f64>>,
         dout: &mut [f64],
     ) {
-        with_simd(|simd| self.tangent_with(simd, record, dx, scratch, dout))
+        self.sweep_dispatch(record, dx, dout, None, scratch)
     }
 
-    fn hidden_layers(&self) -> impl Iterator<Item = &Linear> {
-        self.layers[..self.layers.len() - 1].iter()
+    /// `out = MLP(input)` and the [`tangent`](Self::tangent) `dout` at the recorded point
+    /// in one sweep over the weights: each layer multiplies both vectors at once.
+    pub fn eval_and_tangent(
+        &self,
+        input: &[f64],
+        out: &mut [f64],
+        record: &[f64],
+        dx: &[f64],
+        dout: &mut [f64],
+        scratch: &mut MlpScratch<Dual<f64>>,
+    ) {
+        self.sweep_dispatch(record, dx, dout, Some((input, out)), scratch)
+    }
+
+    /// Runs [`eval_with`](Self::eval_with) on the best instruction set of this CPU.
+    fn eval_dispatch<S: Scalar>(
+        &self,
+        input: &[S],
+        scratch: &mut MlpScratch<S>,
+        out: &mut [S],
+        record: Option<&mut [f64]>,
+    ) {
+        match Simd::detect() {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: AVX2 and FMA support were detected.
+            Simd::Avx2Fma => unsafe { self.eval_avx2(input, scratch, out, record) },
+            Simd::Portable => self.eval_with(Simd::Portable, input, scratch, out, record),
+        }
+    }
+
+    /// [`eval_with`](Self::eval_with) compiled for AVX2 and FMA, so the activation loops
+    /// vectorise too.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn eval_avx2<S: Scalar>(
+        &self,
+        input: &[S],
+        scratch: &mut MlpScratch<S>,
+        out: &mut [S],
+        record: Option<&mut [f64]>,
+    ) {
+        self.eval_with(Simd::Avx2Fma, input, scratch, out, record)
     }
 
     #[inline(always)]
@@ -404,77 +554,223 @@ impl Mlp {
         out: &mut [S],
         mut record: Option<&mut [f64]>,
     ) {
-        let lanes = S::LANES;
+        let planes = Planes {
+            lanes: S::LANES,
+            stride: scratch.stride,
+        };
         let MlpScratch { front, back, .. } = scratch;
-        for (v, x) in input.iter().zip(front.chunks_exact_mut(lanes)) {
-            for (l, x) in x.iter_mut().enumerate() {
-                *x = v.lane(l);
+        for (j, v) in input.iter().enumerate() {
+            for l in 0..planes.lanes {
+                front[l * planes.stride + j] = v.lane(l);
             }
         }
         let (last, hidden) = self.layers.split_last().expect("an MLP has a layer");
+        let epilogue = match planes.lanes {
+            1 => Epilogue::Tanh { dual: false },
+            2 => Epilogue::Tanh { dual: true },
+            _ => Epilogue::None,
+        };
         for layer in hidden {
-            layer.apply(front, lanes, true, back, simd);
-            let h = &mut back[..layer.padded_outputs * lanes];
-            for h in h.chunks_exact_mut(lanes) {
-                let t = S::from_lanes(|l| h[l]).tanh();
-                for (l, h) in h.iter_mut().enumerate() {
-                    *h = t.lane(l);
-                }
+            layer.apply(planes, front, back, true, epilogue, simd);
+            let n = layer.padded_outputs;
+            if planes.lanes > 2 {
+                activate::<S>(planes, n, back);
             }
             if let Some(rest) = record.take() {
-                let (kept, rest) = rest.split_at_mut(layer.padded_outputs);
-                for (k, h) in kept.iter_mut().zip(h.chunks_exact(lanes)) {
-                    *k = h[0];
-                }
+                let (kept, rest) = rest.split_at_mut(n);
+                kept.copy_from_slice(&back[..n]);
                 record = Some(rest);
             }
             std::mem::swap(front, back);
         }
-        last.apply(front, lanes, true, back, simd);
-        for (o, y) in out.iter_mut().zip(back.chunks_exact(lanes)) {
-            *o = S::from_lanes(|l| y[l]);
+        last.apply(planes, front, back, true, Epilogue::None, simd);
+        for (j, o) in out.iter_mut().enumerate() {
+            *o = S::from_lanes(|l| back[l * planes.stride + j]);
         }
     }
 
+    /// Runs [`sweep_with`](Self::sweep_with) on the best instruction set of this CPU.
+    fn sweep_dispatch(
+        &self,
+        record: &[f64],
+        dx: &[f64],
+        dout: &mut [f64],
+        primal: Option<(&[f64], &mut [f64])>,
+        scratch: &mut MlpScratch<Dual<f64>>,
+    ) {
+        match Simd::detect() {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: AVX2 and FMA support were detected.
+            Simd::Avx2Fma => unsafe { self.sweep_avx2(record, dx, dout, primal, scratch) },
+            Simd::Portable => self.sweep_with(Simd::Portable, record, dx, dout, primal, scratch),
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn sweep_avx2(
+        &self,
+        record: &[f64],
+        dx: &[f64],
+        dout: &mut [f64],
+        primal: Option<(&[f64], &mut [f64])>,
+        scratch: &mut MlpScratch<Dual<f64>>,
+    ) {
+        self.sweep_with(Simd::Avx2Fma, record, dx, dout, primal, scratch)
+    }
+
+    /// The tangent along `dx` at the recorded point, in the last plane, and when `primal`
+    /// is given its evaluation in plane 0.
     #[inline(always)]
-    fn tangent_with(
+    fn sweep_with(
         &self,
         simd: Simd,
         record: &[f64],
         dx: &[f64],
-        scratch: &mut MlpScratch<f64>,
         dout: &mut [f64],
+        primal: Option<(&[f64], &mut [f64])>,
+        scratch: &mut MlpScratch<Dual<f64>>,
     ) {
+        let with_primal = primal.is_some();
+        let planes = Planes {
+            lanes: 1 + usize::from(with_primal),
+            stride: scratch.stride,
+        };
+        let tangent = (planes.lanes - 1) * planes.stride;
         let MlpScratch { front, back, .. } = scratch;
-        front[..dx.len()].copy_from_slice(dx);
+        front[tangent..tangent + dx.len()].copy_from_slice(dx);
+        if let Some((input, _)) = &primal {
+            front[..input.len()].copy_from_slice(input);
+        }
         let (last, hidden) = self.layers.split_last().expect("an MLP has a layer");
         let mut record = record;
         for layer in hidden {
-            layer.apply(front, 1, false, back, simd);
             let (h, rest) = record.split_at(layer.padded_outputs);
-            for (d, h) in back.iter_mut().zip(h) {
-                *d *= 1.0 - h * h;
-            }
+            let epilogue = Epilogue::Tangent {
+                record: h,
+                primal: with_primal,
+            };
+            layer.apply(planes, front, back, with_primal, epilogue, simd);
             record = rest;
             std::mem::swap(front, back);
         }
-        last.apply(front, 1, false, back, simd);
-        dout.copy_from_slice(&back[..dout.len()]);
+        last.apply(planes, front, back, with_primal, Epilogue::None, simd);
+        dout.copy_from_slice(&back[tangent..tangent + dout.len()]);
+        if let Some((_, out)) = primal {
+            out.copy_from_slice(&back[..out.len()]);
+        }
     }
 }
 
-/// Runs `f` with the best instruction set of this CPU; for AVX2 + FMA, `f` is inlined into
-/// a function compiled for them, so its loops vectorise with fused multiply-adds.
+/// `h ← tanh(h)` on the first `n` entries of the component planes `h`, for scalars of
+/// more than two lanes (nested duals; one and two lanes are the layers' [`Epilogue`]).
 #[inline(always)]
-fn with_simd<R>(f: impl FnOnce(Simd) -> R) -> R {
-    #[cfg(target_arch = "x86_64")]
-    if Simd::detect() == Simd::Avx2Fma {
-        #[target_feature(enable = "avx2,fma")]
-        fn avx2_fma<R>(f: impl FnOnce(Simd) -> R) -> R {
-            f(Simd::Avx2Fma)
+fn activate<S: Scalar>(planes: Planes, n: usize, h: &mut [f64]) {
+    for j in 0..n {
+        let t = S::from_lanes(|l| h[l * planes.stride + j]).tanh();
+        for l in 0..planes.lanes {
+            h[l * planes.stride + j] = t.lane(l);
         }
-        // SAFETY: AVX2 and FMA support were detected.
-        return unsafe { avx2_fma(f) };
     }
-    f(Simd::Portable)
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    use super::*;
+
+    type Dual2 = Dual<Dual<f64>>;
+
+    /// Odd sizes so both panel widths, the padding and the partial-sum tails are used.
+    fn random_mlp(sizes: &[usize], seed: u64) -> Mlp {
+        let shapes = mlp_parameter_shapes("net", sizes);
+        let mut weights = Weights::random(&shapes, 1.0, &mut ChaCha8Rng::seed_from_u64(seed));
+        Mlp::from_weights(&mut weights, "net", sizes).unwrap()
+    }
+
+    fn inputs<S: Scalar>(n: usize, offset: f64) -> Vec<S> {
+        (0..n)
+            .map(|i| S::from_lanes(|l| ((i * 7 + l * 3) as f64 * 0.37 + offset).sin()))
+            .collect()
+    }
+
+    fn assert_close<S: Scalar>(a: &[S], b: &[S], tolerance: f64) {
+        for (a, b) in a.iter().zip(b) {
+            for l in 0..S::LANES {
+                let (x, y) = (a.lane(l), b.lane(l));
+                assert!((x - y).abs() <= tolerance * (1.0 + y.abs()), "{x} vs {y}");
+            }
+        }
+    }
+
+    /// The best kernel of this CPU against the portable one, in `S`.
+    fn check_kernels<S: Scalar>(mlp: &Mlp) {
+        let x = inputs::<S>(mlp.input_dim(), 0.1);
+        let mut scratch = MlpScratch::new(mlp);
+        let zero = S::constant(0.0);
+        let (mut fast, mut portable) = (vec![zero; mlp.output_dim()], vec![zero; mlp.output_dim()]);
+        mlp.eval(&x, &mut scratch, &mut fast);
+        mlp.eval_with(Simd::Portable, &x, &mut scratch, &mut portable, None);
+        assert_close(&fast, &portable, 1e-12);
+    }
+
+    #[test]
+    fn simd_kernel_matches_the_portable_one_for_every_lane_count() {
+        for (k, sizes) in [[5, 37, 70, 13], [9, 64, 64, 92], [2, 8, 3, 1]]
+            .iter()
+            .enumerate()
+        {
+            let mlp = random_mlp(sizes, k as u64);
+            check_kernels::<f64>(&mlp);
+            check_kernels::<Dual<f64>>(&mlp);
+            check_kernels::<Dual2>(&mlp);
+            check_kernels::<Dual<Dual2>>(&mlp);
+        }
+    }
+
+    #[test]
+    fn recorded_tangents_match_dual_numbers() {
+        let mlp = random_mlp(&[6, 37, 70, 13], 7);
+        let (n, m) = (mlp.input_dim(), mlp.output_dim());
+        let (x, dx, other) = (
+            inputs::<f64>(n, 0.1),
+            inputs::<f64>(n, 2.0),
+            inputs::<f64>(n, 4.0),
+        );
+        let mut record = vec![0.0; mlp.record_len()];
+        let mut scratch = MlpScratch::new(&mlp);
+        let mut out = vec![0.0; m];
+        mlp.eval_recorded(&x, &mut scratch, &mut out, &mut record);
+
+        let duals: Vec<Dual<f64>> = x.iter().zip(&dx).map(|(a, b)| Dual::new(*a, *b)).collect();
+        let mut expected = vec![Dual::new(0.0, 0.0); m];
+        mlp.eval(&duals, &mut MlpScratch::new(&mlp), &mut expected);
+        let expected_tangent: Vec<f64> = expected.iter().map(|d| d.du).collect();
+        assert_close(
+            &out,
+            &expected.iter().map(|d| d.re).collect::<Vec<_>>(),
+            1e-12,
+        );
+
+        let mut pair_scratch = MlpScratch::new(&mlp);
+        let mut tangent = vec![0.0; m];
+        mlp.tangent(&record, &dx, &mut pair_scratch, &mut tangent);
+        assert_close(&tangent, &expected_tangent, 1e-12);
+
+        let (mut other_out, mut fused_tangent) = (vec![0.0; m], vec![0.0; m]);
+        mlp.eval_and_tangent(
+            &other,
+            &mut other_out,
+            &record,
+            &dx,
+            &mut fused_tangent,
+            &mut pair_scratch,
+        );
+        let mut other_expected = vec![0.0; m];
+        mlp.eval(&other, &mut scratch, &mut other_expected);
+        assert_close(&other_out, &other_expected, 1e-12);
+        assert_close(&fused_tangent, &expected_tangent, 1e-12);
+    }
 }

@@ -8,7 +8,7 @@
 //! each `c`, `f(·, c)` is a bijection with `log|det ∂f/∂z| = Σ log σ_y + log|det ∂g/∂z|`.
 
 use super::config::FlowConfig;
-use super::coupling::{Coupling, CouplingScratch};
+use super::coupling::{Coupling, CouplingRecord, CouplingScratch, TangentScratch};
 use super::error::{FlowResult, check_input};
 use super::mixing::LuMixing;
 use super::scalar::Scalar;
@@ -44,6 +44,14 @@ impl Conditioning {
     pub fn normalised(&self) -> &[f64] {
         &self.normalised
     }
+}
+
+/// Primal values of an inverse pass `z = f⁻¹(y, c)`, kept so Jacobian-vector products
+/// at `z` ([`ConditionalFlow::tangent`]) need no second pass through the conditioners:
+/// the forward pass at `z` meets the same coupling inputs the inverse pass saw.
+#[derive(Clone, Debug)]
+pub struct FlowTape {
+    couplings: Vec<CouplingRecord>,
 }
 
 impl ConditionalFlow {
@@ -83,10 +91,26 @@ impl ConditionalFlow {
     ) -> S {
         let mut log_det = S::constant(0.0);
         for (mixing, coupling) in &self.blocks {
-            log_det = log_det + mixing.forward(x);
+            log_det = log_det + mixing.forward(x, &mut scratch.state);
             log_det += coupling.forward(x, context, scratch);
         }
         log_det
+    }
+
+    /// A tape for [`inverse_recorded`](Self::inverse_recorded).
+    pub fn tape(&self) -> FlowTape {
+        FlowTape {
+            couplings: self
+                .blocks
+                .iter()
+                .map(|(_, c)| CouplingRecord::new(c))
+                .collect(),
+        }
+    }
+
+    /// Scratch for [`tangent`](Self::tangent).
+    pub fn tangent_scratch(&self) -> TangentScratch {
+        TangentScratch::new(&self.blocks[0].1)
     }
 
     /// `x ← g⁻¹(x, c̃)`; returns `log|det ∂g⁻¹/∂x|`.
@@ -99,9 +123,23 @@ impl ConditionalFlow {
         let mut log_det = S::constant(0.0);
         for (mixing, coupling) in self.blocks.iter().rev() {
             log_det += coupling.inverse(x, context, scratch);
-            log_det = log_det + mixing.inverse(x);
+            log_det = log_det + mixing.inverse(x, &mut scratch.state);
         }
         log_det
+    }
+
+    /// `x ← g⁻¹(x, c̃)`, recording into `tape` (no log-determinant).
+    fn g_inverse_recorded(
+        &self,
+        x: &mut [f64],
+        context: &[f64],
+        scratch: &mut CouplingScratch<f64>,
+        tape: &mut FlowTape,
+    ) {
+        for ((mixing, coupling), record) in self.blocks.iter().zip(&mut tape.couplings).rev() {
+            coupling.inverse_recorded(x, context, scratch, record);
+            mixing.inverse(x, &mut scratch.state);
+        }
     }
 
     /// Validates the raw context `c` and prepares `conditioning` for it.
@@ -162,11 +200,96 @@ impl ConditionalFlow {
         scratch: &mut CouplingScratch<S>,
         z: &mut [S],
     ) -> S {
+        self.normalise_state(y, conditioning, z);
+        self.g_inverse(z, &conditioning.normalised, scratch) + (-self.log_state_scale)
+    }
+
+    /// `z = f⁻¹(y, c)`, recording in `tape` what [`tangent`](Self::tangent) needs at that
+    /// `z` (no log-determinant).
+    pub fn inverse_recorded(
+        &self,
+        y: &[f64],
+        conditioning: &Conditioning,
+        scratch: &mut CouplingScratch<f64>,
+        z: &mut [f64],
+        tape: &mut FlowTape,
+    ) {
+        self.normalise_state(y, conditioning, z);
+        self.g_inverse_recorded(z, &conditioning.normalised, scratch, tape);
+    }
+
+    /// `z ← (y - μ_y) ⊘ σ_y - o(c)`, the input of `g⁻¹`.
+    fn normalise_state<S: Scalar>(&self, y: &[S], conditioning: &Conditioning, z: &mut [S]) {
         let norm = &self.config.normalisation;
         for (i, zi) in z.iter_mut().enumerate() {
             *zi = (y[i] + (-norm.state_mean[i])) * (1.0 / norm.state_std[i])
                 + (-conditioning.offset[i]);
         }
-        self.g_inverse(z, &conditioning.normalised, scratch) + (-self.log_state_scale)
+    }
+
+    /// The Jacobian-vector product `dy = ∂f(z, c)/∂z · dz` at the `z` of the
+    /// [`inverse_recorded`](Self::inverse_recorded) call that filled `tape`:
+    /// `dy = σ_y ⊙ J_g dz`, one tangent sweep through the blocks in forward order.
+    pub fn tangent(
+        &self,
+        tape: &FlowTape,
+        dz: &[f64],
+        scratch: &mut TangentScratch,
+        dy: &mut [f64],
+    ) {
+        self.sweep(tape, dz, scratch, dy, None);
+    }
+
+    /// `y' = f(z', c)` and the [`tangent`](Self::tangent) `dy` at the recorded `z`, in
+    /// one sweep over the weights (each conditioner multiplies both vectors at once);
+    /// `c` is the context of the recorded pass.
+    #[allow(clippy::too_many_arguments)]
+    pub fn forward_with_tangent(
+        &self,
+        tape: &FlowTape,
+        z_other: &[f64],
+        conditioning: &Conditioning,
+        dz: &[f64],
+        scratch: &mut TangentScratch,
+        y_other: &mut [f64],
+        dy: &mut [f64],
+    ) {
+        y_other.copy_from_slice(z_other);
+        self.sweep(
+            tape,
+            dz,
+            scratch,
+            dy,
+            Some((y_other, &conditioning.normalised)),
+        );
+        let norm = &self.config.normalisation;
+        for (i, yi) in y_other.iter_mut().enumerate() {
+            *yi = (*yi + conditioning.offset[i]) * norm.state_std[i] + norm.state_mean[i];
+        }
+    }
+
+    /// `dy ← σ_y ⊙ J_g dz` and, when given, `x ← g(x, c̃)`.
+    fn sweep(
+        &self,
+        tape: &FlowTape,
+        dz: &[f64],
+        scratch: &mut TangentScratch,
+        dy: &mut [f64],
+        mut primal: Option<(&mut [f64], &[f64])>,
+    ) {
+        dy.copy_from_slice(dz);
+        for ((mixing, coupling), record) in self.blocks.iter().zip(&tape.couplings) {
+            mixing.tangent(dy, &mut scratch.state);
+            match primal.as_mut() {
+                Some((x, context)) => {
+                    mixing.forward(x, &mut scratch.state);
+                    coupling.forward_with_tangent(x, context, record, dy, scratch);
+                }
+                None => coupling.tangent(record, dy, scratch),
+            }
+        }
+        for (d, s) in dy.iter_mut().zip(&self.config.normalisation.state_std) {
+            *d *= s;
+        }
     }
 }

@@ -9,10 +9,10 @@ use rand::Rng;
 
 use super::checkpoint;
 use super::config::{CheckpointConfig, FlowConfig, LatentKind};
-use super::coupling::CouplingScratch;
+use super::coupling::{CouplingScratch, TangentScratch};
 use super::error::{FlowError, FlowResult, check_input};
 use super::latent::LatentDynamics;
-use super::network::{ConditionalFlow, Conditioning};
+use super::network::{ConditionalFlow, Conditioning, FlowTape};
 use super::scalar::Dual;
 use super::weights::Weights;
 
@@ -31,6 +31,9 @@ pub struct PolicyWorkspace {
     scratch: CouplingScratch<f64>,
     scratch_dual: CouplingScratch<Dual<f64>>,
     scratch_dual2: CouplingScratch<Dual2>,
+    /// The last inverse pass, for Jacobian-vector products at its `z`.
+    tape: FlowTape,
+    tangent: TangentScratch,
     z: Vec<f64>,
     z_next: Vec<f64>,
     /// `z_k` of a transition while `z` holds `z_{k-1}`.
@@ -86,6 +89,8 @@ impl Policy {
             scratch: self.flow.scratch(),
             scratch_dual: self.flow.scratch(),
             scratch_dual2: self.flow.scratch(),
+            tape: self.flow.tape(),
+            tangent: self.flow.tangent_scratch(),
             z: vec![0.0; d],
             z_next: vec![0.0; d],
             z_later: vec![0.0; d],
@@ -178,8 +183,10 @@ impl Policy {
         Ok(())
     }
 
-    /// Desired velocity `ẏ_des = J_f(z) v(z)` at `z = f⁻¹(y, c)`: one forward pass in
-    /// dual numbers seeded with the latent velocity.
+    /// Desired velocity `ẏ_des = J_f(z) v(z)` at `z = f⁻¹(y, c)`: the inverse pass keeps
+    /// its conditioner activations, and one tangent sweep through `f` seeded with the
+    /// latent velocity reuses them (the forward pass at `z` meets the same coupling
+    /// inputs the inverse pass saw).
     pub fn velocity(
         &self,
         y: &[f64],
@@ -188,25 +195,28 @@ impl Policy {
         out: &mut [f64],
     ) -> FlowResult<()> {
         self.check_output(out)?;
-        self.invert(y, context, ws)?;
-        self.latent.velocity(&ws.z, &mut ws.latent_velocity);
-        for ((d, z), v) in ws.dual_z.iter_mut().zip(&ws.z).zip(&ws.latent_velocity) {
-            *d = Dual::new(*z, *v);
-        }
-        self.flow.forward(
-            &ws.dual_z,
+        check_input("state", self.config().state_dim, y)?;
+        self.flow
+            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        self.flow.inverse_recorded(
+            y,
             &ws.conditioning,
-            &mut ws.scratch_dual,
-            &mut ws.dual,
+            &mut ws.scratch,
+            &mut ws.z,
+            &mut ws.tape,
         );
-        for (o, d) in out.iter_mut().zip(&ws.dual) {
-            *o = d.du;
-        }
+        self.latent.velocity(&ws.z, &mut ws.latent_velocity);
+        self.flow
+            .tangent(&ws.tape, &ws.latent_velocity, &mut ws.tangent, out);
         Ok(())
     }
 
-    /// The full policy action of the benchmark: writes the mean next state and the
-    /// desired velocity (inverse, latent step, forward, and the Jacobian-vector product).
+    /// The full policy action of the benchmark: writes the mean next state
+    /// `f(μ(z), c)` and the desired velocity `J_f(z) v(z)`, `z = f⁻¹(y, c)`.
+    ///
+    /// Two sweeps over the weights: the inverse pass records its activations, then one
+    /// forward sweep evaluates `f(μ(z), c)` and, with the same weight loads, the tangent
+    /// at `z` from the record (see [`velocity`](Self::velocity)).
     pub fn act(
         &self,
         y: &[f64],
@@ -215,11 +225,29 @@ impl Policy {
         next: &mut [f64],
         velocity: &mut [f64],
     ) -> FlowResult<()> {
-        self.velocity(y, context, ws, velocity)?;
         self.check_output(next)?;
-        self.latent.mean_step(&ws.z, &mut ws.z_next);
+        self.check_output(velocity)?;
+        check_input("state", self.config().state_dim, y)?;
         self.flow
-            .forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, next);
+            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        self.flow.inverse_recorded(
+            y,
+            &ws.conditioning,
+            &mut ws.scratch,
+            &mut ws.z,
+            &mut ws.tape,
+        );
+        self.latent.velocity(&ws.z, &mut ws.latent_velocity);
+        self.latent.mean_step(&ws.z, &mut ws.z_next);
+        self.flow.forward_with_tangent(
+            &ws.tape,
+            &ws.z_next,
+            &ws.conditioning,
+            &ws.latent_velocity,
+            &mut ws.tangent,
+            next,
+            velocity,
+        );
         Ok(())
     }
 
@@ -377,5 +405,60 @@ impl Policy {
     ) -> FlowResult<f64> {
         let log_det = self.invert(y0, context, ws)?;
         Ok(self.latent.log_initial(&ws.z) + log_det)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    use super::*;
+    use crate::flow::CouplingKind;
+
+    /// `act` shares one forward sweep between the mean step and the velocity; it must give
+    /// what `mean_next` and `velocity` give separately.
+    #[test]
+    fn act_is_the_mean_next_state_and_the_desired_velocity() {
+        let couplings = [
+            CouplingKind::Affine { scale_bound: 2.0 },
+            CouplingKind::Spline {
+                bins: 8,
+                tail_bound: 3.0,
+            },
+        ];
+        for (k, coupling) in couplings.into_iter().enumerate() {
+            for latent in [LatentKind::GoTo, LatentKind::LimitCycle] {
+                let mut config =
+                    FlowConfig::new("act", 5, 3, latent, coupling.clone(), 4, vec![19, 33]);
+                if latent == LatentKind::GoTo {
+                    config.goal_context_indices = Some(vec![2, 0, 1, 2, 0]);
+                }
+                let mut rng = ChaCha8Rng::seed_from_u64(k as u64);
+                let weights = Weights::random(&config.parameter_shapes(), 1.0, &mut rng);
+                let policy = Policy::new(&config, weights).unwrap();
+                let mut ws = policy.workspace();
+                let y = [0.3, -1.2, 0.8, 2.5, -0.4];
+                let context = [0.2, -0.7, 0.5];
+                let (mut next, mut velocity) = ([0.0; 5], [0.0; 5]);
+                let (mut expected_next, mut expected_velocity) = ([0.0; 5], [0.0; 5]);
+                policy
+                    .act(&y, &context, &mut ws, &mut next, &mut velocity)
+                    .unwrap();
+                policy
+                    .mean_next(&y, &context, &mut ws, &mut expected_next)
+                    .unwrap();
+                policy
+                    .velocity(&y, &context, &mut ws, &mut expected_velocity)
+                    .unwrap();
+                for (a, b) in next.iter().zip(&expected_next) {
+                    assert!((a - b).abs() < 1e-12 * (1.0 + b.abs()), "{a} vs {b}");
+                }
+                for (a, b) in velocity.iter().zip(&expected_velocity) {
+                    assert!((a - b).abs() < 1e-12 * (1.0 + b.abs()), "{a} vs {b}");
+                }
+                assert!(velocity.iter().any(|v| v.abs() > 1e-3));
+            }
+        }
     }
 }

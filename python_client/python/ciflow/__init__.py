@@ -5,7 +5,8 @@
     import gymnasium as gym
     import ciflow
 
-    env = gym.make("ciflow/Pouring-v0", context=[0.5, 0.1], render_mode="rgb_array")
+    # context: the pot pose (x, y, z in m; roll, pitch, yaw in rad)
+    env = gym.make("ciflow/Pouring-v0", context=[0.5, 0.0, 0.05, 0.0, 0.0, 0.3], render_mode="rgb_array")
     envs = gym.make_vec("ciflow/LimitCycle-v0", num_envs=1024)   # one request per step
 
 The environments live in an engine. ``engine=`` (or ``CIFLOW_ENGINE``) selects one:

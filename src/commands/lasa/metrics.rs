@@ -106,9 +106,9 @@ mod tests {
     }
 
     #[test]
-    fn dtw_forgives_timing_but_the_swept_area_does_not() {
+    fn dtw_forgives_timing_but_the_final_point_error_does_not() {
         let demo = line(21, 0.0);
-        // The same path, lingering at its start: DTW aligns it, SEA sees the lag.
+        // The same path, lingering at its start: DTW aligns it, the time-aligned end lags.
         let mut slow = vec![[0.0, 0.0]; 5];
         slow.extend(line(21, 0.0));
         assert_eq!(dtw_distance(&slow, &demo), 0.0);
