@@ -107,11 +107,11 @@ def main():
     if len(datasets) > 1 and "Lasa" not in env_id:
         raise SystemExit(f"one dataset at a time for {env_id}")
     episodes = list(dataset.iterate_episodes())[: args.episodes]
-    fig, axes = plt.subplots(2, 5, figsize=(20, 8) if "Pouring" not in env_id else (20, 8))
+    fig, axes = plt.subplots(2, 5, figsize=(20, 8))
     axes = axes.ravel()
     if "LimitCycle" in env_id:
         used = plot_limit_cycle(list(dataset.iterate_episodes()), axes)
-    elif "ObstacleAvoidance" in env_id:
+    elif "Obstacle" in env_id:
         used = plot_obstacles(episodes[:10], axes)
     elif "Lasa" in env_id:
         plt.close(fig)
