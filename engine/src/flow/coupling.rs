@@ -13,6 +13,8 @@ use std::ops::Range;
 use super::affine::AffineTransform;
 use super::config::{CouplingKind, FlowConfig};
 use super::error::FlowResult;
+#[cfg(target_arch = "x86_64")]
+use super::mlp::has_avx2_fma;
 use super::mlp::{Mlp, MlpScratch};
 use super::scalar::{Dual, Scalar};
 use super::spline::SplineTransform;
@@ -117,7 +119,7 @@ impl CouplingRecord {
 /// Buffers of [`Coupling::tangent`] and [`Coupling::forward_with_tangent`].
 #[derive(Clone, Debug)]
 pub struct TangentScratch {
-    /// A state-sized buffer for the layers around the coupling (the mixing).
+    /// Two state-sized buffers for the layers around the coupling (the mixing).
     pub(super) state: Vec<f64>,
     input: Vec<f64>,
     input_tangent: Vec<f64>,
@@ -138,7 +140,7 @@ impl TangentScratch {
         );
         let transform = coupling.transform.scratch_len();
         Self {
-            state: vec![0.0; coupling.state_dim()],
+            state: vec![0.0; 2 * coupling.state_dim()],
             input: vec![0.0; inputs],
             input_tangent: vec![0.0; inputs],
             params: vec![0.0; outputs],
@@ -183,28 +185,33 @@ impl Coupling {
         self.kept.len() + self.transformed.len()
     }
 
+    /// Length of the context bias [`fold_context`](Self::fold_context) writes.
+    pub fn context_bias_len(&self) -> usize {
+        self.conditioner.folded_bias_len()
+    }
+
+    /// The conditioner's first-layer bias with the (normalised) context folded in, the
+    /// form every evaluation takes its context in: the context is the same for all the
+    /// points of a step, so its columns of the first layer are read once per context.
+    pub fn fold_context(&self, context: &[f64], context_bias: &mut [f64]) {
+        self.conditioner.fold_trailing_inputs(context, context_bias);
+    }
+
     fn condition<S: Scalar>(
         &self,
         x: &[S],
-        context: &[f64],
+        context_bias: &[f64],
         scratch: &mut CouplingScratch<S>,
         record: Option<&mut CouplingRecord>,
     ) {
         let kept = self.kept.len();
         scratch.input[..kept].copy_from_slice(&x[self.kept.clone()]);
-        for (slot, c) in scratch.input[kept..].iter_mut().zip(context) {
-            *slot = S::constant(*c);
-        }
         let CouplingScratch {
             input, params, mlp, ..
         } = scratch;
-        match record {
-            Some(record) => {
-                self.conditioner
-                    .eval_recorded(input, mlp, params, &mut record.activations)
-            }
-            None => self.conditioner.eval(input, mlp, params),
-        }
+        let activations = record.map(|r| &mut r.activations[..]);
+        self.conditioner
+            .eval_folded(&input[..kept], context_bias, mlp, params, activations);
     }
 
     /// Applies `h` (or `h⁻¹` when `inverse`) in place; returns the log-determinant, or
@@ -215,17 +222,17 @@ impl Coupling {
     fn apply<S: Scalar>(
         &self,
         x: &mut [S],
-        context: &[f64],
+        context_bias: &[f64],
         scratch: &mut CouplingScratch<S>,
         inverse: bool,
         record: Option<&mut CouplingRecord>,
     ) -> S {
         #[cfg(target_arch = "x86_64")]
-        if avx2_fma() {
+        if has_avx2_fma() {
             // SAFETY: AVX2 and FMA support were detected.
-            return unsafe { self.apply_avx2(x, context, scratch, inverse, record) };
+            return unsafe { self.apply_avx2(x, context_bias, scratch, inverse, record) };
         }
-        self.apply_with(x, context, scratch, inverse, record)
+        self.apply_with(x, context_bias, scratch, inverse, record)
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -233,25 +240,25 @@ impl Coupling {
     fn apply_avx2<S: Scalar>(
         &self,
         x: &mut [S],
-        context: &[f64],
+        context_bias: &[f64],
         scratch: &mut CouplingScratch<S>,
         inverse: bool,
         record: Option<&mut CouplingRecord>,
     ) -> S {
-        self.apply_with(x, context, scratch, inverse, record)
+        self.apply_with(x, context_bias, scratch, inverse, record)
     }
 
     #[inline(always)]
     fn apply_with<S: Scalar>(
         &self,
         x: &mut [S],
-        context: &[f64],
+        context_bias: &[f64],
         scratch: &mut CouplingScratch<S>,
         inverse: bool,
         mut record: Option<&mut CouplingRecord>,
     ) -> S {
         let want_log_det = record.is_none();
-        self.condition(x, context, scratch, record.as_deref_mut());
+        self.condition(x, context_bias, scratch, record.as_deref_mut());
         let mut log_det = S::constant(0.0);
         let params = scratch.params.chunks_exact(self.params_per_dim);
         for (i, (xi, theta)) in x[self.transformed.clone()]
@@ -280,20 +287,20 @@ impl Coupling {
     pub fn forward<S: Scalar>(
         &self,
         x: &mut [S],
-        context: &[f64],
+        context_bias: &[f64],
         scratch: &mut CouplingScratch<S>,
     ) -> S {
-        self.apply(x, context, scratch, false, None)
+        self.apply(x, context_bias, scratch, false, None)
     }
 
     /// `x ← coupling⁻¹(x)`; returns `log|det ∂x/∂y|`.
     pub fn inverse<S: Scalar>(
         &self,
         x: &mut [S],
-        context: &[f64],
+        context_bias: &[f64],
         scratch: &mut CouplingScratch<S>,
     ) -> S {
-        self.apply(x, context, scratch, true, None)
+        self.apply(x, context_bias, scratch, true, None)
     }
 
     /// `x ← coupling⁻¹(x)`, keeping in `record` what [`tangent`](Self::tangent) needs at
@@ -301,11 +308,11 @@ impl Coupling {
     pub fn inverse_recorded<S: Scalar>(
         &self,
         x: &mut [S],
-        context: &[f64],
+        context_bias: &[f64],
         scratch: &mut CouplingScratch<S>,
         record: &mut CouplingRecord,
     ) {
-        self.apply(x, context, scratch, true, Some(record));
+        self.apply(x, context_bias, scratch, true, Some(record));
     }
 
     /// `dx ← ∂coupling/∂x · dx` at the point `record` was taken (the context is fixed):
@@ -320,12 +327,12 @@ impl Coupling {
     pub fn forward_with_tangent(
         &self,
         x: &mut [f64],
-        context: &[f64],
+        context_bias: &[f64],
         record: &CouplingRecord,
         dx: &mut [f64],
         scratch: &mut TangentScratch,
     ) {
-        self.sweep(record, dx, Some((x, context)), scratch);
+        self.sweep(record, dx, Some((x, context_bias)), scratch);
     }
 
     /// Tangent, and primal when given, in place; dispatched like [`apply`](Self::apply).
@@ -337,7 +344,7 @@ impl Coupling {
         scratch: &mut TangentScratch,
     ) {
         #[cfg(target_arch = "x86_64")]
-        if avx2_fma() {
+        if has_avx2_fma() {
             // SAFETY: AVX2 and FMA support were detected.
             return unsafe { self.sweep_avx2(record, dx, primal, scratch) };
         }
@@ -366,7 +373,6 @@ impl Coupling {
     ) {
         let kept = self.kept.len();
         scratch.input_tangent[..kept].copy_from_slice(&dx[self.kept.clone()]);
-        scratch.input_tangent[kept..].fill(0.0);
         let TangentScratch {
             input,
             input_tangent,
@@ -376,22 +382,24 @@ impl Coupling {
             ..
         } = scratch;
         match &primal {
-            Some((x, context)) => {
+            Some((x, context_bias)) => {
                 input[..kept].copy_from_slice(&x[self.kept.clone()]);
-                input[kept..].copy_from_slice(context);
                 self.conditioner.eval_and_tangent(
-                    input,
+                    &input[..kept],
+                    context_bias,
                     params,
                     &record.activations,
-                    input_tangent,
+                    &input_tangent[..kept],
                     params_tangent,
                     mlp,
                 );
             }
-            None => {
-                self.conditioner
-                    .tangent(&record.activations, input_tangent, mlp, params_tangent)
-            }
+            None => self.conditioner.tangent(
+                &record.activations,
+                &input_tangent[..kept],
+                mlp,
+                params_tangent,
+            ),
         }
         for ((d, p), dp) in scratch
             .dual_params
@@ -424,10 +432,4 @@ impl Coupling {
             }
         }
     }
-}
-
-/// Whether this CPU has AVX2 and FMA (detected once, then cached by the standard library).
-#[cfg(target_arch = "x86_64")]
-fn avx2_fma() -> bool {
-    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }

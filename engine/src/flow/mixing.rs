@@ -72,6 +72,25 @@ impl LuMixing {
         self.affine(&self.matrix, None, dx, buffer);
     }
 
+    /// `x ← W x + b` and `dx ← W dx` in one sweep over `W`; `buffer` holds `2 d` values.
+    pub fn forward_with_tangent(&self, x: &mut [f64], dx: &mut [f64], buffer: &mut [f64]) {
+        let d = self.dim;
+        let (x, dx) = (&mut x[..d], &mut dx[..d]);
+        let (values, tangents) = buffer[..2 * d].split_at_mut(d);
+        for (i, (value, tangent)) in values.iter_mut().zip(tangents.iter_mut()).enumerate() {
+            let row = &self.matrix[i * d..(i + 1) * d];
+            let (mut acc, mut acc_tangent) = (self.bias[i], 0.0);
+            for ((w, xj), dj) in row.iter().zip(&*x).zip(&*dx) {
+                acc += xj * w;
+                acc_tangent += dj * w;
+            }
+            *value = acc;
+            *tangent = acc_tangent;
+        }
+        x.copy_from_slice(values);
+        dx.copy_from_slice(tangents);
+    }
+
     /// `x ← W⁻¹ (x - b)`; returns `log|det|` of the inverse.
     pub fn inverse<S: Scalar>(&self, x: &mut [S], buffer: &mut [S]) -> f64 {
         self.affine(

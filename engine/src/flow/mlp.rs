@@ -12,7 +12,6 @@
 //! at another (recorded) point in the same sweep.
 
 use std::marker::PhantomData;
-use std::ops::Range;
 
 use super::error::FlowResult;
 use super::scalar::{Dual, Scalar, tanh_with};
@@ -96,24 +95,27 @@ impl Linear {
         panels(wide, WIDE, 0).chain(panels(narrow, NARROW, self.wide_outputs))
     }
 
-    /// `out_l = W x_l + [l = 0 and with_bias] b` for `lanes` component planes: plane `l`
+    /// `out_l = W[:, ..inputs] x_l + [l = 0] bias` for `lanes` component planes: plane `l`
     /// of `x` holds `inputs` values at `l * stride`, plane `l` of `out` receives
-    /// `padded_outputs` values at `l * stride`.
+    /// `padded_outputs` values at `l * stride`. Inputs past `inputs` are taken as fixed
+    /// and folded into `bias` ([`Mlp::fold_trailing_inputs`]).
     ///
-    /// The bias is a constant, so it enters the primal component only. `epilogue` follows
-    /// on the outputs.
+    /// The bias is a constant, so it enters the primal component only (`None`: tangents).
     fn apply(
         &self,
         planes: Planes,
         x: &[f64],
         out: &mut [f64],
-        with_bias: bool,
-        epilogue: Epilogue,
+        layer_input: LayerInput,
         simd: Simd,
     ) {
         let Planes { lanes, stride } = planes;
         assert!(
             lanes > 0
+                && layer_input.inputs <= self.inputs
+                && layer_input
+                    .bias
+                    .is_none_or(|b| b.len() >= self.padded_outputs)
                 && self.inputs.max(self.padded_outputs) <= stride
                 && x.len() >= lanes * stride
                 && out.len() >= lanes * stride,
@@ -123,24 +125,20 @@ impl Linear {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Simd::Avx2Fma` is only chosen once both features were detected, and
             // the planes were just checked.
-            Simd::Avx2Fma => unsafe { avx2::apply(self, planes, x, out, with_bias, epilogue) },
-            Simd::Portable => {
-                self.apply_portable(planes, x, out, with_bias);
-                epilogue.apply(simd, planes, out, 0..self.padded_outputs);
-            }
+            Simd::Avx2Fma => unsafe { avx2::apply(self, planes, x, out, layer_input) },
+            Simd::Portable => self.apply_portable(planes, x, out, layer_input),
         }
     }
 
-    fn apply_portable(&self, planes: Planes, x: &[f64], out: &mut [f64], with_bias: bool) {
+    fn apply_portable(&self, planes: Planes, x: &[f64], out: &mut [f64], input: LayerInput) {
         let Planes { lanes, stride } = planes;
         for l in 0..lanes {
             let out = &mut out[l * stride..][..self.padded_outputs];
-            if with_bias && l == 0 {
-                out.copy_from_slice(&self.bias);
-            } else {
-                out.fill(0.0);
+            match input.bias {
+                Some(bias) if l == 0 => out.copy_from_slice(&bias[..self.padded_outputs]),
+                _ => out.fill(0.0),
             }
-            let x = &x[l * stride..][..self.inputs];
+            let x = &x[l * stride..][..input.inputs];
             for (first, width, panel) in self.panels() {
                 let out = &mut out[first..first + width];
                 for (w, x) in panel.chunks_exact(width).zip(x) {
@@ -151,6 +149,22 @@ impl Linear {
             }
         }
     }
+
+    /// The whole layer with its own bias.
+    fn full_input(&self) -> LayerInput<'_> {
+        LayerInput {
+            inputs: self.inputs,
+            bias: Some(&self.bias),
+        }
+    }
+}
+
+/// What a layer evaluation reads: its leading `inputs` inputs, and the primal plane's
+/// bias (padded like the layer's outputs; `None` for tangents).
+#[derive(Clone, Copy, Debug)]
+struct LayerInput<'a> {
+    inputs: usize,
+    bias: Option<&'a [f64]>,
 }
 
 /// Activations as `lanes` planes of `stride` values (plane `l`: component `l`).
@@ -158,62 +172,6 @@ impl Linear {
 struct Planes {
     lanes: usize,
     stride: usize,
-}
-
-/// What a layer applies to its outputs. The SIMD kernel runs it on each block of outputs
-/// as soon as the block is complete, so the activation's arithmetic overlaps the loads of
-/// the next block's weights.
-#[derive(Clone, Copy, Debug)]
-enum Epilogue<'a> {
-    /// Nothing: the linear output layer, or activations of more than two lanes (done by
-    /// the caller).
-    None,
-    /// `h ← tanh(h)` in plane 0 and, for `Dual<f64>` (`dual`), `ḣ ← (1 - h²) ḣ` in plane 1.
-    Tanh { dual: bool },
-    /// The tangent `ḣ ← (1 - r²) ḣ` in the last plane, with `r` the recorded activations,
-    /// and `h ← tanh(h)` in plane 0 when it holds a `primal` point.
-    Tangent { record: &'a [f64], primal: bool },
-}
-
-impl Epilogue<'_> {
-    /// Applies to outputs `range` of the planes `h`.
-    #[inline(always)]
-    fn apply(self, simd: Simd, planes: Planes, h: &mut [f64], range: Range<usize>) {
-        let (values, rest) = h.split_at_mut(planes.stride);
-        match self {
-            Self::None => {}
-            Self::Tanh { dual: false } => {
-                for v in &mut values[range] {
-                    *v = simd.tanh(*v);
-                }
-            }
-            Self::Tanh { dual: true } => {
-                for (v, d) in values[range.clone()].iter_mut().zip(&mut rest[range]) {
-                    let t = simd.tanh(*v);
-                    *v = t;
-                    *d *= 1.0 - t * t;
-                }
-            }
-            Self::Tangent {
-                record,
-                primal: false,
-            } => {
-                for (d, r) in values[range.clone()].iter_mut().zip(&record[range]) {
-                    *d *= 1.0 - r * r;
-                }
-            }
-            Self::Tangent {
-                record,
-                primal: true,
-            } => {
-                let tangents = rest[range.clone()].iter_mut().zip(&record[range.clone()]);
-                for (v, (d, r)) in values[range].iter_mut().zip(tangents) {
-                    *v = simd.tanh(*v);
-                    *d *= 1.0 - r * r;
-                }
-            }
-        }
-    }
 }
 
 /// Which instruction set the layers run on.
@@ -224,11 +182,16 @@ enum Simd {
     Avx2Fma,
 }
 
+/// Whether this CPU has AVX2 and FMA (detected once, then cached by the standard library).
+#[cfg(target_arch = "x86_64")]
+pub(super) fn has_avx2_fma() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
 impl Simd {
     fn detect() -> Self {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
+        if has_avx2_fma() {
             return Self::Avx2Fma;
         }
         Self::Portable
@@ -256,7 +219,7 @@ impl Simd {
 mod avx2 {
     use std::arch::x86_64::*;
 
-    use super::{Epilogue, Linear, NARROW, Planes, Simd, WIDE};
+    use super::{LayerInput, Linear, NARROW, Planes, WIDE};
 
     /// # Safety
     /// The CPU supports AVX2 and FMA; `x` and `out` hold `planes.lanes` planes of
@@ -267,33 +230,26 @@ mod avx2 {
         planes: Planes,
         x: &[f64],
         out: &mut [f64],
-        with_bias: bool,
-        epilogue: Epilogue,
+        input: LayerInput,
     ) {
         // SAFETY (all blocks): the caller's guarantee and the panel layout of
         // `Linear::new` keep every access in bounds.
         unsafe {
             match planes.lanes {
-                1 => lane_group::<1, 8, 4>(linear, planes, 0, x, out, with_bias, epilogue),
-                2 => lane_group::<2, 4, 2>(linear, planes, 0, x, out, with_bias, epilogue),
-                lanes => {
-                    if lanes % 4 == 0 {
-                        for first in (0..lanes).step_by(4) {
-                            let none = Epilogue::None;
-                            lane_group::<4, 2, 1>(linear, planes, first, x, out, with_bias, none);
-                        }
-                    } else {
-                        linear.apply_portable(planes, x, out, with_bias);
+                1 => lane_group::<1, 8, 4>(linear, planes, 0, x, out, input),
+                2 => lane_group::<2, 4, 2>(linear, planes, 0, x, out, input),
+                lanes if lanes % 4 == 0 => {
+                    for first in (0..lanes).step_by(4) {
+                        lane_group::<4, 2, 1>(linear, planes, first, x, out, input);
                     }
-                    let all = 0..linear.padded_outputs;
-                    epilogue.apply(Simd::Avx2Fma, planes, out, all);
                 }
+                _ => linear.apply_portable(planes, x, out, input),
             }
         }
     }
 
     /// Lanes `first..first + L`: blocks of `4 V` outputs of the wide panels, then the
-    /// narrow panels with `SPLIT` partial sums; `epilogue` after each block.
+    /// narrow panels with `SPLIT` partial sums.
     #[target_feature(enable = "avx2,fma")]
     unsafe fn lane_group<const L: usize, const V: usize, const SPLIT: usize>(
         linear: &Linear,
@@ -301,38 +257,36 @@ mod avx2 {
         first: usize,
         x: &[f64],
         out: &mut [f64],
-        with_bias: bool,
-        epilogue: Epilogue,
+        input: LayerInput,
     ) {
         let stride = planes.stride;
-        let bias = (with_bias && first == 0).then_some(linear.bias.as_ptr());
-        let inputs = linear.inputs;
+        let bias = input.bias.filter(|_| first == 0).map(<[f64]>::as_ptr);
+        let (used, inputs) = (input.inputs, linear.inputs);
         let x = unsafe { x.as_ptr().add(first * stride) };
+        let out = unsafe { out.as_mut_ptr().add(first * stride) };
         let panels = linear.panels.as_ptr();
         for start in (0..linear.wide_outputs).step_by(4 * V) {
             let panel_start = start - start % WIDE;
             let weights = unsafe { panels.add(panel_start * inputs + start - panel_start) };
             let block = Block::<WIDE> {
                 weights,
-                inputs,
+                inputs: used,
                 x,
                 stride,
             };
-            let at = unsafe { out.as_mut_ptr().add(first * stride + start) };
-            unsafe { block.run::<L, V, 1>(bias.map(|b| b.add(start)), at) };
-            epilogue.apply(Simd::Avx2Fma, planes, out, start..start + 4 * V);
+            unsafe { block.run::<L, V, 1>(bias.map(|b| b.add(start)), out.add(start)) };
         }
         for start in (linear.wide_outputs..linear.padded_outputs).step_by(NARROW) {
             let weights = unsafe { panels.add(start * inputs) };
             let block = Block::<NARROW> {
                 weights,
-                inputs,
+                inputs: used,
                 x,
                 stride,
             };
-            let at = unsafe { out.as_mut_ptr().add(first * stride + start) };
-            unsafe { block.run::<L, { NARROW / 4 }, SPLIT>(bias.map(|b| b.add(start)), at) };
-            epilogue.apply(Simd::Avx2Fma, planes, out, start..start + NARROW);
+            unsafe {
+                block.run::<L, { NARROW / 4 }, SPLIT>(bias.map(|b| b.add(start)), out.add(start))
+            };
         }
     }
 
@@ -464,10 +418,39 @@ impl Mlp {
     /// run on a 4-wide fused multiply-add kernel and the activations compile for 4-wide
     /// vectors (detected once, at run time).
     pub fn eval<S: Scalar>(&self, input: &[S], scratch: &mut MlpScratch<S>, out: &mut [S]) {
-        self.eval_dispatch(input, scratch, out, None)
+        let first = self.layers[0].full_input();
+        self.eval_dispatch(input, first, scratch, out, None)
     }
 
-    /// Length of the record [`eval_recorded`](Self::eval_recorded) keeps.
+    /// Length of the first-layer bias [`fold_trailing_inputs`](Self::fold_trailing_inputs)
+    /// writes.
+    pub fn folded_bias_len(&self) -> usize {
+        self.layers[0].padded_outputs
+    }
+
+    /// [`folded_bias_len`](Self::folded_bias_len) of an MLP of layer sizes `sizes`.
+    pub fn folded_bias_len_of(sizes: &[usize]) -> usize {
+        sizes[1].div_ceil(NARROW) * NARROW
+    }
+
+    /// `bias = b₀ + W₀[:, n - m..] t`: the first layer's bias with its last `m` inputs
+    /// fixed to `t` (a context), so evaluations at many points with the same `t` read
+    /// only the first `n - m` columns of `W₀` ([`eval_folded`](Self::eval_folded)).
+    pub fn fold_trailing_inputs(&self, trailing: &[f64], bias: &mut [f64]) {
+        let first = &self.layers[0];
+        let head = first.inputs - trailing.len();
+        bias[..first.padded_outputs].copy_from_slice(&first.bias);
+        for (panel_first, width, panel) in first.panels() {
+            let rows = panel.chunks_exact(width).skip(head);
+            for (w, t) in rows.zip(trailing) {
+                for (b, w) in bias[panel_first..panel_first + width].iter_mut().zip(w) {
+                    *b += t * w;
+                }
+            }
+        }
+    }
+
+    /// Length of the record [`eval_folded`](Self::eval_folded) keeps.
     pub fn record_len(&self) -> usize {
         self.layers[..self.layers.len() - 1]
             .iter()
@@ -475,20 +458,28 @@ impl Mlp {
             .sum()
     }
 
-    /// [`eval`](Self::eval) that keeps the (primal) hidden activations `h_j` in `record`
-    /// (of [`record_len`](Self::record_len)) for [`tangent`](Self::tangent).
-    pub fn eval_recorded<S: Scalar>(
+    /// `out = MLP([head, t])` with the trailing inputs `t` folded into `first_bias`
+    /// ([`fold_trailing_inputs`](Self::fold_trailing_inputs)); keeps the (primal) hidden
+    /// activations in `record` (of [`record_len`](Self::record_len)) when given, for
+    /// [`tangent`](Self::tangent).
+    pub fn eval_folded<S: Scalar>(
         &self,
-        input: &[S],
+        head: &[S],
+        first_bias: &[f64],
         scratch: &mut MlpScratch<S>,
         out: &mut [S],
-        record: &mut [f64],
+        record: Option<&mut [f64]>,
     ) {
-        self.eval_dispatch(input, scratch, out, Some(record))
+        let first = LayerInput {
+            inputs: head.len(),
+            bias: Some(first_bias),
+        };
+        self.eval_dispatch(head, first, scratch, out, record)
     }
 
     /// The Jacobian-vector product `dout = ∂MLP/∂x · dx` at the input of the
-    /// [`eval_recorded`](Self::eval_recorded) call that wrote `record`:
+    /// [`eval_folded`](Self::eval_folded) call that wrote `record`, along the leading
+    /// inputs `dx` (the folded ones are fixed):
     /// `dh_{j+1} = (1 - h_{j+1}²) ⊙ (W_j dh_j)`, `dout = W_last dh`. One matrix-vector
     /// product per layer and no `tanh`, half the work of a dual-number pass.
     pub fn tangent(
@@ -501,24 +492,33 @@ impl Mlp {
         self.sweep_dispatch(record, dx, dout, None, scratch)
     }
 
-    /// `out = MLP(input)` and the [`tangent`](Self::tangent) `dout` at the recorded point
-    /// in one sweep over the weights: each layer multiplies both vectors at once.
+    /// [`eval_folded`](Self::eval_folded) at `head` and the [`tangent`](Self::tangent)
+    /// `dout` at the recorded point in one sweep over the weights: each layer multiplies
+    /// both vectors at once.
+    #[allow(clippy::too_many_arguments)]
     pub fn eval_and_tangent(
         &self,
-        input: &[f64],
+        head: &[f64],
+        first_bias: &[f64],
         out: &mut [f64],
         record: &[f64],
         dx: &[f64],
         dout: &mut [f64],
         scratch: &mut MlpScratch<Dual<f64>>,
     ) {
-        self.sweep_dispatch(record, dx, dout, Some((input, out)), scratch)
+        let primal = Primal {
+            head,
+            first_bias,
+            out,
+        };
+        self.sweep_dispatch(record, dx, dout, Some(primal), scratch)
     }
 
     /// Runs [`eval_with`](Self::eval_with) on the best instruction set of this CPU.
     fn eval_dispatch<S: Scalar>(
         &self,
         input: &[S],
+        first: LayerInput,
         scratch: &mut MlpScratch<S>,
         out: &mut [S],
         record: Option<&mut [f64]>,
@@ -526,8 +526,8 @@ impl Mlp {
         match Simd::detect() {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: AVX2 and FMA support were detected.
-            Simd::Avx2Fma => unsafe { self.eval_avx2(input, scratch, out, record) },
-            Simd::Portable => self.eval_with(Simd::Portable, input, scratch, out, record),
+            Simd::Avx2Fma => unsafe { self.eval_avx2(input, first, scratch, out, record) },
+            Simd::Portable => self.eval_with(Simd::Portable, input, first, scratch, out, record),
         }
     }
 
@@ -538,11 +538,21 @@ impl Mlp {
     fn eval_avx2<S: Scalar>(
         &self,
         input: &[S],
+        first: LayerInput,
         scratch: &mut MlpScratch<S>,
         out: &mut [S],
         record: Option<&mut [f64]>,
     ) {
-        self.eval_with(Simd::Avx2Fma, input, scratch, out, record)
+        self.eval_with(Simd::Avx2Fma, input, first, scratch, out, record)
+    }
+
+    /// The layers in order, the first one reading as `first` says.
+    fn layer_inputs<'a>(
+        &'a self,
+        first: LayerInput<'a>,
+    ) -> impl Iterator<Item = (&'a Linear, LayerInput<'a>)> {
+        let rest = self.layers[1..].iter().map(|l| (l, l.full_input()));
+        std::iter::once((&self.layers[0], first)).chain(rest)
     }
 
     #[inline(always)]
@@ -550,6 +560,7 @@ impl Mlp {
         &self,
         simd: Simd,
         input: &[S],
+        first: LayerInput,
         scratch: &mut MlpScratch<S>,
         out: &mut [S],
         mut record: Option<&mut [f64]>,
@@ -564,18 +575,14 @@ impl Mlp {
                 front[l * planes.stride + j] = v.lane(l);
             }
         }
-        let (last, hidden) = self.layers.split_last().expect("an MLP has a layer");
-        let epilogue = match planes.lanes {
-            1 => Epilogue::Tanh { dual: false },
-            2 => Epilogue::Tanh { dual: true },
-            _ => Epilogue::None,
-        };
-        for layer in hidden {
-            layer.apply(planes, front, back, true, epilogue, simd);
-            let n = layer.padded_outputs;
-            if planes.lanes > 2 {
-                activate::<S>(planes, n, back);
+        let last = self.layers.len() - 1;
+        for (j, (layer, layer_input)) in self.layer_inputs(first).enumerate() {
+            layer.apply(planes, front, back, layer_input, simd);
+            if j == last {
+                break;
             }
+            let n = layer.padded_outputs;
+            activate::<S>(simd, planes, n, back);
             if let Some(rest) = record.take() {
                 let (kept, rest) = rest.split_at_mut(n);
                 kept.copy_from_slice(&back[..n]);
@@ -583,7 +590,6 @@ impl Mlp {
             }
             std::mem::swap(front, back);
         }
-        last.apply(planes, front, back, true, Epilogue::None, simd);
         for (j, o) in out.iter_mut().enumerate() {
             *o = S::from_lanes(|l| back[l * planes.stride + j]);
         }
@@ -595,7 +601,7 @@ impl Mlp {
         record: &[f64],
         dx: &[f64],
         dout: &mut [f64],
-        primal: Option<(&[f64], &mut [f64])>,
+        primal: Option<Primal>,
         scratch: &mut MlpScratch<Dual<f64>>,
     ) {
         match Simd::detect() {
@@ -613,7 +619,7 @@ impl Mlp {
         record: &[f64],
         dx: &[f64],
         dout: &mut [f64],
-        primal: Option<(&[f64], &mut [f64])>,
+        primal: Option<Primal>,
         scratch: &mut MlpScratch<Dual<f64>>,
     ) {
         self.sweep_with(Simd::Avx2Fma, record, dx, dout, primal, scratch)
@@ -628,7 +634,7 @@ impl Mlp {
         record: &[f64],
         dx: &[f64],
         dout: &mut [f64],
-        primal: Option<(&[f64], &mut [f64])>,
+        primal: Option<Primal>,
         scratch: &mut MlpScratch<Dual<f64>>,
     ) {
         let with_primal = primal.is_some();
@@ -639,37 +645,105 @@ impl Mlp {
         let tangent = (planes.lanes - 1) * planes.stride;
         let MlpScratch { front, back, .. } = scratch;
         front[tangent..tangent + dx.len()].copy_from_slice(dx);
-        if let Some((input, _)) = &primal {
-            front[..input.len()].copy_from_slice(input);
-        }
-        let (last, hidden) = self.layers.split_last().expect("an MLP has a layer");
+        let first = LayerInput {
+            inputs: dx.len(),
+            bias: None,
+        };
+        let first = match &primal {
+            Some(p) => {
+                front[..p.head.len()].copy_from_slice(p.head);
+                LayerInput {
+                    bias: Some(p.first_bias),
+                    ..first
+                }
+            }
+            None => first,
+        };
+        let last = self.layers.len() - 1;
         let mut record = record;
-        for layer in hidden {
-            let (h, rest) = record.split_at(layer.padded_outputs);
-            let epilogue = Epilogue::Tangent {
-                record: h,
-                primal: with_primal,
-            };
-            layer.apply(planes, front, back, with_primal, epilogue, simd);
+        for (j, (layer, mut layer_input)) in self.layer_inputs(first).enumerate() {
+            if !with_primal {
+                layer_input.bias = None;
+            }
+            layer.apply(planes, front, back, layer_input, simd);
+            if j == last {
+                break;
+            }
+            let n = layer.padded_outputs;
+            let (h, rest) = record.split_at(n);
+            let (values, derivatives) = back.split_at_mut(tangent);
+            for (d, h) in derivatives[..n].iter_mut().zip(h) {
+                *d *= 1.0 - h * h;
+            }
+            if with_primal {
+                for v in &mut values[..n] {
+                    *v = simd.tanh(*v);
+                }
+            }
             record = rest;
             std::mem::swap(front, back);
         }
-        last.apply(planes, front, back, with_primal, Epilogue::None, simd);
         dout.copy_from_slice(&back[tangent..tangent + dout.len()]);
-        if let Some((_, out)) = primal {
-            out.copy_from_slice(&back[..out.len()]);
+        if let Some(primal) = primal {
+            primal.out.copy_from_slice(&back[..primal.out.len()]);
         }
     }
 }
 
-/// `h ← tanh(h)` on the first `n` entries of the component planes `h`, for scalars of
-/// more than two lanes (nested duals; one and two lanes are the layers' [`Epilogue`]).
+/// The point [`Mlp::eval_and_tangent`] evaluates besides the tangent.
+struct Primal<'a> {
+    head: &'a [f64],
+    first_bias: &'a [f64],
+    out: &'a mut [f64],
+}
+
+/// `h ← tanh(h)` on the first `n` entries of the component planes `h`.
+///
+/// One and two lanes (`f64`, `Dual<f64>`) and four (`Dual<Dual<f64>>`) have their chain
+/// rule written out plane by plane so the loops vectorise; more lanes go through
+/// [`Scalar::tanh`] entry by entry.
 #[inline(always)]
-fn activate<S: Scalar>(planes: Planes, n: usize, h: &mut [f64]) {
-    for j in 0..n {
-        let t = S::from_lanes(|l| h[l * planes.stride + j]).tanh();
-        for l in 0..planes.lanes {
-            h[l * planes.stride + j] = t.lane(l);
+fn activate<S: Scalar>(simd: Simd, planes: Planes, n: usize, h: &mut [f64]) {
+    let stride = planes.stride;
+    match planes.lanes {
+        1 => {
+            for v in &mut h[..n] {
+                *v = simd.tanh(*v);
+            }
+        }
+        // `tanh(a + b ε) = t + b t' ε`, `t = tanh a`, `t' = 1 - t²`.
+        2 => {
+            let (a, b) = h.split_at_mut(stride);
+            for (a, b) in a[..n].iter_mut().zip(&mut b[..n]) {
+                let t = simd.tanh(*a);
+                *a = t;
+                *b *= 1.0 - t * t;
+            }
+        }
+        // `tanh((a + b ε₁) + (c + d ε₁) ε₂) = t + b t' ε₁ + (c t' + (d t' + b c t'') ε₁) ε₂`,
+        // `t'' = -2 t t'`.
+        4 => {
+            let (ab, cd) = h.split_at_mut(2 * stride);
+            let (a, b) = ab.split_at_mut(stride);
+            let (c, d) = cd.split_at_mut(stride);
+            let planes = a[..n].iter_mut().zip(&mut b[..n]);
+            for ((a, b), (c, d)) in planes.zip(c[..n].iter_mut().zip(&mut d[..n])) {
+                let t = simd.tanh(*a);
+                let first = 1.0 - t * t;
+                let second = -2.0 * t * first;
+                *a = t;
+                *d = *d * first + *b * *c * second;
+                *b *= first;
+                *c *= first;
+            }
+        }
+        _ => {
+            for j in 0..n {
+                let t = S::from_lanes(|l| h[l * stride + j]).tanh();
+                for l in 0..planes.lanes {
+                    h[l * stride + j] = t.lane(l);
+                }
+            }
         }
     }
 }
@@ -712,7 +786,8 @@ mod tests {
         let zero = S::constant(0.0);
         let (mut fast, mut portable) = (vec![zero; mlp.output_dim()], vec![zero; mlp.output_dim()]);
         mlp.eval(&x, &mut scratch, &mut fast);
-        mlp.eval_with(Simd::Portable, &x, &mut scratch, &mut portable, None);
+        let first = mlp.layers[0].full_input();
+        mlp.eval_with(Simd::Portable, &x, first, &mut scratch, &mut portable, None);
         assert_close(&fast, &portable, 1e-12);
     }
 
@@ -730,21 +805,56 @@ mod tests {
         }
     }
 
+    fn check_activation<S: Scalar>() {
+        let (n, stride) = (13, 16);
+        let values = inputs::<S>(n, 0.4);
+        let mut planes = vec![0.0; S::LANES * stride];
+        for (j, v) in values.iter().enumerate() {
+            for l in 0..S::LANES {
+                planes[l * stride + j] = 3.0 * v.lane(l);
+            }
+        }
+        let layout = Planes {
+            lanes: S::LANES,
+            stride,
+        };
+        activate::<S>(Simd::detect(), layout, n, &mut planes);
+        let got: Vec<S> = (0..n)
+            .map(|j| S::from_lanes(|l| planes[l * stride + j]))
+            .collect();
+        let expected: Vec<S> = values.iter().map(|v| (*v * 3.0).tanh()).collect();
+        assert_close(&got, &expected, 1e-14);
+    }
+
+    #[test]
+    fn plane_activations_match_the_scalar_tanh() {
+        check_activation::<f64>();
+        check_activation::<Dual<f64>>();
+        check_activation::<Dual2>();
+        check_activation::<Dual<Dual2>>();
+    }
+
+    /// Folded context, recorded activations, tangents and the fused sweep against plain
+    /// evaluations in `f64` and dual numbers.
     #[test]
     fn recorded_tangents_match_dual_numbers() {
         let mlp = random_mlp(&[6, 37, 70, 13], 7);
-        let (n, m) = (mlp.input_dim(), mlp.output_dim());
+        let (n, m, head) = (mlp.input_dim(), mlp.output_dim(), 4);
         let (x, dx, other) = (
             inputs::<f64>(n, 0.1),
-            inputs::<f64>(n, 2.0),
-            inputs::<f64>(n, 4.0),
+            inputs::<f64>(head, 2.0),
+            inputs::<f64>(head, 4.0),
         );
+        let mut bias = vec![0.0; mlp.folded_bias_len()];
+        mlp.fold_trailing_inputs(&x[head..], &mut bias);
         let mut record = vec![0.0; mlp.record_len()];
         let mut scratch = MlpScratch::new(&mlp);
         let mut out = vec![0.0; m];
-        mlp.eval_recorded(&x, &mut scratch, &mut out, &mut record);
+        mlp.eval_folded(&x[..head], &bias, &mut scratch, &mut out, Some(&mut record));
 
-        let duals: Vec<Dual<f64>> = x.iter().zip(&dx).map(|(a, b)| Dual::new(*a, *b)).collect();
+        let duals: Vec<Dual<f64>> = (0..n)
+            .map(|i| Dual::new(x[i], dx.get(i).copied().unwrap_or(0.0)))
+            .collect();
         let mut expected = vec![Dual::new(0.0, 0.0); m];
         mlp.eval(&duals, &mut MlpScratch::new(&mlp), &mut expected);
         let expected_tangent: Vec<f64> = expected.iter().map(|d| d.du).collect();
@@ -762,14 +872,16 @@ mod tests {
         let (mut other_out, mut fused_tangent) = (vec![0.0; m], vec![0.0; m]);
         mlp.eval_and_tangent(
             &other,
+            &bias,
             &mut other_out,
             &record,
             &dx,
             &mut fused_tangent,
             &mut pair_scratch,
         );
+        let full: Vec<f64> = other.iter().chain(&x[head..]).copied().collect();
         let mut other_expected = vec![0.0; m];
-        mlp.eval(&other, &mut scratch, &mut other_expected);
+        mlp.eval(&full, &mut scratch, &mut other_expected);
         assert_close(&other_out, &other_expected, 1e-12);
         assert_close(&fused_tangent, &expected_tangent, 1e-12);
     }

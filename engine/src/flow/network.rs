@@ -11,6 +11,7 @@ use super::config::FlowConfig;
 use super::coupling::{Coupling, CouplingRecord, CouplingScratch, TangentScratch};
 use super::error::{FlowResult, check_input};
 use super::mixing::LuMixing;
+use super::mlp::Mlp;
 use super::scalar::Scalar;
 use super::weights::Weights;
 
@@ -21,24 +22,35 @@ pub struct ConditionalFlow {
     log_state_scale: f64,
 }
 
-/// A context prepared for the network: normalised, with its anchor offset `o(c)`.
+/// A context prepared for the network: normalised, folded into each conditioner's
+/// first-layer bias ([`Coupling::fold_context`]), with its anchor offset `o(c)`.
 /// Recomputed only when the raw context changes (the anchor costs one network pass).
 #[derive(Clone, Debug)]
 pub struct Conditioning {
     raw: Vec<f64>,
     normalised: Vec<f64>,
+    /// One context bias per coupling, back to back.
+    context_biases: Vec<f64>,
     offset: Vec<f64>,
     valid: bool,
 }
 
 impl Conditioning {
     pub fn new(config: &FlowConfig) -> Self {
+        let bias_len = Mlp::folded_bias_len_of(&config.conditioner_sizes());
         Self {
             raw: vec![0.0; config.context_dim],
             normalised: vec![0.0; config.context_dim],
+            context_biases: vec![0.0; config.layers * bias_len],
             offset: vec![0.0; config.state_dim],
             valid: false,
         }
+    }
+
+    /// The context bias of each coupling.
+    fn context_biases(&self, couplings: usize) -> std::slice::ChunksExact<'_, f64> {
+        self.context_biases
+            .chunks_exact(self.context_biases.len() / couplings)
     }
 
     pub fn normalised(&self) -> &[f64] {
@@ -86,13 +98,14 @@ impl ConditionalFlow {
     fn g_forward<S: Scalar>(
         &self,
         x: &mut [S],
-        context: &[f64],
+        conditioning: &Conditioning,
         scratch: &mut CouplingScratch<S>,
     ) -> S {
         let mut log_det = S::constant(0.0);
-        for (mixing, coupling) in &self.blocks {
+        let biases = conditioning.context_biases(self.blocks.len());
+        for ((mixing, coupling), bias) in self.blocks.iter().zip(biases) {
             log_det = log_det + mixing.forward(x, &mut scratch.state);
-            log_det += coupling.forward(x, context, scratch);
+            log_det += coupling.forward(x, bias, scratch);
         }
         log_det
     }
@@ -117,12 +130,13 @@ impl ConditionalFlow {
     fn g_inverse<S: Scalar>(
         &self,
         x: &mut [S],
-        context: &[f64],
+        conditioning: &Conditioning,
         scratch: &mut CouplingScratch<S>,
     ) -> S {
         let mut log_det = S::constant(0.0);
-        for (mixing, coupling) in self.blocks.iter().rev() {
-            log_det += coupling.inverse(x, context, scratch);
+        let biases = conditioning.context_biases(self.blocks.len());
+        for ((mixing, coupling), bias) in self.blocks.iter().zip(biases).rev() {
+            log_det += coupling.inverse(x, bias, scratch);
             log_det = log_det + mixing.inverse(x, &mut scratch.state);
         }
         log_det
@@ -132,12 +146,14 @@ impl ConditionalFlow {
     fn g_inverse_recorded(
         &self,
         x: &mut [f64],
-        context: &[f64],
+        conditioning: &Conditioning,
         scratch: &mut CouplingScratch<f64>,
         tape: &mut FlowTape,
     ) {
-        for ((mixing, coupling), record) in self.blocks.iter().zip(&mut tape.couplings).rev() {
-            coupling.inverse_recorded(x, context, scratch, record);
+        let biases = conditioning.context_biases(self.blocks.len());
+        let layers = self.blocks.iter().zip(biases).zip(&mut tape.couplings);
+        for (((mixing, coupling), bias), record) in layers.rev() {
+            coupling.inverse_recorded(x, bias, scratch, record);
             mixing.inverse(x, &mut scratch.state);
         }
     }
@@ -163,9 +179,16 @@ impl ConditionalFlow {
         {
             *n = (c - m) / s;
         }
+        let bias_len = conditioning.context_biases.len() / self.blocks.len();
+        let biases = conditioning.context_biases.chunks_exact_mut(bias_len);
+        for ((_, coupling), bias) in self.blocks.iter().zip(biases) {
+            coupling.fold_context(&conditioning.normalised, bias);
+        }
         conditioning.offset.fill(0.0);
         if let Some(indices) = &self.config.goal_context_indices {
-            self.g_forward(&mut conditioning.offset, &conditioning.normalised, scratch);
+            let mut offset = std::mem::take(&mut conditioning.offset);
+            self.g_forward(&mut offset, conditioning, scratch);
+            conditioning.offset = offset;
             for (i, o) in conditioning.offset.iter_mut().enumerate() {
                 let target = (context[indices[i]] - norm.state_mean[i]) / norm.state_std[i];
                 *o = target - *o;
@@ -184,7 +207,7 @@ impl ConditionalFlow {
         y: &mut [S],
     ) -> S {
         y.copy_from_slice(z);
-        let log_det = self.g_forward(y, &conditioning.normalised, scratch);
+        let log_det = self.g_forward(y, conditioning, scratch);
         let norm = &self.config.normalisation;
         for (i, yi) in y.iter_mut().enumerate() {
             *yi = (*yi + conditioning.offset[i]) * norm.state_std[i] + norm.state_mean[i];
@@ -201,7 +224,7 @@ impl ConditionalFlow {
         z: &mut [S],
     ) -> S {
         self.normalise_state(y, conditioning, z);
-        self.g_inverse(z, &conditioning.normalised, scratch) + (-self.log_state_scale)
+        self.g_inverse(z, conditioning, scratch) + (-self.log_state_scale)
     }
 
     /// `z = f⁻¹(y, c)`, recording in `tape` what [`tangent`](Self::tangent) needs at that
@@ -215,7 +238,7 @@ impl ConditionalFlow {
         tape: &mut FlowTape,
     ) {
         self.normalise_state(y, conditioning, z);
-        self.g_inverse_recorded(z, &conditioning.normalised, scratch, tape);
+        self.g_inverse_recorded(z, conditioning, scratch, tape);
     }
 
     /// `z ← (y - μ_y) ⊘ σ_y - o(c)`, the input of `g⁻¹`.
@@ -255,13 +278,7 @@ impl ConditionalFlow {
         dy: &mut [f64],
     ) {
         y_other.copy_from_slice(z_other);
-        self.sweep(
-            tape,
-            dz,
-            scratch,
-            dy,
-            Some((y_other, &conditioning.normalised)),
-        );
+        self.sweep(tape, dz, scratch, dy, Some((y_other, conditioning)));
         let norm = &self.config.normalisation;
         for (i, yi) in y_other.iter_mut().enumerate() {
             *yi = (*yi + conditioning.offset[i]) * norm.state_std[i] + norm.state_mean[i];
@@ -275,17 +292,22 @@ impl ConditionalFlow {
         dz: &[f64],
         scratch: &mut TangentScratch,
         dy: &mut [f64],
-        mut primal: Option<(&mut [f64], &[f64])>,
+        mut primal: Option<(&mut [f64], &Conditioning)>,
     ) {
         dy.copy_from_slice(dz);
-        for ((mixing, coupling), record) in self.blocks.iter().zip(&tape.couplings) {
-            mixing.tangent(dy, &mut scratch.state);
+        for (b, ((mixing, coupling), record)) in self.blocks.iter().zip(&tape.couplings).enumerate()
+        {
             match primal.as_mut() {
-                Some((x, context)) => {
-                    mixing.forward(x, &mut scratch.state);
-                    coupling.forward_with_tangent(x, context, record, dy, scratch);
+                Some((x, conditioning)) => {
+                    let bias = conditioning.context_biases(self.blocks.len()).nth(b);
+                    let bias = bias.expect("one context bias per coupling");
+                    mixing.forward_with_tangent(x, dy, &mut scratch.state);
+                    coupling.forward_with_tangent(x, bias, record, dy, scratch);
                 }
-                None => coupling.tangent(record, dy, scratch),
+                None => {
+                    mixing.tangent(dy, &mut scratch.state);
+                    coupling.tangent(record, dy, scratch);
+                }
             }
         }
         for (d, s) in dy.iter_mut().zip(&self.config.normalisation.state_std) {

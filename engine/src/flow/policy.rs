@@ -116,6 +116,28 @@ impl Policy {
             .inverse(y, &ws.conditioning, &mut ws.scratch, &mut ws.z))
     }
 
+    /// Like [`invert`](Self::invert), recording the pass in `ws.tape`, and leaves the
+    /// latent velocity `v(z)` in `ws.latent_velocity`.
+    fn invert_recorded(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+    ) -> FlowResult<()> {
+        check_input("state", self.config().state_dim, y)?;
+        self.flow
+            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        self.flow.inverse_recorded(
+            y,
+            &ws.conditioning,
+            &mut ws.scratch,
+            &mut ws.z,
+            &mut ws.tape,
+        );
+        self.latent.velocity(&ws.z, &mut ws.latent_velocity);
+        Ok(())
+    }
+
     fn check_output(&self, out: &[f64]) -> FlowResult<()> {
         crate::flow::error::check_dim("output", self.config().state_dim, out)
     }
@@ -195,17 +217,7 @@ impl Policy {
         out: &mut [f64],
     ) -> FlowResult<()> {
         self.check_output(out)?;
-        check_input("state", self.config().state_dim, y)?;
-        self.flow
-            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
-        self.flow.inverse_recorded(
-            y,
-            &ws.conditioning,
-            &mut ws.scratch,
-            &mut ws.z,
-            &mut ws.tape,
-        );
-        self.latent.velocity(&ws.z, &mut ws.latent_velocity);
+        self.invert_recorded(y, context, ws)?;
         self.flow
             .tangent(&ws.tape, &ws.latent_velocity, &mut ws.tangent, out);
         Ok(())
@@ -227,17 +239,7 @@ impl Policy {
     ) -> FlowResult<()> {
         self.check_output(next)?;
         self.check_output(velocity)?;
-        check_input("state", self.config().state_dim, y)?;
-        self.flow
-            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
-        self.flow.inverse_recorded(
-            y,
-            &ws.conditioning,
-            &mut ws.scratch,
-            &mut ws.z,
-            &mut ws.tape,
-        );
-        self.latent.velocity(&ws.z, &mut ws.latent_velocity);
+        self.invert_recorded(y, context, ws)?;
         self.latent.mean_step(&ws.z, &mut ws.z_next);
         self.flow.forward_with_tangent(
             &ws.tape,

@@ -22,11 +22,12 @@ pub trait Scalar:
     + Mul<f64, Output = Self>
     + Add<f64, Output = Self>
 {
-    /// Number of `f64` components: 1 for `f64`, twice the inner count per dual level.
+    /// Number of `f64` components: 1 for `f64`, twice the inner count per dual level,
+    /// `re`'s components first (`Dual<Dual<f64>>`: `re.re, re.du, du.re, du.du`).
     ///
     /// A linear map with `f64` coefficients acts on every component independently, so
     /// the MLPs evaluate `W x` for all components as one matrix product sharing the loads
-    /// of `W`.
+    /// of `W`; their activations rely on this order for one, two and four lanes.
     const LANES: usize;
     /// Component `lane` (`0` is the primal value, `1..` the derivative parts).
     fn lane(self, lane: usize) -> f64;
