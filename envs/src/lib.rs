@@ -9,6 +9,7 @@
 //! [`tasks::lasa`]; list them with
 //! [`tasks()`], build them with [`make`].
 
+pub mod actor;
 pub mod dataset;
 pub mod env;
 pub mod expert;

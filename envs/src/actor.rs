@@ -1,0 +1,200 @@
+//! A trained checkpoint acting in a task's environment: observation in, action out.
+//!
+//! Every task observes `o = [q, q̇, c]` (position, velocity, context) and takes the
+//! desired acceleration `q̈_des` as its action (the computed-torque layer turns it into
+//! torques). A flow policy answers with
+//!
+//! `q̈_des = (∂v_des/∂q) q̇ + K_v (v_des(q, c) − q̇)`,  `v_des = J_f(z) v(z)`, `z = f⁻¹(q, c)`
+//!
+//! ([`Policy::acceleration`]), so the velocity error decays as `e^{−K_v t}` while the
+//! position follows the stable flow. The action is then clipped to the task's action
+//! space, as a real robot saturates its commands; far from the demonstrations, where the
+//! flow may ask for more, this is the saturated loop that `flow::robot_loop` measures. The behaviour-cloning baseline has no Jacobian; it
+//! tracks its finite-difference velocity `v = (ŷ_{k+1} − q) / dt` with the same gain.
+
+use std::path::Path;
+
+use ciflow_engine::flow::baseline::BaselineWorkspace;
+use ciflow_engine::flow::checkpoint;
+use ciflow_engine::flow::{BehaviourCloning, CheckpointConfig, FlowError, Policy, PolicyWorkspace};
+
+use crate::env::EnvSpec;
+use crate::space::BoxSpace;
+
+/// Velocity-feedback gain `K_v` (1/s): the velocity error's time constant is 0.1 s, ten
+/// control periods of the slowest task.
+pub const DEFAULT_VELOCITY_GAIN: f64 = 10.0;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ActorError {
+    #[error(transparent)]
+    Flow(#[from] FlowError),
+    #[error(
+        "checkpoint of task `{checkpoint}` ({state_dim}-D state, {context_dim}-D context) \
+         cannot act in `{env}` (observations of {observation_dim}, actions of {action_dim})"
+    )]
+    Mismatch {
+        checkpoint: String,
+        state_dim: usize,
+        context_dim: usize,
+        env: String,
+        observation_dim: usize,
+        action_dim: usize,
+    },
+    #[error("observation has {found} elements, expected {expected}")]
+    ObservationDim { expected: usize, found: usize },
+    #[error("action buffer has {found} elements, expected {expected}")]
+    ActionDim { expected: usize, found: usize },
+    #[error("velocity gain K_v must be finite and > 0, got {0}")]
+    VelocityGain(f64),
+}
+
+/// A loaded checkpoint: the stable flow or its unconstrained baseline.
+#[derive(Clone, Debug)]
+pub enum Model {
+    Flow(Policy),
+    Baseline(BehaviourCloning),
+}
+
+impl Model {
+    /// Loads whichever model `dir` holds; `expected_task` guards against the wrong task.
+    pub fn load(dir: &Path, expected_task: Option<&str>) -> Result<Self, FlowError> {
+        Ok(match checkpoint::read_config(dir)? {
+            CheckpointConfig::Flow(_) => Self::Flow(Policy::load(dir, expected_task)?),
+            CheckpointConfig::MlpBaseline(_) => {
+                Self::Baseline(BehaviourCloning::load(dir, expected_task)?)
+            }
+        })
+    }
+
+    /// The task name recorded in the checkpoint.
+    pub fn task(&self) -> &str {
+        match self {
+            Self::Flow(policy) => &policy.config().task,
+            Self::Baseline(baseline) => &baseline.config().task,
+        }
+    }
+
+    pub fn state_dim(&self) -> usize {
+        match self {
+            Self::Flow(policy) => policy.config().state_dim,
+            Self::Baseline(baseline) => baseline.config().state_dim,
+        }
+    }
+
+    pub fn context_dim(&self) -> usize {
+        match self {
+            Self::Flow(policy) => policy.config().context_dim,
+            Self::Baseline(baseline) => baseline.config().context_dim,
+        }
+    }
+
+    /// The modelled period `dt` (s).
+    pub fn dt(&self) -> f64 {
+        match self {
+            Self::Flow(policy) => policy.config().dt,
+            Self::Baseline(baseline) => baseline.config().dt,
+        }
+    }
+}
+
+/// A model paired with its buffers.
+enum Acting<'m> {
+    Flow(&'m Policy, Box<PolicyWorkspace>),
+    Baseline(&'m BehaviourCloning, BaselineWorkspace),
+}
+
+/// A [`Model`] with its buffers, acting on one environment's observations. Acting is
+/// allocation-free; create one actor per thread.
+pub struct Actor<'m> {
+    model: &'m Model,
+    acting: Acting<'m>,
+    velocity_gain: f64,
+    action_space: BoxSpace,
+    velocity: Vec<f64>,
+    next: Vec<f64>,
+}
+
+impl<'m> Actor<'m> {
+    /// An actor of `model` for environments of `spec`: the observation must be
+    /// `[q, q̇, c]` with `q` and `c` of the model's dimensions and the action `q̈_des`.
+    pub fn new(model: &'m Model, spec: &EnvSpec, velocity_gain: f64) -> Result<Self, ActorError> {
+        if !(velocity_gain.is_finite() && velocity_gain > 0.0) {
+            return Err(ActorError::VelocityGain(velocity_gain));
+        }
+        let (d, c) = (model.state_dim(), model.context_dim());
+        let (observation_dim, action_dim) = (spec.observation_space.dim(), spec.action_space.dim());
+        if observation_dim != 2 * d + c || action_dim != d || spec.context_space.dim() != c {
+            return Err(ActorError::Mismatch {
+                checkpoint: model.task().to_owned(),
+                state_dim: d,
+                context_dim: c,
+                env: spec.id.clone(),
+                observation_dim,
+                action_dim,
+            });
+        }
+        let acting = match model {
+            Model::Flow(policy) => Acting::Flow(policy, Box::new(policy.workspace())),
+            Model::Baseline(baseline) => Acting::Baseline(baseline, baseline.workspace()),
+        };
+        Ok(Self {
+            model,
+            acting,
+            velocity_gain,
+            action_space: spec.action_space.clone(),
+            velocity: vec![0.0; d],
+            next: vec![0.0; d],
+        })
+    }
+
+    pub fn observation_dim(&self) -> usize {
+        2 * self.model.state_dim() + self.model.context_dim()
+    }
+
+    /// Writes the desired acceleration for `observation = [q, q̇, c]`, clipped to the
+    /// action space, to `action`.
+    pub fn act(&mut self, observation: &[f64], action: &mut [f64]) -> Result<(), ActorError> {
+        let d = self.model.state_dim();
+        let expected = self.observation_dim();
+        if observation.len() != expected {
+            return Err(ActorError::ObservationDim {
+                expected,
+                found: observation.len(),
+            });
+        }
+        if action.len() != d {
+            return Err(ActorError::ActionDim {
+                expected: d,
+                found: action.len(),
+            });
+        }
+        let (q, rest) = observation.split_at(d);
+        let (qd, context) = rest.split_at(d);
+        let gain = self.velocity_gain;
+        match &mut self.acting {
+            Acting::Flow(policy, ws) => {
+                policy.acceleration(q, qd, context, gain, ws, action, &mut self.velocity)?;
+            }
+            Acting::Baseline(baseline, ws) => {
+                baseline.mean_next(q, context, ws, &mut self.next)?;
+                let dt = baseline.config().dt;
+                for i in 0..d {
+                    self.velocity[i] = (self.next[i] - q[i]) / dt;
+                    action[i] = gain * (self.velocity[i] - qd[i]);
+                }
+            }
+        }
+        let BoxSpace { low, high, .. } = &self.action_space;
+        for ((a, lo), hi) in action.iter_mut().zip(low).zip(high) {
+            *a = a.clamp(*lo, *hi);
+        }
+        Ok(())
+    }
+
+    /// The desired velocity of the last [`act`](Self::act) call: `v_des(q, c)` of a flow,
+    /// the finite-difference velocity of the baseline.
+    pub fn desired_velocity(&self) -> &[f64] {
+        &self.velocity
+    }
+}

@@ -1,0 +1,130 @@
+//! A checkpoint acting in an environment: the actor's action is the flow's desired
+//! acceleration for `[q, q̇, c]` clipped to the action space, shapes are checked, and the
+//! saturated closed loop reaches the attractor, the target in the context.
+
+use ciflow_engine::flow::{CouplingKind, FlowConfig, LatentKind, Policy, Weights};
+use ciflow_envs::actor::{Actor, ActorError, DEFAULT_VELOCITY_GAIN, Model};
+use ciflow_envs::tasks::{limit_cycle, obstacle_avoidance};
+use ciflow_envs::{Env, ResetOptions};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+/// A random go-to flow for Obstacle-v0 with one obstacle: state 2-D, context
+/// `[o_x, o_y, g_x, g_y]`, attractor on the target; small weights keep `f` near the
+/// identity, so its paths run nearly straight to the target.
+fn random_obstacle_flow(seed: u64) -> Model {
+    let mut config = FlowConfig::new(
+        "obstacle-avoidance",
+        2,
+        4,
+        LatentKind::GoTo,
+        CouplingKind::Affine { scale_bound: 2.0 },
+        4,
+        vec![16, 16],
+    );
+    config.min_rate = 2.0;
+    config.goal_context_indices = Some(vec![2, 3]);
+    let weights = Weights::random(
+        &config.parameter_shapes(),
+        0.1,
+        &mut ChaCha8Rng::seed_from_u64(seed),
+    );
+    Model::Flow(Policy::new(&config, weights).expect("valid random flow"))
+}
+
+#[test]
+fn action_is_the_clipped_flow_acceleration() {
+    let model = random_obstacle_flow(1);
+    let env = obstacle_avoidance::make(1).unwrap();
+    let mut actor = Actor::new(&model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
+    let observation = [-0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2];
+    let mut action = [0.0; 2];
+    actor.act(&observation, &mut action).unwrap();
+
+    let Model::Flow(policy) = &model else {
+        unreachable!()
+    };
+    let (mut expected, mut velocity) = ([0.0; 2], [0.0; 2]);
+    policy
+        .acceleration(
+            &observation[..2],
+            &observation[2..4],
+            &observation[4..],
+            DEFAULT_VELOCITY_GAIN,
+            &mut policy.workspace(),
+            &mut expected,
+            &mut velocity,
+        )
+        .unwrap();
+    let bound = &env.spec().action_space;
+    for i in 0..2 {
+        assert_eq!(action[i], expected[i].clamp(bound.low[i], bound.high[i]));
+    }
+    assert!(
+        action.iter().any(|a| a.abs() < 20.0),
+        "some action is inside the bounds"
+    );
+    assert_eq!(actor.desired_velocity(), &velocity);
+}
+
+#[test]
+fn shapes_and_gain_are_checked() {
+    let model = random_obstacle_flow(2);
+    let two_obstacles = obstacle_avoidance::make(2).unwrap();
+    assert!(matches!(
+        Actor::new(&model, two_obstacles.spec(), DEFAULT_VELOCITY_GAIN),
+        Err(ActorError::Mismatch { .. })
+    ));
+    let cycle = limit_cycle::make().unwrap();
+    assert!(Actor::new(&model, cycle.spec(), DEFAULT_VELOCITY_GAIN).is_err());
+    let env = obstacle_avoidance::make(1).unwrap();
+    assert!(matches!(
+        Actor::new(&model, env.spec(), f64::NAN),
+        Err(ActorError::VelocityGain(_))
+    ));
+    let mut actor = Actor::new(&model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
+    let mut action = [0.0; 2];
+    assert!(matches!(
+        actor.act(&[0.0; 7], &mut action),
+        Err(ActorError::ObservationDim {
+            expected: 8,
+            found: 7
+        })
+    ));
+    assert!(matches!(
+        actor.act(&[0.0; 8], &mut [0.0; 3]),
+        Err(ActorError::ActionDim { .. })
+    ));
+    assert!(actor.act(&[f64::NAN; 8], &mut action).is_err());
+}
+
+#[test]
+fn closed_loop_reaches_the_target_in_the_context() {
+    let model = random_obstacle_flow(3);
+    let mut env = obstacle_avoidance::make(1).unwrap();
+    // The obstacle sits far below the straight path from the start to the target.
+    let target = [0.8, 0.1];
+    let options = ResetOptions {
+        context: Some(vec![0.0, -0.7, target[0], target[1]]),
+        initial_position: Some(vec![-0.8, 0.2]),
+        ..ResetOptions::default()
+    };
+    let (mut observation, _) = env.reset(Some(0), &options).unwrap();
+    let mut actor = Actor::new(&model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
+    let mut action = [0.0; 2];
+    let mut closest = f64::INFINITY;
+    for _ in 0..env.spec().max_episode_steps {
+        actor.act(&observation, &mut action).unwrap();
+        let step = env.step(&action).unwrap();
+        observation = step.observation;
+        closest = closest.min(step.info["distance_to_target"]);
+        assert_eq!(
+            step.info["collision"], 0.0,
+            "the path must not reach the obstacle"
+        );
+        if step.terminated || step.truncated {
+            break;
+        }
+    }
+    assert!(closest < 0.02, "closest approach to the target {closest} m");
+}
