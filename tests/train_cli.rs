@@ -104,13 +104,36 @@ fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targe
             "obstacle-avoidance",
             "--starts",
             "50",
+            "--robot-loop",
+            "--robot-starts",
+            "10",
             "--json",
         ])
         .stdout,
     )
     .expect("JSON report");
-    assert_eq!(report["fraction"].as_f64(), Some(1.0), "{report}");
-    assert_eq!(report["converged"].as_u64(), Some(50), "{report}");
+    let observation_space = &report["observation_space"];
+    assert_eq!(
+        observation_space["fraction"].as_f64(),
+        Some(1.0),
+        "{report}"
+    );
+    assert_eq!(
+        observation_space["converged"].as_u64(),
+        Some(50),
+        "{report}"
+    );
+    // Through the point mass's computed-torque loop, from starts up to 100x outside.
+    assert_eq!(
+        report["robot_loop"]["fraction"].as_f64(),
+        Some(1.0),
+        "{report}"
+    );
+    assert_eq!(
+        report["robot_loop"]["rollouts"].as_u64(),
+        Some(10),
+        "{report}"
+    );
 
     let policy = Policy::load(Path::new(&policy), Some("obstacle-avoidance")).unwrap();
     // Context [o_x, o_y, g_x, g_y]: the go-to target is its tail.

@@ -1,14 +1,23 @@
 //! `ciflow stability`: measure how often noise-free rollouts of a checkpoint converge to
 //! its attractor from random starts far outside the demonstrations (observation space,
 //! random contexts). Flows must print 100%; the behaviour-cloning baseline need not.
+//!
+//! With `--robot-loop` a flow is also run through the computed-torque simulator of its
+//! robot (`flow::robot_loop`): the Panda with its real torque and rate limits for 7-D
+//! policies, from starts uniform inside the joint limits; a point mass for 2-D ones, from
+//! starts in the demonstrations' box scaled by `--scale`.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
 use ciflow_engine::flow::checkpoint;
+use ciflow_engine::flow::robot_loop::{RobotLoopConfig, RobotLoopReport, measure_robot_loop};
 use ciflow_engine::flow::stability::{StabilityConfig, StabilityReport, measure};
 use ciflow_engine::flow::{BehaviourCloning, CheckpointConfig, Policy};
+use ciflow_engine::robot::{JointLimits, PointMass2d, Robot, panda};
+use ciflow_engine::sim::{SimConfig, Simulator};
 use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
 
 #[derive(clap::Args, Debug)]
 pub struct StabilityArgs {
@@ -32,9 +41,67 @@ pub struct StabilityArgs {
     pub max_steps: usize,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Also drive the robot through the computed-torque layer (flows only).
+    #[arg(long)]
+    pub robot_loop: bool,
+    /// Robot-loop rollouts.
+    #[arg(long, default_value_t = 20)]
+    pub robot_starts: usize,
+    /// Simulated seconds per robot-loop rollout.
+    #[arg(long, default_value_t = 60.0)]
+    pub robot_duration: f64,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
+}
+
+/// Everything `--json` prints.
+#[derive(Serialize)]
+struct Report {
+    observation_space: StabilityReport,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    robot_loop: Option<RobotLoopReport>,
+}
+
+/// A bar over `len` rollouts.
+fn rollout_bar(len: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} ({elapsed})")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(what.to_owned());
+    bar
+}
+
+/// The robot a `d`-dimensional policy drives: the Panda (real limits) for 7 joints, a 1 kg
+/// point mass confined to `bounds` scaled by `scale` about their centre for 2-D states.
+fn robot_simulator(policy: &Policy, scale: f64) -> anyhow::Result<Simulator> {
+    let config = policy.config();
+    let sim_config = SimConfig {
+        physics_dt: config.dt.min(1e-3),
+        control_dt: config.dt,
+        ..SimConfig::default()
+    };
+    let robot: Box<dyn Robot> = match config.state_dim {
+        7 => Box::new(panda()),
+        2 => {
+            let bounds = &config.bounds;
+            let mut limits = JointLimits::unlimited(2);
+            for i in 0..2 {
+                let (lo, hi) = (bounds.state_min[i], bounds.state_max[i]);
+                let (centre, half) = (0.5 * (lo + hi), 0.5 * scale * (hi - lo));
+                limits.q_min[i] = centre - half;
+                limits.q_max[i] = centre + half;
+            }
+            Box::new(PointMass2d::new(1.0)?.with_limits(limits)?)
+        }
+        d => anyhow::bail!(
+            "no robot model for a {d}-D policy (the Panda has 7 joints, the planar tasks 2)"
+        ),
+    };
+    Ok(Simulator::new(robot, sim_config)?)
 }
 
 pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
@@ -48,35 +115,74 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
     };
     let dir = &args.checkpoint;
     let task = args.task.as_deref();
-    let bar = ProgressBar::new(args.starts as u64);
-    bar.set_style(
-        ProgressStyle::with_template("rollouts [{bar:30}] {pos}/{len} ({elapsed})")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
+    let bar = rollout_bar(args.starts, "rollouts");
     let tick = |done: usize| bar.set_position(done as u64);
     let read =
         checkpoint::read_config(dir).with_context(|| format!("reading {}", dir.display()))?;
-    let report: StabilityReport = match read {
-        CheckpointConfig::Flow(_) => measure(&Policy::load(dir, task)?, &config, tick)?,
-        CheckpointConfig::MlpBaseline(_) => {
-            measure(&BehaviourCloning::load(dir, task)?, &config, tick)?
+    let (observation_space, policy) = match read {
+        CheckpointConfig::Flow(_) => {
+            let policy = Policy::load(dir, task)?;
+            (measure(&policy, &config, tick)?, Some(policy))
         }
+        CheckpointConfig::MlpBaseline(_) => (
+            measure(&BehaviourCloning::load(dir, task)?, &config, tick)?,
+            None,
+        ),
     };
     bar.finish_and_clear();
+    let robot_loop = match (args.robot_loop, &policy) {
+        (false, _) => None,
+        (true, None) => anyhow::bail!(
+            "--robot-loop needs a flow checkpoint: the baseline has no desired acceleration"
+        ),
+        (true, Some(policy)) => {
+            let loop_config = RobotLoopConfig {
+                starts: args.robot_starts,
+                duration: args.robot_duration,
+                tolerance: args.tolerance * policy.config().bounds.state_diagonal(),
+                seed: args.seed,
+                ..RobotLoopConfig::default()
+            };
+            let mut simulator = robot_simulator(policy, args.scale)?;
+            let bar = rollout_bar(args.robot_starts, "robot loop");
+            let report = measure_robot_loop(policy, &mut simulator, &loop_config, |done| {
+                bar.set_position(done as u64)
+            })?;
+            bar.finish_and_clear();
+            Some((report, loop_config))
+        }
+    };
     if args.json {
+        let report = Report {
+            observation_space,
+            robot_loop: robot_loop.map(|(report, _)| report),
+        };
         println!("{}", serde_json::to_string_pretty(&report)?);
-    } else {
+        return Ok(());
+    }
+    let report = &observation_space;
+    println!(
+        "stability: {:.1}% ({}/{} rollouts from up to {}x outside the demonstrations converged \
+         within {:.3e} in {} steps; {} non-finite)",
+        100.0 * report.fraction,
+        report.converged,
+        report.rollouts,
+        args.scale,
+        report.tolerance,
+        args.max_steps,
+        report.diverged_to_non_finite,
+    );
+    if let Some((report, config)) = robot_loop {
         println!(
-            "stability: {:.1}% ({}/{} rollouts from up to {}x outside the demonstrations converged \
-             within {:.3e} in {} steps; {} non-finite)",
+            "robot loop: {:.1}% ({}/{} computed-torque rollouts converged within {:.3e} in {} s; \
+             {} saturated the torques, {} hit end stops)",
             100.0 * report.fraction,
             report.converged,
             report.rollouts,
-            args.scale,
-            report.tolerance,
-            args.max_steps,
-            report.diverged_to_non_finite,
+            config.tolerance,
+            config.duration,
+            report.saturated,
+            report.hit_end_stops,
         );
     }
     Ok(())

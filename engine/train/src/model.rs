@@ -56,6 +56,11 @@ impl FlowModel {
         }
     }
 
+    /// Per-coordinate standard deviation of the states, `σ_y` as a `[1, d]` row.
+    pub fn state_std(&self) -> &Tensor {
+        &self.state_std
+    }
+
     pub fn config(&self) -> &FlowConfig {
         &self.config
     }

@@ -20,6 +20,12 @@ use crate::latent::LatentInit;
 use crate::model::FlowModel;
 use crate::optimise::{OptimConfig, Progress, mean_value, optimise};
 
+/// Default [`TrainConfig::state_noise`].
+pub const DEFAULT_STATE_NOISE: f64 = 0.1;
+
+/// Initial states drawn per minibatch for the `log p(y₀ | c₀)` term.
+const INITIAL_ROWS_PER_BATCH: usize = 16;
+
 /// Architecture and optimisation settings of [`train_flow`].
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct TrainConfig {
@@ -34,6 +40,12 @@ pub struct TrainConfig {
     pub goal_context_indices: Option<Vec<usize>>,
     /// Steps per modelled transition (`k` of the `k`-step density; 1 = the paper's).
     pub horizon: usize,
+    /// Standard deviation of the Gaussian jitter added to every training state, as a
+    /// fraction of the demonstrations' RMS step (per normalised coordinate). Expert
+    /// demonstrations are deterministic: their exact likelihood grows without bound as the
+    /// flow contracts onto them, and the held-out likelihood that early stopping watches
+    /// collapses within a few epochs. Jitter gives the data a density.
+    pub state_noise: f64,
     /// Fraction of episodes held out for early stopping (at least one when there are two).
     pub validation_fraction: f64,
     /// libtorch intra-op threads (1 suits these small networks).
@@ -55,6 +67,7 @@ impl TrainConfig {
             min_rate: 0.1,
             goal_context_indices: None,
             horizon: 1,
+            state_noise: DEFAULT_STATE_NOISE,
             validation_fraction: 0.2,
             threads: 1,
             optim: OptimConfig::default(),
@@ -152,8 +165,9 @@ pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<Fl
     Ok(config)
 }
 
-/// Starting values of the latent noise and cycle frequency from the normalised data.
-fn latent_init(data: &Demonstrations, config: &FlowConfig) -> LatentInit {
+/// The demonstrations' RMS step per normalised coordinate and starting values of the
+/// latent noise and cycle frequency.
+fn latent_init(data: &Demonstrations, config: &FlowConfig) -> (f64, LatentInit) {
     let norm = &config.normalisation;
     let normalised = |y: &[f64], i: usize| (y[i] - norm.state_mean[i]) / norm.state_std[i];
     let (mut squares, mut angle, mut n) = (0.0, 0.0, 0.0);
@@ -168,10 +182,12 @@ fn latent_init(data: &Demonstrations, config: &FlowConfig) -> LatentInit {
             n += 1.0;
         }
     }
-    LatentInit {
-        sigma: (squares / (n * config.state_dim as f64)).sqrt().max(1e-3),
+    let rms_step = (squares / (n * config.state_dim as f64)).sqrt();
+    let init = LatentInit {
+        sigma: rms_step.max(1e-3),
         omega: angle / (n * config.dt),
-    }
+    };
+    (rms_step, init)
 }
 
 /// Trains a flow by exact maximum likelihood; `progress` is called once per epoch.
@@ -180,16 +196,21 @@ pub fn train_flow(
     train: &TrainConfig,
     progress: impl FnMut(&Progress),
 ) -> TrainResult<TrainedFlow> {
-    if train.horizon == 0 || !(0.0..1.0).contains(&train.validation_fraction) {
+    if train.horizon == 0
+        || !(0.0..1.0).contains(&train.validation_fraction)
+        || !(train.state_noise.is_finite() && train.state_noise >= 0.0)
+    {
         return Err(TrainError::InvalidConfig(
-            "horizon must be >= 1 and validation_fraction in [0, 1)".into(),
+            "horizon must be >= 1, validation_fraction in [0, 1) and state_noise finite and >= 0"
+                .into(),
         ));
     }
     let config = flow_config(data, train)?;
     tch::set_num_threads(train.threads);
     tch::manual_seed(train.optim.seed as i64);
     let vs = double_var_store();
-    let model = FlowModel::new(&vs.root(), &config, latent_init(data, &config));
+    let (rms_step, init) = latent_init(data, &config);
+    let model = FlowModel::new(&vs.root(), &config, init);
     let (train_set, validation_set) = split(data, train.validation_fraction, train.optim.seed);
     let (d, m) = (config.state_dim, config.context_dim);
     let fit = Transitions::new(&train_set, train.horizon, d, m);
@@ -201,14 +222,26 @@ pub fn train_flow(
         )));
     }
     let initial_weight = fit.episodes() as f64 / fit.len() as f64;
+    let initial_rows = fit.episodes().min(INITIAL_ROWS_PER_BATCH) as i64;
+    let jitter_std = model.state_std() * (train.state_noise * rms_step);
+    let jitter = |states: Tensor| {
+        let noise = states.randn_like() * &jitter_std;
+        states + noise
+    };
     let loss = |batch: &Tensor| {
         let transitions = model.log_transition(
-            &fit.prev.index_select(0, batch),
-            &fit.next.index_select(0, batch),
+            &jitter(fit.prev.index_select(0, batch)),
+            &jitter(fit.next.index_select(0, batch)),
             &fit.context.index_select(0, batch),
             train.horizon,
         );
-        let initial = model.log_initial(&fit.initial, &fit.initial_context);
+        // An unbiased estimate of the initial term's mean from a few episodes: all of
+        // them would cost as much as the transitions (pouring: 176 starts per batch of 256).
+        let starts = Tensor::randint(fit.episodes() as i64, [initial_rows], tch::kind::INT64_CPU);
+        let initial = model.log_initial(
+            &fit.initial.index_select(0, &starts),
+            &fit.initial_context.index_select(0, &starts),
+        );
         -(transitions.mean(Kind::Double) + initial.mean(Kind::Double) * initial_weight)
     };
     let validation =
