@@ -15,8 +15,8 @@ use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::{self, TaskEntry};
 use ciflow_envs::tasks::{lasa, limit_cycle, obstacle_avoidance};
 use ciflow_train::{
-    BaselineTrainConfig, Contexts, Demonstrations, Episode, OptimConfig, Progress, TrainConfig,
-    train_baseline, train_flow,
+    BaselineTrainConfig, Contexts, Demonstrations, Episode, Keep, OptimConfig, Progress,
+    TrainConfig, train_baseline, train_flow,
 };
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -44,6 +44,23 @@ pub enum CouplingArg {
     Affine,
     /// Rational-quadratic spline coupling with identity tails.
     Spline,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum KeepArg {
+    /// The epoch with the best validation score (early stopping).
+    BestValidation,
+    /// The last epoch's.
+    Last,
+}
+
+impl From<KeepArg> for Keep {
+    fn from(keep: KeepArg) -> Self {
+        match keep {
+            KeepArg::BestValidation => Keep::BestValidation,
+            KeepArg::Last => Keep::Last,
+        }
+    }
 }
 
 /// Architecture and optimisation settings shared by every command that trains policies.
@@ -77,6 +94,9 @@ pub struct ModelArgs {
     /// Early-stopping patience in epochs.
     #[arg(long, default_value_t = 30)]
     pub patience: usize,
+    /// Which epoch's parameters to keep.
+    #[arg(long, value_enum, default_value = "best-validation")]
+    pub keep: KeepArg,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// libtorch threads.
@@ -91,6 +111,7 @@ impl ModelArgs {
             batch_size: self.batch_size,
             learning_rate: self.learning_rate,
             patience: self.patience,
+            keep: self.keep.into(),
             seed: self.seed,
             ..OptimConfig::default()
         }
@@ -132,6 +153,10 @@ pub struct TrainArgs {
     /// Checkpoint directory to write (config.json + weights.safetensors).
     #[arg(long)]
     pub out: PathBuf,
+    /// Train on this many of the dataset's episodes, drawn at random with `--seed` (for
+    /// learning curves against the amount of data) [default: all].
+    #[arg(long)]
+    pub subset: Option<usize>,
     /// Latent attractor [default: the task's: limit-cycle for limit-cycle, else go-to].
     #[arg(long, value_enum)]
     pub latent: Option<LatentArg>,
@@ -238,6 +263,27 @@ pub fn read_demonstrations(
     Ok((spec, data))
 }
 
+/// `count` of `episodes` drawn without replacement by a generator seeded with `seed`, in
+/// their original order.
+fn random_subset<T>(episodes: Vec<T>, count: usize, seed: u64) -> anyhow::Result<Vec<T>> {
+    use rand::SeedableRng;
+    let available = episodes.len();
+    anyhow::ensure!(
+        (1..=available).contains(&count),
+        "asked for {count} episodes, the dataset holds {available}"
+    );
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut keep = vec![false; available];
+    for i in rand::seq::index::sample(&mut rng, available, count) {
+        keep[i] = true;
+    }
+    Ok(episodes
+        .into_iter()
+        .zip(keep)
+        .filter_map(|(episode, kept)| kept.then_some(episode))
+        .collect())
+}
+
 /// A bar over `epochs` epochs, prefixed with `what`.
 fn epoch_bar(epochs: usize, what: &str) -> ProgressBar {
     let bar = ProgressBar::new(epochs as u64);
@@ -291,7 +337,11 @@ pub fn baseline_config(flow: &TrainConfig, goal: Goal) -> BaselineTrainConfig {
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let task = registry::entry(&args.task)?;
-    let (spec, data) = read_demonstrations(&args.demos, task)?;
+    let (spec, mut data) = read_demonstrations(&args.demos, task)?;
+    if let Some(count) = args.subset {
+        data.episodes = random_subset(data.episodes, count, args.model.seed)
+            .with_context(|| format!("--subset of {}", args.demos.display()))?;
+    }
     let defaults = task_defaults(task, spec.context_space.dim())?;
     let defaults = TaskDefaults {
         latent: args.latent.map_or(defaults.latent, LatentKind::from),

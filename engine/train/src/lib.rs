@@ -22,5 +22,5 @@ pub mod trainer;
 pub use baseline::{BaselineTrainConfig, TrainedBaseline, train_baseline};
 pub use data::{Contexts, Demonstrations, Episode};
 pub use error::{TrainError, TrainResult};
-pub use optimise::{OptimConfig, Progress};
+pub use optimise::{Keep, OptimConfig, Progress};
 pub use trainer::{DEFAULT_STATE_NOISE, TrainConfig, TrainedFlow, train_flow};

@@ -21,7 +21,20 @@ pub struct OptimConfig {
     pub patience: usize,
     /// Gradient-norm clip.
     pub max_grad_norm: f64,
+    /// Which epoch's parameters training returns.
+    pub keep: Keep,
     pub seed: u64,
+}
+
+/// Which parameters [`optimise`] returns.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Keep {
+    /// The epoch with the best validation score (early stopping).
+    #[default]
+    BestValidation,
+    /// The last epoch's: validation only reports, patience still ends training.
+    Last,
 }
 
 impl Default for OptimConfig {
@@ -33,6 +46,7 @@ impl Default for OptimConfig {
             final_lr_fraction: 0.05,
             patience: 30,
             max_grad_norm: 50.0,
+            keep: Keep::BestValidation,
             seed: 0,
         }
     }
@@ -121,8 +135,16 @@ pub fn optimise(
             break;
         }
     }
-    restore(vs, &snapshot);
-    Ok((history, best_epoch + 1))
+    match config.keep {
+        Keep::BestValidation => {
+            restore(vs, &snapshot);
+            Ok((history, best_epoch + 1))
+        }
+        Keep::Last => {
+            let last = history.len();
+            Ok((history, last))
+        }
+    }
 }
 
 fn snapshot_of(vs: &nn::VarStore) -> Vec<(String, Tensor)> {
