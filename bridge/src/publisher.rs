@@ -16,6 +16,8 @@ use crate::server::Kwargs;
 
 /// Publishes the checkpoints of one policy name.
 pub struct CheckpointPublisher {
+    /// Keeps the Zenoh session open: dropping its last handle closes it.
+    _session: zenoh::Session,
     name: String,
     kwargs: Kwargs,
     publisher: Publisher<'static>,
@@ -49,6 +51,7 @@ impl CheckpointPublisher {
             .wait()
             .map_err(BridgeError::zenoh)?;
         Ok(Self {
+            _session: session.clone(),
             name: name.to_owned(),
             kwargs: Kwargs::new(),
             publisher,

@@ -169,6 +169,8 @@ def main(argv=None) -> int:
     parser.add_argument("--record", help="write the telemetry to this JSON file")
     parser.add_argument("--plot", help="plot state/command/context to this PNG file")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--wait", type=float, default=10.0,
+                        help="give up after this many seconds without telemetry")
     args = parser.parse_args(argv)
     for change in args.context_step:
         change["duration"] = 0.0
@@ -191,12 +193,14 @@ def main(argv=None) -> int:
     else:
         parser.error("give --session/--token, or --task and --policy")
 
-    feed = control.telemetry(timeout=5.0)
+    feed = control.telemetry(timeout=args.wait)
     time.sleep(0.3)  # let the engine see the subscriber before the run starts
     events = []
     for push in args.push:
         control.perturb(push)
         events.append({"kind": "push", "start": push["start"], "duration": push["duration"]})
+    # Tests and scripts may wait for this line before they start the run.
+    print(f"scheduled {len(args.push)} push(es)", flush=True)
     if env is not None:
         control.run_policy(args.policy, speed=args.speed)
     schedule = ContextSchedule(args.context_step + args.context_ramp)

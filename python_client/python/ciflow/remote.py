@@ -82,7 +82,9 @@ class Attached:
         # Through a wildcard, engines without the session answer `unknown_session`.
         errors.sort(key=lambda e: e.get("code") == "unknown_session")
         if errors:
-            raise _native.CiflowError(f"{errors[0]['code']}: {errors[0]['message']}")
+            error = _native.CiflowError(f"{errors[0]['code']}: {errors[0]['message']}")
+            error.code = errors[0]["code"]
+            raise error
         raise _native.EngineUnreachable(f"no ciflow engine answered on {self._key(op)}")
 
     def run_policy(self, policy: str, speed: float = 1.0, steps: int | None = None,
