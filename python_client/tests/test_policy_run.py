@@ -46,8 +46,11 @@ def policy_engine(tmp_path_factory):
 
 
 def record(feed) -> list[dict]:
+    """The samples of one run: from its first step to the sample that ends it."""
     samples = []
     for sample in feed:
+        if not samples and not sample["running"]:
+            continue  # the reset's sample
         samples.append(sample)
         if not sample["running"]:
             return samples

@@ -216,6 +216,9 @@ def main(argv=None) -> int:
     samples = []
     try:
         for sample in feed:
+            # Samples of the client's own resets and steps before the run are not ours.
+            if not samples and not sample["running"]:
+                continue
             samples.append(sample)
             if progress is not None:
                 progress.update(sample["time"] - progress.n)
