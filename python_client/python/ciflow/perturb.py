@@ -211,7 +211,11 @@ def main(argv=None) -> int:
     if not args.quiet:
         from tqdm import tqdm
 
-        progress = tqdm(total=args.duration, unit="sim s", desc="perturb",
+        total = args.duration
+        if total is None and env is not None:
+            spec = env.unwrapped.task_spec
+            total = spec["max_episode_steps"] * spec["control_dt"]
+        progress = tqdm(total=total, unit="sim s", desc="perturb",
                         bar_format="{l_bar}{bar}| {n:.2f}/{total_fmt} sim s")
     samples = []
     try:
@@ -221,7 +225,7 @@ def main(argv=None) -> int:
                 continue
             samples.append(sample)
             if progress is not None:
-                progress.update(sample["time"] - progress.n)
+                progress.update(max(sample["time"] - progress.n, 0.0))
             context = schedule.due(sample["time"], sample["context"])
             if context is not None:
                 control.set_context(context)
