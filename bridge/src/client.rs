@@ -27,9 +27,44 @@ use crate::protocol::{
     AckReply, ActRequest, ActionReply, BatchResetReply, BatchStepReply, BatchStepRequest,
     ContextRequest, ErrorReply, F64s, FrameHeader, MakeReply, MakeRequest, PROTOCOL_VERSION,
     PerturbRequest, PerturbationMsg, PolicyInfo, RenderReply, RenderRequest, ResetReply,
-    ResetRequest, SessionRequest, StepReply, StepRequest, TaskInfo, TasksReply, TasksRequest,
-    decode_reply, encode,
+    ResetRequest, RunRequest, SessionRequest, StepReply, StepRequest, TaskInfo, TasksReply,
+    TasksRequest, Telemetry, decode_reply, encode,
 };
+
+/// The telemetry samples of one session, as they arrive.
+pub struct TelemetryStream {
+    subscriber: Subscriber<FifoChannelHandler<Sample>>,
+}
+
+impl TelemetryStream {
+    /// Subscribes to `…/session/<session>/telemetry` of `engine` (anyone may: telemetry
+    /// needs no token).
+    pub fn subscribe(
+        zsession: &zenoh::Session,
+        engine: &str,
+        session: &str,
+    ) -> Result<Self, BridgeError> {
+        let subscriber = zsession
+            .declare_subscriber(keys::session(engine, session, "telemetry"))
+            .wait()
+            .map_err(BridgeError::zenoh)?;
+        Ok(Self { subscriber })
+    }
+
+    /// The next sample, or `None` if none arrives within `timeout`.
+    pub fn recv_timeout(&self, timeout: Duration) -> Result<Option<Telemetry>, BridgeError> {
+        match self.subscriber.recv_timeout(timeout) {
+            Ok(Some(sample)) => decode_reply(&sample.payload().to_bytes())
+                .map(Some)
+                .map_err(|e| BridgeError::BadReply {
+                    key: sample.key_expr().to_string(),
+                    detail: e.to_string(),
+                }),
+            Ok(None) => Ok(None),
+            Err(e) => Err(BridgeError::zenoh(e)),
+        }
+    }
+}
 
 /// Default wait for a reply.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(10);
@@ -465,6 +500,41 @@ impl RemoteEnv {
             },
         )?;
         Ok(reply.time)
+    }
+
+    /// Lets policy `policy` drive environment `index` (`speed` 1 = real time, 0 = as fast
+    /// as possible; `steps` absent = until the episode ends). Returns the simulated time
+    /// at the start. `step`/`reset` answer `busy` until the run ends or [`stop`](Self::stop).
+    pub fn run(
+        &self,
+        index: u32,
+        policy: &str,
+        speed: f64,
+        steps: Option<u32>,
+    ) -> Result<f64, BridgeError> {
+        let reply: AckReply = self.call(
+            SessionOp::Run,
+            &RunRequest {
+                v: PROTOCOL_VERSION,
+                token: self.token.clone(),
+                index,
+                policy: policy.to_owned(),
+                speed,
+                steps,
+            },
+        )?;
+        Ok(reply.time)
+    }
+
+    /// Stops a policy run (no effect without one); returns the simulated time.
+    pub fn stop(&self) -> Result<f64, BridgeError> {
+        let reply: AckReply = self.call(SessionOp::Stop, &self.session_request(0))?;
+        Ok(reply.time)
+    }
+
+    /// Subscribes to this session's telemetry.
+    pub fn telemetry(&self) -> Result<TelemetryStream, BridgeError> {
+        TelemetryStream::subscribe(&self.zsession, &self.engine, &self.session)
     }
 
     /// Schedules a perturbation of environment `index`; returns the simulated time at

@@ -8,19 +8,27 @@
 //! - [`server`]: [`EngineServer`], the engine hosting environment sessions;
 //! - [`client`]: [`Client`] and [`RemoteEnv`], the Rust side of a Gymnasium client;
 //! - [`config`]: Zenoh configuration with a zero-configuration loopback default;
-//! - [`policy`]: the [`Policy`] hook for `act`.
+//! - [`policy`]: the [`Policy`] hook for `act`; [`checkpoint_policy`]: trained
+//!   checkpoints as policies; [`publisher`]: a trainer's checkpoint publications, which
+//!   engines hot-load.
 
+pub mod checkpoint_policy;
 pub mod client;
 pub mod config;
 pub mod error;
 pub mod policy;
 pub mod protocol;
+pub mod publisher;
 pub mod server;
 
-pub use client::{BatchStep, Client, EngineInfo, RemoteEnv, StepResult, query_all};
+pub use checkpoint_policy::{CheckpointPolicy, PolicyLoadError};
+pub use client::{
+    BatchStep, Client, EngineInfo, RemoteEnv, StepResult, TelemetryStream, query_all,
+};
 pub use config::{DEFAULT_ENDPOINT, Mode, NetworkOptions, Role};
 pub use error::BridgeError;
 pub use policy::{Policy, PolicyError};
+pub use publisher::CheckpointPublisher;
 pub use server::{EngineServer, Kwargs, ServerOptions, TaskFactory};
 /// The Zenoh crate this bridge is built with, for callers that need its types.
 pub use zenoh;

@@ -2,6 +2,7 @@
 //! an observation in, the policy's desired acceleration out.
 
 use crate::protocol::PolicyInfo;
+use crate::server::Kwargs;
 
 /// Why a policy could not produce an action.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -9,11 +10,25 @@ use crate::protocol::PolicyInfo;
 pub struct PolicyError(pub String);
 
 /// A policy evaluated by the engine. Implementations must be cheap to call concurrently
-/// (`&self`): several clients may ask at once.
+/// (`&self`): several clients and session drivers may ask at once.
 pub trait Policy: Send + Sync {
     /// Name, task and dimensions, as listed in the `tasks` reply.
     fn info(&self) -> PolicyInfo;
 
-    /// `a = π(o)` for one observation of `info().observation_dim` elements.
-    fn act(&self, observation: &[f64]) -> Result<Vec<f64>, PolicyError>;
+    /// Writes `a = π(o)` for one observation of `info().observation_dim` elements into
+    /// `action` (`info().action_dim` elements).
+    fn act_into(&self, observation: &[f64], action: &mut [f64]) -> Result<(), PolicyError>;
+
+    /// The construction arguments of the task it acts in (e.g. `{obstacles: 1}`); a
+    /// checkpoint hot-loaded under the policy's name inherits them.
+    fn task_kwargs(&self) -> Kwargs {
+        Kwargs::new()
+    }
+
+    /// `a = π(o)` as a new vector.
+    fn act(&self, observation: &[f64]) -> Result<Vec<f64>, PolicyError> {
+        let mut action = vec![0.0; self.info().action_dim as usize];
+        self.act_into(observation, &mut action)?;
+        Ok(action)
+    }
 }

@@ -12,11 +12,14 @@
 //! flow may ask for more, this is the saturated loop that `flow::robot_loop` measures. The behaviour-cloning baseline has no Jacobian; it
 //! tracks its finite-difference velocity `v = (ŷ_{k+1} − q) / dt` with the same gain.
 
+use std::borrow::Borrow;
 use std::path::Path;
 
 use ciflow_engine::flow::baseline::BaselineWorkspace;
 use ciflow_engine::flow::checkpoint;
-use ciflow_engine::flow::{BehaviourCloning, CheckpointConfig, FlowError, Policy, PolicyWorkspace};
+use ciflow_engine::flow::{
+    BehaviourCloning, CheckpointConfig, FlowError, Policy, PolicyWorkspace, Weights,
+};
 
 use crate::env::EnvSpec;
 use crate::space::BoxSpace;
@@ -59,10 +62,26 @@ pub enum Model {
 impl Model {
     /// Loads whichever model `dir` holds; `expected_task` guards against the wrong task.
     pub fn load(dir: &Path, expected_task: Option<&str>) -> Result<Self, FlowError> {
-        Ok(match checkpoint::read_config(dir)? {
-            CheckpointConfig::Flow(_) => Self::Flow(Policy::load(dir, expected_task)?),
-            CheckpointConfig::MlpBaseline(_) => {
-                Self::Baseline(BehaviourCloning::load(dir, expected_task)?)
+        let (config, weights) = checkpoint::read(dir, expected_task)?;
+        Self::new(&config, weights)
+    }
+
+    /// A checkpoint received in memory: the `config.json` text and the safetensors bytes.
+    pub fn from_bytes(
+        config_json: &str,
+        weights: &[u8],
+        expected_task: Option<&str>,
+    ) -> Result<Self, FlowError> {
+        let (config, weights) = checkpoint::from_bytes(config_json, weights, expected_task)?;
+        Self::new(&config, weights)
+    }
+
+    /// The model a configuration describes, with its weights (shapes checked).
+    pub fn new(config: &CheckpointConfig, weights: Weights) -> Result<Self, FlowError> {
+        Ok(match config {
+            CheckpointConfig::Flow(config) => Self::Flow(Policy::new(config, weights)?),
+            CheckpointConfig::MlpBaseline(config) => {
+                Self::Baseline(BehaviourCloning::new(config, weights)?)
             }
         })
     }
@@ -98,35 +117,37 @@ impl Model {
     }
 }
 
-/// A model paired with its buffers.
-enum Acting<'m> {
-    Flow(&'m Policy, Box<PolicyWorkspace>),
-    Baseline(&'m BehaviourCloning, BaselineWorkspace),
+/// The buffers of one model kind.
+enum Workspace {
+    Flow(Box<PolicyWorkspace>),
+    Baseline(BaselineWorkspace),
 }
 
 /// A [`Model`] with its buffers, acting on one environment's observations. Acting is
-/// allocation-free; create one actor per thread.
-pub struct Actor<'m> {
-    model: &'m Model,
-    acting: Acting<'m>,
+/// allocation-free; create one actor per thread. `M` is how the model is held: `&Model`,
+/// or `Arc<Model>` for an actor that outlives the caller's borrow (pools, threads).
+pub struct Actor<M: Borrow<Model>> {
+    model: M,
+    workspace: Workspace,
     velocity_gain: f64,
     action_space: BoxSpace,
     velocity: Vec<f64>,
     next: Vec<f64>,
 }
 
-impl<'m> Actor<'m> {
+impl<M: Borrow<Model>> Actor<M> {
     /// An actor of `model` for environments of `spec`: the observation must be
     /// `[q, q̇, c]` with `q` and `c` of the model's dimensions and the action `q̈_des`.
-    pub fn new(model: &'m Model, spec: &EnvSpec, velocity_gain: f64) -> Result<Self, ActorError> {
+    pub fn new(model: M, spec: &EnvSpec, velocity_gain: f64) -> Result<Self, ActorError> {
         if !(velocity_gain.is_finite() && velocity_gain > 0.0) {
             return Err(ActorError::VelocityGain(velocity_gain));
         }
-        let (d, c) = (model.state_dim(), model.context_dim());
+        let held = model.borrow();
+        let (d, c) = (held.state_dim(), held.context_dim());
         let (observation_dim, action_dim) = (spec.observation_space.dim(), spec.action_space.dim());
         if observation_dim != 2 * d + c || action_dim != d || spec.context_space.dim() != c {
             return Err(ActorError::Mismatch {
-                checkpoint: model.task().to_owned(),
+                checkpoint: held.task().to_owned(),
                 state_dim: d,
                 context_dim: c,
                 env: spec.id.clone(),
@@ -134,13 +155,13 @@ impl<'m> Actor<'m> {
                 action_dim,
             });
         }
-        let acting = match model {
-            Model::Flow(policy) => Acting::Flow(policy, Box::new(policy.workspace())),
-            Model::Baseline(baseline) => Acting::Baseline(baseline, baseline.workspace()),
+        let workspace = match held {
+            Model::Flow(policy) => Workspace::Flow(Box::new(policy.workspace())),
+            Model::Baseline(baseline) => Workspace::Baseline(baseline.workspace()),
         };
         Ok(Self {
             model,
-            acting,
+            workspace,
             velocity_gain,
             action_space: spec.action_space.clone(),
             velocity: vec![0.0; d],
@@ -148,14 +169,18 @@ impl<'m> Actor<'m> {
         })
     }
 
+    pub fn model(&self) -> &Model {
+        self.model.borrow()
+    }
+
     pub fn observation_dim(&self) -> usize {
-        2 * self.model.state_dim() + self.model.context_dim()
+        2 * self.model().state_dim() + self.model().context_dim()
     }
 
     /// Writes the desired acceleration for `observation = [q, q̇, c]`, clipped to the
     /// action space, to `action`.
     pub fn act(&mut self, observation: &[f64], action: &mut [f64]) -> Result<(), ActorError> {
-        let d = self.model.state_dim();
+        let d = self.model().state_dim();
         let expected = self.observation_dim();
         if observation.len() != expected {
             return Err(ActorError::ObservationDim {
@@ -172,11 +197,11 @@ impl<'m> Actor<'m> {
         let (q, rest) = observation.split_at(d);
         let (qd, context) = rest.split_at(d);
         let gain = self.velocity_gain;
-        match &mut self.acting {
-            Acting::Flow(policy, ws) => {
+        match (self.model.borrow(), &mut self.workspace) {
+            (Model::Flow(policy), Workspace::Flow(ws)) => {
                 policy.acceleration(q, qd, context, gain, ws, action, &mut self.velocity)?;
             }
-            Acting::Baseline(baseline, ws) => {
+            (Model::Baseline(baseline), Workspace::Baseline(ws)) => {
                 baseline.mean_next(q, context, ws, &mut self.next)?;
                 let dt = baseline.config().dt;
                 for i in 0..d {
@@ -184,6 +209,7 @@ impl<'m> Actor<'m> {
                     action[i] = gain * (self.velocity[i] - qd[i]);
                 }
             }
+            _ => unreachable!("`new` builds the workspace of its model's kind"),
         }
         let BoxSpace { low, high, .. } = &self.action_space;
         for ((a, lo), hi) in action.iter_mut().zip(low).zip(high) {

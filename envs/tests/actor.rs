@@ -128,3 +128,61 @@ fn closed_loop_reaches_the_target_in_the_context() {
     }
     assert!(closest < 0.02, "closest approach to the target {closest} m");
 }
+
+#[test]
+fn a_checkpoint_in_memory_loads_like_its_directory() {
+    use ciflow_engine::flow::checkpoint::{self, CONFIG_FILE, WEIGHTS_FILE};
+    use ciflow_engine::flow::{CheckpointConfig, FlowError};
+
+    let Model::Flow(policy) = random_obstacle_flow(4) else {
+        unreachable!()
+    };
+    let dir = std::env::temp_dir().join(format!("ciflow-actor-bytes-{}", std::process::id()));
+    let weights = Weights::random(
+        &policy.config().parameter_shapes(),
+        0.1,
+        &mut ChaCha8Rng::seed_from_u64(4),
+    );
+    checkpoint::write(
+        &dir,
+        &CheckpointConfig::Flow(policy.config().clone()),
+        &weights,
+    )
+    .unwrap();
+    let config = std::fs::read_to_string(dir.join(CONFIG_FILE)).unwrap();
+    let bytes = std::fs::read(dir.join(WEIGHTS_FILE)).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+
+    let from_bytes = Model::from_bytes(&config, &bytes, Some("obstacle-avoidance")).unwrap();
+    let direct = Model::Flow(Policy::new(policy.config(), weights).unwrap());
+    let env = obstacle_avoidance::make(1).unwrap();
+    let observation = [-0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2];
+    let (mut a, mut b) = ([0.0; 2], [0.0; 2]);
+    // An actor may own its model (`Arc`) or borrow it.
+    Actor::new(
+        std::sync::Arc::new(from_bytes),
+        env.spec(),
+        DEFAULT_VELOCITY_GAIN,
+    )
+    .unwrap()
+    .act(&observation, &mut a)
+    .unwrap();
+    Actor::new(&direct, env.spec(), DEFAULT_VELOCITY_GAIN)
+        .unwrap()
+        .act(&observation, &mut b)
+        .unwrap();
+    assert_eq!(a, b);
+
+    assert!(matches!(
+        Model::from_bytes(&config, &bytes, Some("pouring")),
+        Err(FlowError::TaskMismatch { .. })
+    ));
+    assert!(matches!(
+        Model::from_bytes("{not json", &bytes, None),
+        Err(FlowError::ConfigText(_))
+    ));
+    assert!(matches!(
+        Model::from_bytes(&config, &bytes[..bytes.len() / 2], None),
+        Err(FlowError::SafeTensors(_))
+    ));
+}

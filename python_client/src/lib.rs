@@ -220,6 +220,8 @@ fn engine_to_dict<'py>(
             d.set_item("task", &p.task)?;
             d.set_item("observation_dim", p.observation_dim)?;
             d.set_item("action_dim", p.action_dim)?;
+            d.set_item("epoch", p.epoch)?;
+            d.set_item("validation_nll", p.validation_nll)?;
             Ok(d)
         })
         .collect::<PyResult<Vec<_>>>()?;

@@ -1,9 +1,13 @@
 //! `ciflow serve`: host every task as Gymnasium environments over Zenoh.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::Context;
-use ciflow_bridge::{EngineServer, Mode, NetworkOptions, ServerOptions};
+use ciflow_bridge::{
+    CheckpointPolicy, EngineServer, Kwargs, Mode, NetworkOptions, Policy, ServerOptions,
+    TaskFactory,
+};
 
 /// Start an engine that hosts environment sessions for Zenoh clients (Python
 /// `gymnasium.make("ciflow/...")`, or any Zenoh client following bridge/PROTOCOL.md).
@@ -32,6 +36,40 @@ pub struct ServeArgs {
     /// Most telemetry samples per second and session.
     #[arg(long, default_value_t = 60.0)]
     pub telemetry_hz: f64,
+    /// A trained checkpoint to serve, `[NAME=]DIR` (repeatable; NAME defaults to the
+    /// checkpoint's task). Clients evaluate it with `act` and let it drive sessions with
+    /// `run`; a trainer's publications under the same name replace it without a restart.
+    #[arg(long = "policy", value_name = "[NAME=]DIR")]
+    pub policies: Vec<String>,
+    /// Construction argument of the policies' task, as given to `ciflow demos --kwarg`
+    /// when the checkpoint's data was made (e.g. obstacles=1; repeatable).
+    #[arg(long = "policy-kwarg", value_name = "NAME=VALUE", value_parser = parse_kwarg)]
+    pub policy_kwargs: Vec<(String, f64)>,
+}
+
+fn parse_kwarg(text: &str) -> Result<(String, f64), String> {
+    let (key, value) = text
+        .split_once('=')
+        .ok_or_else(|| format!("`{text}` is not NAME=VALUE"))?;
+    let value = value
+        .parse()
+        .map_err(|_| format!("`{value}` in `{text}` is not a number"))?;
+    Ok((key.to_owned(), value))
+}
+
+/// Loads `[NAME=]DIR` for the tasks the engine serves.
+fn load_policy(
+    spec: &str,
+    tasks: &[TaskFactory],
+    kwargs: &Kwargs,
+) -> anyhow::Result<Arc<dyn Policy>> {
+    let (name, dir) = match spec.split_once('=') {
+        Some((name, dir)) => (Some(name), dir),
+        None => (None, spec),
+    };
+    let policy = CheckpointPolicy::load(name, Path::new(dir), tasks, kwargs)
+        .with_context(|| format!("loading the policy --policy {spec}"))?;
+    Ok(Arc::new(policy))
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
@@ -45,11 +83,18 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         args.telemetry_hz.is_finite() && args.telemetry_hz > 0.0,
         "--telemetry-hz must be a positive number"
     );
-    let options = ServerOptions {
+    let mut options = ServerOptions {
         name: args.name,
         telemetry_hz: args.telemetry_hz,
         ..ServerOptions::default()
     };
+    let kwargs: Kwargs = args.policy_kwargs.into_iter().collect();
+    options.policies = args
+        .policies
+        .iter()
+        .map(|spec| load_policy(spec, &options.tasks, &kwargs))
+        .collect::<anyhow::Result<_>>()?;
+    let policy_names: Vec<String> = options.policies.iter().map(|p| p.info().name).collect();
     let task_ids: Vec<String> = options.tasks.iter().map(|t| t.id.clone()).collect();
     let server = EngineServer::open(&network, options).context("starting the engine")?;
     let endpoints = if network.listen.is_empty() && network.config_file.is_none() {
@@ -59,10 +104,11 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     };
     // Tests and scripts wait for this line before connecting.
     println!(
-        "ciflow engine `{}` ready on [{}] serving {}",
+        "ciflow engine `{}` ready on [{}] serving {}; policies: [{}]",
         server.name(),
         endpoints.join(", "),
-        task_ids.join(", ")
+        task_ids.join(", "),
+        policy_names.join(", ")
     );
     loop {
         // Serving happens on Zenoh's threads; this one only keeps the engine alive until

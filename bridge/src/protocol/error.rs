@@ -39,10 +39,12 @@ pub enum ErrorCode {
     Policy,
     /// A bug in the engine or a task (caught, never a crash); the session is closed.
     Internal,
+    /// The session is driven by a policy (`run`): `step`/`reset` wait until it stops.
+    Busy,
 }
 
 impl ErrorCode {
-    const ALL: [ErrorCode; 19] = [
+    const ALL: [ErrorCode; 20] = [
         ErrorCode::VersionMismatch,
         ErrorCode::Malformed,
         ErrorCode::PayloadTooLarge,
@@ -62,6 +64,7 @@ impl ErrorCode {
         ErrorCode::Simulation,
         ErrorCode::Policy,
         ErrorCode::Internal,
+        ErrorCode::Busy,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -85,6 +88,7 @@ impl ErrorCode {
             ErrorCode::Simulation => "simulation",
             ErrorCode::Policy => "policy",
             ErrorCode::Internal => "internal",
+            ErrorCode::Busy => "busy",
         }
     }
 

@@ -8,10 +8,11 @@
 //! ciflow/v1/engine/<engine>/ping                     query: echoes its payload
 //! ciflow/v1/engine/<engine>/session/<session>/<op>   query: reset, step, reset_batch,
 //!                                                    step_batch, expert, context,
-//!                                                    perturb, render, close
+//!                                                    perturb, render, close, run, stop
 //! ciflow/v1/engine/<engine>/session/<session>/telemetry   publication (engine → viewers)
 //! ciflow/v1/engine/<engine>/session/<session>/frame       publication (rendered frames)
 //! ciflow/v1/engine/<engine>/policy/<policy>/act      query: observation in, action out
+//! ciflow/v1/policies/<policy>/checkpoint             publication (trainer → engines)
 //! ```
 
 /// Root of every key of this protocol version.
@@ -63,6 +64,16 @@ pub fn policy_act(engine_id: &str, policy: &str) -> String {
     format!("{}/policy/{policy}/act", engine(engine_id))
 }
 
+// ---------------------------------------------------------------- policy publications
+
+/// Where a trainer publishes checkpoints of policy `<policy>` (pub/sub: about 1 MB).
+pub fn policy_checkpoint(policy: &str) -> String {
+    format!("{ROOT}/policies/{policy}/checkpoint")
+}
+
+/// Every policy's checkpoint publications (engines subscribe to hot-load).
+pub const ALL_POLICY_CHECKPOINTS: &str = "ciflow/v1/policies/*/checkpoint";
+
 /// Whether `chunk` can be one chunk of a key expression: non-empty, no `/`, no wildcard
 /// or reserved character. Engine, client, session and policy names must satisfy it.
 pub fn is_plain_chunk(chunk: &str) -> bool {
@@ -95,10 +106,13 @@ pub enum SessionOp {
     Perturb,
     Render,
     Close,
+    /// Policy-driven sessions: the engine steps the environment itself.
+    Run,
+    Stop,
 }
 
 impl SessionOp {
-    pub const ALL: [SessionOp; 9] = [
+    pub const ALL: [SessionOp; 11] = [
         SessionOp::Reset,
         SessionOp::Step,
         SessionOp::ResetBatch,
@@ -108,6 +122,8 @@ impl SessionOp {
         SessionOp::Perturb,
         SessionOp::Render,
         SessionOp::Close,
+        SessionOp::Run,
+        SessionOp::Stop,
     ];
 
     /// The last chunk of the operation's key.
@@ -122,6 +138,8 @@ impl SessionOp {
             SessionOp::Perturb => "perturb",
             SessionOp::Render => "render",
             SessionOp::Close => "close",
+            SessionOp::Run => "run",
+            SessionOp::Stop => "stop",
         }
     }
 

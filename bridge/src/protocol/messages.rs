@@ -51,6 +51,12 @@ pub struct PolicyInfo {
     pub task: String,
     pub observation_dim: u32,
     pub action_dim: u32,
+    /// Training epoch of the loaded checkpoint, when its publisher said.
+    #[serde(default)]
+    pub epoch: Option<u64>,
+    /// Validation negative log-likelihood of the loaded checkpoint, when known.
+    #[serde(default)]
+    pub validation_nll: Option<f64>,
 }
 
 /// `…/make`: opens a session of `num_envs` copies of `task`, owned by `client`.
@@ -286,4 +292,10 @@ pub struct Telemetry {
     pub command: F64s,
     pub context: F64s,
     pub reward: f64,
+    /// A policy drives the session (`run`) and will take the next step.
+    #[serde(default)]
+    pub running: bool,
+    /// The episode ended (terminated or truncated) with this sample.
+    #[serde(default)]
+    pub episode_done: bool,
 }

@@ -2,11 +2,13 @@
 //! payloads ([`messages`]) and the typed error reply ([`ErrorReply`]). `PROTOCOL.md` is the
 //! language-neutral description of the same thing.
 
+pub mod checkpoint;
 pub mod error;
 pub mod f64le;
 pub mod keys;
 pub mod messages;
 
+pub use checkpoint::{CheckpointMsg, RunRequest};
 pub use error::{ErrorCode, ErrorReply};
 pub use f64le::F64s;
 pub use messages::*;

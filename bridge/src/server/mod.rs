@@ -7,6 +7,7 @@
 //! frame) go to a worker thread. Every request gets exactly one reply; a panic in a task
 //! is caught, answered with `internal`, and closes only that session.
 
+mod driver;
 mod session;
 mod slot;
 mod telemetry;
@@ -25,18 +26,20 @@ use zenoh::qos::CongestionControl;
 use zenoh::query::{Query, Queryable};
 use zenoh::sample::SampleKind;
 
+use self::driver::Driver;
 use self::session::Session;
 use self::slot::EnvSlot;
 use self::telemetry::TelemetryPublisher;
+use crate::checkpoint_policy::CheckpointPolicy;
 use crate::config::{NetworkOptions, Role};
 use crate::error::BridgeError;
 use crate::policy::Policy;
 use crate::protocol::keys::{self, Route, SessionOp};
 use crate::protocol::{
-    AckReply, ActRequest, ActionReply, BatchStepRequest, ContextRequest, ErrorCode, ErrorReply,
-    F64s, MakeReply, MakeRequest, PROTOCOL_VERSION, PerturbRequest, RenderReply, RenderRequest,
-    ResetRequest, SessionRequest, StepRequest, TaskInfo, TasksReply, TasksRequest, decode_request,
-    encode,
+    AckReply, ActRequest, ActionReply, BatchStepRequest, CheckpointMsg, ContextRequest, ErrorCode,
+    ErrorReply, F64s, MakeReply, MakeRequest, PROTOCOL_VERSION, PerturbRequest, PolicyInfo,
+    RenderReply, RenderRequest, ResetRequest, RunRequest, SessionRequest, StepRequest, TaskInfo,
+    TasksReply, TasksRequest, decode_request, encode,
 };
 
 /// Most environments one session may hold.
@@ -44,6 +47,47 @@ pub const MAX_ENVS_PER_SESSION: u32 = 1 << 20;
 
 /// How long `make` waits for Zenoh to confirm a client's liveliness token.
 const LIVELINESS_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// The policies an engine serves, by name. A hot-loaded checkpoint replaces its name's
+/// entry atomically; callers holding the old `Arc` finish with it.
+#[derive(Default)]
+pub(crate) struct PolicyTable(RwLock<BTreeMap<String, Arc<dyn Policy>>>);
+
+impl PolicyTable {
+    pub fn get(&self, name: &str) -> Option<Arc<dyn Policy>> {
+        self.0
+            .read()
+            .unwrap_or_else(|p| p.into_inner())
+            .get(name)
+            .cloned()
+    }
+
+    pub fn insert(&self, policy: Arc<dyn Policy>) {
+        let name = policy.info().name;
+        self.0
+            .write()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(name, policy);
+    }
+
+    pub fn names(&self) -> Vec<String> {
+        self.0
+            .read()
+            .unwrap_or_else(|p| p.into_inner())
+            .keys()
+            .cloned()
+            .collect()
+    }
+
+    pub fn infos(&self) -> Vec<PolicyInfo> {
+        self.0
+            .read()
+            .unwrap_or_else(|p| p.into_inner())
+            .values()
+            .map(|p| p.info())
+            .collect()
+    }
+}
 
 /// Construction arguments of a task, as `gymnasium.make(id, **kwargs)` passes them.
 pub type Kwargs = BTreeMap<String, f64>;
@@ -103,6 +147,7 @@ pub struct EngineServer {
     shared: Arc<Shared>,
     _queryable: Queryable<()>,
     _clients: Subscriber<()>,
+    _checkpoints: Subscriber<()>,
     _token: LivelinessToken,
 }
 
@@ -147,11 +192,10 @@ impl EngineServer {
                 })
             })
             .collect::<Result<_, BridgeError>>()?;
-        let policies = options
-            .policies
-            .iter()
-            .map(|policy| (policy.info().name, Arc::clone(policy)))
-            .collect();
+        let policies = Arc::new(PolicyTable::default());
+        for policy in &options.policies {
+            policies.insert(Arc::clone(policy));
+        }
         let shared = Arc::new(Shared {
             zsession: zsession.clone(),
             name,
@@ -174,6 +218,24 @@ impl EngineServer {
                     match sample.kind() {
                         SampleKind::Put => shared.client_appeared(client),
                         SampleKind::Delete => shared.client_vanished(client),
+                    }
+                })
+                .wait()
+                .map_err(BridgeError::zenoh)?
+        };
+
+        let checkpoints = {
+            let shared = Arc::clone(&shared);
+            zsession
+                .declare_subscriber(keys::ALL_POLICY_CHECKPOINTS)
+                .callback(move |sample| {
+                    let key = sample.key_expr().as_str();
+                    if let Err(error) = shared.hot_load(key, &sample.payload().to_bytes()) {
+                        // A bad publication must not disturb serving: report and go on.
+                        eprintln!(
+                            "ciflow engine `{}`: ignored checkpoint on `{key}`: {error}",
+                            shared.name
+                        );
                     }
                 })
                 .wait()
@@ -230,6 +292,7 @@ impl EngineServer {
             shared,
             _queryable: queryable,
             _clients: clients,
+            _checkpoints: checkpoints,
             _token: token,
         })
     }
@@ -261,7 +324,7 @@ struct Shared {
     name: String,
     task_infos: Vec<TaskInfo>,
     factories: Vec<TaskFactory>,
-    policies: BTreeMap<String, Arc<dyn Policy>>,
+    policies: Arc<PolicyTable>,
     telemetry_hz: f64,
     sessions: RwLock<HashMap<String, Arc<Mutex<Session>>>>,
     live_clients: Mutex<HashSet<String>>,
@@ -341,7 +404,7 @@ impl Shared {
                     v: PROTOCOL_VERSION,
                     engine: self.name.clone(),
                     tasks: self.task_infos.clone(),
-                    policies: self.policies.values().map(|p| p.info()).collect(),
+                    policies: self.policies.infos(),
                 }))
             }
             Some(Route::Make) => self.make(decode_request(payload)?),
@@ -454,7 +517,7 @@ impl Shared {
     }
 
     fn session_op(&self, id: &str, op: SessionOp, payload: &[u8]) -> Answer {
-        let session = self.read_sessions().get(id).cloned().ok_or_else(|| {
+        let handle = self.read_sessions().get(id).cloned().ok_or_else(|| {
             ErrorReply::new(
                 ErrorCode::UnknownSession,
                 format!(
@@ -463,7 +526,7 @@ impl Shared {
                 ),
             )
         })?;
-        let Ok(mut session) = session.lock() else {
+        let Ok(mut session) = handle.lock() else {
             self.sessions_mut().remove(id);
             return Err(ErrorReply::new(
                 ErrorCode::Internal,
@@ -474,22 +537,58 @@ impl Shared {
             SessionOp::Reset => {
                 let request: ResetRequest = decode_request(payload)?;
                 session.authorize(&request.token)?;
+                session.ensure_idle(op.as_str())?;
                 session.reset(request)
             }
             SessionOp::Step => {
                 let request: StepRequest = decode_request(payload)?;
                 session.authorize(&request.token)?;
+                session.ensure_idle(op.as_str())?;
                 session.step(&request.action.0)
             }
             SessionOp::ResetBatch => {
                 let request: ResetRequest = decode_request(payload)?;
                 session.authorize(&request.token)?;
+                session.ensure_idle(op.as_str())?;
                 session.reset_batch(request)
             }
             SessionOp::StepBatch => {
                 let request: BatchStepRequest = decode_request(payload)?;
                 session.authorize(&request.token)?;
+                session.ensure_idle(op.as_str())?;
                 session.step_batch(&request.actions.0)
+            }
+            SessionOp::Run => {
+                let request: RunRequest = decode_request(payload)?;
+                session.authorize(&request.token)?;
+                let policy = self.policy(&request.policy)?;
+                let run = session.start_run(&request, policy.as_ref())?;
+                let time = session.time();
+                let driver = Driver {
+                    session: Arc::downgrade(&handle),
+                    policies: Arc::clone(&self.policies),
+                    run,
+                    speed: request.speed,
+                    steps: request.steps,
+                    control_dt: session.control_dt(),
+                    action_dim: policy.info().action_dim as usize,
+                };
+                if let Err(e) = driver.spawn() {
+                    session.stop_run()?;
+                    return Err(ErrorReply::new(
+                        ErrorCode::Internal,
+                        format!("cannot start the policy driver: {e}"),
+                    ));
+                }
+                Ok(encode(&AckReply {
+                    v: PROTOCOL_VERSION,
+                    time,
+                }))
+            }
+            SessionOp::Stop => {
+                let request: SessionRequest = decode_request(payload)?;
+                session.authorize(&request.token)?;
+                session.stop_run()
             }
             SessionOp::Expert => {
                 let request: SessionRequest = decode_request(payload)?;
@@ -541,16 +640,50 @@ impl Shared {
         }
     }
 
-    fn act(&self, name: &str, request: ActRequest) -> Answer {
-        let policy = self.policies.get(name).ok_or_else(|| {
+    fn policy(&self, name: &str) -> Result<Arc<dyn Policy>, ErrorReply> {
+        self.policies.get(name).ok_or_else(|| {
             ErrorReply::new(
                 ErrorCode::UnknownPolicy,
                 format!(
                     "no policy `{name}`; this engine has: {}",
-                    self.policies.keys().cloned().collect::<Vec<_>>().join(", ")
+                    self.policies.names().join(", ")
                 ),
             )
-        })?;
+        })
+    }
+
+    /// Swaps in the checkpoint published on `key` if it fits a task this engine serves
+    /// and does not change the task of a policy already served under its name.
+    fn hot_load(&self, key: &str, payload: &[u8]) -> Result<(), String> {
+        let name = key
+            .strip_prefix(keys::ROOT)
+            .and_then(|rest| rest.strip_prefix("/policies/"))
+            .and_then(|rest| rest.strip_suffix("/checkpoint"))
+            .ok_or("not a checkpoint key")?;
+        let message: CheckpointMsg = decode_request(payload).map_err(|e| e.message)?;
+        let current = self.policies.get(name);
+        let kwargs = current
+            .as_ref()
+            .map(|p| p.task_kwargs())
+            .unwrap_or_default();
+        let policy = CheckpointPolicy::from_message(name, &message, &self.factories, &kwargs)
+            .map_err(|e| e.to_string())?;
+        let info = policy.info();
+        if let Some(current) = current
+            && current.info().task != info.task
+        {
+            return Err(format!(
+                "policy `{name}` acts in {}, the checkpoint in {}",
+                current.info().task,
+                info.task
+            ));
+        }
+        self.policies.insert(Arc::new(policy));
+        Ok(())
+    }
+
+    fn act(&self, name: &str, request: ActRequest) -> Answer {
+        let policy = self.policy(name)?;
         let info = policy.info();
         let observation_dim = info.observation_dim as usize;
         let observations = &request.observations.0;
@@ -572,13 +705,15 @@ impl Shared {
                 "observations contain NaN or inf",
             ));
         }
-        let mut actions =
-            Vec::with_capacity(observations.len() / observation_dim * info.action_dim as usize);
-        for observation in observations.chunks_exact(observation_dim) {
-            let action = policy
-                .act(observation)
+        let action_dim = info.action_dim as usize;
+        let mut actions = vec![0.0; observations.len() / observation_dim * action_dim];
+        for (observation, action) in observations
+            .chunks_exact(observation_dim)
+            .zip(actions.chunks_exact_mut(action_dim))
+        {
+            policy
+                .act_into(observation, action)
                 .map_err(|e| ErrorReply::new(ErrorCode::Policy, e.to_string()))?;
-            actions.extend_from_slice(&action);
         }
         Ok(encode(&ActionReply {
             v: PROTOCOL_VERSION,

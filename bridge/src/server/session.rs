@@ -10,10 +10,11 @@ use serde_bytes::ByteBuf;
 
 use super::slot::{EnvSlot, check_vector};
 use super::telemetry::TelemetryPublisher;
+use crate::policy::Policy;
 use crate::protocol::{
     AckReply, ActionReply, BatchResetReply, BatchStepReply, ContextRequest, ErrorCode, ErrorReply,
     F64s, FrameHeader, PROTOCOL_VERSION, PerturbRequest, PerturbationKindMsg, ResetReply,
-    ResetRequest, StepReply, TOKEN_BYTES, encode,
+    ResetRequest, RunRequest, StepReply, TOKEN_BYTES, encode,
 };
 
 /// Environments per rayon task in `step_batch`: below this, threads cost more than they
@@ -32,6 +33,18 @@ pub(crate) struct Session {
     reset_options: ResetOptions,
     telemetry: TelemetryPublisher,
     frames: u64,
+    /// The policy run driving the session, if any (see [`super::driver`]).
+    run: Option<Run>,
+    /// Runs started so far: each run's id, so a stopped driver never steps a later run.
+    runs: u64,
+}
+
+/// A policy driving one environment of the session.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Run {
+    pub id: u64,
+    pub index: usize,
+    pub policy: String,
 }
 
 impl Session {
@@ -52,6 +65,8 @@ impl Session {
             reset_options: ResetOptions::default(),
             telemetry,
             frames: 0,
+            run: None,
+            runs: 0,
         }
     }
 
@@ -72,6 +87,106 @@ impl Session {
                 format!("wrong or missing token for session {}", self.id),
             ))
         }
+    }
+
+    /// Refuses client-driven stepping while a policy drives the session.
+    pub fn ensure_idle(&self, op: &str) -> Result<(), ErrorReply> {
+        match &self.run {
+            None => Ok(()),
+            Some(run) => Err(ErrorReply::new(
+                ErrorCode::Busy,
+                format!(
+                    "`{op}` refused: policy `{}` drives session {}; send `stop` first",
+                    run.policy, self.id
+                ),
+            )),
+        }
+    }
+
+    /// Starts a run of `policy` (already looked up under `request.policy`); the caller
+    /// spawns its driver.
+    pub fn start_run(
+        &mut self,
+        request: &RunRequest,
+        policy: &dyn Policy,
+    ) -> Result<Run, ErrorReply> {
+        self.ensure_idle("run")?;
+        if !(request.speed.is_finite() && request.speed >= 0.0) {
+            return Err(ErrorReply::new(
+                ErrorCode::OutOfBounds,
+                format!("speed {} must be finite and ≥ 0", request.speed),
+            ));
+        }
+        let info = policy.info();
+        let (observation_dim, action_dim) = (self.observation_dim(), self.spec.action_space.dim());
+        if info.observation_dim as usize != observation_dim
+            || info.action_dim as usize != action_dim
+        {
+            return Err(ErrorReply::new(
+                ErrorCode::WrongDimension,
+                format!(
+                    "policy `{}` maps {} observations to {} actions; this session has {} and {}",
+                    info.name, info.observation_dim, info.action_dim, observation_dim, action_dim
+                ),
+            ));
+        }
+        let slot = self.slot(request.index)?;
+        if slot.observation.is_empty() || slot.episode_over {
+            return Err(EnvError::NeedsReset.into());
+        }
+        self.runs += 1;
+        let run = Run {
+            id: self.runs,
+            index: request.index as usize,
+            policy: request.policy.clone(),
+        };
+        self.run = Some(run.clone());
+        Ok(run)
+    }
+
+    /// Whether `run` still drives the session (not stopped, not replaced).
+    pub fn is_running(&self, run: &Run) -> bool {
+        self.run
+            .as_ref()
+            .is_some_and(|current| current.id == run.id)
+    }
+
+    /// One control period of `run` with the action `policy` takes in the current
+    /// observation. Returns whether the run goes on; `last` ends it after this step.
+    pub fn drive(
+        &mut self,
+        run: &Run,
+        policy: &dyn Policy,
+        action: &mut [f64],
+        last: bool,
+    ) -> Result<bool, ErrorReply> {
+        let slot = &mut self.envs[run.index];
+        let outcome = policy
+            .act_into(&slot.observation, action)
+            .map_err(|e| ErrorReply::new(ErrorCode::Policy, e.to_string()))
+            .and_then(|()| slot.step(action).map_err(ErrorReply::from));
+        let going_on = matches!(&outcome, Ok(step) if !(step.terminated || step.truncated || last));
+        if !going_on {
+            self.run = None;
+        }
+        self.telemetry
+            .offer_run(&self.id, &self.envs[run.index], going_on);
+        outcome.map(|_| going_on)
+    }
+
+    /// Stops the run, if any; returns the simulated time of the driven environment.
+    pub fn stop_run(&mut self) -> Result<Vec<u8>, ErrorReply> {
+        let index = self.run.take().map_or(0, |run| run.index);
+        self.telemetry.offer_run(&self.id, &self.envs[index], false);
+        Ok(encode(&AckReply {
+            v: PROTOCOL_VERSION,
+            time: self.envs[index].time(),
+        }))
+    }
+
+    /// Seconds of simulated time per step.
+    pub fn control_dt(&self) -> f64 {
+        self.spec.control_dt
     }
 
     fn single(&mut self, op: &str) -> Result<&mut EnvSlot, ErrorReply> {

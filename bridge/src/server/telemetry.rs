@@ -47,13 +47,25 @@ impl TelemetryPublisher {
 
     /// Publishes the state of `slot` if a viewer listens and the rate limit allows.
     pub fn offer(&mut self, session: &str, slot: &EnvSlot) {
+        self.publish(session, slot, false, false);
+    }
+
+    /// Publishes a sample of a policy-driven session. `running` tells viewers whether
+    /// the driver continues; a sample that ends the run is sent regardless of the rate
+    /// limit, so that viewers learn the run ended.
+    pub fn offer_run(&mut self, session: &str, slot: &EnvSlot, running: bool) {
+        self.publish(session, slot, running, !running);
+    }
+
+    fn publish(&mut self, session: &str, slot: &EnvSlot, running: bool, always: bool) {
         if !self.matching.load(Ordering::Relaxed) {
             return;
         }
         let now = Instant::now();
-        if self
-            .last_sent
-            .is_some_and(|last| now.duration_since(last) < self.min_interval)
+        if !always
+            && self
+                .last_sent
+                .is_some_and(|last| now.duration_since(last) < self.min_interval)
         {
             return;
         }
@@ -67,6 +79,8 @@ impl TelemetryPublisher {
             command: F64s(slot.command.clone()),
             context: F64s(slot.context().to_vec()),
             reward: slot.reward,
+            running,
+            episode_done: slot.episode_over,
         };
         // A dropped telemetry sample is harmless; the next step sends a fresh one.
         let _ = self.publisher.put(encode(&message)).wait();

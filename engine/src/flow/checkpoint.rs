@@ -19,6 +19,11 @@ pub fn read_config(dir: &Path) -> FlowResult<CheckpointConfig> {
     serde_json::from_str(&text).map_err(|source| FlowError::Json { path, source })
 }
 
+/// Parses the text of a `config.json` received in memory (e.g. over the network).
+pub fn parse_config(text: &str) -> FlowResult<CheckpointConfig> {
+    serde_json::from_str(text).map_err(FlowError::ConfigText)
+}
+
 pub fn write_config(dir: &Path, config: &CheckpointConfig) -> FlowResult<()> {
     let path = dir.join(CONFIG_FILE);
     let text = serde_json::to_string_pretty(config).map_err(|source| FlowError::Json {
@@ -31,16 +36,31 @@ pub fn write_config(dir: &Path, config: &CheckpointConfig) -> FlowResult<()> {
 /// Reads a checkpoint, checking the task name when `expected_task` is given.
 pub fn read(dir: &Path, expected_task: Option<&str>) -> FlowResult<(CheckpointConfig, Weights)> {
     let config = read_config(dir)?;
-    if let Some(expected) = expected_task
-        && expected != config.task()
-    {
-        return Err(FlowError::TaskMismatch {
-            expected: expected.to_owned(),
-            found: config.task().to_owned(),
-        });
-    }
+    check_task(&config, expected_task)?;
     let weights = Weights::load(&dir.join(WEIGHTS_FILE))?;
     Ok((config, weights))
+}
+
+/// A checkpoint held in memory: the `config.json` text and the `weights.safetensors`
+/// bytes, as [`read`] finds them in a directory.
+pub fn from_bytes(
+    config_json: &str,
+    weights: &[u8],
+    expected_task: Option<&str>,
+) -> FlowResult<(CheckpointConfig, Weights)> {
+    let config = parse_config(config_json)?;
+    check_task(&config, expected_task)?;
+    Ok((config, Weights::from_safetensors(weights)?))
+}
+
+fn check_task(config: &CheckpointConfig, expected_task: Option<&str>) -> FlowResult<()> {
+    match expected_task {
+        Some(expected) if expected != config.task() => Err(FlowError::TaskMismatch {
+            expected: expected.to_owned(),
+            found: config.task().to_owned(),
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// Writes `config.json` and `weights.safetensors` into `dir` (created if missing).

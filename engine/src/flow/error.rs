@@ -43,6 +43,8 @@ pub enum FlowError {
         path: PathBuf,
         source: serde_json::Error,
     },
+    #[error("malformed checkpoint configuration: {0}")]
+    ConfigText(serde_json::Error),
     #[error("malformed safetensors file: {0}")]
     SafeTensors(#[from] safetensors::SafeTensorError),
 }

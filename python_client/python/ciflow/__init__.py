@@ -25,9 +25,11 @@ from ciflow._native import (
 from ciflow.connection import discover, shutdown_embedded_engine
 from ciflow.env import CiflowEnv
 from ciflow.registration import TASK_IDS, register_tasks
+from ciflow.remote import Attached, attach
 from ciflow.vector import CiflowVectorEnv
 
 __all__ = [
+    "Attached",
     "DEFAULT_ENDPOINT",
     "PROTOCOL_VERSION",
     "TASK_IDS",
@@ -35,6 +37,7 @@ __all__ = [
     "CiflowError",
     "CiflowVectorEnv",
     "EngineUnreachable",
+    "attach",
     "discover",
     "register_tasks",
     "shutdown_embedded_engine",

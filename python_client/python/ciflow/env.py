@@ -49,6 +49,7 @@ class CiflowEnv(gym.Env):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode {render_mode!r} is not supported; use 'rgb_array'")
         self._session = None
+        self._control = None
         self.render_mode = render_mode
         client, engine_name = connection.resolve(task, engine, zenoh_config)
         self._session = client.make(engine_name, task, 1, construction_kwargs(kwargs))
@@ -65,6 +66,7 @@ class CiflowEnv(gym.Env):
         }
         self._size = (int(width), int(height))
         self._last_time = 0.0
+        self._engine, self._zenoh_config = engine, zenoh_config
 
     @property
     def session_id(self) -> str:
@@ -75,6 +77,35 @@ class CiflowEnv(gym.Env):
     @property
     def engine_name(self) -> str:
         return self._session.engine
+
+    @property
+    def token_hex(self) -> str:
+        """The session's secret token, hex: with ``session_id`` it lets another process
+        control this session (``ciflow.attach(session_id, token_hex)``)."""
+        return self._session.token.hex()
+
+    def attach(self):
+        """This session's :class:`ciflow.remote.Attached` control (run, stop, perturb,
+        context, telemetry), made on first use."""
+        if self._control is None:
+            from ciflow.remote import Attached
+
+            self._control = Attached(
+                self.session_id, self.token_hex, self._engine, self.engine_name,
+                self._zenoh_config,
+            )
+        return self._control
+
+    def run_policy(self, name: str, speed: float = 1.0, steps: int | None = None) -> float:
+        """Lets the engine drive this session with its loaded policy ``name`` (reset
+        first): one step per control period at ``speed`` × real time (0: as fast as
+        possible), for ``steps`` steps or until the episode ends. ``step``/``reset`` raise
+        ``busy`` meanwhile; ``perturb_*`` and ``set_context`` act on the running robot."""
+        return self.attach().run_policy(name, speed, steps)
+
+    def stop(self) -> float:
+        """Stops a policy run; returns the simulated time."""
+        return self.attach().stop()
 
     @property
     def sim_time(self) -> float:
@@ -147,6 +178,9 @@ class CiflowEnv(gym.Env):
         return self._session.perturb(json.dumps(message, allow_nan=False))
 
     def close(self):
+        if self._control is not None:
+            self._control.close()
+            self._control = None
         if self._session is not None:
             self._session.close()
         super().close()

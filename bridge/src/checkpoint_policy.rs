@@ -1,0 +1,182 @@
+//! [`CheckpointPolicy`]: a trained checkpoint (stable flow or baseline) served as a
+//! [`Policy`], acting through [`ciflow_envs::actor::Actor`] on observations `[q, q̇, c]`
+//! of the task it was trained for.
+
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+use ciflow_engine::flow::FlowError;
+use ciflow_envs::actor::{Actor, ActorError, DEFAULT_VELOCITY_GAIN, Model};
+use ciflow_envs::{EnvError, EnvSpec};
+
+use crate::policy::{Policy, PolicyError};
+use crate::protocol::keys;
+use crate::protocol::{CheckpointMsg, PolicyInfo};
+use crate::server::{Kwargs, TaskFactory};
+
+/// Why a checkpoint cannot be served.
+#[derive(Debug, thiserror::Error)]
+pub enum PolicyLoadError {
+    /// Missing or malformed files, weights of the wrong shapes, wrong model kind.
+    #[error("{0}")]
+    Checkpoint(#[from] FlowError),
+    #[error(
+        "checkpoint is for task `{task}`, which this engine does not serve (it has: {available})"
+    )]
+    UnknownTask { task: String, available: String },
+    #[error("task `{task}` cannot be built with the policy's arguments: {source}")]
+    Task { task: String, source: EnvError },
+    /// The checkpoint's dimensions do not fit the task's observations and actions.
+    #[error("{0}")]
+    Shape(#[from] ActorError),
+    #[error("policy name `{0}` must be letters, digits, `-`, `_` or `.`")]
+    BadName(String),
+    #[error("publication on policy `{key}` names policy `{name}`")]
+    NameMismatch { key: String, name: String },
+    #[error("publication claims task `{claimed}` but its configuration says `{found}`")]
+    TaskMismatch { claimed: String, found: String },
+}
+
+/// A checkpoint acting in its task. Each concurrent caller borrows an [`Actor`] (model
+/// plus buffers) from a pool, so acting allocates nothing once the pool is warm.
+pub struct CheckpointPolicy {
+    info: PolicyInfo,
+    kwargs: Kwargs,
+    model: Arc<Model>,
+    spec: EnvSpec,
+    actors: Mutex<Vec<Actor<Arc<Model>>>>,
+}
+
+impl CheckpointPolicy {
+    /// Serves `model` as `name` (default: the checkpoint's task name) in the task of
+    /// `tasks` it was trained for, built with the construction arguments `kwargs`.
+    pub fn new(
+        name: Option<&str>,
+        model: Model,
+        tasks: &[TaskFactory],
+        kwargs: &Kwargs,
+    ) -> Result<Self, PolicyLoadError> {
+        let name = name.unwrap_or(model.task()).to_owned();
+        if !keys::is_plain_chunk(&name) {
+            return Err(PolicyLoadError::BadName(name));
+        }
+        let factory = tasks
+            .iter()
+            .find(|t| t.name == model.task() || t.id == model.task())
+            .ok_or_else(|| PolicyLoadError::UnknownTask {
+                task: model.task().to_owned(),
+                available: tasks
+                    .iter()
+                    .map(|t| t.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })?;
+        let spec = (factory.make)(kwargs)
+            .map_err(|source| PolicyLoadError::Task {
+                task: factory.id.clone(),
+                source,
+            })?
+            .spec()
+            .clone();
+        let model = Arc::new(model);
+        // Building the first actor checks the shapes; it then seeds the pool.
+        let actor = Actor::new(Arc::clone(&model), &spec, DEFAULT_VELOCITY_GAIN)?;
+        Ok(Self {
+            info: PolicyInfo {
+                name,
+                task: spec.id.clone(),
+                observation_dim: spec.observation_space.dim() as u32,
+                action_dim: spec.action_space.dim() as u32,
+                epoch: None,
+                validation_nll: None,
+            },
+            kwargs: kwargs.clone(),
+            model,
+            spec,
+            actors: Mutex::new(vec![actor]),
+        })
+    }
+
+    /// Loads the checkpoint directory `dir` (`config.json`, `weights.safetensors`).
+    pub fn load(
+        name: Option<&str>,
+        dir: &Path,
+        tasks: &[TaskFactory],
+        kwargs: &Kwargs,
+    ) -> Result<Self, PolicyLoadError> {
+        Self::new(name, Model::load(dir, None)?, tasks, kwargs)
+    }
+
+    /// A checkpoint received as a publication; the message's name and task must agree
+    /// with the key it came on and with its configuration. `kwargs` apply unless the
+    /// message carries its own.
+    pub fn from_message(
+        key_name: &str,
+        message: &CheckpointMsg,
+        tasks: &[TaskFactory],
+        kwargs: &Kwargs,
+    ) -> Result<Self, PolicyLoadError> {
+        if message.name != key_name {
+            return Err(PolicyLoadError::NameMismatch {
+                key: key_name.to_owned(),
+                name: message.name.clone(),
+            });
+        }
+        let model = Model::from_bytes(&message.config, &message.weights, None)?;
+        if model.task() != message.task {
+            return Err(PolicyLoadError::TaskMismatch {
+                claimed: message.task.clone(),
+                found: model.task().to_owned(),
+            });
+        }
+        let kwargs = if message.kwargs.is_empty() {
+            kwargs
+        } else {
+            &message.kwargs
+        };
+        let mut policy = Self::new(Some(&message.name), model, tasks, kwargs)?;
+        policy.info.epoch = Some(message.epoch);
+        policy.info.validation_nll = Some(message.validation_nll);
+        Ok(policy)
+    }
+
+    pub fn model(&self) -> &Model {
+        &self.model
+    }
+
+    /// The task specification the policy acts in.
+    pub fn spec(&self) -> &EnvSpec {
+        &self.spec
+    }
+
+    fn actor(&self) -> Result<Actor<Arc<Model>>, PolicyError> {
+        let pooled = self.actors.lock().unwrap_or_else(|p| p.into_inner()).pop();
+        match pooled {
+            Some(actor) => Ok(actor),
+            None => Actor::new(Arc::clone(&self.model), &self.spec, DEFAULT_VELOCITY_GAIN)
+                .map_err(|e| PolicyError(e.to_string())),
+        }
+    }
+}
+
+impl Policy for CheckpointPolicy {
+    fn info(&self) -> PolicyInfo {
+        self.info.clone()
+    }
+
+    fn task_kwargs(&self) -> Kwargs {
+        self.kwargs.clone()
+    }
+
+    fn act_into(&self, observation: &[f64], action: &mut [f64]) -> Result<(), PolicyError> {
+        let mut actor = self.actor()?;
+        let result = actor
+            .act(observation, action)
+            .map_err(|e| PolicyError(e.to_string()));
+        self.actors
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .push(actor);
+        result
+    }
+}

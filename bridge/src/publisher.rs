@@ -1,0 +1,104 @@
+//! [`CheckpointPublisher`]: how a trainer hands each new checkpoint to running engines,
+//! which hot-load it without a restart (`ciflow/v1/policies/<name>/checkpoint`).
+
+use std::path::Path;
+
+use ciflow_engine::flow::checkpoint::{self, CONFIG_FILE, WEIGHTS_FILE};
+use zenoh::Wait;
+use zenoh::pubsub::Publisher;
+use zenoh::qos::CongestionControl;
+
+use crate::config::{NetworkOptions, Role};
+use crate::error::BridgeError;
+use crate::protocol::keys;
+use crate::protocol::{ByteBuf, CheckpointMsg, PROTOCOL_VERSION, encode};
+use crate::server::Kwargs;
+
+/// Publishes the checkpoints of one policy name.
+pub struct CheckpointPublisher {
+    /// Keeps the Zenoh session open: dropping its last handle closes it.
+    _session: zenoh::Session,
+    name: String,
+    kwargs: Kwargs,
+    publisher: Publisher<'static>,
+}
+
+impl CheckpointPublisher {
+    /// Joins Zenoh as a client (the default endpoint unless `network` says otherwise) and
+    /// declares the publisher of policy `name`.
+    pub fn open(network: &NetworkOptions, name: &str) -> Result<Self, BridgeError> {
+        let config = network.to_zenoh_config(Role::Client)?;
+        let session = zenoh::open(config).wait().map_err(|e| {
+            BridgeError::Zenoh(format!(
+                "cannot join Zenoh to publish checkpoints (is an engine or router \
+                 listening?): {e}"
+            ))
+        })?;
+        Self::new(&session, name)
+    }
+
+    /// A publisher on an open Zenoh session.
+    pub fn new(session: &zenoh::Session, name: &str) -> Result<Self, BridgeError> {
+        if !keys::is_plain_chunk(name) {
+            return Err(BridgeError::InvalidArgument(format!(
+                "policy name `{name}` must be letters, digits, `-`, `_` or `.`"
+            )));
+        }
+        let publisher = session
+            .declare_publisher(keys::policy_checkpoint(name))
+            // Every checkpoint matters: wait for the network rather than drop one.
+            .congestion_control(CongestionControl::Block)
+            .wait()
+            .map_err(BridgeError::zenoh)?;
+        Ok(Self {
+            _session: session.clone(),
+            name: name.to_owned(),
+            kwargs: Kwargs::new(),
+            publisher,
+        })
+    }
+
+    /// The task's construction arguments the checkpoints were trained with (e.g.
+    /// `{obstacles: 1}`), sent with every publication. Without them, an engine keeps the
+    /// arguments of the policy being replaced, or uses the task's defaults.
+    pub fn with_kwargs(mut self, kwargs: Kwargs) -> Self {
+        self.kwargs = kwargs;
+        self
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Publishes the checkpoint directory `dir` (`config.json` + `weights.safetensors`).
+    /// Engines that serve its task swap their policy of this name for it.
+    pub fn publish(&self, dir: &Path, epoch: u64, validation_nll: f64) -> Result<(), BridgeError> {
+        let read = |file: &str| {
+            let path = dir.join(file);
+            std::fs::read(&path).map_err(|e| {
+                BridgeError::InvalidArgument(format!("cannot read {}: {e}", path.display()))
+            })
+        };
+        let config = String::from_utf8(read(CONFIG_FILE)?).map_err(|e| {
+            BridgeError::InvalidArgument(format!("{CONFIG_FILE} is not UTF-8: {e}"))
+        })?;
+        let task = checkpoint::parse_config(&config)
+            .map_err(|e| BridgeError::InvalidArgument(format!("{}: {e}", dir.display())))?
+            .task()
+            .to_owned();
+        let message = CheckpointMsg {
+            v: PROTOCOL_VERSION,
+            name: self.name.clone(),
+            task,
+            config,
+            weights: ByteBuf::from(read(WEIGHTS_FILE)?),
+            epoch,
+            validation_nll,
+            kwargs: self.kwargs.clone(),
+        };
+        self.publisher
+            .put(encode(&message))
+            .wait()
+            .map_err(BridgeError::zenoh)
+    }
+}

@@ -1,0 +1,437 @@
+//! Trained policies served by `ciflow serve --policy` in its own process: `act` answers
+//! what the in-process actor computes, a published checkpoint replaces the policy without
+//! a restart (bad publications are ignored), and a policy-driven session recovers from a
+//! push while client steps are refused as `busy`.
+
+use std::collections::BTreeMap;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use ciflow_bridge::protocol::{
+    ByteBuf, CheckpointMsg, ErrorCode, PROTOCOL_VERSION, PerturbationKindMsg, PerturbationMsg,
+    Telemetry, encode, keys,
+};
+use ciflow_bridge::zenoh::Wait;
+use ciflow_bridge::{BridgeError, CheckpointPublisher, Client, NetworkOptions, RemoteEnv, Role};
+use ciflow_engine::flow::checkpoint::{self, CONFIG_FILE, WEIGHTS_FILE};
+use ciflow_engine::flow::{
+    CheckpointConfig, CouplingKind, FlowConfig, LatentKind, Tensor, Weights,
+};
+use ciflow_envs::ResetOptions;
+use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
+use ciflow_envs::tasks::obstacle_avoidance;
+
+const OBSTACLE: &str = "ciflow/Obstacle-v0";
+
+/// A child process killed when dropped.
+struct Process(Child);
+
+impl Drop for Process {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// A fresh directory under the system's temporary directory, removed on drop.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn new(name: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!("ciflow-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        Self(dir)
+    }
+
+    fn path(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn endpoint(port: u16) -> String {
+    format!("tcp/127.0.0.1:{port}")
+}
+
+fn connect(port: u16) -> Client {
+    Client::open(&NetworkOptions::endpoint(Role::Client, &endpoint(port))).expect("connect")
+}
+
+/// Starts `ciflow serve` with `extra` arguments on a private port; waits for its ready line.
+fn serve(port: u16, name: &str, extra: &[&str]) -> Process {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ciflow"))
+        .args(["serve", "--listen", &endpoint(port), "--name", name])
+        .args(extra)
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("spawn ciflow serve");
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let ready = lines.next().expect("serve printed a line").expect("utf-8");
+    assert!(ready.contains("ready"), "unexpected first line: {ready}");
+    Process(child)
+}
+
+fn code(error: BridgeError) -> ErrorCode {
+    match error {
+        BridgeError::Remote(reply) => reply.code,
+        other => panic!("expected a typed engine error, got {other}"),
+    }
+}
+
+/// A go-to flow for Obstacle-v0 with one obstacle (context `[o_x, o_y, g_x, g_y]`, the
+/// attractor on the target) with small deterministic pseudo-random weights: `f` stays
+/// near the identity, so its paths run nearly straight to the target. `seed` varies them.
+fn write_flow(dir: &Path, seed: f64) {
+    let mut config = FlowConfig::new(
+        "obstacle-avoidance",
+        2,
+        4,
+        LatentKind::GoTo,
+        CouplingKind::Affine { scale_bound: 2.0 },
+        4,
+        vec![16, 16],
+    );
+    config.min_rate = 2.0;
+    config.goal_context_indices = Some(vec![2, 3]);
+    let mut weights = Weights::default();
+    for (k, (name, shape)) in config.parameter_shapes().into_iter().enumerate() {
+        let fan_in = if shape.len() == 2 { shape[1] } else { 1 };
+        let scale = 0.1 / (fan_in as f64).sqrt();
+        let data = (0..shape.iter().product::<usize>())
+            .map(|i| {
+                let x = (i as f64 * 12.9898 + k as f64 * 4.1414 + seed * 78.233).sin();
+                scale * ((x * 43758.5453).fract())
+            })
+            .collect();
+        weights.insert(name, Tensor { shape, data });
+    }
+    checkpoint::write(dir, &CheckpointConfig::Flow(config), &weights).unwrap();
+}
+
+/// Actions of the checkpoint in `dir` for `observations`, computed in this process.
+fn local_actions(dir: &Path, observations: &[f64]) -> Vec<f64> {
+    let model = Model::load(dir, None).unwrap();
+    let env = obstacle_avoidance::make(1).unwrap();
+    let mut actor =
+        Actor::new(&model, ciflow_envs::Env::spec(&env), DEFAULT_VELOCITY_GAIN).unwrap();
+    let mut actions = vec![0.0; observations.len() / 8 * 2];
+    for (o, a) in observations.chunks(8).zip(actions.chunks_mut(2)) {
+        actor.act(o, a).unwrap();
+    }
+    actions
+}
+
+const OBSERVATIONS: [f64; 24] = [
+    -0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2, //
+    -0.5, -0.4, 0.0, 0.0, 0.2, 0.3, 0.9, 0.4, //
+    0.6, 0.1, -0.3, 0.2, -0.3, -0.5, 0.8, 0.0,
+];
+
+#[test]
+fn served_policy_acts_like_the_in_process_actor_and_bad_checkpoints_are_refused() {
+    let scratch = Scratch::new("policy-act");
+    let dir = scratch.path("a");
+    write_flow(&dir, 1.0);
+    let dir_arg = format!("avoid={}", dir.display());
+    let _server = serve(
+        27531,
+        "policy-act",
+        &["--policy", &dir_arg, "--policy-kwarg", "obstacles=1"],
+    );
+    let client = connect(27531);
+    let info = client.engine_info("policy-act").unwrap();
+    let listed = info
+        .policies
+        .iter()
+        .find(|p| p.name == "avoid")
+        .expect("the tasks reply lists the policy");
+    assert_eq!(
+        (
+            listed.task.as_str(),
+            listed.observation_dim,
+            listed.action_dim
+        ),
+        (OBSTACLE, 8, 2)
+    );
+
+    let remote = client.act("policy-act", "avoid", &OBSERVATIONS).unwrap();
+    assert_eq!(remote, local_actions(&dir, &OBSERVATIONS));
+    assert!(
+        remote.iter().any(|a| a.abs() > 1e-3),
+        "actions are not all zero"
+    );
+
+    assert_eq!(
+        code(
+            client
+                .act("policy-act", "avoid", &OBSERVATIONS[..7])
+                .unwrap_err()
+        ),
+        ErrorCode::WrongDimension
+    );
+    assert_eq!(
+        code(
+            client
+                .act("policy-act", "nobody", &OBSERVATIONS)
+                .unwrap_err()
+        ),
+        ErrorCode::UnknownPolicy
+    );
+
+    // Start-up errors: a missing checkpoint, and one that does not fit the task's
+    // default construction arguments (three obstacles).
+    for (args, expected) in [
+        (
+            vec![
+                "--policy".to_owned(),
+                scratch.path("missing").display().to_string(),
+            ],
+            CONFIG_FILE,
+        ),
+        (
+            vec!["--policy".to_owned(), dir.display().to_string()],
+            "cannot act",
+        ),
+    ] {
+        let output = Command::new(env!("CARGO_BIN_EXE_ciflow"))
+            .args(["serve", "--listen", &endpoint(27532)])
+            .args(&args)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success(), "{args:?} must fail");
+        assert!(stderr.contains(expected), "{args:?}: {stderr}");
+    }
+}
+
+/// Waits until the engine lists policy `name` with `epoch`.
+fn wait_for_epoch(client: &Client, engine: &str, name: &str, epoch: u64) {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let info = client.engine_info(engine).unwrap();
+        if info
+            .policies
+            .iter()
+            .any(|p| p.name == name && p.epoch == Some(epoch))
+        {
+            return;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "epoch {epoch} never loaded: {info:?}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn published_checkpoints_replace_the_policy_without_restart_and_bad_ones_are_ignored() {
+    let scratch = Scratch::new("policy-hot");
+    let (a, b) = (scratch.path("a"), scratch.path("b"));
+    write_flow(&a, 1.0);
+    write_flow(&b, 2.0);
+    let (actions_a, actions_b) = (
+        local_actions(&a, &OBSERVATIONS),
+        local_actions(&b, &OBSERVATIONS),
+    );
+    assert_ne!(actions_a, actions_b);
+    let a_arg = format!("avoid={}", a.display());
+    let _server = serve(
+        27533,
+        "policy-hot",
+        &["--policy", &a_arg, "--policy-kwarg", "obstacles=1"],
+    );
+    let client = connect(27533);
+    assert_eq!(
+        client.act("policy-hot", "avoid", &OBSERVATIONS).unwrap(),
+        actions_a
+    );
+
+    let publisher = CheckpointPublisher::open(
+        &NetworkOptions::endpoint(Role::Client, &endpoint(27533)),
+        "avoid",
+    )
+    .unwrap();
+    // The engine's subscription must have reached the publisher's session first.
+    std::thread::sleep(Duration::from_millis(300));
+    publisher.publish(&b, 7, -1.25).unwrap();
+    wait_for_epoch(&client, "policy-hot", "avoid", 7);
+    assert_eq!(
+        client.act("policy-hot", "avoid", &OBSERVATIONS).unwrap(),
+        actions_b
+    );
+    let info = client.engine_info("policy-hot").unwrap();
+    assert_eq!(info.policies[0].validation_nll, Some(-1.25));
+
+    // Garbage, truncated weights and a task the policy does not act in: all ignored.
+    let zenoh = client.zenoh_session();
+    let key = keys::policy_checkpoint("avoid");
+    zenoh.put(&key, b"garbage".to_vec()).wait().unwrap();
+    let message = |config: String, weights: Vec<u8>| CheckpointMsg {
+        v: PROTOCOL_VERSION,
+        name: "avoid".into(),
+        task: "obstacle-avoidance".into(),
+        config,
+        weights: ByteBuf::from(weights),
+        epoch: 8,
+        validation_nll: 0.0,
+        kwargs: BTreeMap::new(),
+    };
+    let config = std::fs::read_to_string(a.join(CONFIG_FILE)).unwrap();
+    let weights = std::fs::read(a.join(WEIGHTS_FILE)).unwrap();
+    let truncated = message(config.clone(), weights[..weights.len() / 2].to_vec());
+    zenoh.put(&key, encode(&truncated)).wait().unwrap();
+    let three_obstacles = CheckpointMsg {
+        kwargs: BTreeMap::from([("obstacles".to_owned(), 3.0)]),
+        ..message(config, weights)
+    };
+    zenoh.put(&key, encode(&three_obstacles)).wait().unwrap();
+
+    // The engine still serves B, and still takes good publications after the bad ones.
+    publisher.publish(&a, 9, -2.0).unwrap();
+    wait_for_epoch(&client, "policy-hot", "avoid", 9);
+    assert_eq!(
+        client.act("policy-hot", "avoid", &OBSERVATIONS).unwrap(),
+        actions_a
+    );
+}
+
+/// Target and obstacle well below the straight path from the start to the target.
+const TARGET: [f64; 2] = [0.8, 0.1];
+
+fn reset_for_run(env: &RemoteEnv) {
+    let options = ResetOptions {
+        context: Some(vec![0.0, -0.7, TARGET[0], TARGET[1]]),
+        initial_position: Some(vec![-0.8, 0.2]),
+        ..ResetOptions::default()
+    };
+    env.reset(Some(0), Some(options)).unwrap();
+}
+
+/// Telemetry samples of one run, by step, until the sample that ends it.
+fn record_run(env: &RemoteEnv, telemetry: &ciflow_bridge::TelemetryStream) -> Vec<Telemetry> {
+    let mut samples = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        assert!(Instant::now() < deadline, "the run never ended");
+        let Some(sample) = telemetry.recv_timeout(Duration::from_secs(5)).unwrap() else {
+            panic!("telemetry stopped before the run ended");
+        };
+        let over = !sample.running;
+        samples.push(sample);
+        if over {
+            // A stopped or finished run no longer refuses client requests.
+            assert_ne!(
+                env.step(&[0.0, 0.0]).map_err(code).err(),
+                Some(ErrorCode::Busy)
+            );
+            return samples;
+        }
+    }
+}
+
+#[test]
+fn policy_driven_session_recovers_from_a_push_and_refuses_client_steps() {
+    let scratch = Scratch::new("policy-run");
+    let dir = scratch.path("a");
+    write_flow(&dir, 1.0);
+    let dir_arg = format!("avoid={}", dir.display());
+    let _server = serve(
+        27535,
+        "policy-run",
+        &[
+            "--policy",
+            &dir_arg,
+            "--policy-kwarg",
+            "obstacles=1",
+            "--telemetry-hz",
+            "5000",
+        ],
+    );
+    let client = connect(27535);
+    let kwargs = BTreeMap::from([("obstacles".to_owned(), 1.0)]);
+    let env = client.make("policy-run", OBSTACLE, 1, &kwargs).unwrap();
+    let telemetry = env.telemetry().unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+
+    // `run` needs a reset first; then the unperturbed reference run at 4× real time.
+    assert_eq!(
+        code(env.run(0, "avoid", 4.0, None).unwrap_err()),
+        ErrorCode::NeedsReset
+    );
+    reset_for_run(&env);
+    while telemetry
+        .recv_timeout(Duration::from_millis(200))
+        .unwrap()
+        .is_some()
+    {}
+    env.run(0, "avoid", 4.0, None).unwrap();
+    assert_eq!(code(env.step(&[0.0, 0.0]).unwrap_err()), ErrorCode::Busy);
+    assert_eq!(code(env.reset(None, None).unwrap_err()), ErrorCode::Busy);
+    let reference = record_run(&env, &telemetry);
+
+    // The same start with a 0.2 s push of 10 N along +y at t = 0.5 s.
+    reset_for_run(&env);
+    while telemetry
+        .recv_timeout(Duration::from_millis(200))
+        .unwrap()
+        .is_some()
+    {}
+    env.perturb(
+        0,
+        PerturbationMsg {
+            kind: PerturbationKindMsg::JointTorque {
+                torque: vec![0.0, 10.0],
+            },
+            start: Some(0.5),
+            duration: 0.2,
+        },
+    )
+    .unwrap();
+    env.run(0, "avoid", 4.0, None).unwrap();
+    let pushed = record_run(&env, &telemetry);
+
+    for run in [&reference, &pushed] {
+        let last = run.last().unwrap();
+        assert!(last.episode_done, "the run ends with the episode");
+        let distance =
+            ((last.state.0[0] - TARGET[0]).powi(2) + (last.state.0[1] - TARGET[1]).powi(2)).sqrt();
+        assert!(distance < 0.02, "final distance to the target {distance} m");
+        assert!(
+            run.len() > 50,
+            "telemetry during the run: {} samples",
+            run.len()
+        );
+    }
+    // During and right after the push the state departs from the reference.
+    let by_step: BTreeMap<u64, &Telemetry> = reference.iter().map(|s| (s.step, s)).collect();
+    let departure = pushed
+        .iter()
+        .filter(|s| (0.55..=0.9).contains(&s.time))
+        .filter_map(|s| {
+            by_step
+                .get(&s.step)
+                .map(|r| (s.state.0[3] - r.state.0[3]).abs())
+        })
+        .fold(0.0, f64::max);
+    assert!(
+        departure > 0.3,
+        "the push changes the y-velocity by {departure} m/s"
+    );
+
+    // `stop` ends a run early and hands stepping back to the client.
+    reset_for_run(&env);
+    env.run(0, "avoid", 1.0, None).unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+    env.stop().unwrap();
+    env.reset(None, None).unwrap();
+    env.step(&[0.0, 0.0]).unwrap();
+}
