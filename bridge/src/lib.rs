@@ -8,10 +8,12 @@
 //! - [`server`]: [`EngineServer`], the engine hosting environment sessions;
 //! - [`client`]: [`Client`] and [`RemoteEnv`], the Rust side of a Gymnasium client;
 //! - [`config`]: Zenoh configuration with a zero-configuration loopback default;
+//! - [`episodes`]: the episode channel, recorders publishing demonstrations to trainers;
 //! - [`policy`]: the [`Policy`] hook for `act`.
 
 pub mod client;
 pub mod config;
+pub mod episodes;
 pub mod error;
 pub mod policy;
 pub mod protocol;
@@ -19,6 +21,7 @@ pub mod server;
 
 pub use client::{BatchStep, Client, EngineInfo, RemoteEnv, StepResult, query_all};
 pub use config::{DEFAULT_ENDPOINT, Mode, NetworkOptions, Role};
+pub use episodes::{CollectError, EpisodePublisher, EpisodeSubscriber};
 pub use error::BridgeError;
 pub use policy::{Policy, PolicyError};
 pub use server::{EngineServer, Kwargs, ServerOptions, TaskFactory};
