@@ -282,7 +282,10 @@ pub fn read_dataset<'py>(
     info.set_item("env_id", &spec.env_id)?;
     info.set_item("algorithm_name", &spec.algorithm_name)?;
     info.set_item("control_dt", spec.control_dt)?;
-    info.set_item("observation_space", space_to_py(py, &spec.observation_space)?)?;
+    info.set_item(
+        "observation_space",
+        space_to_py(py, &spec.observation_space)?,
+    )?;
     info.set_item("action_space", space_to_py(py, &spec.action_space)?)?;
     info.set_item("context_space", space_to_py(py, &spec.context_space)?)?;
     let flags = |v: &[bool]| PyBytes::new(py, &v.iter().map(|&b| u8::from(b)).collect::<Vec<_>>());
@@ -291,7 +294,10 @@ pub fn read_dataset<'py>(
         .map(|e| {
             let dict = PyDict::new(py);
             dict.set_item("seed", e.seed)?;
-            dict.set_item("observations", floats_to_bytes(py, &e.observations.concat()))?;
+            dict.set_item(
+                "observations",
+                floats_to_bytes(py, &e.observations.concat()),
+            )?;
             dict.set_item("actions", floats_to_bytes(py, &e.actions.concat()))?;
             dict.set_item("rewards", floats_to_bytes(py, &e.rewards))?;
             dict.set_item("contexts", floats_to_bytes(py, &e.contexts.concat()))?;
