@@ -8,6 +8,7 @@
 //! - [`server`]: [`EngineServer`], the engine hosting environment sessions;
 //! - [`client`]: [`Client`] and [`RemoteEnv`], the Rust side of a Gymnasium client;
 //! - [`config`]: Zenoh configuration with a zero-configuration loopback default;
+//! - [`episodes`]: the episode channel, recorders publishing demonstrations to trainers;
 //! - [`policy`]: the [`Policy`] hook for `act`; [`checkpoint_policy`]: trained
 //!   checkpoints as policies; [`publisher`]: a trainer's checkpoint publications, which
 //!   engines hot-load.
@@ -15,6 +16,7 @@
 pub mod checkpoint_policy;
 pub mod client;
 pub mod config;
+pub mod episodes;
 pub mod error;
 pub mod policy;
 pub mod protocol;
@@ -26,6 +28,7 @@ pub use client::{
     BatchStep, Client, EngineInfo, RemoteEnv, StepResult, TelemetryStream, query_all,
 };
 pub use config::{DEFAULT_ENDPOINT, Mode, NetworkOptions, Role};
+pub use episodes::{CollectError, EpisodePublisher, EpisodeSubscriber};
 pub use error::BridgeError;
 pub use policy::{Policy, PolicyError};
 pub use publisher::CheckpointPublisher;

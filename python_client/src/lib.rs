@@ -3,13 +3,16 @@
 //! `gymnasium.Env` classes live in the pure-Python package `ciflow`.
 
 mod convert;
+mod datasets;
 mod errors;
 
 use std::collections::BTreeMap;
 use std::sync::Mutex;
 
 use ciflow_bridge::protocol::PerturbationMsg;
-use ciflow_bridge::{Client, EngineServer, Mode, NetworkOptions, RemoteEnv, ServerOptions};
+use ciflow_bridge::{
+    Client, EngineServer, EpisodePublisher, Mode, NetworkOptions, RemoteEnv, ServerOptions,
+};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
@@ -17,6 +20,7 @@ use pyo3::types::{PyBytes, PyDict};
 use crate::convert::{
     columns_to_dict, floats_from_bytes, floats_to_bytes, reset_options_from_json, spec_to_dict,
 };
+use crate::datasets::{PyDatasetSpec, PyDatasetWriter, PyEpisode, PyEpisodePublisher};
 use crate::errors::{CiflowError, EngineUnreachable, to_py};
 
 fn network_options(
@@ -171,6 +175,23 @@ impl ClientHandle {
             .detach(|| self.client.make(engine, task, num_envs, &kwargs))
             .map_err(to_py)?;
         Ok(Session { env })
+    }
+
+    /// A publisher of finished episodes of `task` on
+    /// `ciflow/v1/episodes/<task name>/<recorder>`, through this client's Zenoh session.
+    fn episode_publisher(
+        &self,
+        py: Python<'_>,
+        task: &str,
+        recorder: &str,
+    ) -> PyResult<PyEpisodePublisher> {
+        let publisher = py
+            .detach(|| EpisodePublisher::declare(self.client.zenoh_session(), task, recorder))
+            .map_err(to_py)?;
+        Ok(PyEpisodePublisher {
+            key: publisher.key().to_owned(),
+            publisher: Mutex::new(publisher),
+        })
     }
 
     /// Actions of a loaded policy for row-major observations (f64 bytes in and out).
@@ -414,6 +435,13 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Engine>()?;
     m.add_class::<ClientHandle>()?;
     m.add_class::<Session>()?;
+    m.add_class::<PyDatasetSpec>()?;
+    m.add_class::<PyEpisode>()?;
+    m.add_class::<PyDatasetWriter>()?;
+    m.add_class::<PyEpisodePublisher>()?;
+    m.add_function(wrap_pyfunction!(datasets::read_dataset, m)?)?;
+    m.add_function(wrap_pyfunction!(datasets::record_expert, m)?)?;
+    m.add_function(wrap_pyfunction!(datasets::task_value, m)?)?;
     m.add("CiflowError", m.py().get_type::<CiflowError>())?;
     m.add("EngineUnreachable", m.py().get_type::<EngineUnreachable>())?;
     m.add("DEFAULT_ENDPOINT", ciflow_bridge::DEFAULT_ENDPOINT)?;

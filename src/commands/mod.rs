@@ -2,6 +2,7 @@
 
 pub mod demos;
 pub mod lasa;
+pub mod network;
 pub mod robot;
 pub mod serve;
 pub mod stability;

@@ -1,13 +1,12 @@
 //! `ciflow serve`: host every task as Gymnasium environments over Zenoh.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::Context;
-use ciflow_bridge::{
-    CheckpointPolicy, EngineServer, Kwargs, Mode, NetworkOptions, Policy, ServerOptions,
-    TaskFactory,
-};
+use ciflow_bridge::{CheckpointPolicy, EngineServer, Kwargs, Policy, ServerOptions, TaskFactory};
+
+use super::network::NetworkArgs;
 
 /// Start an engine that hosts environment sessions for Zenoh clients (Python
 /// `gymnasium.make("ciflow/...")`, or any Zenoh client following bridge/PROTOCOL.md).
@@ -18,18 +17,9 @@ use ciflow_bridge::{
 /// standard Zenoh JSON5 file with `--config`).
 #[derive(clap::Args, Debug)]
 pub struct ServeArgs {
-    /// Standard Zenoh JSON5 configuration file.
-    #[arg(long, env = "CIFLOW_ZENOH_CONFIG")]
-    pub config: Option<PathBuf>,
-    /// Zenoh mode (peer, client or router).
-    #[arg(long)]
-    pub mode: Option<String>,
-    /// Endpoint to connect to, e.g. tcp/10.0.0.2:7447 (repeatable).
-    #[arg(long)]
-    pub connect: Vec<String>,
-    /// Endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable; default tcp/127.0.0.1:7447).
-    #[arg(long)]
-    pub listen: Vec<String>,
+    /// Zenoh flags (default: listen on tcp/127.0.0.1:7447).
+    #[command(flatten)]
+    pub network: NetworkArgs,
     /// Engine name used in key expressions (default: the Zenoh session id).
     #[arg(long)]
     pub name: Option<String>,
@@ -73,12 +63,7 @@ fn load_policy(
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
-    let network = NetworkOptions {
-        config_file: args.config,
-        mode: args.mode.as_deref().map(str::parse::<Mode>).transpose()?,
-        connect: args.connect,
-        listen: args.listen,
-    };
+    let network = args.network.options()?;
     anyhow::ensure!(
         args.telemetry_hz.is_finite() && args.telemetry_hz > 0.0,
         "--telemetry-hz must be a positive number"

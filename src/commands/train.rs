@@ -5,7 +5,10 @@
 //! The dataset is the Minari directory `ciflow demos` writes (`envs/DATASET.md`). The
 //! policy's state `y` is the position part `q` of each observation `[q, q̇, c]` (planar
 //! tasks: the 2-D position; pouring: the 7 joint positions), its context the per-step
-//! context `c`, its period the dataset's `control_dt`.
+//! context `c`, its period the dataset's `control_dt`. With `--from-zenoh N` the
+//! demonstrations are collected from recorders over Zenoh instead ([`episodes`]).
+
+mod episodes;
 
 use std::path::{Path, PathBuf};
 
@@ -147,9 +150,12 @@ pub struct TrainArgs {
     /// dataset must have been recorded on it.
     #[arg(long)]
     pub task: String,
-    /// Dataset directory written by `ciflow demos` (Minari Arrow layout).
-    #[arg(long)]
-    pub demos: PathBuf,
+    /// Dataset directory written by `ciflow demos` (Minari Arrow layout); with
+    /// --from-zenoh, where the collected episodes are written.
+    #[arg(long, required_unless_present = "from_zenoh")]
+    pub demos: Option<PathBuf>,
+    #[command(flatten)]
+    pub zenoh: episodes::ZenohSource,
     /// Checkpoint directory to write (config.json + weights.safetensors).
     #[arg(long)]
     pub out: PathBuf,
@@ -227,10 +233,19 @@ pub fn read_demonstrations(
 ) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
     let (spec, episodes) =
         dataset::read(dir).with_context(|| format!("reading the dataset {}", dir.display()))?;
+    to_demonstrations(spec, episodes, task, &dir.display().to_string())
+}
+
+/// The policy's demonstrations of `task` in dataset episodes (from `source`, for errors).
+pub fn to_demonstrations(
+    spec: DatasetSpec,
+    episodes: Vec<dataset::Episode>,
+    task: &TaskEntry,
+    source: &str,
+) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
     anyhow::ensure!(
         spec.env_id == task.id,
-        "{} holds demonstrations of `{}` ({}), not of task `{}` ({})",
-        dir.display(),
+        "{source} holds demonstrations of `{}` ({}), not of task `{}` ({})",
         spec.env_id,
         spec.dataset_id,
         task.name,
@@ -242,7 +257,7 @@ pub fn read_demonstrations(
         velocity_and_position > 0 && velocity_and_position % 2 == 0,
         "{}: observations of dimension {observation_dim} with a {context_dim}-D context are \
          not [q, q̇, c]",
-        dir.display()
+        source
     );
     let position_dim = velocity_and_position / 2;
     let episodes = episodes
@@ -337,10 +352,9 @@ pub fn baseline_config(flow: &TrainConfig, goal: Goal) -> BaselineTrainConfig {
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let task = registry::entry(&args.task)?;
-    let (spec, mut data) = read_demonstrations(&args.demos, task)?;
+    let (spec, mut data) = episodes::demonstrations(task, args.demos.as_deref(), &args.zenoh)?;
     if let Some(count) = args.subset {
-        data.episodes = random_subset(data.episodes, count, args.model.seed)
-            .with_context(|| format!("--subset of {}", args.demos.display()))?;
+        data.episodes = random_subset(data.episodes, count, args.model.seed).context("--subset")?;
     }
     let defaults = task_defaults(task, spec.context_space.dim())?;
     let defaults = TaskDefaults {

@@ -13,6 +13,7 @@
 //! ciflow/v1/engine/<engine>/session/<session>/frame       publication (rendered frames)
 //! ciflow/v1/engine/<engine>/policy/<policy>/act      query: observation in, action out
 //! ciflow/v1/policies/<policy>/checkpoint             publication (trainer → engines)
+//! ciflow/v1/episodes/<task>/<recorder>               publication: finished episodes
 //! ```
 
 /// Root of every key of this protocol version.
@@ -168,6 +169,28 @@ pub fn parse_route(key: &str) -> Option<Route<'_>> {
     }
 }
 
+/// Where `recorder` publishes the finished episodes of `task` (its command-line name,
+/// e.g. `pouring`; a Gymnasium id holds a `/`, so it cannot be one chunk).
+pub fn episodes(task: &str, recorder: &str) -> String {
+    format!("{ROOT}/episodes/{task}/{recorder}")
+}
+
+/// The episodes of `task` from every recorder (what a trainer subscribes to).
+pub fn all_episodes(task: &str) -> String {
+    episodes(task, "*")
+}
+
+/// `(task, recorder)` of an episode key; `None` outside `ciflow/v1/episodes/<task>/<recorder>`.
+pub fn parse_episodes(key: &str) -> Option<(&str, &str)> {
+    let rest = key.strip_prefix(ROOT)?.strip_prefix("/episodes/")?;
+    match rest.split_once('/')? {
+        (task, recorder) if is_plain_chunk(task) && is_plain_chunk(recorder) => {
+            Some((task, recorder))
+        }
+        _ => None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -209,6 +232,26 @@ mod tests {
         assert!(is_plain_chunk("client-1.a_b"));
         for bad in ["", "a/b", "*", "**", "a$b", "a?b", "a#b"] {
             assert!(!is_plain_chunk(bad), "{bad}");
+        }
+    }
+
+    #[test]
+    fn episode_keys_parse_back() {
+        assert_eq!(
+            parse_episodes(&episodes("pouring", "rec-1")),
+            Some(("pouring", "rec-1"))
+        );
+        assert_eq!(
+            all_episodes("limit-cycle"),
+            "ciflow/v1/episodes/limit-cycle/*"
+        );
+        for key in [
+            all_episodes("pouring").as_str(),
+            "ciflow/v1/episodes/pouring",
+            "ciflow/v1/episodes/pouring/rec/extra",
+            "ciflow/v1/engine/e1/tasks",
+        ] {
+            assert_eq!(parse_episodes(key), None, "{key}");
         }
     }
 }

@@ -1,14 +1,17 @@
 //! The wire protocol, version [`PROTOCOL_VERSION`]: key expressions ([`keys`]), MessagePack
-//! payloads ([`messages`]) and the typed error reply ([`ErrorReply`]). `PROTOCOL.md` is the
+//! payloads ([`messages`]), published demonstration episodes ([`episodes`]) and the typed
+//! error reply ([`ErrorReply`]). `PROTOCOL.md` is the
 //! language-neutral description of the same thing.
 
 pub mod checkpoint;
+pub mod episodes;
 pub mod error;
 pub mod f64le;
 pub mod keys;
 pub mod messages;
 
 pub use checkpoint::{CheckpointMsg, RunRequest};
+pub use episodes::{EpisodeError, EpisodeMsg, decode_episode};
 pub use error::{ErrorCode, ErrorReply};
 pub use f64le::F64s;
 pub use messages::*;

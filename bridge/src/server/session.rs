@@ -264,34 +264,61 @@ impl Session {
         Ok(encode(&BatchResetReply {
             v: PROTOCOL_VERSION,
             observations: F64s(observations),
-            info: info_columns(&infos),
+            info: InfoColumns::from_infos(&infos).columns,
         }))
     }
 
     pub fn step_batch(&mut self, actions: &[f64]) -> Result<Vec<u8>, ErrorReply> {
         let n = self.envs.len();
-        let action_dim = self.spec.action_space.dim();
+        let (action_dim, observation_dim) = (self.spec.action_space.dim(), self.observation_dim());
         check_vector("actions", actions, n * action_dim)?;
         let options = &self.reset_options;
-        let results: Vec<_> = self
+        let mut observations = vec![0.0; n * observation_dim];
+        let mut rewards = vec![0.0; n];
+        let mut terminated = vec![0u8; n];
+        let mut truncated = vec![0u8; n];
+        // Each rayon task steps a chunk straight into its slices of the reply and frees
+        // its steps' buffers itself: no per-environment work is left to this thread.
+        let chunks: Vec<Result<InfoColumns, ErrorReply>> = self
             .envs
-            .par_iter_mut()
-            .with_min_len(BATCH_CHUNK)
-            .zip(actions.par_chunks(action_dim.max(1)))
-            .map(|(slot, action)| slot.step_autoreset(action, options))
+            .par_chunks_mut(BATCH_CHUNK)
+            .zip(actions.par_chunks((BATCH_CHUNK * action_dim).max(1)))
+            .zip(observations.par_chunks_mut((BATCH_CHUNK * observation_dim).max(1)))
+            .zip(rewards.par_chunks_mut(BATCH_CHUNK))
+            .zip(terminated.par_chunks_mut(BATCH_CHUNK))
+            .zip(truncated.par_chunks_mut(BATCH_CHUNK))
+            .enumerate()
+            .map(
+                |(
+                    chunk,
+                    (((((slots, actions), observations), rewards), terminated), truncated),
+                )| {
+                    let mut infos = InfoColumns::new(slots.len());
+                    // The others still step when one fails, as they would one by one.
+                    let mut failure = None;
+                    for (i, slot) in slots.iter_mut().enumerate() {
+                        let action = &actions[i * action_dim..(i + 1) * action_dim];
+                        let step = match slot.step_autoreset(action, options) {
+                            Ok(step) => step,
+                            Err(e) => {
+                                failure.get_or_insert_with(|| in_env(chunk * BATCH_CHUNK + i, e));
+                                continue;
+                            }
+                        };
+                        observations[i * observation_dim..(i + 1) * observation_dim]
+                            .copy_from_slice(&step.observation);
+                        rewards[i] = step.reward;
+                        terminated[i] = u8::from(step.terminated);
+                        truncated[i] = u8::from(step.truncated);
+                        infos.set(i, &step.info);
+                    }
+                    failure.map_or(Ok(infos), Err)
+                },
+            )
             .collect();
-        let mut observations = Vec::with_capacity(n * self.observation_dim());
-        let mut rewards = Vec::with_capacity(n);
-        let mut terminated = Vec::with_capacity(n);
-        let mut truncated = Vec::with_capacity(n);
-        let mut infos = Vec::with_capacity(n);
-        for (i, result) in results.into_iter().enumerate() {
-            let step = result.map_err(|e| in_env(i, e))?;
-            observations.extend_from_slice(&step.observation);
-            rewards.push(step.reward);
-            terminated.push(u8::from(step.terminated));
-            truncated.push(u8::from(step.truncated));
-            infos.push(step.info);
+        let mut info = InfoColumns::new(n);
+        for (chunk, columns) in chunks.into_iter().enumerate() {
+            info.splice(chunk * BATCH_CHUNK, columns?);
         }
         self.telemetry.offer(&self.id, &self.envs[0]);
         Ok(encode(&BatchStepReply {
@@ -300,7 +327,7 @@ impl Session {
             rewards: F64s(rewards),
             terminated: ByteBuf::from(terminated),
             truncated: ByteBuf::from(truncated),
-            info: info_columns(&infos),
+            info: info.columns,
         }))
     }
 
@@ -413,20 +440,51 @@ fn in_env(index: usize, error: EnvError) -> ErrorReply {
 }
 
 /// Gymnasium-style vector info: key → one value per environment, NaN where missing.
-fn info_columns(infos: &[Info]) -> BTreeMap<String, F64s> {
-    let mut columns: BTreeMap<String, F64s> = BTreeMap::new();
-    for (i, info) in infos.iter().enumerate() {
+struct InfoColumns {
+    len: usize,
+    columns: BTreeMap<String, F64s>,
+}
+
+impl InfoColumns {
+    fn new(len: usize) -> Self {
+        Self {
+            len,
+            columns: BTreeMap::new(),
+        }
+    }
+
+    /// Sets environment `index`'s values.
+    fn set(&mut self, index: usize, info: &Info) {
         for (key, value) in info {
             // Look up before inserting: the key is cloned once per column, not per env.
-            match columns.get_mut(key) {
-                Some(column) => column.0[i] = *value,
+            match self.columns.get_mut(key) {
+                Some(column) => column.0[index] = *value,
                 None => {
-                    let mut column = vec![f64::NAN; infos.len()];
-                    column[i] = *value;
-                    columns.insert(key.clone(), F64s(column));
+                    let mut column = vec![f64::NAN; self.len];
+                    column[index] = *value;
+                    self.columns.insert(key.clone(), F64s(column));
                 }
             }
         }
     }
-    columns
+
+    /// Copies the columns of the environments `offset..offset + part.len`.
+    fn splice(&mut self, offset: usize, part: InfoColumns) {
+        for (key, values) in part.columns {
+            let len = self.len;
+            let column = self
+                .columns
+                .entry(key)
+                .or_insert_with(|| F64s(vec![f64::NAN; len]));
+            column.0[offset..offset + part.len].copy_from_slice(&values.0);
+        }
+    }
+
+    fn from_infos(infos: &[Info]) -> Self {
+        let mut columns = Self::new(infos.len());
+        for (i, info) in infos.iter().enumerate() {
+            columns.set(i, info);
+        }
+        columns
+    }
 }

@@ -1,0 +1,142 @@
+"""``ciflow.record``: expert episodes through ``gymnasium.make`` and an engine in another
+process give the same dataset as ``ciflow demos`` (the in-process Rust recorder), which
+Minari opens; each episode is published on the episode channel as it finishes."""
+
+import json
+import subprocess
+import sys
+import threading
+
+import minari
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+
+from ciflow import _native
+from ciflow.record import record
+
+TASK = "obstacle-avoidance"
+KWARGS = {"obstacles": 1}
+
+
+class EpisodeListener:
+    """A plain Zenoh client subscribed to ``ciflow/v1/episodes/<task>/*``."""
+
+    def __init__(self, endpoint: str, task: str):
+        config = zenoh.Config()
+        config.insert_json5("mode", '"client"')
+        config.insert_json5("connect/endpoints", json.dumps([endpoint]))
+        self.session = zenoh.open(config)
+        self.messages = []
+        self.arrived = threading.Condition()
+        self.subscriber = self.session.declare_subscriber(
+            f"ciflow/v1/episodes/{task}/*", self._on_sample
+        )
+
+    def _on_sample(self, sample):
+        message = msgpack.unpackb(sample.payload.to_bytes())
+        with self.arrived:
+            self.messages.append((str(sample.key_expr), message))
+            self.arrived.notify_all()
+
+    def wait_for(self, count: int, timeout: float = 30.0):
+        with self.arrived:
+            self.arrived.wait_for(lambda: len(self.messages) >= count, timeout)
+            return list(self.messages)
+
+    def close(self):
+        self.session.close()
+
+
+def rows(data: bytes, width: int) -> np.ndarray:
+    return np.frombuffer(data, "<f8").reshape(-1, width)
+
+
+def test_recorder_matches_ciflow_demos_publishes_episodes_and_opens_in_minari(engine, tmp_path):
+    endpoint, _name = engine
+    listener = EpisodeListener(endpoint, TASK)
+    try:
+        result = record(
+            "ciflow/Obstacle-v0", 3, tmp_path / "py", seed=5, kwargs=KWARGS,
+            engine=endpoint, recorder="test-rec", progress=False,
+        )
+        messages = listener.wait_for(3)
+    finally:
+        listener.close()
+    assert result.path == tmp_path / "py"
+    assert result.key == f"ciflow/v1/episodes/{TASK}/test-rec"
+    _native.record_expert(TASK, str(tmp_path / "rust"), 3, seed=5, kwargs=KWARGS)
+
+    for name in ("data/metadata.json", *(f"data/{i}/metadata.json" for i in range(3))):
+        assert (tmp_path / "py" / name).read_text() == (tmp_path / "rust" / name).read_text(), name
+    spec, recorded = _native.read_dataset(str(tmp_path / "py"))
+    rust_spec, expected = _native.read_dataset(str(tmp_path / "rust"))
+    assert spec == rust_spec
+    assert spec["dataset_id"] == result.dataset_id == "ciflow/obstacle-avoidance-expert-v0"
+    assert len(recorded) == 3
+    for got, want in zip(recorded, expected):
+        assert got.keys() == want.keys()
+        for key in want:
+            assert got[key] == want[key], key
+    assert [e["seed"] for e in recorded] == [5, 6, 7]
+    assert result.steps == sum(len(e["rewards"]) // 8 for e in recorded) > 3
+
+    obs_dim = len(spec["observation_space"]["low"])
+    act_dim = len(spec["action_space"]["low"])
+    dataset = minari.MinariDataset(str(tmp_path / "py" / "data"))
+    assert dataset.total_episodes == 3
+    for episode, want in zip(dataset.iterate_episodes(), expected):
+        np.testing.assert_array_equal(episode.observations, rows(want["observations"], obs_dim))
+        np.testing.assert_array_equal(episode.actions, rows(want["actions"], act_dim))
+
+    assert [key for key, _ in messages] == [result.key] * 3
+    for index, ((_, message), want) in enumerate(zip(messages, expected)):
+        assert message["v"] == 1
+        assert message["task"] == "ciflow/Obstacle-v0"
+        assert (message["recorder"], message["index"], message["seed"]) == ("test-rec", index, 5 + index)
+        assert message["dataset_id"] == result.dataset_id
+        assert (message["observation_dim"], message["action_dim"]) == (obs_dim, act_dim)
+        for key in ("observations", "actions", "contexts", "rewards"):
+            assert message[key] == want[key], key
+        assert message["terminated"] == bool(want["terminations"][-1])
+        assert message["truncated"] == bool(want["truncations"][-1])
+
+
+def test_bad_input_is_rejected_before_anything_is_written(engine, tmp_path):
+    endpoint, _name = engine
+    common = dict(engine=endpoint, progress=False, publish=False)
+    with pytest.raises(ValueError, match="unknown task"):
+        record("juggling", 1, tmp_path / "a", **common)
+    for episodes in (0, -2, 1.5, True):
+        with pytest.raises(ValueError, match="episodes"):
+            record(TASK, episodes, tmp_path / "a", **common)
+    with pytest.raises(ValueError, match="seed"):
+        record(TASK, 1, tmp_path / "a", seed=-1, **common)
+    with pytest.raises(ValueError, match="obstacles"):
+        record(TASK, 1, tmp_path / "a", kwargs={"obstacles": "many"}, **common)
+    with pytest.raises(ValueError, match="nothing to do"):
+        record(TASK, 1, None, **common)
+    (tmp_path / "taken").mkdir()
+    with pytest.raises(FileExistsError):
+        record(TASK, 1, tmp_path / "taken", **common)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["taken"]
+
+
+def test_command_line_records_a_dataset_and_reports_errors(engine, tmp_path):
+    endpoint, _name = engine
+    out = tmp_path / "cycle"
+    command = [sys.executable, "-m", "ciflow.record", "--task", "limit-cycle", "--episodes",
+               "2", "--seed", "3", "--out", str(out), "--engine", endpoint, "--no-publish",
+               "--quiet"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "2 episodes" in done.stdout
+    spec, episodes = _native.read_dataset(str(out))
+    assert spec["env_id"] == "ciflow/LimitCycle-v0"
+    assert [e["seed"] for e in episodes] == [3, 4]
+
+    again = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 2 and "already exists" in again.stderr
+    bad = subprocess.run(command[:-6] + ["--kwarg", "speed"], capture_output=True, text=True)
+    assert bad.returncode != 0 and "NAME=VALUE" in bad.stderr

@@ -1,0 +1,90 @@
+//! `ciflow train --from-zenoh N`: demonstrations collected from recorders over Zenoh
+//! (`ciflow/v1/episodes/<task>/*`, see bridge/PROTOCOL.md) instead of read from a dataset.
+
+use std::path::Path;
+use std::time::Duration;
+
+use anyhow::Context;
+use ciflow_bridge::episodes::collect;
+use ciflow_envs::dataset::{self, DatasetSpec};
+use ciflow_envs::registry::TaskEntry;
+use ciflow_train::Demonstrations;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use super::{read_demonstrations, to_demonstrations};
+use crate::commands::network::NetworkArgs;
+
+/// Where the demonstrations come from besides `--demos`.
+#[derive(clap::Args, Debug)]
+pub struct ZenohSource {
+    /// Collect this many episodes that recorders (`python -m ciflow.record`) publish on
+    /// ciflow/v1/episodes/<task>/*, instead of reading --demos; with --demos they are also
+    /// written there as a dataset, so that the run can be repeated from files. Start the
+    /// trainer before the recorders: earlier episodes are not replayed.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub from_zenoh: Option<u64>,
+    /// Longest wait for the next episode, in seconds.
+    #[arg(long, default_value_t = 300.0, value_name = "SECONDS")]
+    pub episode_timeout: f64,
+    /// Zenoh flags (default: a client of the engine on tcp/127.0.0.1:7447, through which
+    /// the recorders publish).
+    #[command(flatten)]
+    pub network: NetworkArgs,
+}
+
+/// The demonstrations of `task`: read from `demos`, or collected from Zenoh (and then
+/// written to `demos` when given).
+pub fn demonstrations(
+    task: &TaskEntry,
+    demos: Option<&Path>,
+    source: &ZenohSource,
+) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
+    let Some(count) = source.from_zenoh else {
+        let demos = demos.context("give the dataset with --demos, or --from-zenoh <N>")?;
+        return read_demonstrations(demos, task);
+    };
+    let timeout = Duration::try_from_secs_f64(source.episode_timeout)
+        .ok()
+        .filter(|t| !t.is_zero())
+        .context("--episode-timeout must be a positive number of seconds")?;
+    if let Some(dir) = demos {
+        anyhow::ensure!(
+            !dir.exists(),
+            "{} already exists; --demos with --from-zenoh writes a new dataset",
+            dir.display()
+        );
+    }
+    let network = source.network.options()?;
+    let bar = ProgressBar::new(count).with_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} episodes ({elapsed})")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let (spec, episodes) = collect(
+        &network,
+        task.name,
+        count as usize,
+        timeout,
+        |key| {
+            // Scripts and tests start the recorders once this line is out.
+            println!("waiting for {count} episodes on {key}");
+            bar.set_message(format!("{} episodes", task.name));
+        },
+        |message| {
+            bar.inc(1);
+            bar.set_message(format!("{} ({})", task.name, message.recorder));
+        },
+    )
+    .with_context(|| format!("collecting {count} episodes of `{}` from Zenoh", task.name))?;
+    bar.finish();
+    if let Some(dir) = demos {
+        dataset::write(dir, &spec, &episodes, false)
+            .with_context(|| format!("writing the collected episodes to {}", dir.display()))?;
+        println!(
+            "wrote {} ({}): {count} episodes",
+            dir.display(),
+            spec.dataset_id
+        );
+    }
+    to_demonstrations(spec, episodes, task, "the episodes collected from Zenoh")
+}
