@@ -41,7 +41,7 @@ pub struct ContextField {
     pub velocity_y: Vec<Vec<f64>>,
     /// One polyline per start.
     pub rollouts: Vec<Vec<[f64; 2]>>,
-    /// Images of the latent grid lines (first the lines of constant `z₁`, then of `z₀`).
+    /// Images of the latent grid lines (first the lines of constant `z₀`, then of `z₁`).
     pub latent_grid: Vec<Vec<[f64; 2]>>,
 }
 
