@@ -87,7 +87,11 @@ fn episodes_and_rates_are_those_of_the_closed_loop() {
     assert_eq!(report.distance_key.as_deref(), Some("distance_to_target"));
     assert_eq!(report.spill_rate, None, "Obstacle-v0 reports no spills");
     let successes = report.results.iter().filter(|r| r.success).count();
-    let collisions = report.results.iter().filter(|r| r.collision == Some(true)).count();
+    let collisions = report
+        .results
+        .iter()
+        .filter(|r| r.collision == Some(true))
+        .count();
     assert_eq!(report.success_rate, successes as f64 / 8.0);
     assert_eq!(report.collision_rate, Some(collisions as f64 / 8.0));
     // A stable flow onto the target reaches it unless an obstacle is in the way.
@@ -106,7 +110,10 @@ fn episodes_and_rates_are_those_of_the_closed_loop() {
     assert_eq!(report.trajectories.len(), 2);
     let trace = &report.trajectories[1];
     assert_eq!(trace.q.len(), trace.command.len() + 1);
-    assert_eq!(trace.point, trace.q, "planar tasks track the position itself");
+    assert_eq!(
+        trace.point, trace.q,
+        "planar tasks track the position itself"
+    );
     let example = report.example.as_ref().unwrap();
     assert_eq!(&example.trace, &report.trajectories[0]);
 }
@@ -122,14 +129,22 @@ fn a_push_displaces_the_state_by_the_requested_distance() {
         initial_force: 2.0,
         ..PushConfig::default()
     };
-    let report = evaluate(&mut env, &model, &config(3, Disturbance::Push(push.clone())), |_| {})
-        .unwrap();
+    let report = evaluate(
+        &mut env,
+        &model,
+        &config(3, Disturbance::Push(push.clone())),
+        |_| {},
+    )
+    .unwrap();
     let summary = report.push.as_ref().unwrap();
     assert_eq!(summary.displaced_fraction, 1.0);
     assert!(summary.displacement.min >= 0.08);
     for result in &report.results {
         let outcome = result.push.as_ref().unwrap();
-        assert!(outcome.attempts > 1, "2 N for 0.1 s cannot move 1 kg by 8 cm");
+        assert!(
+            outcome.attempts > 1,
+            "2 N for 0.1 s cannot move 1 kg by 8 cm"
+        );
         // Replayed by hand with the force found: the same displacement at equal times.
         let (free, _) = replay(&model, result.seed, None);
         let pushed = Perturbation {
@@ -153,7 +168,10 @@ fn a_push_displaces_the_state_by_the_requested_distance() {
         assert!(displacement >= 0.08);
     }
     let example = report.example.as_ref().unwrap();
-    assert!(example.reference.is_some(), "pushes keep the unpushed reference");
+    assert!(
+        example.reference.is_some(),
+        "pushes keep the unpushed reference"
+    );
 }
 
 #[test]
@@ -164,14 +182,27 @@ fn a_context_switch_moves_only_the_target_and_holds() {
         time: 0.5,
         tail: Some(2),
     };
-    let report =
-        evaluate(&mut env, &model, &config(4, Disturbance::Context(switch)), |_| {}).unwrap();
+    let report = evaluate(
+        &mut env,
+        &model,
+        &config(4, Disturbance::Context(switch)),
+        |_| {},
+    )
+    .unwrap();
     for (result, trace) in report.results.iter().zip(&report.trajectories) {
         let new = result.switched_context.as_ref().unwrap();
         assert_eq!(new[..2], result.context[..2], "the obstacle stays");
         assert_ne!(new[2..], result.context[2..], "the target moves");
-        let switched_at = trace.time.iter().position(|t| *t >= 0.5 + 0.01 - 1e-9).unwrap();
-        assert!(trace.context[..switched_at].iter().all(|c| *c == result.context));
+        let switched_at = trace
+            .time
+            .iter()
+            .position(|t| *t >= 0.5 + 0.01 - 1e-9)
+            .unwrap();
+        assert!(
+            trace.context[..switched_at]
+                .iter()
+                .all(|c| *c == result.context)
+        );
         assert!(trace.context[switched_at..].iter().all(|c| c == new));
         if result.success {
             let last = trace.q.last().unwrap();
@@ -191,7 +222,12 @@ fn bad_settings_are_typed_errors() {
         displacement: f64::NAN,
         ..PushConfig::default()
     };
-    let bad = evaluate(&mut env, &model, &config(1, Disturbance::Push(push)), |_| {});
+    let bad = evaluate(
+        &mut env,
+        &model,
+        &config(1, Disturbance::Push(push)),
+        |_| {},
+    );
     assert!(matches!(bad, Err(EvaluationError::InvalidConfig(_))));
     let mut two = obstacle_avoidance::make(2).unwrap();
     let mismatch = evaluate(&mut two, &model, &config(1, Disturbance::None), |_| {});
@@ -219,8 +255,12 @@ fn log_likelihood_is_the_mean_transition_density_with_the_earlier_context() {
     for e in &episodes {
         for t in 1..6 {
             let (prev, next) = (&e.observations[t - 1][..2], &e.observations[t][..2]);
-            sum += policy.log_transition(prev, next, &e.contexts[t - 1], &mut ws).unwrap();
-            later_context += policy.log_transition(prev, next, &e.contexts[t], &mut ws).unwrap();
+            sum += policy
+                .log_transition(prev, next, &e.contexts[t - 1], &mut ws)
+                .unwrap();
+            later_context += policy
+                .log_transition(prev, next, &e.contexts[t], &mut ws)
+                .unwrap();
         }
     }
     assert_eq!(ll.transitions, 10);
@@ -246,16 +286,22 @@ fn field_data_are_the_policy_velocity_rollouts_and_latent_grid() {
     let f = &report.fields[0];
     let mut ws = policy.workspace();
     let mut v = [0.0; 2];
-    policy.velocity(&[f.x[1], f.y[3]], &context, &mut ws, &mut v).unwrap();
+    policy
+        .velocity(&[f.x[1], f.y[3]], &context, &mut ws, &mut v)
+        .unwrap();
     assert_eq!([f.velocity_x[3][1], f.velocity_y[3][1]], v);
     let end = f.rollouts[0].last().unwrap();
     assert!(((end[0] - 0.7).powi(2) + (end[1] + 0.2).powi(2)).sqrt() < 1e-3);
     // The first lines hold z₀ fixed: mapped back, their points share z₀.
     let mut z = [0.0; 2];
     let line = &f.latent_grid[1];
-    policy.latent_state(&line[0], &context, &mut ws, &mut z).unwrap();
+    policy
+        .latent_state(&line[0], &context, &mut ws, &mut z)
+        .unwrap();
     let z0 = z[0];
-    policy.latent_state(&line[60], &context, &mut ws, &mut z).unwrap();
+    policy
+        .latent_state(&line[60], &context, &mut ws, &mut z)
+        .unwrap();
     assert!((z[0] - z0).abs() < 1e-8, "{} vs {z0}", z[0]);
     assert_eq!(f.latent_grid.len(), 6);
 }

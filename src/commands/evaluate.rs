@@ -254,7 +254,11 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
     }
     if let Some(out) = &args.field {
         let demonstrations = match &args.field_demos {
-            Some(d) => dataset::read(d).with_context(|| format!("reading {}", d.display()))?.1,
+            Some(d) => {
+                dataset::read(d)
+                    .with_context(|| format!("reading {}", d.display()))?
+                    .1
+            }
             None => Vec::new(),
         };
         let contexts = match &args.field_contexts {

@@ -107,7 +107,8 @@ impl Trace {
     fn record(&mut self, observation: &[f64], state_dim: usize, info: &Info) {
         let (q, rest) = observation.split_at(state_dim);
         let (qd, context) = rest.split_at(state_dim);
-        self.time.push(info.get("time").copied().unwrap_or(f64::NAN));
+        self.time
+            .push(info.get("time").copied().unwrap_or(f64::NAN));
         self.q.push(q.to_vec());
         self.qd.push(qd.to_vec());
         self.context.push(context.to_vec());
@@ -213,7 +214,10 @@ pub struct EvaluationReport {
 enum Schedule {
     Free,
     Push(ciflow_engine::sim::Perturbation),
-    Switch { time: f64, candidates: Vec<Vec<f64>> },
+    Switch {
+        time: f64,
+        candidates: Vec<Vec<f64>>,
+    },
 }
 
 /// One closed-loop run.
@@ -324,8 +328,7 @@ fn model_name(model: &Model) -> &'static str {
 
 fn rate(flags: impl Iterator<Item = Option<bool>>) -> Option<f64> {
     let flags: Vec<bool> = flags.collect::<Option<_>>()?;
-    (!flags.is_empty())
-        .then(|| flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64)
+    (!flags.is_empty()).then(|| flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64)
 }
 
 /// Runs `config.episodes` closed-loop episodes of `model` in `env`; `progress` is called

@@ -66,10 +66,7 @@ impl PushConfig {
             ("recovery tolerance", self.recovery_tolerance),
             ("recovery deadline", self.recovery_deadline),
         ];
-        if let Some((name, value)) = positive
-            .iter()
-            .find(|(_, v)| !(v.is_finite() && *v > 0.0))
-        {
+        if let Some((name, value)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
             return Err(EvaluationError::InvalidConfig(format!(
                 "push {name} must be finite and > 0, got {value}"
             )));
@@ -140,8 +137,17 @@ pub fn displacement(trace: &Trace, reference: &Trace, start: f64) -> f64 {
 /// Distance from `p` to the segment `[a, b]`.
 fn segment_distance(p: &[f64], a: &[f64], b: &[f64]) -> f64 {
     let ab2: f64 = a.iter().zip(b).map(|(x, y)| (y - x) * (y - x)).sum();
-    let along: f64 = p.iter().zip(a).zip(b).map(|((p, a), b)| (p - a) * (b - a)).sum();
-    let s = if ab2 > 0.0 { (along / ab2).clamp(0.0, 1.0) } else { 0.0 };
+    let along: f64 = p
+        .iter()
+        .zip(a)
+        .zip(b)
+        .map(|((p, a), b)| (p - a) * (b - a))
+        .sum();
+    let s = if ab2 > 0.0 {
+        (along / ab2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     let closest: Vec<f64> = a.iter().zip(b).map(|(a, b)| a + s * (b - a)).collect();
     distance(p, &closest)
 }
@@ -266,12 +272,12 @@ impl PushSummary {
             recovery_deadline: config.recovery_deadline,
             recovered_fraction: fraction(&|p| p.recovery_time.is_some()),
             recovered_within_deadline_fraction: fraction(&|p| {
-                p.recovery_time.is_some_and(|t| t <= config.recovery_deadline)
+                p.recovery_time
+                    .is_some_and(|t| t <= config.recovery_deadline)
             }),
             recovery_time: Summary::of(&times),
-            success_rate_displaced: (!displaced.is_empty()).then(|| {
-                displaced.iter().filter(|s| **s).count() as f64 / displaced.len() as f64
-            }),
+            success_rate_displaced: (!displaced.is_empty())
+                .then(|| displaced.iter().filter(|s| **s).count() as f64 / displaced.len() as f64),
         })
     }
 }
