@@ -45,8 +45,8 @@ pub enum EvaluationError {
     Flow(#[from] ciflow_engine::flow::FlowError),
     #[error("invalid evaluation setting: {0}")]
     InvalidConfig(String),
-    #[error("no valid new context found for episode {episode} in {tries} draws")]
-    NoValidContext { episode: usize, tries: usize },
+    #[error("no valid new context found for the episode of seed {seed} in {tries} draws")]
+    NoValidContext { seed: u64, tries: usize },
 }
 
 pub type EvaluationResult<T> = Result<T, EvaluationError>;
@@ -259,7 +259,7 @@ fn run_episode(
                 .iter()
                 .find(|c| env.set_context(c).is_ok())
                 .ok_or(EvaluationError::NoValidContext {
-                    episode: seed as usize,
+                    seed,
                     tries: candidates.len(),
                 })?;
             switched_context = Some(chosen.clone());
