@@ -22,6 +22,9 @@ pub enum Command {
     Train(commands::train::TrainArgs),
     /// Measure how many noise-free rollouts of a trained policy converge.
     Stability(commands::stability::StabilityArgs),
+    /// Evaluate a checkpoint: closed-loop success, collision, spill and push-recovery
+    /// rates in its task, log-likelihood on a dataset, or 2-D vector-field figure data (JSON).
+    Evaluate(commands::evaluate::EvaluateArgs),
     /// LASA handwriting benchmark: per shape, a stable flow against a behaviour-cloning
     /// MLP with the same budget; writes tables (DTW, swept area, final error, time) and plots.
     Lasa(commands::lasa::LasaArgs),

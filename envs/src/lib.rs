@@ -12,6 +12,7 @@
 pub mod actor;
 pub mod dataset;
 pub mod env;
+pub mod evaluation;
 pub mod expert;
 pub mod lasa;
 pub mod planar;

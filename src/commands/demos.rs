@@ -41,7 +41,7 @@ pub struct DemosArgs {
     pub overwrite: bool,
 }
 
-fn parse_key_value(text: &str) -> Result<(String, String), String> {
+pub(crate) fn parse_key_value(text: &str) -> Result<(String, String), String> {
     let (key, value) = text
         .split_once('=')
         .ok_or_else(|| format!("`{text}` is not NAME=VALUE"))?;
@@ -49,7 +49,7 @@ fn parse_key_value(text: &str) -> Result<(String, String), String> {
 }
 
 /// Resolves NAME=VALUE pairs to the task's numbers (names of values included).
-fn task_values(
+pub(crate) fn task_values(
     task: &TaskEntry,
     pairs: Vec<(String, String)>,
 ) -> anyhow::Result<BTreeMap<String, f64>> {

@@ -1,6 +1,7 @@
 //! One module per subcommand.
 
 pub mod demos;
+pub mod evaluate;
 pub mod lasa;
 pub mod network;
 pub mod robot;
@@ -16,6 +17,7 @@ pub fn execute(command: Command) -> anyhow::Result<()> {
         Command::Demos(args) => demos::run(args),
         Command::Train(args) => train::run(args),
         Command::Stability(args) => stability::run(args),
+        Command::Evaluate(args) => evaluate::run(args),
         Command::Lasa(args) => lasa::run(args),
         Command::Serve(args) => serve::run(args),
     }

@@ -1,0 +1,443 @@
+//! Closed-loop evaluation of a checkpoint in its task's environment: the issue's
+//! experiment numbers (success, goal-reached, collision and spill rates, final distances,
+//! episode lengths), under optional disturbances, plus per-step traces for figures.
+//!
+//! Episode `i` is reset with seed `seed + i`, so its context and start are the task's own
+//! random draws and the same for every checkpoint and every disturbance mode. Every
+//! control step the [`Actor`] chooses `q̈_des` from the observation `[q, q̇, c]`.
+//!
+//! **Outcome of an episode** (from the task's `info`, see each task's module docs):
+//! *success* when the last step reports `is_success = 1` (obstacle avoidance terminates on
+//! reaching the target; pouring keeps `is_success = 1` while it pours; the limit cycle
+//! reports it while on the outline); *collision* / *spill* when any step reports
+//! `collision = 1` / `spill = 1`; the *final distance* is the last value of the task's
+//! distance key ([`DISTANCE_KEYS`]).
+//!
+//! Disturbances ([`Disturbance`]) are the pushes of [`push`] and the mid-motion context
+//! changes of [`Disturbance::Context`]. [`likelihood`] gives the log-likelihood per
+//! transition of a flow on a dataset, [`field`] the vector-field figures of 2-D flows.
+
+pub mod field;
+pub mod likelihood;
+pub mod push;
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use crate::actor::{Actor, ActorError, Model};
+use crate::env::{Env, EnvError, Info, ResetOptions};
+pub use push::{PushConfig, PushOutcome, PushSummary};
+
+/// `info` keys holding the distance to the task's goal, in order of preference: obstacle
+/// avoidance and LASA, pouring, limit cycle.
+pub const DISTANCE_KEYS: [&str; 3] = ["distance_to_target", "pour_distance", "outline_error"];
+/// `info` keys of a tool point in the world, reported by pouring (the cup's spout).
+pub const TOOL_POINT_KEYS: [&str; 3] = ["spout_x", "spout_y", "spout_z"];
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvaluationError {
+    #[error(transparent)]
+    Env(#[from] EnvError),
+    #[error(transparent)]
+    Actor(#[from] ActorError),
+    #[error(transparent)]
+    Flow(#[from] ciflow_engine::flow::FlowError),
+    #[error("invalid evaluation setting: {0}")]
+    InvalidConfig(String),
+    #[error("no valid new context found for the episode of seed {seed} in {tries} draws")]
+    NoValidContext { seed: u64, tries: usize },
+}
+
+pub type EvaluationResult<T> = Result<T, EvaluationError>;
+
+/// A context change in the middle of the motion.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ContextSwitch {
+    /// Simulated time of the change, s.
+    pub time: f64,
+    /// Change only the last `tail` context entries (obstacle avoidance: `2`, the target),
+    /// keeping the others; `None` changes the whole context (pouring: the pot's pose).
+    pub tail: Option<usize>,
+}
+
+/// What happens to an episode besides the policy acting.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "mode", rename_all = "snake_case")]
+pub enum Disturbance {
+    None,
+    /// A push sized to displace the tracked point by a minimum distance ([`push`]).
+    Push(PushConfig),
+    /// The context moves to a new valid draw of the task's distribution, which then holds.
+    Context(ContextSwitch),
+}
+
+/// Settings of [`evaluate`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct EvaluationConfig {
+    pub episodes: usize,
+    /// Episode `i` is reset with `seed + i`.
+    pub seed: u64,
+    /// `K_v` of the [`Actor`], 1/s.
+    pub velocity_gain: f64,
+    /// Reset options for every episode (e.g. limit cycle's `context_set`).
+    pub reset_extra: BTreeMap<String, f64>,
+    pub disturbance: Disturbance,
+    /// How many episodes' traces to keep (the first ones).
+    pub trajectories: usize,
+}
+
+/// One episode's per-step record: `T + 1` states (the reset one first), `T` commands.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Trace {
+    /// Simulated time of each state, s.
+    pub time: Vec<f64>,
+    pub q: Vec<Vec<f64>>,
+    pub qd: Vec<Vec<f64>>,
+    /// `command[k]`: the clipped `q̈_des` applied from state `k`.
+    pub command: Vec<Vec<f64>>,
+    pub context: Vec<Vec<f64>>,
+    /// The tool point where the task reports one ([`TOOL_POINT_KEYS`]: pouring's spout,
+    /// m), else the position `q` itself: the point whose displacement and path pushes
+    /// measure.
+    pub point: Vec<Vec<f64>>,
+}
+
+impl Trace {
+    fn record(&mut self, observation: &[f64], state_dim: usize, info: &Info) {
+        let (q, rest) = observation.split_at(state_dim);
+        let (qd, context) = rest.split_at(state_dim);
+        self.time
+            .push(info.get("time").copied().unwrap_or(f64::NAN));
+        self.q.push(q.to_vec());
+        self.qd.push(qd.to_vec());
+        self.context.push(context.to_vec());
+        let tool: Option<Vec<f64>> = TOOL_POINT_KEYS
+            .iter()
+            .map(|k| info.get(*k).copied())
+            .collect();
+        self.point.push(tool.unwrap_or_else(|| q.to_vec()));
+    }
+
+    /// The tracked point at time `t` (the last one after the trace ends).
+    fn point_at(&self, t: f64) -> &[f64] {
+        let k = self.time.partition_point(|&s| s < t - 1e-9);
+        &self.point[k.min(self.point.len() - 1)]
+    }
+}
+
+/// What one episode did.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EpisodeResult {
+    pub seed: u64,
+    /// The context at reset.
+    pub context: Vec<f64>,
+    pub success: bool,
+    /// `Some` for tasks that report collisions (obstacle avoidance).
+    pub collision: Option<bool>,
+    /// `Some` for tasks that report spills (pouring).
+    pub spill: Option<bool>,
+    /// Last value of the task's distance key, if it has one.
+    pub final_distance: Option<f64>,
+    pub steps: usize,
+    pub terminated: bool,
+    /// The context after a [`Disturbance::Context`] change.
+    pub switched_context: Option<Vec<f64>>,
+    pub push: Option<PushOutcome>,
+}
+
+/// Mean, standard deviation (population) and range of a sample.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Summary {
+    pub count: usize,
+    pub mean: f64,
+    pub std: f64,
+    pub min: f64,
+    pub max: f64,
+}
+
+impl Summary {
+    /// `None` for an empty sample.
+    pub fn of(values: &[f64]) -> Option<Self> {
+        if values.is_empty() {
+            return None;
+        }
+        let n = values.len() as f64;
+        let mean = values.iter().sum::<f64>() / n;
+        let variance = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
+        Some(Self {
+            count: values.len(),
+            mean,
+            std: variance.sqrt(),
+            min: values.iter().copied().fold(f64::INFINITY, f64::min),
+            max: values.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        })
+    }
+}
+
+/// An example episode for figures: the disturbed run and, for pushes, its undisturbed
+/// reference (same seed).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Example {
+    pub seed: u64,
+    pub trace: Trace,
+    pub reference: Option<Trace>,
+}
+
+/// Outcome of [`evaluate`]; written as JSON by `ciflow evaluate`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EvaluationReport {
+    pub env_id: String,
+    pub task: String,
+    /// `flow` or `baseline`.
+    pub model: String,
+    pub disturbance: Disturbance,
+    pub seed: u64,
+    pub episodes: usize,
+    pub success_rate: f64,
+    pub collision_rate: Option<f64>,
+    pub spill_rate: Option<f64>,
+    /// Which `info` key [`final_distance`](Self::final_distance) summarises.
+    pub distance_key: Option<String>,
+    pub final_distance: Option<Summary>,
+    pub episode_steps: Option<Summary>,
+    pub push: Option<PushSummary>,
+    pub results: Vec<EpisodeResult>,
+    /// Traces of the first [`EvaluationConfig::trajectories`] episodes.
+    pub trajectories: Vec<Trace>,
+    /// The first episode in full, for the disturbance figures.
+    pub example: Option<Example>,
+}
+
+/// A scheduled disturbance of one run.
+#[derive(Clone, Debug)]
+enum Schedule {
+    Free,
+    Push(ciflow_engine::sim::Perturbation),
+    Switch {
+        time: f64,
+        candidates: Vec<Vec<f64>>,
+    },
+}
+
+/// One closed-loop run.
+#[derive(Clone, Debug)]
+struct Run {
+    trace: Trace,
+    last_info: Info,
+    collision: bool,
+    spill: bool,
+    terminated: bool,
+    switched_context: Option<Vec<f64>>,
+}
+
+/// Runs the policy from `reset(seed)` until the episode ends, applying `schedule`.
+fn run_episode(
+    env: &mut dyn Env,
+    actor: &mut Actor<'_>,
+    state_dim: usize,
+    seed: u64,
+    options: &ResetOptions,
+    schedule: &Schedule,
+) -> EvaluationResult<Run> {
+    let (mut observation, mut info) = env.reset(Some(seed), options)?;
+    if let Schedule::Push(perturbation) = schedule {
+        env.perturb(perturbation.clone())?;
+    }
+    let mut trace = Trace::default();
+    trace.record(&observation, state_dim, &info);
+    let flag = |info: &Info, key: &str| info.get(key).is_some_and(|&v| v == 1.0);
+    let (mut collision, mut spill) = (flag(&info, "collision"), flag(&info, "spill"));
+    let mut switched_context = None;
+    let mut action = vec![0.0; state_dim];
+    let terminated = loop {
+        if let Schedule::Switch { time, candidates } = schedule
+            && switched_context.is_none()
+            && trace.time.last().is_some_and(|t| *t >= time - 1e-9)
+        {
+            let chosen = candidates
+                .iter()
+                .find(|c| env.set_context(c).is_ok())
+                .ok_or(EvaluationError::NoValidContext {
+                    seed,
+                    tries: candidates.len(),
+                })?;
+            switched_context = Some(chosen.clone());
+            let context_start = observation.len() - chosen.len();
+            observation[context_start..].copy_from_slice(chosen);
+        }
+        actor.act(&observation, &mut action)?;
+        let step = env.step(&action)?;
+        trace.command.push(action.clone());
+        observation = step.observation;
+        info = step.info;
+        trace.record(&observation, state_dim, &info);
+        collision |= flag(&info, "collision");
+        spill |= flag(&info, "spill");
+        if step.terminated || step.truncated {
+            break step.terminated;
+        }
+    };
+    Ok(Run {
+        trace,
+        last_info: info,
+        collision,
+        spill,
+        terminated,
+        switched_context,
+    })
+}
+
+/// Contexts for a mid-motion change: fresh draws of the task's distribution (resets with
+/// seeds derived from `seed`), of which the last `tail` entries replace those of
+/// `current`. The first one the environment accepts is used.
+fn switch_candidates(
+    env: &mut dyn Env,
+    options: &ResetOptions,
+    seed: u64,
+    current: &[f64],
+    tail: Option<usize>,
+) -> EvaluationResult<Vec<Vec<f64>>> {
+    const DRAWS: u64 = 16;
+    let m = current.len();
+    let keep = match tail {
+        Some(t) if t == 0 || t > m => {
+            return Err(EvaluationError::InvalidConfig(format!(
+                "the changed tail must have 1 to {m} context entries, got {t}"
+            )));
+        }
+        Some(t) => m - t,
+        None => 0,
+    };
+    (0..DRAWS)
+        .map(|k| {
+            let draw_seed = seed ^ (0x9e37_79b9_7f4a_7c15_u64.wrapping_mul(k + 1));
+            let (observation, _) = env.reset(Some(draw_seed), options)?;
+            let drawn = &observation[observation.len() - m..];
+            Ok([&current[..keep], &drawn[keep..]].concat())
+        })
+        .collect()
+}
+
+fn model_name(model: &Model) -> &'static str {
+    match model {
+        Model::Flow(_) => "flow",
+        Model::Baseline(_) => "baseline",
+    }
+}
+
+fn rate(flags: impl Iterator<Item = Option<bool>>) -> Option<f64> {
+    let flags: Vec<bool> = flags.collect::<Option<_>>()?;
+    (!flags.is_empty()).then(|| flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64)
+}
+
+/// Runs `config.episodes` closed-loop episodes of `model` in `env`; `progress` is called
+/// after each episode with the number done.
+pub fn evaluate(
+    env: &mut dyn Env,
+    model: &Model,
+    config: &EvaluationConfig,
+    mut progress: impl FnMut(usize),
+) -> EvaluationResult<EvaluationReport> {
+    if config.episodes == 0 {
+        return Err(EvaluationError::InvalidConfig(
+            "at least one episode is needed".into(),
+        ));
+    }
+    if let Disturbance::Push(push) = &config.disturbance {
+        push.validate()?;
+    }
+    let spec = env.spec().clone();
+    let mut actor = Actor::new(model, &spec, config.velocity_gain)?;
+    let d = model.state_dim();
+    let options = ResetOptions {
+        extra: config.reset_extra.clone(),
+        ..ResetOptions::default()
+    };
+    let mut results = Vec::with_capacity(config.episodes);
+    let mut trajectories = Vec::new();
+    let mut example = None;
+    let mut distance_key = None;
+    for i in 0..config.episodes {
+        let seed = config.seed.wrapping_add(i as u64);
+        let (run, reference, push) = match &config.disturbance {
+            Disturbance::None => (
+                run_episode(env, &mut actor, d, seed, &options, &Schedule::Free)?,
+                None,
+                None,
+            ),
+            Disturbance::Context(switch) => {
+                let (observation, _) = env.reset(Some(seed), &options)?;
+                let current = &observation[2 * d..];
+                let candidates = switch_candidates(env, &options, seed, current, switch.tail)?;
+                let schedule = Schedule::Switch {
+                    time: switch.time,
+                    candidates,
+                };
+                let run = run_episode(env, &mut actor, d, seed, &options, &schedule)?;
+                (run, None, None)
+            }
+            Disturbance::Push(push) => {
+                let reference = run_episode(env, &mut actor, d, seed, &options, &Schedule::Free)?;
+                let (run, outcome) = push::sized_push(push, seed, &reference.trace, |p| {
+                    run_episode(env, &mut actor, d, seed, &options, &Schedule::Push(p))
+                        .map(|run| (run.trace.clone(), run))
+                })?;
+                (run, Some(reference.trace), Some(outcome))
+            }
+        };
+        let key = DISTANCE_KEYS
+            .iter()
+            .find(|k| run.last_info.contains_key(**k));
+        distance_key = distance_key.or(key.map(|k| k.to_string()));
+        let has = |key: &str| run.last_info.contains_key(key);
+        results.push(EpisodeResult {
+            seed,
+            context: run.trace.context[0].clone(),
+            success: run.last_info.get("is_success").is_some_and(|&s| s == 1.0),
+            collision: has("collision").then_some(run.collision),
+            spill: has("spill").then_some(run.spill),
+            final_distance: key.map(|k| run.last_info[*k]),
+            steps: run.trace.command.len(),
+            terminated: run.terminated,
+            switched_context: run.switched_context.clone(),
+            push,
+        });
+        if i < config.trajectories {
+            trajectories.push(run.trace.clone());
+        }
+        if i == 0 {
+            example = Some(Example {
+                seed,
+                trace: run.trace,
+                reference,
+            });
+        }
+        progress(i + 1);
+    }
+    let n = results.len() as f64;
+    let distances: Vec<f64> = results.iter().filter_map(|r| r.final_distance).collect();
+    let steps: Vec<f64> = results.iter().map(|r| r.steps as f64).collect();
+    let push = match &config.disturbance {
+        Disturbance::Push(push) => PushSummary::of(push, &results),
+        _ => None,
+    };
+    Ok(EvaluationReport {
+        env_id: spec.id.clone(),
+        task: model.task().to_owned(),
+        model: model_name(model).into(),
+        disturbance: config.disturbance.clone(),
+        seed: config.seed,
+        episodes: results.len(),
+        success_rate: results.iter().filter(|r| r.success).count() as f64 / n,
+        collision_rate: rate(results.iter().map(|r| r.collision)),
+        spill_rate: rate(results.iter().map(|r| r.spill)),
+        distance_key,
+        final_distance: Summary::of(&distances),
+        episode_steps: Summary::of(&steps),
+        push,
+        results,
+        trajectories,
+        example,
+    })
+}

@@ -1,0 +1,344 @@
+//! Pushes sized to a displacement, and the recovery after them.
+//!
+//! A push is a world-aligned horizontal force `F u` (unit `u` drawn from the episode's
+//! seed) on a link (pouring: the hand, the last link; planar tasks: the point mass) for
+//! `start ≤ t < start + duration`, so the robot feels `τ_ext = J(q)ᵀ [F u; 0]`.
+//!
+//! **Displacement.** `δ = max_{t ≥ start} ‖p(t) − p_ref(t)‖`, where `p` is the tracked
+//! point ([`Trace::point`]: pouring's spout, else the position) and `p_ref` the same
+//! episode (same seed: same context and start) without the push. `F` starts at
+//! [`PushConfig::initial_force`] and grows until `δ ≥` [`PushConfig::displacement`]
+//! (`F ← F · clamp(1.25 δ*/δ, 1.5, 10)`, at most [`PushConfig::max_attempts`] runs).
+//!
+//! **Recovery.** With `d(t) = min_s ‖p(t) − p_ref(s)‖`, the distance to the undisturbed
+//! *path* (the polyline through its samples; not where it is at `t`: a pushed robot may return to the path late), the
+//! recovery time is `t_r − t_end`, `t_end = start + duration`, where `t_r ≥ t_end` is the
+//! first time after which `d ≤` [`PushConfig::recovery_tolerance`] until the episode ends.
+
+use ciflow_engine::sim::{Perturbation, PerturbationKind};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+
+use super::{EpisodeResult, EvaluationError, EvaluationResult, Summary, Trace};
+
+/// Settings of a push.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PushConfig {
+    /// The movable link pushed (pouring: 6, the hand; planar tasks: 0, the mass).
+    pub link: usize,
+    /// Start of the push, simulated s.
+    pub start: f64,
+    /// Duration of the push, s.
+    pub duration: f64,
+    /// Minimum displacement `δ*` of the tracked point, m (or the task's length unit).
+    pub displacement: f64,
+    /// First force magnitude tried, N.
+    pub initial_force: f64,
+    pub max_attempts: usize,
+    /// Distance to the undisturbed path that counts as recovered.
+    pub recovery_tolerance: f64,
+    /// Recovery within this time after the push ends counts as prompt, s.
+    pub recovery_deadline: f64,
+}
+
+impl Default for PushConfig {
+    fn default() -> Self {
+        Self {
+            link: 0,
+            start: 1.0,
+            duration: 0.2,
+            displacement: 0.05,
+            initial_force: 10.0,
+            max_attempts: 8,
+            recovery_tolerance: 0.01,
+            recovery_deadline: 2.0,
+        }
+    }
+}
+
+impl PushConfig {
+    pub fn validate(&self) -> EvaluationResult<()> {
+        let positive = [
+            ("duration", self.duration),
+            ("displacement", self.displacement),
+            ("initial force", self.initial_force),
+            ("recovery tolerance", self.recovery_tolerance),
+            ("recovery deadline", self.recovery_deadline),
+        ];
+        if let Some((name, value)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+            return Err(EvaluationError::InvalidConfig(format!(
+                "push {name} must be finite and > 0, got {value}"
+            )));
+        }
+        if !(self.start.is_finite() && self.start >= 0.0) || self.max_attempts == 0 {
+            return Err(EvaluationError::InvalidConfig(format!(
+                "push start must be finite and >= 0 (got {}) and attempts >= 1 (got {})",
+                self.start, self.max_attempts
+            )));
+        }
+        Ok(())
+    }
+
+    fn end(&self) -> f64 {
+        self.start + self.duration
+    }
+
+    fn perturbation(&self, force: [f64; 3]) -> Perturbation {
+        Perturbation {
+            kind: PerturbationKind::LinkWrench {
+                link: self.link,
+                force,
+                torque: [0.0; 3],
+            },
+            start: self.start,
+            duration: self.duration,
+        }
+    }
+}
+
+/// What one push did.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PushOutcome {
+    /// The force applied, world frame, N.
+    pub force: [f64; 3],
+    /// `δ`: the largest distance to the undisturbed run at equal times.
+    pub displacement: f64,
+    /// Whether `δ ≥ δ*`.
+    pub displaced: bool,
+    /// Runs needed to size the force.
+    pub attempts: usize,
+    /// Time from the push's end to the return within tolerance of the undisturbed path,
+    /// s; `None` when the episode ended outside the tolerance.
+    pub recovery_time: Option<f64>,
+    /// Largest distance to the undisturbed path after the push ended.
+    pub max_path_distance: f64,
+}
+
+fn distance(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// `δ = max_{t ≥ start} ‖p(t) − p_ref(t)‖` (module docs).
+pub fn displacement(trace: &Trace, reference: &Trace, start: f64) -> f64 {
+    trace
+        .time
+        .iter()
+        .zip(&trace.point)
+        .filter(|(t, _)| **t >= start - 1e-9)
+        .map(|(t, p)| distance(p, reference.point_at(*t)))
+        .fold(0.0, f64::max)
+}
+
+/// Distance from `p` to the segment `[a, b]`.
+fn segment_distance(p: &[f64], a: &[f64], b: &[f64]) -> f64 {
+    let ab2: f64 = a.iter().zip(b).map(|(x, y)| (y - x) * (y - x)).sum();
+    let along: f64 = p
+        .iter()
+        .zip(a)
+        .zip(b)
+        .map(|((p, a), b)| (p - a) * (b - a))
+        .sum();
+    let s = if ab2 > 0.0 {
+        (along / ab2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let closest: Vec<f64> = a.iter().zip(b).map(|(a, b)| a + s * (b - a)).collect();
+    distance(p, &closest)
+}
+
+/// Distance from `p` to the polyline `path`.
+fn path_distance(p: &[f64], path: &[Vec<f64>]) -> f64 {
+    match path {
+        [] => f64::INFINITY,
+        [only] => distance(p, only),
+        _ => path
+            .windows(2)
+            .map(|w| segment_distance(p, &w[0], &w[1]))
+            .fold(f64::INFINITY, f64::min),
+    }
+}
+
+/// The recovery time after `end` and the largest path distance after it (module docs).
+pub fn recovery(trace: &Trace, reference: &Trace, end: f64, tolerance: f64) -> (Option<f64>, f64) {
+    let after: Vec<(f64, f64)> = trace
+        .time
+        .iter()
+        .zip(&trace.point)
+        .filter(|(t, _)| **t >= end - 1e-9)
+        .map(|(t, p)| (*t, path_distance(p, &reference.point)))
+        .collect();
+    let worst = after.iter().map(|(_, d)| *d).fold(0.0, f64::max);
+    let last_outside = after.iter().rposition(|(_, d)| *d > tolerance);
+    let recovered_at = match last_outside {
+        None => after.first().map(|(t, _)| *t),
+        Some(k) => after.get(k + 1).map(|(t, _)| *t),
+    };
+    (recovered_at.map(|t| (t - end).max(0.0)), worst)
+}
+
+/// A horizontal unit direction drawn from `seed`.
+pub fn push_direction(seed: u64) -> [f64; 3] {
+    let angle = ChaCha8Rng::seed_from_u64(seed).random_range(0.0..std::f64::consts::TAU);
+    [angle.cos(), angle.sin(), 0.0]
+}
+
+/// Grows the force until the push displaces the tracked point by `config.displacement`
+/// from `reference` (module docs); `run` runs the episode under a perturbation and
+/// returns its trace with whatever else the caller needs.
+pub fn sized_push<R>(
+    config: &PushConfig,
+    seed: u64,
+    reference: &Trace,
+    mut run: impl FnMut(Perturbation) -> EvaluationResult<(Trace, R)>,
+) -> EvaluationResult<(R, PushOutcome)> {
+    let direction = push_direction(seed);
+    let mut magnitude = config.initial_force;
+    let mut attempts = 0;
+    loop {
+        attempts += 1;
+        let force = direction.map(|u| magnitude * u);
+        let (trace, result) = run(config.perturbation(force))?;
+        let delta = displacement(&trace, reference, config.start);
+        let displaced = delta >= config.displacement;
+        if displaced || attempts == config.max_attempts {
+            let (recovery_time, max_path_distance) =
+                recovery(&trace, reference, config.end(), config.recovery_tolerance);
+            let outcome = PushOutcome {
+                force,
+                displacement: delta,
+                displaced,
+                attempts,
+                recovery_time,
+                max_path_distance,
+            };
+            return Ok((result, outcome));
+        }
+        let growth = if delta > 0.0 {
+            (1.25 * config.displacement / delta).clamp(1.5, 10.0)
+        } else {
+            10.0
+        };
+        magnitude *= growth;
+    }
+}
+
+/// The push figures of an evaluation.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PushSummary {
+    pub required_displacement: f64,
+    pub displacement: Summary,
+    /// Fraction of episodes displaced by at least the required distance.
+    pub displaced_fraction: f64,
+    pub recovery_tolerance: f64,
+    pub recovery_deadline: f64,
+    /// Fraction of episodes back within tolerance of the undisturbed path by their end.
+    pub recovered_fraction: f64,
+    /// Fraction back within tolerance no later than the deadline after the push.
+    pub recovered_within_deadline_fraction: f64,
+    /// Recovery times of the episodes that recovered, s.
+    pub recovery_time: Option<Summary>,
+    /// Success rate among the episodes displaced by at least the required distance.
+    pub success_rate_displaced: Option<f64>,
+}
+
+impl PushSummary {
+    pub fn of(config: &PushConfig, results: &[EpisodeResult]) -> Option<Self> {
+        let pushes: Vec<(&PushOutcome, bool)> = results
+            .iter()
+            .filter_map(|r| r.push.as_ref().map(|p| (p, r.success)))
+            .collect();
+        let n = pushes.len() as f64;
+        let fraction = |f: &dyn Fn(&PushOutcome) -> bool| {
+            pushes.iter().filter(|(p, _)| f(p)).count() as f64 / n
+        };
+        let displacements: Vec<f64> = pushes.iter().map(|(p, _)| p.displacement).collect();
+        let times: Vec<f64> = pushes.iter().filter_map(|(p, _)| p.recovery_time).collect();
+        let displaced: Vec<bool> = pushes
+            .iter()
+            .filter(|(p, _)| p.displaced)
+            .map(|(_, s)| *s)
+            .collect();
+        Some(Self {
+            required_displacement: config.displacement,
+            displacement: Summary::of(&displacements)?,
+            displaced_fraction: fraction(&|p| p.displaced),
+            recovery_tolerance: config.recovery_tolerance,
+            recovery_deadline: config.recovery_deadline,
+            recovered_fraction: fraction(&|p| p.recovery_time.is_some()),
+            recovered_within_deadline_fraction: fraction(&|p| {
+                p.recovery_time
+                    .is_some_and(|t| t <= config.recovery_deadline)
+            }),
+            recovery_time: Summary::of(&times),
+            success_rate_displaced: (!displaced.is_empty())
+                .then(|| displaced.iter().filter(|s| **s).count() as f64 / displaced.len() as f64),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn trace(points: &[[f64; 2]], dt: f64) -> Trace {
+        Trace {
+            time: (0..points.len()).map(|k| k as f64 * dt).collect(),
+            point: points.iter().map(|p| p.to_vec()).collect(),
+            ..Trace::default()
+        }
+    }
+
+    #[test]
+    fn displacement_compares_equal_times_after_the_start() {
+        let reference = trace(&[[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]], 0.5);
+        // Off by 5 before the start (ignored), 0.3 at t = 1, then back.
+        let pushed = trace(&[[0.0, 5.0], [1.0, 0.0], [2.0, 0.3], [3.0, 0.0]], 0.5);
+        assert!((displacement(&pushed, &reference, 1.0) - 0.3).abs() < 1e-12);
+        assert!((displacement(&pushed, &reference, 0.0) - 5.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn recovery_is_the_last_return_within_tolerance_of_the_path() {
+        // The path is the x-axis; the pushed run leaves it, comes back, leaves, returns at t = 2.
+        let reference = trace(&[[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]], 1.0);
+        let pushed = trace(
+            &[[0.0, 0.5], [0.5, 0.0], [1.5, 0.2], [2.5, 0.001], [2.9, 0.0]],
+            0.5,
+        );
+        let (time, worst) = recovery(&pushed, &reference, 0.5, 0.01);
+        assert!((time.unwrap() - 1.0).abs() < 1e-12, "{time:?}");
+        assert!((worst - 0.2).abs() < 1e-12);
+        // Never back: no recovery time.
+        let away = trace(&[[0.0, 0.5], [1.0, 0.5]], 1.0);
+        assert_eq!(recovery(&away, &reference, 0.0, 0.01).0, None);
+    }
+
+    #[test]
+    fn the_force_grows_until_the_displacement_is_reached() {
+        // A linear plant: displacement = 0.004 m per newton.
+        let reference = trace(&[[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]], 0.5);
+        let config = PushConfig {
+            start: 0.5,
+            ..PushConfig::default()
+        };
+        let (forces, outcome) = sized_push(&config, 3, &reference, |p| {
+            let PerturbationKind::LinkWrench { force, .. } = p.kind else {
+                unreachable!()
+            };
+            let magnitude = force.iter().map(|f| f * f).sum::<f64>().sqrt();
+            let moved = trace(&[[0.0, 0.0], [0.004 * magnitude, 0.0], [0.0, 0.0]], 0.5);
+            Ok((moved, magnitude))
+        })
+        .unwrap();
+        assert!(outcome.displaced && outcome.attempts == 2, "{outcome:?}");
+        assert!(outcome.displacement >= 0.05);
+        assert!((forces * 0.004 - outcome.displacement).abs() < 1e-12);
+        assert!((outcome.recovery_time.unwrap() - 0.3).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,398 @@
+"""The experiments' report: PNG figures and a Markdown summary from `ciflow evaluate` JSON.
+
+Usage: python scripts/report.py [EXPERIMENTS_DIR] [REPORT_MD]
+(defaults: out/experiments and out/report.md; figures go to REPORT_MD's folder/figures).
+
+Layout of EXPERIMENTS_DIR (every file optional: a missing one gives a "not run" line):
+
+    limit_cycle/field.json            ciflow evaluate --field (contexts 0;0.5;1, --field-demos)
+    limit_cycle/nll/<N>_seed<S>_train.json, <N>_seed<S>_test.json
+                                      ciflow evaluate --nll DATASET --out (N trajectories)
+    obstacles/<K>/eval.json           ciflow evaluate --kwarg obstacles=K --episodes 100+
+                                      --trajectories 8 (K = 1, 2, 3)
+    obstacles/<K>/field.json          ciflow evaluate --field (optional latent-grid figure)
+    pouring/nll/<F>_seed<S>_train.json, <F>_seed<S>_test.json   (F: fraction of the demos)
+    pouring/eval.json                 ciflow evaluate (no perturbation), 100 episodes
+    pouring/push.json                 ciflow evaluate --perturb push
+    pouring/context.json              ciflow evaluate --perturb context
+    stability/<name>.json             ciflow stability --json > ... (name e.g. pouring-flow,
+                                      pouring-baseline: every trained policy and the baseline)
+"""
+
+import json
+import math
+import pathlib
+import re
+import sys
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+# Targets of issue 6.
+OBSTACLE_GOAL_TARGET = 0.95
+POURING_SUCCESS_TARGET = 0.90
+PUSH_SUCCESS_TARGET = 0.80
+PUSH_DISPLACEMENT_TARGET = 0.05  # m
+RECOVERY_DEADLINE = 2.0  # s
+# The obstacle-avoidance task's obstacle body radius (m), drawn in the figures.
+OBSTACLE_RADIUS = 0.1
+NLL_NAME = re.compile(r"^(?P<x>[0-9]+(?:\.[0-9]+)?)_seed(?P<seed>[0-9]+)_(?P<split>train|test)\.json$")
+
+
+def load(path):
+    """The JSON at `path`, or None when it does not exist."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        return None
+    return json.loads(path.read_text())
+
+
+def as_array(values):
+    """JSON numbers to floats; `null` (a non-finite value) becomes NaN."""
+    return np.array([[math.nan if v is None else v for v in row] for row in values], float)
+
+
+def percent(x):
+    return "n/a" if x is None else f"{100.0 * x:.1f}%"
+
+
+def verdict(ok):
+    return "**pass**" if ok else "**FAIL**"
+
+
+def mean_std(values):
+    values = np.asarray(values, float)
+    return float(values.mean()), float(values.std())
+
+
+class Report:
+    """Markdown lines and the figures folder."""
+
+    def __init__(self, figures):
+        self.lines = []
+        self.figures = pathlib.Path(figures)
+        self.figures.mkdir(parents=True, exist_ok=True)
+
+    def add(self, *lines):
+        self.lines.extend(lines)
+
+    def not_run(self, what, path):
+        self.add(f"- {what}: not run (no `{path}`)")
+
+    def figure(self, fig, name, caption):
+        fig.tight_layout()
+        fig.savefig(self.figures / name, dpi=110)
+        plt.close(fig)
+        self.add("", f"![{caption}](figures/{name})", "")
+
+    def target(self, what, measured, target_text, ok):
+        self.add(f"| {what} | {measured} | {target_text} | {verdict(ok)} |")
+
+
+# ---- figures ----------------------------------------------------------------------------
+
+
+def draw_obstacles(ax, context):
+    """Obstacle discs and target of an obstacle-avoidance context `[o1, …, g]`."""
+    points = np.array(context, float).reshape(-1, 2)
+    for o in points[:-1]:
+        ax.add_patch(plt.Circle(o, OBSTACLE_RADIUS, color="0.6"))
+    ax.plot(*points[-1], "g*", ms=10)
+
+
+def plot_field(report, field, name, title, obstacles=False):
+    """Per context: streamlines, rollouts and demonstrations (top), latent grid (bottom)."""
+    fields = field["fields"]
+    fig, axes = plt.subplots(2, len(fields), figsize=(4.2 * len(fields), 8), squeeze=False)
+    for col, f in enumerate(fields):
+        top, bottom = axes[0][col], axes[1][col]
+        x, y = np.array(f["x"]), np.array(f["y"])
+        u, v = as_array(f["velocity_x"]), as_array(f["velocity_y"])
+        finite = np.isfinite(u) & np.isfinite(v)
+        u, v = np.where(finite, u, 0.0), np.where(finite, v, 0.0)
+        if np.hypot(u, v).max() > 0:
+            top.streamplot(x, y, u, v, color="0.7", linewidth=0.6, density=1.2, arrowsize=0.6)
+        context = np.array(f["context"], float)
+        for demo in field.get("demonstrations", []):
+            if np.allclose(demo["context"], context, atol=1e-6):
+                p = np.array(demo["points"], float)
+                top.plot(p[:, 0], p[:, 1], "--", color="0.3", lw=1)
+        for path in f["rollouts"]:
+            p = np.array(path, float)
+            top.plot(p[:, 0], p[:, 1], color="tab:blue", lw=1.2)
+            top.plot(p[0, 0], p[0, 1], "o", color="tab:blue", ms=3)
+        for line in f["latent_grid"]:
+            p = np.array(line, float)
+            bottom.plot(p[:, 0], p[:, 1], color="tab:purple", lw=0.7)
+        label = ", ".join(f"{c:.2f}" for c in context)
+        top.set_title(f"c = ({label})" if len(context) < 4 else f"layout {col + 1}")
+        bottom.set_title("f(latent grid, c)")
+        for ax in (top, bottom):
+            if obstacles:
+                draw_obstacles(ax, context)
+            ax.set_xlim(field["window"][0], field["window"][1])
+            ax.set_ylim(field["window"][2], field["window"][3])
+            ax.set_aspect("equal")
+    fig.suptitle(title)
+    report.figure(fig, name, title)
+
+
+def nll_points(folder):
+    """{split: {x: [log-likelihood per transition over seeds]}} from `folder`."""
+    points = {"train": {}, "test": {}}
+    for path in sorted(pathlib.Path(folder).glob("*.json")):
+        match = NLL_NAME.match(path.name)
+        if match:
+            x = float(match["x"])
+            points[match["split"]].setdefault(x, []).append(load(path)["per_transition"])
+    return points
+
+
+def plot_nll(report, points, name, xlabel, title):
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    for split, color in (("train", "tab:blue"), ("test", "tab:orange")):
+        xs = sorted(points[split])
+        if xs:
+            stats = [mean_std(points[split][x]) for x in xs]
+            ax.errorbar(xs, [m for m, _ in stats], yerr=[s for _, s in stats], marker="o",
+                        capsize=3, color=color, label=split)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("log-likelihood per transition (nats)")
+    ax.legend()
+    ax.set_title(title)
+    report.figure(fig, name, title)
+
+
+def nll_table(report, points, xlabel):
+    report.add("", f"| {xlabel} | train (mean ± std) | test (mean ± std) | seeds |", "|---|---|---|---|")
+    for x in sorted(set(points["train"]) | set(points["test"])):
+        cells = []
+        for split in ("train", "test"):
+            values = points[split].get(x)
+            cells.append("—" if not values else "{:.3f} ± {:.3f}".format(*mean_std(values)))
+        seeds = max(len(points["train"].get(x, [])), len(points["test"].get(x, [])))
+        report.add(f"| {x:g} | {cells[0]} | {cells[1]} | {seeds} |")
+
+
+def plot_trajectories(report, evaluations, name, title):
+    """Closed-loop obstacle-avoidance rollouts: one row per obstacle count."""
+    rows = [(k, e) for k, e in evaluations if e.get("trajectories")]
+    if not rows:
+        return
+    cols = max(min(4, len(e["trajectories"])) for _, e in rows)
+    fig, axes = plt.subplots(len(rows), cols, figsize=(3.2 * cols, 3.2 * len(rows)), squeeze=False)
+    for r, (k, evaluation) in enumerate(rows):
+        for c in range(cols):
+            ax = axes[r][c]
+            traces = evaluation["trajectories"]
+            if c >= len(traces):
+                ax.axis("off")
+                continue
+            trace, result = traces[c], evaluation["results"][c]
+            draw_obstacles(ax, trace["context"][0])
+            q = np.array(trace["q"], float)
+            color = "tab:blue" if result["success"] else "tab:red"
+            ax.plot(q[:, 0], q[:, 1], color=color)
+            ax.plot(q[0, 0], q[0, 1], "ko", ms=3)
+            ax.set_aspect("equal")
+            ax.set_title(f"{k} obstacle(s), seed {result['seed']}", fontsize=9)
+    fig.suptitle(title)
+    report.figure(fig, name, title)
+
+
+def plot_disturbed(report, evaluation, name, title):
+    """State, command and tool-point traces of the example episode, with its reference."""
+    example = evaluation.get("example")
+    if not example:
+        return
+    trace, reference = example["trace"], example.get("reference")
+    t = np.array(trace["time"], float)
+    fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
+    q, command = np.array(trace["q"], float), np.array(trace["command"], float)
+    for j in range(q.shape[1]):
+        line, = axes[0].plot(t, q[:, j], lw=1, label=f"q{j + 1}")
+        if reference:
+            r = np.array(reference["q"], float)
+            axes[0].plot(np.array(reference["time"]), r[:, j], "--", lw=0.8, color=line.get_color())
+        axes[1].plot(t[:-1], command[:, j], lw=0.8, color=line.get_color())
+    axes[0].set_ylabel("q (dashed: unpushed)")
+    axes[0].legend(ncol=7, fontsize=7)
+    axes[1].set_ylabel("command q̈_des")
+    point = np.array(trace["point"], float)
+    for j, axis in enumerate("xyz"[: point.shape[1]]):
+        line, = axes[2].plot(t, point[:, j], lw=1, label=axis)
+        if reference:
+            r = np.array(reference["point"], float)
+            axes[2].plot(np.array(reference["time"]), r[:, j], "--", lw=0.8, color=line.get_color())
+    axes[2].set_ylabel("tool point (m)")
+    axes[2].set_xlabel("time (s)")
+    axes[2].legend(fontsize=8)
+    disturbance = evaluation["disturbance"]
+    for ax in axes:
+        if disturbance["mode"] == "push":
+            start = disturbance["start"]
+            ax.axvspan(start, start + disturbance["duration"], color="tab:red", alpha=0.2)
+        elif disturbance["mode"] == "context":
+            ax.axvline(disturbance["time"], color="tab:red", ls=":")
+    fig.suptitle(title)
+    report.figure(fig, name, title)
+
+
+# ---- sections ---------------------------------------------------------------------------
+
+
+def limit_cycle(report, root):
+    report.add("## Limit cycle", "")
+    folder = root / "limit_cycle"
+    field = load(folder / "field.json")
+    if field is None:
+        report.not_run("vector fields and rollouts", folder / "field.json")
+    else:
+        plot_field(report, field, "limit_cycle_field.png",
+                   "Limit cycle: learned field, rollouts (blue), demonstrations (dashed)")
+    points = nll_points(folder / "nll")
+    if not points["train"] and not points["test"]:
+        report.not_run("log-likelihood versus training trajectories", folder / "nll")
+    else:
+        nll_table(report, points, "training trajectories")
+        plot_nll(report, points, "limit_cycle_nll.png", "training trajectories",
+                 "Limit cycle: log-likelihood per transition")
+
+
+def obstacles(report, root):
+    report.add("## Obstacle avoidance", "")
+    folder = root / "obstacles"
+    evaluations = []
+    for k in (1, 2, 3):
+        evaluation = load(folder / str(k) / "eval.json")
+        if evaluation is None:
+            report.not_run(f"{k} obstacle(s)", folder / str(k) / "eval.json")
+        else:
+            evaluations.append((k, evaluation))
+    if evaluations:
+        report.add("", "| obstacles | episodes | goal reached | collision | final distance (m) |",
+                   "|---|---|---|---|---|")
+        for k, e in evaluations:
+            d = e.get("final_distance") or {}
+            report.add(f"| {k} | {e['episodes']} | {percent(e['success_rate'])} | "
+                       f"{percent(e.get('collision_rate'))} | "
+                       f"{d.get('mean', math.nan):.4f} ± {d.get('std', math.nan):.4f} |")
+        plot_trajectories(report, evaluations, "obstacles_rollouts.png",
+                          "Obstacle avoidance: closed-loop rollouts (red: failed)")
+    for k in (1, 2, 3):
+        field = load(folder / str(k) / "field.json")
+        if field is not None:
+            plot_field(report, field, f"obstacles_{k}_field.png",
+                       f"{k} obstacle(s): learned field and deformation of a latent grid",
+                       obstacles=True)
+    three = dict(evaluations).get(3)
+    report.add("", "| target | measured | required | |", "|---|---|---|---|")
+    if three is None:
+        report.add("| goal reached, 3 obstacles | not run | ≥ 95% | — |")
+    else:
+        report.target("goal reached, 3 obstacles", percent(three["success_rate"]),
+                      f"≥ {OBSTACLE_GOAL_TARGET:.0%}", three["success_rate"] >= OBSTACLE_GOAL_TARGET)
+    report.add("")
+
+
+def pouring(report, root):
+    report.add("## Pouring", "")
+    folder = root / "pouring"
+    points = nll_points(folder / "nll")
+    if not points["train"] and not points["test"]:
+        report.not_run("log-likelihood versus data", folder / "nll")
+    else:
+        nll_table(report, points, "fraction of the 220 demonstrations")
+        plot_nll(report, points, "pouring_nll.png", "fraction of the demonstrations",
+                 "Pouring: log-likelihood per transition")
+    free, push, context = (load(folder / f"{n}.json") for n in ("eval", "push", "context"))
+    report.add("", "| target | measured | required | |", "|---|---|---|---|")
+    if free is None:
+        report.add("| success, no perturbation | not run | ≥ 90% | — |")
+    else:
+        report.target(f"success, no perturbation ({free['episodes']} contexts)",
+                      percent(free["success_rate"]), f"≥ {POURING_SUCCESS_TARGET:.0%}",
+                      free["success_rate"] >= POURING_SUCCESS_TARGET)
+    if push is None or not push.get("push"):
+        report.add("| success under pushes | not run | ≥ 80% | — |")
+    else:
+        summary = push["push"]
+        low = summary["displacement"]["min"]
+        report.target("push displacement (min over episodes)", f"{100 * low:.1f} cm",
+                      f"≥ {100 * PUSH_DISPLACEMENT_TARGET:.0f} cm", low >= PUSH_DISPLACEMENT_TARGET)
+        report.target(f"success under pushes ({push['episodes']} episodes)",
+                      percent(push["success_rate"]), f"≥ {PUSH_SUCCESS_TARGET:.0%}",
+                      push["success_rate"] >= PUSH_SUCCESS_TARGET)
+        within = summary["recovered_within_deadline_fraction"]
+        report.target(
+            f"back within {100 * summary['recovery_tolerance']:.1f} cm of the unpushed path "
+            f"≤ {RECOVERY_DEADLINE:g} s after the push", percent(within),
+            f"≥ {PUSH_SUCCESS_TARGET:.0%} of pushes", within >= PUSH_SUCCESS_TARGET)
+    if context is not None:
+        report.add(f"| success, pot moved at t = {context['disturbance']['time']} s | "
+                   f"{percent(context['success_rate'])} | (no target) | — |")
+    report.add("")
+    if free is not None and free.get("spill_rate") is not None:
+        report.add(f"Spill rate without perturbation: {percent(free['spill_rate'])}.", "")
+    if push is None:
+        report.not_run("push traces", folder / "push.json")
+    else:
+        plot_disturbed(report, push, "pouring_push.png",
+                       "Pouring: pushed run (solid) and unpushed run (dashed); push shaded")
+    if context is None:
+        report.not_run("pot moved mid-motion", folder / "context.json")
+    else:
+        plot_disturbed(report, context, "pouring_context.png",
+                       "Pouring: the pot moved mid-motion (dotted line)")
+
+
+def stability(report, root):
+    report.add("## Stability", "")
+    folder = root / "stability"
+    runs = sorted(folder.glob("*.json")) if folder.is_dir() else []
+    if not runs:
+        report.not_run("stability", folder)
+        return
+    report.add("", "| policy | converged | rollouts | non-finite |", "|---|---|---|---|")
+    names, fractions = [], []
+    for path in runs:
+        s = load(path)
+        names.append(path.stem)
+        fractions.append(s["fraction"])
+        report.add(f"| {path.stem} | {percent(s['fraction'])} | {s['rollouts']} | "
+                   f"{s.get('diverged_to_non_finite', 0)} |")
+    fig, ax = plt.subplots(figsize=(max(4, 1.2 * len(names)), 3.5))
+    colors = ["tab:red" if "baseline" in n else "tab:blue" for n in names]
+    ax.bar(names, [100 * f for f in fractions], color=colors)
+    ax.set_ylabel("converged rollouts (%)")
+    ax.set_ylim(0, 105)
+    ax.tick_params(axis="x", rotation=30)
+    report.figure(fig, "stability.png", "Rollouts converging from far outside the demonstrations")
+
+
+def build(root, output):
+    root, output = pathlib.Path(root), pathlib.Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    report = Report(output.parent / "figures")
+    report.add("# C-IFlows experiments", "", f"Measured from `{root}` by `scripts/report.py`.", "")
+    for section in (limit_cycle, obstacles, pouring, stability):
+        try:
+            section(report, root)
+        except (KeyError, ValueError, TypeError, IndexError, json.JSONDecodeError) as error:
+            report.add(f"- {section.__name__}: could not be read ({type(error).__name__}: {error})")
+        report.add("")
+    output.write_text("\n".join(report.lines) + "\n")
+    return output
+
+
+def main(argv):
+    root = argv[1] if len(argv) > 1 else "out/experiments"
+    output = argv[2] if len(argv) > 2 else "out/report.md"
+    print(f"wrote {build(root, output)}")
+
+
+if __name__ == "__main__":
+    main(sys.argv)

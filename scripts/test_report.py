@@ -1,0 +1,121 @@
+"""scripts/report.py on small synthetic `ciflow evaluate` JSON: tables with mean ± std over
+seeds, targets with pass/fail, PNG figures, and "not run" lines for missing experiments."""
+
+import importlib.util
+import json
+import pathlib
+
+import pytest
+
+spec = importlib.util.spec_from_file_location(
+    "report", pathlib.Path(__file__).with_name("report.py"))
+report = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(report)
+
+
+def write(path, value):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(value))
+
+
+def trace(n, context, with_point=True):
+    q = [[0.01 * k, 0.02 * k] for k in range(n)]
+    return {
+        "time": [0.01 * k for k in range(n)],
+        "q": q,
+        "qd": [[0.0, 0.0]] * n,
+        "command": [[0.0, 0.0]] * (n - 1),
+        "context": [context] * n,
+        "point": [[x, y, 0.3] for x, y in q] if with_point else q,
+    }
+
+
+def evaluation(success_rate, episodes, disturbance, push=None, example=True):
+    context = [0.0, 0.3, 0.8, -0.1]
+    results = [{"seed": i, "success": i < round(success_rate * episodes), "context": context}
+               for i in range(episodes)]
+    return {
+        "episodes": episodes,
+        "success_rate": success_rate,
+        "collision_rate": 0.0,
+        "spill_rate": 0.0,
+        "final_distance": {"mean": 0.01, "std": 0.002},
+        "disturbance": disturbance,
+        "results": results,
+        "trajectories": [trace(20, context, with_point=False)],
+        "push": push,
+        "example": {"trace": trace(20, context), "reference": trace(20, context)} if example else None,
+    }
+
+
+def field_json():
+    grid = [[0.1, -0.2, 0.3], [0.0, 0.5, -0.1], [0.2, 0.2, 0.2]]
+    return {
+        "window": [-1, 1, -1, 1],
+        "fields": [{
+            "context": [c],
+            "x": [-1, 0, 1],
+            "y": [-1, 0, 1],
+            "velocity_x": grid,
+            "velocity_y": grid[::-1],
+            "rollouts": [[[0.9, 0.9], [0.5, 0.5], [0.1, 0.0]]],
+            "latent_grid": [[[-1, 0], [1, 0]], [[0, -1], [0, 1]]],
+        } for c in (0.0, 0.5, 1.0)],
+        "demonstrations": [{"context": [0.0], "points": [[0.5, 0.5], [0.0, 0.0]]}],
+    }
+
+
+@pytest.fixture
+def experiments(tmp_path):
+    root = tmp_path / "experiments"
+    write(root / "limit_cycle" / "field.json", field_json())
+    for seed, value in enumerate((1.0, 2.0, 3.0)):
+        write(root / "limit_cycle" / "nll" / f"5_seed{seed}_train.json", {"per_transition": value})
+        write(root / "limit_cycle" / "nll" / f"5_seed{seed}_test.json", {"per_transition": value - 1})
+    write(root / "obstacles" / "3" / "eval.json", evaluation(0.96, 100, {"mode": "none"}))
+    write(root / "pouring" / "eval.json", evaluation(0.85, 100, {"mode": "none"}))
+    push = {
+        "required_displacement": 0.05,
+        "displacement": {"mean": 0.07, "std": 0.01, "min": 0.055, "max": 0.09, "count": 10},
+        "recovery_tolerance": 0.01,
+        "recovered_within_deadline_fraction": 0.9,
+    }
+    write(root / "pouring" / "push.json",
+          evaluation(0.8, 10, {"mode": "push", "start": 0.05, "duration": 0.05}, push=push))
+    write(root / "stability" / "pouring-flow.json",
+          {"fraction": 1.0, "rollouts": 50, "diverged_to_non_finite": 0})
+    return root
+
+
+def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_path):
+    output = report.build(experiments, tmp_path / "out" / "report.md")
+    text = output.read_text()
+    # Mean ± population std over the three seeds: train 2 ± 0.816, test 1 ± 0.816.
+    assert "| 5 | 2.000 ± 0.816 | 1.000 ± 0.816 | 3 |" in text
+    assert "| goal reached, 3 obstacles | 96.0% | ≥ 95% | **pass** |" in text
+    assert "| success, no perturbation (100 contexts) | 85.0% | ≥ 90% | **FAIL** |" in text
+    assert "| push displacement (min over episodes) | 5.5 cm | ≥ 5 cm | **pass** |" in text
+    assert "| success under pushes (10 episodes) | 80.0% | ≥ 80% | **pass** |" in text
+    assert "90.0% | ≥ 80% of pushes | **pass** |" in text
+    assert "2 obstacle(s): not run" in text
+    assert "pot moved mid-motion: not run" in text
+    assert "| pouring-flow | 100.0% | 50 | 0 |" in text
+    figures = tmp_path / "out" / "figures"
+    for name in ("limit_cycle_field.png", "limit_cycle_nll.png", "obstacles_rollouts.png",
+                 "pouring_push.png", "stability.png"):
+        assert (figures / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+        assert f"(figures/{name})" in text
+
+
+def test_an_empty_directory_gives_not_run_lines(tmp_path):
+    text = report.build(tmp_path / "nothing", tmp_path / "report.md").read_text()
+    assert text.count("not run") >= 8
+    assert "**pass**" not in text and "**FAIL**" not in text
+
+
+def test_a_malformed_file_is_reported_not_raised(tmp_path):
+    root = tmp_path / "experiments"
+    write(root / "pouring" / "eval.json", {"episodes": 3})
+    text = report.build(root, tmp_path / "report.md").read_text()
+    assert "pouring: could not be read (KeyError" in text
+    assert "## Stability" in text

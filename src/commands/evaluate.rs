@@ -1,0 +1,321 @@
+//! `ciflow evaluate`: measure a checkpoint for the experiments' report (library:
+//! [`ciflow_envs::evaluation`]). Three modes, each writing JSON:
+//!
+//! - default: closed-loop episodes in the task's environment from random contexts and
+//!   starts, optionally pushed (`--perturb push`) or with the context moved mid-motion
+//!   (`--perturb context`): rates, distances, push displacement and recovery, traces;
+//! - `--nll DATASET`: the flow's log-likelihood per transition on a dataset;
+//! - `--field FILE`: for 2-D flows, the vector field, rollouts and latent-grid image.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use ciflow_engine::flow::Policy;
+use ciflow_envs::actor::{DEFAULT_VELOCITY_GAIN, Model};
+use ciflow_envs::dataset;
+use ciflow_envs::evaluation::field::{FieldConfig, field};
+use ciflow_envs::evaluation::likelihood::log_likelihood;
+use ciflow_envs::evaluation::{
+    ContextSwitch, Disturbance, EvaluationConfig, EvaluationReport, PushConfig, evaluate,
+};
+use ciflow_envs::registry::{self, TaskEntry};
+use ciflow_envs::tasks::{obstacle_avoidance, pouring};
+use clap::ValueEnum;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+
+use super::demos::{parse_key_value, task_values};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum PerturbArg {
+    None,
+    /// A push on the end effector (pouring: the hand; planar tasks: the mass) mid-motion.
+    Push,
+    /// The context (pot, target, phase) moved mid-motion to a new valid one.
+    Context,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct EvaluateArgs {
+    /// Checkpoint directory (a flow or an MLP baseline).
+    #[arg(long)]
+    pub checkpoint: PathBuf,
+    /// Expected task name [default: the checkpoint's].
+    #[arg(long)]
+    pub task: Option<String>,
+    /// Construction argument of the task, NAME=VALUE (e.g. obstacles=3); repeatable.
+    #[arg(long = "kwarg", value_name = "NAME=VALUE", value_parser = parse_key_value)]
+    pub kwargs: Vec<(String, String)>,
+    /// Reset option of every episode, NAME=VALUE (e.g. context_set=1); repeatable.
+    #[arg(long = "option", value_name = "NAME=VALUE", value_parser = parse_key_value)]
+    pub options: Vec<(String, String)>,
+    /// Number of episodes; episode i is reset with seed + i.
+    #[arg(long, default_value_t = 100)]
+    pub episodes: usize,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Velocity-feedback gain K_v of the actor (1/s).
+    #[arg(long, default_value_t = DEFAULT_VELOCITY_GAIN)]
+    pub velocity_gain: f64,
+    #[arg(long, value_enum, default_value = "none")]
+    pub perturb: PerturbArg,
+    /// Push start (simulated s).
+    #[arg(long, default_value_t = 1.0)]
+    pub push_start: f64,
+    /// Push duration (s).
+    #[arg(long, default_value_t = 0.2)]
+    pub push_duration: f64,
+    /// Minimum displacement of the tracked point (pouring: the spout) from the unpushed
+    /// run at equal times; the force grows until it is reached (m).
+    #[arg(long, default_value_t = 0.05)]
+    pub push_displacement: f64,
+    /// First push force tried (N).
+    #[arg(long, default_value_t = 10.0)]
+    pub push_force: f64,
+    /// Link pushed [default: the hand (last link) for pouring, the mass otherwise].
+    #[arg(long)]
+    pub push_link: Option<usize>,
+    /// Distance to the unpushed path that counts as recovered (m).
+    #[arg(long, default_value_t = 0.01)]
+    pub recovery_tolerance: f64,
+    /// Recovery within this time after the push counts as prompt (s).
+    #[arg(long, default_value_t = 2.0)]
+    pub recovery_deadline: f64,
+    /// Time of the context change (simulated s).
+    #[arg(long, default_value_t = 1.0)]
+    pub switch_time: f64,
+    /// Change only the last N context entries [default: the target (2) for
+    /// obstacle-avoidance, the whole context otherwise].
+    #[arg(long)]
+    pub switch_tail: Option<usize>,
+    /// Keep the traces of the first K episodes in the JSON.
+    #[arg(long, default_value_t = 0)]
+    pub trajectories: usize,
+    /// JSON file to write (episodes or --nll); the summary is printed either way.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Instead of episodes: the flow's log-likelihood per transition on this dataset.
+    #[arg(long, conflicts_with = "field")]
+    pub nll: Option<PathBuf>,
+    /// Instead of episodes: write the 2-D flow's vector field, rollouts and latent-grid
+    /// image to this JSON file.
+    #[arg(long)]
+    pub field: Option<PathBuf>,
+    /// Contexts of the field figures, `;`-separated, each comma-separated (e.g. "0;0.5;1")
+    /// [default: the first 3 episodes' contexts of --field-demos].
+    #[arg(long)]
+    pub field_contexts: Option<String>,
+    /// Dataset whose positions are copied into the field JSON for overlays.
+    #[arg(long)]
+    pub field_demos: Option<PathBuf>,
+    /// Field window x_min,x_max,y_min,y_max [default: the demonstrations' box, widened].
+    #[arg(long, value_delimiter = ',', num_args = 4)]
+    pub field_window: Option<Vec<f64>>,
+    /// Field grid points per axis.
+    #[arg(long, default_value_t = 25)]
+    pub field_resolution: usize,
+    /// Steps of each field rollout.
+    #[arg(long, default_value_t = 1000)]
+    pub field_steps: usize,
+    /// Latent grid lines per axis.
+    #[arg(long, default_value_t = 11)]
+    pub field_lines: usize,
+}
+
+fn bar(len: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} ({elapsed}, eta {eta})")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(what.to_owned());
+    bar
+}
+
+fn write_json(path: &Path, value: &impl Serialize) -> anyhow::Result<()> {
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("creating {}", parent.display()))?;
+    }
+    std::fs::write(path, serde_json::to_string(value)?)
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+fn flow(model: &Model) -> anyhow::Result<&Policy> {
+    match model {
+        Model::Flow(policy) => Ok(policy),
+        Model::Baseline(_) => anyhow::bail!("the baseline has no density or latent space"),
+    }
+}
+
+fn parse_contexts(text: &str) -> anyhow::Result<Vec<Vec<f64>>> {
+    text.split(';')
+        .map(|c| {
+            c.split(',')
+                .map(|v| {
+                    v.trim()
+                        .parse::<f64>()
+                        .with_context(|| format!("`{v}` in context `{c}` is not a number"))
+                })
+                .collect()
+        })
+        .collect()
+}
+
+fn disturbance(args: &EvaluateArgs, task: &TaskEntry, model: &Model) -> Disturbance {
+    match args.perturb {
+        PerturbArg::None => Disturbance::None,
+        PerturbArg::Push => Disturbance::Push(PushConfig {
+            link: args.push_link.unwrap_or(if task.id == pouring::ID {
+                model.state_dim() - 1
+            } else {
+                0
+            }),
+            start: args.push_start,
+            duration: args.push_duration,
+            displacement: args.push_displacement,
+            initial_force: args.push_force,
+            recovery_tolerance: args.recovery_tolerance,
+            recovery_deadline: args.recovery_deadline,
+            ..PushConfig::default()
+        }),
+        PerturbArg::Context => Disturbance::Context(ContextSwitch {
+            time: args.switch_time,
+            tail: args
+                .switch_tail
+                .or((task.id == obstacle_avoidance::ID).then_some(2)),
+        }),
+    }
+}
+
+fn print_summary(report: &EvaluationReport) {
+    let percent = |r: f64| format!("{:.1}%", 100.0 * r);
+    let mut line = format!(
+        "{} ({}) on {}, {:?}: success {}",
+        report.task,
+        report.model,
+        report.env_id,
+        report.disturbance,
+        percent(report.success_rate)
+    );
+    if let Some(r) = report.collision_rate {
+        line += &format!(", collision {}", percent(r));
+    }
+    if let Some(r) = report.spill_rate {
+        line += &format!(", spill {}", percent(r));
+    }
+    if let (Some(key), Some(d)) = (&report.distance_key, &report.final_distance) {
+        line += &format!(", final {key} {:.4} ± {:.4}", d.mean, d.std);
+    }
+    if let Some(s) = &report.episode_steps {
+        line += &format!(", {:.0} ± {:.0} steps", s.mean, s.std);
+    }
+    println!("{line} ({} episodes)", report.episodes);
+    if let Some(push) = &report.push {
+        println!(
+            "push: displacement {:.4} ± {:.4} (min {:.4}; ≥ {} in {}), recovered within {} of \
+             the unpushed path in {} ({} within {} s; mean {:.2} s)",
+            push.displacement.mean,
+            push.displacement.std,
+            push.displacement.min,
+            push.required_displacement,
+            percent(push.displaced_fraction),
+            push.recovery_tolerance,
+            percent(push.recovered_fraction),
+            percent(push.recovered_within_deadline_fraction),
+            push.recovery_deadline,
+            push.recovery_time.as_ref().map_or(f64::NAN, |t| t.mean),
+        );
+    }
+}
+
+pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
+    let dir = &args.checkpoint;
+    let model = Model::load(dir, args.task.as_deref())
+        .with_context(|| format!("loading {}", dir.display()))?;
+    if let Some(dataset_dir) = &args.nll {
+        let (_, episodes) = dataset::read(dataset_dir)
+            .with_context(|| format!("reading {}", dataset_dir.display()))?;
+        let nll = log_likelihood(flow(&model)?, &episodes)?;
+        println!(
+            "{}: log-likelihood {:.4} per transition ({} transitions, {} episodes; initial \
+             {:.4} per episode)",
+            dataset_dir.display(),
+            nll.per_transition,
+            nll.transitions,
+            nll.episodes,
+            nll.initial_per_episode
+        );
+        if let Some(out) = &args.out {
+            write_json(out, &nll)?;
+        }
+        return Ok(());
+    }
+    if let Some(out) = &args.field {
+        let demonstrations = match &args.field_demos {
+            Some(d) => {
+                dataset::read(d)
+                    .with_context(|| format!("reading {}", d.display()))?
+                    .1
+            }
+            None => Vec::new(),
+        };
+        let contexts = match &args.field_contexts {
+            Some(text) => parse_contexts(text)?,
+            None => demonstrations
+                .iter()
+                .take(3)
+                .filter_map(|e| e.contexts.first().cloned())
+                .collect(),
+        };
+        anyhow::ensure!(
+            !contexts.is_empty(),
+            "give --field-contexts or --field-demos"
+        );
+        let config = FieldConfig {
+            contexts,
+            window: args
+                .field_window
+                .as_deref()
+                .map(|w| [w[0], w[1], w[2], w[3]]),
+            resolution: args.field_resolution,
+            starts: None,
+            rollout_steps: args.field_steps,
+            latent_lines: args.field_lines,
+        };
+        let report = field(flow(&model)?, &config, &demonstrations)?;
+        write_json(out, &report)?;
+        println!(
+            "wrote {}: {} contexts, window {:?}",
+            out.display(),
+            report.fields.len(),
+            report.window
+        );
+        return Ok(());
+    }
+    let task = registry::entry(model.task())?;
+    let kwargs = task_values(task, args.kwargs.clone())?;
+    let mut env = (task.make_with)(&kwargs)
+        .with_context(|| format!("building `{}` with {kwargs:?}", task.name))?;
+    let config = EvaluationConfig {
+        episodes: args.episodes,
+        seed: args.seed,
+        velocity_gain: args.velocity_gain,
+        reset_extra: task_values(task, args.options.clone())?,
+        disturbance: disturbance(&args, task, &model),
+        trajectories: args.trajectories,
+    };
+    let progress = bar(args.episodes, "episodes");
+    let report = evaluate(env.as_mut(), &model, &config, |done| {
+        progress.set_position(done as u64)
+    })
+    .context("evaluating")?;
+    progress.finish_and_clear();
+    print_summary(&report);
+    if let Some(out) = &args.out {
+        write_json(out, &report)?;
+        println!("wrote {}", out.display());
+    }
+    Ok(())
+}

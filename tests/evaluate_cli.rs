@@ -1,0 +1,223 @@
+//! `ciflow demos` → `ciflow train` → `ciflow evaluate` as separate processes: every mode of
+//! `evaluate` (episodes, pushes, context changes, log-likelihood, field data) writes JSON
+//! that agrees with itself and with the dataset, and bad input fails with a message.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+fn ciflow(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ciflow"))
+        .args(args)
+        .output()
+        .expect("run ciflow")
+}
+
+fn succeed(args: &[&str]) -> Output {
+    let output = ciflow(args);
+    assert!(
+        output.status.success(),
+        "ciflow {args:?} failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    output
+}
+
+/// A fresh directory under the system's temporary directory, removed on drop.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn path(&self, name: &str) -> String {
+        self.0.join(name).to_string_lossy().into_owned()
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn json(path: &str) -> Value {
+    serde_json::from_slice(&std::fs::read(path).expect("JSON written")).expect("valid JSON")
+}
+
+fn rate(v: &Value) -> f64 {
+    let r = v.as_f64().unwrap_or_else(|| panic!("{v} is not a number"));
+    assert!((0.0..=1.0).contains(&r), "{r}");
+    r
+}
+
+#[test]
+fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
+    let dir = std::env::temp_dir().join(format!("ciflow-evaluate-cli-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let scratch = Scratch(dir);
+    let (demos, policy) = (scratch.path("demos"), scratch.path("policy"));
+    let kwargs = ["--kwarg", "obstacles=1"];
+    succeed(
+        &[
+            &["demos", "--task", "obstacle-avoidance", "--episodes", "6"][..],
+            &kwargs,
+            &["--out", &demos],
+        ]
+        .concat(),
+    );
+    succeed(&[
+        "train",
+        "--task",
+        "obstacle-avoidance",
+        "--demos",
+        &demos,
+        "--out",
+        &policy,
+        "--epochs",
+        "2",
+        "--layers",
+        "2",
+        "--hidden",
+        "16,16",
+    ]);
+
+    let episodes = scratch.path("experiments/obstacles/1/eval.json");
+    succeed(
+        &[
+            &[
+                "evaluate",
+                "--checkpoint",
+                &policy,
+                "--episodes",
+                "3",
+                "--trajectories",
+                "2",
+                "--out",
+                &episodes,
+            ][..],
+            &kwargs,
+        ]
+        .concat(),
+    );
+    let report = json(&episodes);
+    assert_eq!(report["episodes"], 3);
+    assert_eq!(report["results"].as_array().unwrap().len(), 3);
+    assert_eq!(report["trajectories"].as_array().unwrap().len(), 2);
+    assert_eq!(report["env_id"], "ciflow/Obstacle-v0");
+    let successes = report["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| r["success"] == true)
+        .count();
+    assert_eq!(rate(&report["success_rate"]), successes as f64 / 3.0);
+    rate(&report["collision_rate"]);
+    assert_eq!(report["disturbance"]["mode"], "none");
+
+    let pushes = scratch.path("push.json");
+    succeed(
+        &[
+            &[
+                "evaluate",
+                "--checkpoint",
+                &policy,
+                "--episodes",
+                "2",
+                "--perturb",
+                "push",
+                "--push-start",
+                "0.5",
+                "--out",
+                &pushes,
+            ][..],
+            &kwargs,
+        ]
+        .concat(),
+    );
+    let report = json(&pushes);
+    let push = &report["push"];
+    assert_eq!(push["required_displacement"], 0.05);
+    for result in report["results"].as_array().unwrap() {
+        let displacement = result["push"]["displacement"].as_f64().unwrap();
+        assert_eq!(result["push"]["displaced"], displacement >= 0.05);
+    }
+    rate(&push["recovered_within_deadline_fraction"]);
+    assert!(report["example"]["reference"].is_object());
+
+    let switches = scratch.path("context.json");
+    succeed(
+        &[
+            &[
+                "evaluate",
+                "--checkpoint",
+                &policy,
+                "--episodes",
+                "2",
+                "--perturb",
+                "context",
+                "--out",
+                &switches,
+            ][..],
+            &kwargs,
+        ]
+        .concat(),
+    );
+    let report = json(&switches);
+    assert_eq!(
+        report["disturbance"]["tail"], 2,
+        "obstacle-avoidance moves the target"
+    );
+    for result in report["results"].as_array().unwrap() {
+        assert_eq!(result["switched_context"][0], result["context"][0]);
+    }
+
+    let nll = scratch.path("nll.json");
+    succeed(&[
+        "evaluate",
+        "--checkpoint",
+        &policy,
+        "--nll",
+        &demos,
+        "--out",
+        &nll,
+    ]);
+    let report = json(&nll);
+    let (_, data) = ciflow_envs::dataset::read(std::path::Path::new(&demos)).unwrap();
+    let transitions: usize = data.iter().map(|e| e.observations.len() - 1).sum();
+    assert_eq!(report["transitions"], transitions);
+    assert!(report["per_transition"].as_f64().unwrap().is_finite());
+
+    let field = scratch.path("field.json");
+    succeed(&[
+        "evaluate",
+        "--checkpoint",
+        &policy,
+        "--field",
+        &field,
+        "--field-demos",
+        &demos,
+        "--field-resolution",
+        "6",
+        "--field-steps",
+        "50",
+    ]);
+    let report = json(&field);
+    assert_eq!(report["fields"].as_array().unwrap().len(), 3);
+    assert_eq!(
+        report["fields"][0]["velocity_x"].as_array().unwrap().len(),
+        6
+    );
+    assert_eq!(report["demonstrations"].as_array().unwrap().len(), 6);
+
+    // A checkpoint of one obstacle cannot act among two.
+    let mismatch = ciflow(&[
+        "evaluate",
+        "--checkpoint",
+        &policy,
+        "--episodes",
+        "1",
+        "--kwarg",
+        "obstacles=2",
+    ]);
+    assert!(!mismatch.status.success());
+    assert!(String::from_utf8_lossy(&mismatch.stderr).contains("cannot act"));
+}
