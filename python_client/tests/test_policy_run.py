@@ -13,7 +13,10 @@ import numpy as np
 import pytest
 
 import ciflow
-from conftest import free_port
+
+# pytest runs with --import-mode=importlib: conftest is not on sys.path by itself.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from conftest import free_port  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 BINARY = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target")) / "release" / "ciflow"
