@@ -39,7 +39,7 @@ test-python:
 	@scripts/run-pytest.sh
 
 demo: build python ## Run the main job end to end and write out/report.md
-	@scripts/demo.sh
+	$(PYTHON) scripts/demo.py
 
 bench: build ## Run the benchmarks (ratios measured side by side)
 	cargo bench --locked --workspace

@@ -25,6 +25,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 use super::demos::{parse_key_value, task_values};
+use super::train::random_subset;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum PerturbArg {
@@ -97,6 +98,10 @@ pub struct EvaluateArgs {
     /// Instead of episodes: the flow's log-likelihood per transition on this dataset.
     #[arg(long, conflicts_with = "field")]
     pub nll: Option<PathBuf>,
+    /// With --nll: score only the N episodes that `ciflow train --subset N --seed S` drew
+    /// for training, with S given as --seed (train log-likelihood of a learning curve).
+    #[arg(long, value_name = "N", requires = "nll")]
+    pub nll_subset: Option<usize>,
     /// Instead of episodes: write the 2-D flow's vector field, rollouts and latent-grid
     /// image to this JSON file.
     #[arg(long)]
@@ -235,8 +240,11 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
     let model = Model::load(dir, args.task.as_deref())
         .with_context(|| format!("loading {}", dir.display()))?;
     if let Some(dataset_dir) = &args.nll {
-        let (_, episodes) = dataset::read(dataset_dir)
+        let (_, mut episodes) = dataset::read(dataset_dir)
             .with_context(|| format!("reading {}", dataset_dir.display()))?;
+        if let Some(count) = args.nll_subset {
+            episodes = random_subset(episodes, count, args.seed).context("--nll-subset")?;
+        }
         let nll = log_likelihood(flow(&model)?, &episodes)?;
         println!(
             "{}: log-likelihood {:.4} per transition ({} transitions, {} episodes; initial \

@@ -277,7 +277,7 @@ fn train_shape_flow(
 ) -> anyhow::Result<Trained<Policy>> {
     let config = flow_config(args)?;
     let start = Instant::now();
-    let trained = train_flow(data, &config, |p| {
+    let trained = train_flow(data, &config, |p, _| {
         progress.epoch(&shape.name, Model::Flow, p)
     })
     .with_context(|| format!("training the flow on {}", shape.name))?;

@@ -17,10 +17,13 @@ use ciflow_engine::flow::{CouplingKind, Goal, LatentKind};
 use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::{self, TaskEntry};
 use ciflow_envs::tasks::{lasa, limit_cycle, obstacle_avoidance};
+use ciflow_bridge::CheckpointPublisher;
 use ciflow_train::{
     BaselineTrainConfig, Contexts, Demonstrations, Episode, Keep, OptimConfig, Progress,
-    TrainConfig, train_baseline, train_flow,
+    Snapshot, TrainConfig, train_baseline, train_flow,
 };
+
+use super::demos::{parse_key_value, task_values};
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -176,6 +179,17 @@ pub struct TrainArgs {
     /// Also train the behaviour-cloning baseline into `<out>/baseline`.
     #[arg(long)]
     pub baseline: bool,
+    /// Publish each better checkpoint as policy NAME on ciflow/v1/policies/NAME/checkpoint
+    /// (through the Zenoh flags above): engines hot-load it and serve it under NAME without
+    /// a restart. Nobody listening is not an error; an engine started later loads the
+    /// final checkpoint with `ciflow serve --policy NAME=<out>`.
+    #[arg(long, value_name = "NAME")]
+    pub publish: Option<String>,
+    /// Construction argument of the task the demonstrations were recorded with (e.g.
+    /// obstacles=1), sent with each publication so engines build the task the policy acts
+    /// in; repeatable.
+    #[arg(long = "kwarg", value_name = "NAME=VALUE", value_parser = parse_key_value, requires = "publish")]
+    pub kwargs: Vec<(String, String)>,
 }
 
 /// How a task's policy is shaped unless the command line says otherwise.
@@ -280,7 +294,7 @@ pub fn to_demonstrations(
 
 /// `count` of `episodes` drawn without replacement by a generator seeded with `seed`, in
 /// their original order.
-fn random_subset<T>(episodes: Vec<T>, count: usize, seed: u64) -> anyhow::Result<Vec<T>> {
+pub(crate) fn random_subset<T>(episodes: Vec<T>, count: usize, seed: u64) -> anyhow::Result<Vec<T>> {
     use rand::SeedableRng;
     let available = episodes.len();
     anyhow::ensure!(
@@ -350,6 +364,30 @@ pub fn baseline_config(flow: &TrainConfig, goal: Goal) -> BaselineTrainConfig {
     }
 }
 
+/// Writes a better checkpoint to `out` (an interrupted run keeps its best so far) and
+/// publishes it. A failed publication is reported and training goes on: the file is the
+/// record, the publication a convenience for running engines.
+fn keep_checkpoint(
+    snapshot: &Snapshot,
+    out: &Path,
+    publisher: Option<&CheckpointPublisher>,
+    progress: &Progress,
+) -> anyhow::Result<()> {
+    snapshot
+        .save(out)
+        .with_context(|| format!("writing {}", out.display()))?;
+    if let Some(publisher) = publisher
+        && let Err(error) = publisher.publish(out, progress.epoch as u64, progress.validation)
+    {
+        eprintln!(
+            "warning: epoch {}: publishing policy `{}` failed: {error}",
+            progress.epoch,
+            publisher.name()
+        );
+    }
+    Ok(())
+}
+
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let task = registry::entry(&args.task)?;
     let (spec, mut data) = episodes::demonstrations(task, args.demos.as_deref(), &args.zenoh)?;
@@ -376,19 +414,45 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         spec.context_space.dim(),
         data.dt
     );
+    let publisher = args
+        .publish
+        .as_deref()
+        .map(|name| {
+            let kwargs = task_values(task, args.kwargs.clone())?;
+            let network = args.zenoh.network.options()?;
+            anyhow::Ok(CheckpointPublisher::open(&network, name)?.with_kwargs(kwargs))
+        })
+        .transpose()
+        .context("--publish")?;
     let bar = epoch_bar(args.model.epochs, "flow");
-    let trained = train_flow(&data, &config, |p: &Progress| {
+    let mut kept = Ok(());
+    let trained = train_flow(&data, &config, |p: &Progress, snapshot: &Snapshot| {
         bar.set_position(p.epoch as u64);
         bar.set_message(format!(
             "loss {:.3} val NLL/transition {:.3}",
             p.train_loss, p.validation
         ));
+        if p.improved && kept.is_ok() {
+            kept = keep_checkpoint(snapshot, &args.out, publisher.as_ref(), p);
+        }
     })
     .context("training the flow")?;
+    kept?;
     bar.finish();
     trained
         .save(&args.out)
         .with_context(|| format!("writing {}", args.out.display()))?;
+    if let Some(publisher) = &publisher {
+        // With --keep last the kept parameters need not be the last ones published.
+        let kept = trained
+            .history
+            .get(trained.best_epoch.wrapping_sub(1))
+            .context("training ran no epoch")?;
+        publisher
+            .publish(&args.out, kept.epoch as u64, kept.validation)
+            .with_context(|| format!("publishing policy `{}`", publisher.name()))?;
+        println!("published policy `{}`", publisher.name());
+    }
     let best = trained
         .history
         .iter()

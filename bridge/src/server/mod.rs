@@ -230,12 +230,21 @@ impl EngineServer {
                 .declare_subscriber(keys::ALL_POLICY_CHECKPOINTS)
                 .callback(move |sample| {
                     let key = sample.key_expr().as_str();
-                    if let Err(error) = shared.hot_load(key, &sample.payload().to_bytes()) {
+                    match shared.hot_load(key, &sample.payload().to_bytes()) {
+                        Ok(info) => eprintln!(
+                            "ciflow engine `{}`: serving policy `{}` for {} (epoch {}, \
+                             validation NLL {:.4})",
+                            shared.name,
+                            info.name,
+                            info.task,
+                            info.epoch.unwrap_or(0),
+                            info.validation_nll.unwrap_or(f64::NAN)
+                        ),
                         // A bad publication must not disturb serving: report and go on.
-                        eprintln!(
+                        Err(error) => eprintln!(
                             "ciflow engine `{}`: ignored checkpoint on `{key}`: {error}",
                             shared.name
-                        );
+                        ),
                     }
                 })
                 .wait()
@@ -654,7 +663,7 @@ impl Shared {
 
     /// Swaps in the checkpoint published on `key` if it fits a task this engine serves
     /// and does not change the task of a policy already served under its name.
-    fn hot_load(&self, key: &str, payload: &[u8]) -> Result<(), String> {
+    fn hot_load(&self, key: &str, payload: &[u8]) -> Result<PolicyInfo, String> {
         let name = key
             .strip_prefix(keys::ROOT)
             .and_then(|rest| rest.strip_prefix("/policies/"))
@@ -679,7 +688,7 @@ impl Shared {
             ));
         }
         self.policies.insert(Arc::new(policy));
-        Ok(())
+        Ok(info)
     }
 
     fn act(&self, name: &str, request: ActRequest) -> Answer {

@@ -23,4 +23,4 @@ pub use baseline::{BaselineTrainConfig, TrainedBaseline, train_baseline};
 pub use data::{Contexts, Demonstrations, Episode};
 pub use error::{TrainError, TrainResult};
 pub use optimise::{Keep, OptimConfig, Progress};
-pub use trainer::{DEFAULT_STATE_NOISE, TrainConfig, TrainedFlow, train_flow};
+pub use trainer::{DEFAULT_STATE_NOISE, Snapshot, TrainConfig, TrainedFlow, train_flow};

@@ -76,6 +76,8 @@ pub struct Progress {
     /// Validation score (lower is better): NLL per transition for flows, MSE for the baseline.
     pub validation: f64,
     pub best_validation: f64,
+    /// Whether this epoch set a new best validation score.
+    pub improved: bool,
     pub learning_rate: f64,
 }
 
@@ -116,7 +118,8 @@ pub fn optimise(
             batches += 1;
         }
         let score = tch::no_grad(&mut validation);
-        if score < best {
+        let improved = score < best;
+        if improved {
             best = score;
             best_epoch = epoch;
             snapshot = snapshot_of(vs);
@@ -127,6 +130,7 @@ pub fn optimise(
             train_loss: total / batches as f64,
             validation: score,
             best_validation: best,
+            improved,
             learning_rate: lr,
         };
         progress(&record);

@@ -97,6 +97,19 @@ impl TrainedFlow {
     }
 }
 
+/// The flow's parameters as they are during training, handed to the progress callback.
+pub struct Snapshot<'a> {
+    config: &'a FlowConfig,
+    var_store: &'a nn::VarStore,
+}
+
+impl Snapshot<'_> {
+    /// Writes the current parameters as a checkpoint directory (loadable by `Policy::load`).
+    pub fn save(&self, dir: &Path) -> TrainResult<()> {
+        save_checkpoint(dir, &CheckpointConfig::Flow(self.config.clone()), self.var_store)
+    }
+}
+
 /// Writes a checkpoint directory from a `VarStore`.
 pub fn save_checkpoint(
     dir: &Path,
@@ -190,11 +203,12 @@ fn latent_init(data: &Demonstrations, config: &FlowConfig) -> (f64, LatentInit) 
     (rms_step, init)
 }
 
-/// Trains a flow by exact maximum likelihood; `progress` is called once per epoch.
+/// Trains a flow by exact maximum likelihood; `progress` is called once per epoch with
+/// its figures and the parameters at its end (to save or publish each better checkpoint).
 pub fn train_flow(
     data: &Demonstrations,
     train: &TrainConfig,
-    progress: impl FnMut(&Progress),
+    mut progress: impl FnMut(&Progress, &Snapshot),
 ) -> TrainResult<TrainedFlow> {
     if train.horizon == 0
         || !(0.0..1.0).contains(&train.validation_fraction)
@@ -246,7 +260,13 @@ pub fn train_flow(
     };
     let validation =
         || -mean_value(&model.log_transition(&check.prev, &check.next, &check.context, 1));
-    let (history, best_epoch) = optimise(&vs, fit.len(), &train.optim, loss, validation, progress)?;
+    let snapshot = Snapshot {
+        config: &config,
+        var_store: &vs,
+    };
+    let (history, best_epoch) = optimise(&vs, fit.len(), &train.optim, loss, validation, |p| {
+        progress(p, &snapshot)
+    })?;
     Ok(TrainedFlow {
         config,
         var_store: vs,

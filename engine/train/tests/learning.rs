@@ -86,7 +86,7 @@ fn flow_learns_a_known_stable_system_and_stays_stable_while_bc_does_not() {
     let untrained = Policy::load(&untrained_dir, Some("spiral")).unwrap();
     let untrained_error = rollout_error(&untrained, &spiral);
 
-    let trained = train_flow(&data, &config, |_| {}).unwrap();
+    let trained = train_flow(&data, &config, |_, _| {}).unwrap();
     let dir = temp_dir("trained");
     trained.save(&dir).unwrap();
     let policy = Policy::load(&dir, Some("spiral")).unwrap();

@@ -7,7 +7,7 @@ use ciflow_train::{OptimConfig, TrainConfig, train_flow};
 
 fn trained_weights(config: &TrainConfig) -> Vec<(String, Vec<f64>)> {
     let data = Spiral::default().demonstrations(4, 30, 1.5, (0.0, 1.5), 2);
-    let trained = train_flow(&data, config, |_| {}).unwrap();
+    let trained = train_flow(&data, config, |_, _| {}).unwrap();
     let mut named: Vec<(String, Vec<f64>)> = trained
         .var_store
         .variables()

@@ -32,8 +32,11 @@
 //! pouring: tilt ≥ [`POURING_TILT`] with the spout over the pot's opening), `time` (s).
 //!
 //! ## Starting state
-//! `q = PANDA_HOME + U(−0.05, 0.05)⁷`, `q̇ = 0`; the cup is upright above the table.
-//! `options.initial_position` / `initial_velocity` override them (within joint limits).
+//! `q = PANDA_HOME + U(−s, s)⁷` with the spread `s = 0.05` rad, `q̇ = 0`; the cup is
+//! upright above the table. Option `start_spread` sets `s` (0 to [`MAX_START_SPREAD`]):
+//! demonstrations from wider starts show how the expert returns to its path from states a
+//! push would reach. `options.initial_position` / `initial_velocity` override them
+//! (within joint limits).
 //!
 //! ## Episode end
 //! Terminated on a spill: tilt ≥ [`SPILL_TILT`] with the spout not over the opening.
@@ -71,7 +74,11 @@ pub const SPILL_TILT: f64 = 0.5;
 /// Tilt that counts as pouring, rad.
 pub const POURING_TILT: f64 = 1.2;
 pub const SPILL_REWARD: f64 = -100.0;
-const START_NOISE: f64 = 0.05;
+/// Default half-width of the uniform start around `PANDA_HOME`, rad.
+pub const START_SPREAD: f64 = 0.05;
+/// Widest `start_spread` option: keeps every start within the Panda's joint limits, rad.
+pub const MAX_START_SPREAD: f64 = 0.3;
+pub const START_SPREAD_OPTION: &str = "start_spread";
 const CONTEXT_LOW: [f64; 6] = [0.42, -0.25, 0.0, -0.1, -0.1, -0.6];
 const CONTEXT_HIGH: [f64; 6] = [0.6, 0.25, 0.1, 0.1, 0.1, 0.6];
 const DOF: usize = 7;
@@ -292,7 +299,17 @@ impl Env for Pouring {
         seed: Option<u64>,
         options: &ResetOptions,
     ) -> Result<(Vec<f64>, Info), EnvError> {
-        reject_unknown_options(&options.extra, &[])?;
+        reject_unknown_options(&options.extra, &[START_SPREAD_OPTION])?;
+        let spread = match options.extra.get(START_SPREAD_OPTION).copied() {
+            None => START_SPREAD,
+            Some(s) if (0.0..=MAX_START_SPREAD).contains(&s) => s,
+            Some(s) => {
+                return Err(EnvError::InvalidOption {
+                    name: START_SPREAD_OPTION.into(),
+                    detail: format!("{s} rad; 0 to {MAX_START_SPREAD} are supported"),
+                });
+            }
+        };
         let rng = self.rng.reseed(seed);
         let context = match &options.context {
             Some(context) => context.clone(),
@@ -318,7 +335,7 @@ impl Env for Pouring {
             }
             None => PANDA_HOME
                 .iter()
-                .map(|q| q + rng.random_range(-START_NOISE..=START_NOISE))
+                .map(|q| q + rng.random_range(-spread..=spread))
                 .collect(),
         };
         let qd0 = match &options.initial_velocity {

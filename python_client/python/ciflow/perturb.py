@@ -39,6 +39,7 @@ import time
 import numpy as np
 
 import ciflow
+from ciflow.registration import task_entry
 from ciflow.remote import Attached
 
 
@@ -150,7 +151,8 @@ def main(argv=None) -> int:
     target.add_argument("--session", help="attach to this session id")
     target.add_argument("--token", help="the session's token (hex)")
     target.add_argument("--engine-name", help="name of the engine holding --session")
-    target.add_argument("--task", help="make a session of this task instead")
+    target.add_argument("--task", help="make a session of this task instead (name or "
+                        "Gymnasium id)")
     target.add_argument("--kwarg", action="append", default=[], metavar="NAME=VALUE",
                         help="construction argument of --task (e.g. obstacles=1)")
     target.add_argument("--seed", type=int, default=0, help="reset seed of --task")
@@ -185,7 +187,11 @@ def main(argv=None) -> int:
         import gymnasium as gym
 
         kwargs = {k: float(v) for k, v in (item.split("=", 1) for item in args.kwarg)}
-        env = gym.make(args.task, engine=args.engine, zenoh_config=args.zenoh_config, **kwargs)
+        try:
+            task_id, _name = task_entry(args.task)
+        except ValueError as error:
+            parser.error(str(error))
+        env = gym.make(task_id, engine=args.engine, zenoh_config=args.zenoh_config, **kwargs)
         env.reset(seed=args.seed)
         control = env.unwrapped.attach()
         print(f"session {env.unwrapped.session_id} token {env.unwrapped.token_hex} "

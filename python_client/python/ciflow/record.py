@@ -27,6 +27,7 @@ import gymnasium as gym
 import numpy as np
 
 from ciflow import _native, connection
+from ciflow.registration import task_entry
 
 __all__ = ["Recorded", "record", "main"]
 
@@ -41,15 +42,6 @@ class Recorded:
     steps: int
     #: Key expression the episodes were published on (``None`` with ``publish=False``).
     key: str | None
-
-
-def _task_entry(task: str) -> tuple[str, str]:
-    """``(gymnasium id, command-line name)`` of ``task`` given by either."""
-    for task_id, name in _native.tasks():
-        if task in (task_id, name):
-            return task_id, name
-    known = ", ".join(name for _, name in _native.tasks())
-    raise ValueError(f"unknown task {task!r}; known: {known}")
 
 
 def _task_numbers(task_id: str, values: dict | None, what: str) -> dict[str, float]:
@@ -127,7 +119,7 @@ def record(
         overwrite: replace an existing dataset at ``out``.
         progress: show a tqdm bar.
     """
-    task_id, name = _task_entry(task)
+    task_id, name = task_entry(task)
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**64 - episodes:
@@ -201,7 +193,7 @@ def main(argv=None) -> int:
     parser.add_argument("--task", required=True, help="task name or Gymnasium id")
     parser.add_argument("--episodes", type=int, default=100, help="number of episodes")
     parser.add_argument("--seed", type=int, default=0, help="episode i is reset with seed + i")
-    parser.add_argument("--out", help="dataset directory to create (omit with --publish-only)")
+    parser.add_argument("--out", help="dataset directory to create (omit it to only publish)")
     parser.add_argument("--kwarg", action="append", metavar="NAME=VALUE",
                         help="construction argument of the task, e.g. obstacles=3 (repeatable)")
     parser.add_argument("--option", action="append", metavar="NAME=VALUE",

@@ -21,3 +21,12 @@ def register_tasks() -> None:
             kwargs={"task": task_id},
             disable_env_checker=False,
         )
+
+
+def task_entry(task: str) -> tuple[str, str]:
+    """``(gymnasium id, command-line name)`` of ``task`` given by either."""
+    for task_id, name in _native.tasks():
+        if task in (task_id, name):
+            return task_id, name
+    known = ", ".join(name for _, name in _native.tasks())
+    raise ValueError(f"unknown task {task!r}; known: {known}")

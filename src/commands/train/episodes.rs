@@ -26,8 +26,8 @@ pub struct ZenohSource {
     /// Longest wait for the next episode, in seconds.
     #[arg(long, default_value_t = 300.0, value_name = "SECONDS")]
     pub episode_timeout: f64,
-    /// Zenoh flags (default: a client of the engine on tcp/127.0.0.1:7447, through which
-    /// the recorders publish).
+    /// Zenoh flags of --from-zenoh and --publish (default: a client of the engine on
+    /// tcp/127.0.0.1:7447, through which recorders publish and engines listen).
     #[command(flatten)]
     pub network: NetworkArgs,
 }

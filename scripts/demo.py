@@ -1,0 +1,378 @@
+"""`make demo`: the C-IFlows paper's experiments end to end, each step its own process,
+the processes meeting only over Zenoh.
+
+    python scripts/demo.py [--out out] [--jobs 2]
+
+1. `ciflow serve` hosts every task (zero configuration: tcp/127.0.0.1:7447).
+2. `python -m ciflow.record` rolls the experts out through `gymnasium.make` and writes the
+   datasets; the pouring recorder publishes its episodes on Zenoh, where
+3. `ciflow train --from-zenoh 220 --publish pouring`, started first, collects them, trains
+   the stable policy and publishes each better checkpoint, which
+4. the engine hot-loads (no restart) and runs closed-loop, while
+5. `python -m ciflow.perturb` pushes the Panda's hand and moves the pot in that session.
+6. `ciflow evaluate` / `ciflow stability` measure every policy; `scripts/report.py`
+   writes out/report.md with the figures.
+
+Jobs run `--jobs` at a time (default: one per core); each writes its log to
+out/logs/<job>.log. Where a job fails, the demo stops and prints that log's tail.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pathlib
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field
+
+from tqdm import tqdm
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+CIFLOW = os.environ.get("CIFLOW", str(ROOT / "target" / "release" / "ciflow"))
+PYTHON = os.environ.get("PYTHON", sys.executable)
+
+# The experiments' sizes (the issue's numbers; see README "The experiments").
+LIMIT_CYCLE_TRAJECTORIES = (2, 5, 10)
+SEEDS = (0, 1, 2)
+OBSTACLE_COUNTS = (1, 2, 3)
+OBSTACLE_DEMOS = 400
+POURING_DEMOS = 220
+POURING_TEST_DEMOS = 40
+POURING_FRACTIONS = (0.1, 0.3, 1.0)
+EVALUATION_EPISODES = 100
+# Held-out seeds: far from the training seeds (episode i is reset with seed + i).
+TEST_SEED = 100_000
+# The pouring policy: the model measured at 49/50 successes (README "Pouring").
+POURING_MODEL = ["--coupling", "affine", "--layers", "10", "--batch-size", "512",
+                 "--epochs", "6"]
+LIMIT_CYCLE_MODEL = ["--epochs", "40"]
+OBSTACLE_MODEL = ["--epochs", "8"]
+# What the perturbation script does to the running pouring session (simulated seconds):
+# a 0.2 s push on the hand, then the pot moved to another valid pose, where it stays.
+PERTURB_PUSH = "link=6,force=0:60:0,at=1.0,duration=0.2"
+PERTURB_CONTEXT = "at=2.5,value=0.55:-0.15:0.05:0:0:0.4"
+
+
+@dataclass
+class Job:
+    """Commands run in order; `after` names the jobs whose outputs they read."""
+
+    name: str
+    commands: list[list[str]]
+    after: list[str] = field(default_factory=list)
+    # Where a command's stdout goes instead of the log (e.g. `ciflow stability --json`).
+    stdout: pathlib.Path | None = None
+    # Run instead of `commands` (jobs of several concurrent processes).
+    action: object = None
+
+
+class Runner:
+    """Runs jobs as their dependencies finish, `slots` at a time, with one progress bar."""
+
+    def __init__(self, logs: pathlib.Path, slots: int):
+        self.logs = logs
+        self.slots = slots
+        self.processes: set[subprocess.Popen] = set()
+        self.lock = threading.Lock()
+        self.cancelled = False
+
+    def spawn(self, command, log, stdout=None) -> subprocess.Popen:
+        """Starts `command` with its output in `log` (stdout in `stdout` if given)."""
+        with self.lock:
+            if self.cancelled:
+                raise RuntimeError("cancelled")
+            process = subprocess.Popen(
+                [str(c) for c in command], cwd=ROOT, stdin=subprocess.DEVNULL,
+                stdout=stdout or log, stderr=log, text=True, start_new_session=True)
+            self.processes.add(process)
+        return process
+
+    def finish(self, process: subprocess.Popen, command) -> None:
+        status = process.wait()
+        with self.lock:
+            self.processes.discard(process)
+        if status != 0:
+            raise RuntimeError(f"`{' '.join(map(str, command))}` exited with {status}")
+
+    def run_job(self, job: Job) -> float:
+        start = time.monotonic()
+        with open(self.logs / f"{job.name}.log", "w") as log:
+            if job.action is not None:
+                job.action(self, log)
+            for command in job.commands:
+                log.write(f"$ {' '.join(map(str, command))}\n")
+                log.flush()
+                if job.stdout is None:
+                    self.finish(self.spawn(command, log), command)
+                else:
+                    with open(job.stdout, "w") as stdout:
+                        self.finish(self.spawn(command, log, stdout), command)
+        return time.monotonic() - start
+
+    def run(self, jobs: list[Job]) -> dict[str, float]:
+        names = {job.name for job in jobs}
+        for job in jobs:
+            unknown = set(job.after) - names
+            if unknown:
+                raise ValueError(f"job {job.name} waits for unknown jobs {sorted(unknown)}")
+        waiting, running, done = list(jobs), {}, {}
+        bar = tqdm(total=len(jobs), unit="job", desc="demo", dynamic_ncols=True)
+        with ThreadPoolExecutor(self.slots) as pool:
+            try:
+                self.schedule(pool, bar, waiting, running, done)
+            except BaseException:
+                # Before the pool waits for its threads, which wait for the processes.
+                self.cancel()
+                raise
+            finally:
+                bar.close()
+        return done
+
+    def schedule(self, pool, bar, waiting, running, done) -> None:
+        while waiting or running:
+            for job in [j for j in waiting if all(a in done for a in j.after)]:
+                if len(running) >= self.slots:
+                    break
+                waiting.remove(job)
+                running[pool.submit(self.run_job, job)] = job
+            bar.set_postfix_str(", ".join(j.name for j in running.values()))
+            finished, _ = wait(list(running), return_when=FIRST_COMPLETED)
+            for future in finished:
+                job = running.pop(future)
+                try:
+                    done[job.name] = future.result()
+                except Exception as error:
+                    raise JobFailed(job, self.logs / f"{job.name}.log", error) from None
+                bar.write(f"  {job.name:<28} {done[job.name]:7.1f} s")
+                bar.update()
+
+    def cancel(self) -> None:
+        with self.lock:
+            self.cancelled = True
+            for process in self.processes:
+                os.killpg(process.pid, signal.SIGTERM)
+
+
+class JobFailed(Exception):
+    def __init__(self, job: Job, log: pathlib.Path, error: Exception):
+        super().__init__(f"job {job.name} failed: {error} (log: {log})")
+        self.log = log
+
+
+def wait_for_line(path: pathlib.Path, text: str, process: subprocess.Popen, timeout: float):
+    """Waits until `text` appears in the file `path` written by `process`."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if path.exists() and text in path.read_text():
+            return
+        if process.poll() is not None:
+            raise RuntimeError(f"{process.args[0]} exited with {process.returncode} before "
+                               f"printing `{text}` (see {path})")
+        time.sleep(0.1)
+    raise RuntimeError(f"no `{text}` in {path} after {timeout:.0f} s")
+
+
+def plan(out: pathlib.Path) -> list[Job]:
+    """The experiments as jobs; out/experiments has the layout scripts/report.py reads."""
+    data, policies, exp = out / "data", out / "policies", out / "experiments"
+    for d in (data, policies, exp / "limit_cycle" / "nll", exp / "pouring" / "nll",
+              exp / "stability", out / "figures"):
+        d.mkdir(parents=True, exist_ok=True)
+
+    def record(name, task, episodes, seed, dataset, *extra):
+        return Job(name, [[PYTHON, "-m", "ciflow.record", "--task", task, "--episodes",
+                           episodes, "--seed", seed, "--out", dataset, "--no-publish",
+                           "--overwrite", "--quiet", *extra]])
+
+    def evaluate(checkpoint, *extra):
+        return [CIFLOW, "evaluate", "--checkpoint", checkpoint, *extra]
+
+    def stability(name, checkpoint, after, *extra):
+        return Job(f"stability-{name}",
+                   [[CIFLOW, "stability", "--checkpoint", checkpoint, "--json", *extra]],
+                   after=[after], stdout=exp / "stability" / f"{name}.json")
+
+    # Longest chain first: the scheduler starts ready jobs in this order.
+    jobs = []
+    # Pouring: the trainer takes the recorder's episodes from Zenoh and publishes to the
+    # engine, which runs the policy while the perturbation script pushes it.
+    pouring_data, pouring_test = data / "pouring", data / "pouring-test"
+    pouring = policies / "pouring"
+
+    def record_and_train(runner: Runner, log):
+        trainer_log = runner.logs / "pouring-trainer.log"
+        shutil.rmtree(pouring_data, ignore_errors=True)  # the trainer writes a new dataset
+        with open(trainer_log, "w") as tlog:
+            trainer_command = [
+                CIFLOW, "train", "--task", "pouring", "--from-zenoh", POURING_DEMOS, "--demos",
+                pouring_data, "--out", pouring, "--publish", "pouring", *POURING_MODEL]
+            trainer = runner.spawn(trainer_command, tlog)
+            wait_for_line(trainer_log, "waiting for", trainer, timeout=60)
+            recorder = [PYTHON, "-m", "ciflow.record", "--task", "pouring", "--episodes",
+                        POURING_DEMOS, "--seed", 0, "--recorder", "demo", "--quiet"]
+            log.write(f"$ {' '.join(map(str, recorder))}\n")
+            log.flush()
+            runner.finish(runner.spawn(recorder, log), recorder)
+            runner.finish(trainer, trainer_command)
+
+    jobs.append(Job("pouring-record-train", [], action=record_and_train))
+    jobs.append(record("record-pouring-test", "pouring", POURING_TEST_DEMOS, TEST_SEED,
+                       pouring_test))
+    jobs.append(Job("pouring-perturb", [[
+        PYTHON, "-m", "ciflow.perturb", "--task", "pouring", "--policy", "pouring", "--seed",
+        TEST_SEED, "--push", PERTURB_PUSH, "--context-step", PERTURB_CONTEXT, "--quiet",
+        "--record", exp / "pouring" / "perturb.json", "--plot",
+        out / "figures" / "pouring_perturb_script.png"]], after=["pouring-record-train"]))
+    for mode, extra in (("eval", []), ("push", ["--perturb", "push"]),
+                        ("context", ["--perturb", "context"])):
+        jobs.append(Job(f"pouring-{mode}", [evaluate(
+            pouring, "--episodes", EVALUATION_EPISODES, "--seed", TEST_SEED, "--trajectories",
+            4, "--out", exp / "pouring" / f"{mode}.json", *extra)],
+            after=["pouring-record-train"]))
+    jobs.append(stability("pouring-flow", pouring, "pouring-record-train", "--robot-loop"))
+    for fraction in POURING_FRACTIONS:
+        count = round(fraction * POURING_DEMOS)
+        for seed in SEEDS:
+            policy = policies / "pouring-curve" / f"{fraction}_seed{seed}"
+            nll = exp / "pouring" / "nll"
+            jobs.append(Job(f"pouring-{fraction}-seed{seed}", [
+                [CIFLOW, "train", "--task", "pouring", "--demos", pouring_data, "--subset",
+                 count, "--seed", seed, "--out", policy, *POURING_MODEL],
+                evaluate(policy, "--nll", pouring_data, "--nll-subset", count, "--seed", seed,
+                         "--out", nll / f"{fraction}_seed{seed}_train.json"),
+                evaluate(policy, "--nll", pouring_test,
+                         "--out", nll / f"{fraction}_seed{seed}_test.json"),
+            ], after=["pouring-record-train", "record-pouring-test"]))
+    # Obstacle avoidance with 1, 2 and 3 obstacles (+ the unconstrained baseline for 3).
+    for k in OBSTACLE_COUNTS:
+        dataset, policy = data / f"obstacles-{k}", policies / f"obstacles-{k}"
+        results = exp / "obstacles" / str(k)
+        results.mkdir(parents=True, exist_ok=True)
+        jobs.append(record(f"record-obstacles-{k}", "obstacle-avoidance", OBSTACLE_DEMOS, 0,
+                           dataset, "--kwarg", f"obstacles={k}"))
+        baseline = ["--baseline"] if k == max(OBSTACLE_COUNTS) else []
+        jobs.append(Job(f"obstacles-{k}", [
+            [CIFLOW, "train", "--task", "obstacle-avoidance", "--demos", dataset, "--out",
+             policy, *OBSTACLE_MODEL, *baseline],
+            evaluate(policy, "--kwarg", f"obstacles={k}", "--episodes", EVALUATION_EPISODES,
+                     "--seed", TEST_SEED, "--trajectories", 8, "--out", results / "eval.json"),
+            evaluate(policy, "--kwarg", f"obstacles={k}", "--seed", TEST_SEED, "--field",
+                     results / "field.json", "--field-contexts", "0;1;2"),
+        ], after=[f"record-obstacles-{k}"]))
+        jobs.append(stability(f"obstacles-{k}-flow", policy, f"obstacles-{k}"))
+    k = max(OBSTACLE_COUNTS)
+    jobs.append(stability(f"obstacles-{k}-baseline", policies / f"obstacles-{k}" / "baseline",
+                          f"obstacles-{k}"))
+
+    # Limit cycle: learning curve over the number of trajectories, held-out phases.
+    lc_train, lc_test = data / "limit-cycle", data / "limit-cycle-heldout"
+    jobs += [record("record-limit-cycle", "limit-cycle", 10, 0, lc_train),
+             record("record-limit-cycle-heldout", "limit-cycle", 10, TEST_SEED, lc_test,
+                    "--option", "context_set=1")]
+    for n in LIMIT_CYCLE_TRAJECTORIES:
+        for seed in SEEDS:
+            policy, nll = policies / "limit-cycle" / f"{n}_seed{seed}", exp / "limit_cycle" / "nll"
+            jobs.append(Job(f"limit-cycle-{n}-seed{seed}", [
+                [CIFLOW, "train", "--task", "limit-cycle", "--demos", lc_train, "--subset", n,
+                 "--seed", seed, "--out", policy, *LIMIT_CYCLE_MODEL],
+                evaluate(policy, "--nll", lc_train, "--nll-subset", n, "--seed", seed,
+                         "--out", nll / f"{n}_seed{seed}_train.json"),
+                evaluate(policy, "--nll", lc_test, "--out", nll / f"{n}_seed{seed}_test.json"),
+            ], after=["record-limit-cycle", "record-limit-cycle-heldout"]))
+    best_lc = policies / "limit-cycle" / f"{max(LIMIT_CYCLE_TRAJECTORIES)}_seed0"
+    best_lc_job = f"limit-cycle-{max(LIMIT_CYCLE_TRAJECTORIES)}-seed0"
+    jobs.append(Job("limit-cycle-field", [evaluate(
+        best_lc, "--field", exp / "limit_cycle" / "field.json", "--field-contexts", "0;0.5;1",
+        "--field-demos", lc_train)], after=[best_lc_job]))
+    jobs.append(stability("limit-cycle-flow", best_lc, best_lc_job))
+
+    return jobs
+
+
+def needed(jobs: list[Job], prefixes: list[str]) -> list[Job]:
+    """The jobs named with one of `prefixes`, and those they wait for, in plan order."""
+    by_name = {job.name: job for job in jobs}
+    keep = set()
+    stack = [job.name for job in jobs if job.name.startswith(tuple(prefixes))]
+    if not stack:
+        raise SystemExit(f"demo: no job starts with {prefixes}; jobs: {sorted(by_name)}")
+    while stack:
+        name = stack.pop()
+        if name not in keep:
+            keep.add(name)
+            stack.extend(by_name[name].after)
+    return [job for job in jobs if job.name in keep]
+
+
+def start_engine(out: pathlib.Path) -> subprocess.Popen:
+    """`ciflow serve` on the zero-configuration endpoint; returns once it is ready."""
+    log = out / "logs" / "engine.log"
+    engine = subprocess.Popen([CIFLOW, "serve", "--name", "demo"], cwd=ROOT,
+                              stdout=open(log, "w"), stderr=subprocess.STDOUT,
+                              start_new_session=True)
+    try:
+        wait_for_line(log, "ready", engine, timeout=30)
+    except RuntimeError as error:
+        engine.terminate()
+        raise SystemExit(f"demo: the engine did not start: {error}\n{log.read_text()[-2000:]}"
+                         "\n(is another `ciflow serve` already on tcp/127.0.0.1:7447?)")
+    return engine
+
+
+def interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", default="out", help="output folder (default: out)")
+    parser.add_argument("--only", nargs="+", metavar="PREFIX",
+                        help="run only the jobs whose names start with PREFIX (and the jobs "
+                        "they need), keeping the other results")
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 2,
+                        help="jobs run at once (default: one per core)")
+    args = parser.parse_args(argv)
+    out = (ROOT / args.out).resolve()
+    if not args.only:
+        for stale in ("data", "policies", "experiments", "logs"):
+            shutil.rmtree(out / stale, ignore_errors=True)
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    jobs = plan(out)
+    if args.only:
+        jobs = needed(jobs, args.only)
+    signal.signal(signal.SIGTERM, interrupt)
+    start = time.monotonic()
+    engine = start_engine(out)
+    runner = Runner(out / "logs", max(args.jobs, 1))
+    try:
+        times = runner.run(jobs)
+    except JobFailed as failure:
+        tail = failure.log.read_text()[-3000:] if failure.log.exists() else ""
+        print(f"\ndemo: {failure}\n--- last lines of {failure.log} ---\n{tail}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("\ndemo: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        os.killpg(engine.pid, signal.SIGTERM)
+        engine.wait()
+    report = out / "report.md"
+    subprocess.run([PYTHON, ROOT / "scripts" / "report.py", out / "experiments", report],
+                   check=True)
+    minutes = (time.monotonic() - start) / 60
+    busiest = sorted(times.items(), key=lambda item: -item[1])[:5]
+    print(f"\ndemo: done in {minutes:.1f} min (longest jobs: "
+          + ", ".join(f"{name} {seconds:.0f} s" for name, seconds in busiest) + ")")
+    print(f"demo: report {report}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
