@@ -2,39 +2,17 @@
 //! acceleration for `[q, q̇, c]` clipped to the action space, shapes are checked, and the
 //! saturated closed loop reaches the attractor, the target in the context.
 
-use ciflow_engine::flow::{CouplingKind, FlowConfig, LatentKind, Policy, Weights};
+mod common;
+
+use ciflow_engine::flow::Policy;
 use ciflow_envs::actor::{Actor, ActorError, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::tasks::{limit_cycle, obstacle_avoidance};
 use ciflow_envs::{Env, ResetOptions};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-
-/// A random go-to flow for Obstacle-v0 with one obstacle: state 2-D, context
-/// `[o_x, o_y, g_x, g_y]`, attractor on the target; small weights keep `f` near the
-/// identity, so its paths run nearly straight to the target.
-fn random_obstacle_flow(seed: u64) -> Model {
-    let mut config = FlowConfig::new(
-        "obstacle-avoidance",
-        2,
-        4,
-        LatentKind::GoTo,
-        CouplingKind::Affine { scale_bound: 2.0 },
-        4,
-        vec![16, 16],
-    );
-    config.min_rate = 2.0;
-    config.goal_context_indices = Some(vec![2, 3]);
-    let weights = Weights::random(
-        &config.parameter_shapes(),
-        0.1,
-        &mut ChaCha8Rng::seed_from_u64(seed),
-    );
-    Model::Flow(Policy::new(&config, weights).expect("valid random flow"))
-}
+use common::{obstacle_flow, obstacle_flow_checkpoint};
 
 #[test]
 fn action_is_the_clipped_flow_acceleration() {
-    let model = random_obstacle_flow(1);
+    let model = Model::Flow(obstacle_flow(1));
     let env = obstacle_avoidance::make(1).unwrap();
     let mut actor = Actor::new(&model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
     let observation = [-0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2];
@@ -69,7 +47,7 @@ fn action_is_the_clipped_flow_acceleration() {
 
 #[test]
 fn shapes_and_gain_are_checked() {
-    let model = random_obstacle_flow(2);
+    let model = Model::Flow(obstacle_flow(2));
     let two_obstacles = obstacle_avoidance::make(2).unwrap();
     assert!(matches!(
         Actor::new(&model, two_obstacles.spec(), DEFAULT_VELOCITY_GAIN),
@@ -100,7 +78,7 @@ fn shapes_and_gain_are_checked() {
 
 #[test]
 fn closed_loop_reaches_the_target_in_the_context() {
-    let model = random_obstacle_flow(3);
+    let model = Model::Flow(obstacle_flow(3));
     let mut env = obstacle_avoidance::make(1).unwrap();
     // The obstacle sits far below the straight path from the start to the target.
     let target = [0.8, 0.1];
@@ -134,27 +112,15 @@ fn a_checkpoint_in_memory_loads_like_its_directory() {
     use ciflow_engine::flow::checkpoint::{self, CONFIG_FILE, WEIGHTS_FILE};
     use ciflow_engine::flow::{CheckpointConfig, FlowError};
 
-    let Model::Flow(policy) = random_obstacle_flow(4) else {
-        unreachable!()
-    };
+    let (config, weights) = obstacle_flow_checkpoint(4);
     let dir = std::env::temp_dir().join(format!("ciflow-actor-bytes-{}", std::process::id()));
-    let weights = Weights::random(
-        &policy.config().parameter_shapes(),
-        0.1,
-        &mut ChaCha8Rng::seed_from_u64(4),
-    );
-    checkpoint::write(
-        &dir,
-        &CheckpointConfig::Flow(policy.config().clone()),
-        &weights,
-    )
-    .unwrap();
-    let config = std::fs::read_to_string(dir.join(CONFIG_FILE)).unwrap();
+    checkpoint::write(&dir, &CheckpointConfig::Flow(config.clone()), &weights).unwrap();
+    let config_json = std::fs::read_to_string(dir.join(CONFIG_FILE)).unwrap();
     let bytes = std::fs::read(dir.join(WEIGHTS_FILE)).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
 
-    let from_bytes = Model::from_bytes(&config, &bytes, Some("obstacle-avoidance")).unwrap();
-    let direct = Model::Flow(Policy::new(policy.config(), weights).unwrap());
+    let from_bytes = Model::from_bytes(&config_json, &bytes, Some("obstacle-avoidance")).unwrap();
+    let direct = Model::Flow(Policy::new(&config, weights).unwrap());
     let env = obstacle_avoidance::make(1).unwrap();
     let observation = [-0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2];
     let (mut a, mut b) = ([0.0; 2], [0.0; 2]);
@@ -174,7 +140,7 @@ fn a_checkpoint_in_memory_loads_like_its_directory() {
     assert_eq!(a, b);
 
     assert!(matches!(
-        Model::from_bytes(&config, &bytes, Some("pouring")),
+        Model::from_bytes(&config_json, &bytes, Some("pouring")),
         Err(FlowError::TaskMismatch { .. })
     ));
     assert!(matches!(
@@ -182,7 +148,7 @@ fn a_checkpoint_in_memory_loads_like_its_directory() {
         Err(FlowError::ConfigText(_))
     ));
     assert!(matches!(
-        Model::from_bytes(&config, &bytes[..bytes.len() / 2], None),
+        Model::from_bytes(&config_json, &bytes[..bytes.len() / 2], None),
         Err(FlowError::SafeTensors(_))
     ));
 }

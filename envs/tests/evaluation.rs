@@ -4,7 +4,8 @@
 //! mean of `Policy::log_transition` with the earlier step's context, and the field data
 //! are the policy's velocity, rollouts and latent grid.
 
-use ciflow_engine::flow::{CouplingKind, FlowConfig, LatentKind, Policy, Weights};
+mod common;
+
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::dataset::Episode;
@@ -15,31 +16,7 @@ use ciflow_envs::evaluation::{
 };
 use ciflow_envs::tasks::obstacle_avoidance::{self, SUCCESS_DISTANCE};
 use ciflow_envs::{Env, ResetOptions};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-
-/// A random go-to flow for Obstacle-v0 with one obstacle (context `[o_x, o_y, g_x, g_y]`,
-/// attractor on the target) contracting at 2 /s at least, so it arrives within the
-/// episode; small weights keep `f` near the identity.
-fn obstacle_flow(seed: u64) -> Policy {
-    let mut config = FlowConfig::new(
-        "obstacle-avoidance",
-        2,
-        4,
-        LatentKind::GoTo,
-        CouplingKind::Affine { scale_bound: 2.0 },
-        4,
-        vec![16, 16],
-    );
-    config.min_rate = 2.0;
-    config.goal_context_indices = Some(vec![2, 3]);
-    let weights = Weights::random(
-        &config.parameter_shapes(),
-        0.1,
-        &mut ChaCha8Rng::seed_from_u64(seed),
-    );
-    Policy::new(&config, weights).expect("valid random flow")
-}
+use common::obstacle_flow;
 
 fn config(episodes: usize, disturbance: Disturbance) -> EvaluationConfig {
     EvaluationConfig {
