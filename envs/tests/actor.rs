@@ -1,18 +1,21 @@
 //! A checkpoint acting in an environment: the actor's action is the flow's desired
-//! acceleration for `[q, q̇, c]` clipped to the action space, shapes are checked, and the
-//! saturated closed loop reaches the attractor, the target in the context.
+//! acceleration for `[q, q̇, c]` (the baseline's finite-difference tracking) clipped to
+//! the action space, shapes are checked, and the saturated closed loop reaches the
+//! attractor, the target in the context.
 
 mod common;
 
-use ciflow_engine::flow::Policy;
+use ciflow_engine::flow::{BaselineConfig, BehaviourCloning, Goal, Policy, Weights};
 use ciflow_envs::actor::{Actor, ActorError, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::tasks::{limit_cycle, obstacle_avoidance};
 use ciflow_envs::{Env, ResetOptions};
 use common::{obstacle_flow, obstacle_flow_checkpoint};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 
 #[test]
 fn action_is_the_clipped_flow_acceleration() {
-    let model = Model::Flow(obstacle_flow(1));
+    let model = Model::from(obstacle_flow(1));
     let env = obstacle_avoidance::make(1).unwrap();
     let mut actor = Actor::new(&model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
     let observation = [-0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2];
@@ -45,9 +48,54 @@ fn action_is_the_clipped_flow_acceleration() {
     assert_eq!(actor.desired_velocity(), &velocity);
 }
 
+/// The baseline has no Jacobian: its action tracks the finite-difference velocity
+/// `(ŷ_{k+1} − q) / dt` of its own prediction with the gain `K_v`.
+#[test]
+fn baseline_action_tracks_its_finite_difference_velocity() {
+    let (flow, _) = obstacle_flow_checkpoint(5);
+    let config = BaselineConfig {
+        task: flow.task,
+        state_dim: 2,
+        context_dim: 4,
+        dt: flow.dt,
+        hidden: vec![8],
+        goal: Goal::ContextIndices {
+            indices: vec![2, 3],
+        },
+        normalisation: flow.normalisation,
+        bounds: flow.bounds,
+    };
+    let weights = Weights::random(
+        &config.parameter_shapes(),
+        0.1,
+        &mut ChaCha8Rng::seed_from_u64(5),
+    );
+    let baseline = BehaviourCloning::new(&config, weights).unwrap();
+    let model = Model::from(baseline.clone());
+    let env = obstacle_avoidance::make(1).unwrap();
+    let mut actor = Actor::new(&model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
+    let observation = [-0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2];
+    let mut action = [0.0; 2];
+    actor.act(&observation, &mut action).unwrap();
+
+    let (q, qd, context) = (&observation[..2], &observation[2..4], &observation[4..]);
+    let mut next = [0.0; 2];
+    baseline
+        .mean_next(q, context, &mut baseline.workspace(), &mut next)
+        .unwrap();
+    let bound = &env.spec().action_space;
+    for i in 0..2 {
+        let velocity = (next[i] - q[i]) / config.dt;
+        assert_eq!(actor.desired_velocity()[i], velocity);
+        let expected = DEFAULT_VELOCITY_GAIN * (velocity - qd[i]);
+        assert_eq!(action[i], expected.clamp(bound.low[i], bound.high[i]));
+    }
+    assert!(action.iter().any(|a| a.abs() > 1e-6), "{action:?}");
+}
+
 #[test]
 fn shapes_and_gain_are_checked() {
-    let model = Model::Flow(obstacle_flow(2));
+    let model = Model::from(obstacle_flow(2));
     let two_obstacles = obstacle_avoidance::make(2).unwrap();
     assert!(matches!(
         Actor::new(&model, two_obstacles.spec(), DEFAULT_VELOCITY_GAIN),
@@ -78,7 +126,7 @@ fn shapes_and_gain_are_checked() {
 
 #[test]
 fn closed_loop_reaches_the_target_in_the_context() {
-    let model = Model::Flow(obstacle_flow(3));
+    let model = Model::from(obstacle_flow(3));
     let mut env = obstacle_avoidance::make(1).unwrap();
     // The obstacle sits far below the straight path from the start to the target.
     let target = [0.8, 0.1];
@@ -120,19 +168,14 @@ fn a_checkpoint_in_memory_loads_like_its_directory() {
     std::fs::remove_dir_all(&dir).unwrap();
 
     let from_bytes = Model::from_bytes(&config_json, &bytes, Some("obstacle-avoidance")).unwrap();
-    let direct = Model::Flow(Policy::new(&config, weights).unwrap());
+    let direct = Model::from(Policy::new(&config, weights).unwrap());
     let env = obstacle_avoidance::make(1).unwrap();
     let observation = [-0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2];
     let (mut a, mut b) = ([0.0; 2], [0.0; 2]);
-    // An actor may own its model (`Arc`) or borrow it.
-    Actor::new(
-        std::sync::Arc::new(from_bytes),
-        env.spec(),
-        DEFAULT_VELOCITY_GAIN,
-    )
-    .unwrap()
-    .act(&observation, &mut a)
-    .unwrap();
+    // An actor shares its model's weights and outlives the model it was built from.
+    let mut actor = Actor::new(&from_bytes, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
+    drop(from_bytes);
+    actor.act(&observation, &mut a).unwrap();
     Actor::new(&direct, env.spec(), DEFAULT_VELOCITY_GAIN)
         .unwrap()
         .act(&observation, &mut b)

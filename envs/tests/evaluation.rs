@@ -57,7 +57,7 @@ fn replay(
 
 #[test]
 fn episodes_and_rates_are_those_of_the_closed_loop() {
-    let model = Model::Flow(obstacle_flow(1));
+    let model = Model::from(obstacle_flow(1));
     let mut env = obstacle_avoidance::make(1).unwrap();
     let report = evaluate(&mut env, &model, &config(8, Disturbance::None), |_| {}).unwrap();
     assert_eq!(report.episodes, 8);
@@ -97,7 +97,7 @@ fn episodes_and_rates_are_those_of_the_closed_loop() {
 
 #[test]
 fn a_push_displaces_the_state_by_the_requested_distance() {
-    let model = Model::Flow(obstacle_flow(2));
+    let model = Model::from(obstacle_flow(2));
     let mut env = obstacle_avoidance::make(1).unwrap();
     let push = PushConfig {
         start: 0.5,
@@ -153,7 +153,7 @@ fn a_push_displaces_the_state_by_the_requested_distance() {
 
 #[test]
 fn a_context_switch_moves_only_the_target_and_holds() {
-    let model = Model::Flow(obstacle_flow(3));
+    let model = Model::from(obstacle_flow(3));
     let mut env = obstacle_avoidance::make(1).unwrap();
     let switch = ContextSwitch {
         time: 0.5,
@@ -191,7 +191,7 @@ fn a_context_switch_moves_only_the_target_and_holds() {
 
 #[test]
 fn bad_settings_are_typed_errors() {
-    let model = Model::Flow(obstacle_flow(4));
+    let model = Model::from(obstacle_flow(4));
     let mut env = obstacle_avoidance::make(1).unwrap();
     let none = evaluate(&mut env, &model, &config(0, Disturbance::None), |_| {});
     assert!(matches!(none, Err(EvaluationError::InvalidConfig(_))));

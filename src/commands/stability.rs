@@ -119,8 +119,8 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
     let bar = rollout_bar(args.starts, "rollouts");
     let tick = |done: usize| bar.set_position(done as u64);
     let observation_space = match &model {
-        Model::Flow(policy) => measure(policy, &config, tick)?,
-        Model::Baseline(baseline) => measure(baseline, &config, tick)?,
+        Model::Flow(policy) => measure(policy.as_ref(), &config, tick)?,
+        Model::Baseline(baseline) => measure(baseline.as_ref(), &config, tick)?,
     };
     bar.finish_and_clear();
     let robot_loop = match (args.robot_loop, &model) {
