@@ -2,60 +2,25 @@
 //! every registered task, a client killed mid-episode, and hostile payloads next to a
 //! session that keeps stepping.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use ciflow_bridge::protocol::{self, ByteBuf, ErrorCode, F64s, StepRequest, keys};
-use ciflow_bridge::{BridgeError, Client, NetworkOptions, Role, query_all};
+use ciflow_bridge::query_all;
+use common::{Process, code, connect, serve};
 
 /// The 2-D task used where any task will do.
 const LIMIT_CYCLE: &str = "ciflow/LimitCycle-v0";
 
-/// A child process killed when dropped.
-struct Process(Child);
-
-impl Drop for Process {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-/// Starts `ciflow serve` on a private port and waits for its ready line.
-fn serve(port: u16, name: &str) -> Process {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_ciflow"))
-        .args(["serve", "--listen", &endpoint(port), "--name", name])
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("spawn ciflow serve");
-    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
-    let ready = lines.next().expect("serve printed a line").expect("utf-8");
-    assert!(ready.contains("ready"), "unexpected first line: {ready}");
-    Process(child)
-}
-
-fn endpoint(port: u16) -> String {
-    format!("tcp/127.0.0.1:{port}")
-}
-
-fn connect(port: u16) -> Client {
-    Client::open(&NetworkOptions::endpoint(Role::Client, &endpoint(port))).expect("connect")
-}
-
-fn code(error: BridgeError) -> ErrorCode {
-    match error {
-        BridgeError::Remote(reply) => reply.code,
-        other => panic!("expected a typed engine error, got {other}"),
-    }
-}
-
 #[test]
 fn serve_hosts_every_task_for_clients_in_other_processes() {
-    let _server = serve(27431, "every-task");
+    let _server = serve(27431, "every-task", &[]);
     let client = connect(27431);
     let engines = client.discover().unwrap();
     let engine = engines
@@ -134,7 +99,7 @@ fn child_client_process() {
 
 #[test]
 fn killed_client_sessions_are_reclaimed() {
-    let _server = serve(27432, "reclaim");
+    let _server = serve(27432, "reclaim", &[]);
     let mut child = Command::new(std::env::current_exe().unwrap())
         .args([
             "--ignored",
@@ -210,7 +175,7 @@ fn killed_client_sessions_are_reclaimed() {
 
 #[test]
 fn hostile_payloads_get_errors_while_a_parallel_session_keeps_stepping() {
-    let _server = serve(27433, "hostile");
+    let _server = serve(27433, "hostile", &[]);
     let client = Arc::new(connect(27433));
     let steady = client
         .make("hostile", LIMIT_CYCLE, 1, &BTreeMap::new())

@@ -1,25 +1,15 @@
 //! `ciflow robot`: the binary prints the library's values as JSON and rejects bad input.
 
-use std::process::{Command, Output};
+mod common;
 
 use ciflow_engine::math::DVector;
 use ciflow_engine::robot::{PANDA_HOME, Robot, panda};
+use common::{ciflow, succeed};
 use serde_json::Value;
 
-fn ciflow(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_ciflow"))
-        .args(args)
-        .output()
-        .expect("run ciflow")
-}
-
-fn json(output: &Output) -> Value {
-    assert!(
-        output.status.success(),
-        "ciflow failed: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    serde_json::from_slice(&output.stdout).expect("JSON on stdout")
+/// The JSON that a successful `ciflow <args>` printed.
+fn json(args: &[&str]) -> Value {
+    serde_json::from_slice(&succeed(args).stdout).expect("JSON on stdout")
 }
 
 fn numbers(value: &Value) -> Vec<f64> {
@@ -48,7 +38,7 @@ fn home() -> String {
 
 #[test]
 fn gravity_matches_the_library() {
-    let output = json(&ciflow(&["robot", "panda", "gravity", "--q", &home()]));
+    let output = json(&["robot", "panda", "gravity", "--q", &home()]);
     let mut expected = DVector::zeros(7);
     panda().gravity(&PANDA_HOME, &mut expected).unwrap();
     assert_close(&numbers(&output["gravity"]), expected.as_slice());
@@ -57,7 +47,7 @@ fn gravity_matches_the_library() {
 #[test]
 fn inverse_dynamics_and_mass_matrix_match_the_library() {
     let qdd = "1,-1,0.5,0,2,0,-3";
-    let output = json(&ciflow(&[
+    let output = json(&[
         "robot",
         "panda",
         "inverse-dynamics",
@@ -67,7 +57,7 @@ fn inverse_dynamics_and_mass_matrix_match_the_library() {
         "0.1,0,0,-0.2,0,0.3,0",
         "--qdd",
         qdd,
-    ]));
+    ]);
     let mut robot = panda();
     let mut tau = DVector::zeros(7);
     robot
@@ -79,7 +69,7 @@ fn inverse_dynamics_and_mass_matrix_match_the_library() {
         )
         .unwrap();
     assert_close(&numbers(&output["tau"]), tau.as_slice());
-    let output = json(&ciflow(&["robot", "panda", "mass-matrix", "--q", &home()]));
+    let output = json(&["robot", "panda", "mass-matrix", "--q", &home()]);
     let rows = output["mass_matrix"].as_array().unwrap();
     assert_eq!(rows.len(), 7);
     let mut m = nalgebra::DMatrix::zeros(7, 7);
@@ -92,7 +82,7 @@ fn inverse_dynamics_and_mass_matrix_match_the_library() {
 
 #[test]
 fn forward_kinematics_of_one_frame_and_of_the_point_mass() {
-    let output = json(&ciflow(&[
+    let output = json(&[
         "robot",
         "panda",
         "forward-kinematics",
@@ -100,7 +90,7 @@ fn forward_kinematics_of_one_frame_and_of_the_point_mass() {
         "0,0,0,-0.0698,0,0,0",
         "--link",
         "panda_link8",
-    ]));
+    ]);
     let frame = &output["frames"][0];
     assert_eq!(frame["name"], "panda_link8");
     let expected = panda()
@@ -110,7 +100,7 @@ fn forward_kinematics_of_one_frame_and_of_the_point_mass() {
         &numbers(&frame["translation"]),
         expected.translation.vector.as_slice(),
     );
-    let output = json(&ciflow(&[
+    let output = json(&[
         "robot",
         "point-mass",
         "--mass",
@@ -118,11 +108,11 @@ fn forward_kinematics_of_one_frame_and_of_the_point_mass() {
         "forward-kinematics",
         "--q",
         "0.5,-0.25",
-    ]));
+    ]);
     let frames = output["frames"].as_array().unwrap();
     assert_eq!(frames.len(), 2);
     assert_eq!(numbers(&frames[1]["translation"]), [0.5, -0.25, 0.0]);
-    let output = json(&ciflow(&[
+    let output = json(&[
         "robot",
         "point-mass",
         "--mass",
@@ -132,7 +122,7 @@ fn forward_kinematics_of_one_frame_and_of_the_point_mass() {
         "0,0",
         "--tau",
         "4,-1",
-    ]));
+    ]);
     assert_eq!(numbers(&output["qdd"]), [2.0, -0.5]);
 }
 

@@ -2,42 +2,10 @@
 //! `evaluate` (episodes, pushes, context changes, log-likelihood, field data) writes JSON
 //! that agrees with itself and with the dataset, and bad input fails with a message.
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
+mod common;
 
+use common::{Scratch, ciflow, succeed};
 use serde_json::Value;
-
-fn ciflow(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_ciflow"))
-        .args(args)
-        .output()
-        .expect("run ciflow")
-}
-
-fn succeed(args: &[&str]) -> Output {
-    let output = ciflow(args);
-    assert!(
-        output.status.success(),
-        "ciflow {args:?} failed: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    output
-}
-
-/// A fresh directory under the system's temporary directory, removed on drop.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn path(&self, name: &str) -> String {
-        self.0.join(name).to_string_lossy().into_owned()
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn json(path: &str) -> Value {
     serde_json::from_slice(&std::fs::read(path).expect("JSON written")).expect("valid JSON")
@@ -51,10 +19,8 @@ fn rate(v: &Value) -> f64 {
 
 #[test]
 fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
-    let dir = std::env::temp_dir().join(format!("ciflow-evaluate-cli-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let scratch = Scratch(dir);
-    let (demos, policy) = (scratch.path("demos"), scratch.path("policy"));
+    let scratch = Scratch::new("evaluate-cli");
+    let (demos, policy) = (scratch.arg("demos"), scratch.arg("policy"));
     let kwargs = ["--kwarg", "obstacles=1"];
     succeed(
         &[
@@ -80,7 +46,7 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
         "16,16",
     ]);
 
-    let episodes = scratch.path("experiments/obstacles/1/eval.json");
+    let episodes = scratch.arg("experiments/obstacles/1/eval.json");
     succeed(
         &[
             &[
@@ -113,7 +79,7 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
     rate(&report["collision_rate"]);
     assert_eq!(report["disturbance"]["mode"], "none");
 
-    let pushes = scratch.path("push.json");
+    let pushes = scratch.arg("push.json");
     succeed(
         &[
             &[
@@ -143,7 +109,7 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
     rate(&push["recovered_within_deadline_fraction"]);
     assert!(report["example"]["reference"].is_object());
 
-    let switches = scratch.path("context.json");
+    let switches = scratch.arg("context.json");
     succeed(
         &[
             &[
@@ -170,7 +136,7 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
         assert_eq!(result["switched_context"][0], result["context"][0]);
     }
 
-    let nll = scratch.path("nll.json");
+    let nll = scratch.arg("nll.json");
     succeed(&[
         "evaluate",
         "--checkpoint",
@@ -186,7 +152,7 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
     assert_eq!(report["transitions"], transitions);
     assert!(report["per_transition"].as_f64().unwrap().is_finite());
 
-    let field = scratch.path("field.json");
+    let field = scratch.arg("field.json");
     succeed(&[
         "evaluate",
         "--checkpoint",

@@ -1,8 +1,9 @@
 //! `ciflow lasa` on two shapes with a tiny budget: the table, CSV and plots are written,
 //! every flow score is finite, and the stable flow's reproductions end near the goal.
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
+mod common;
+
+use common::{Scratch, ciflow, succeed};
 
 const SHAPES: [&str; 2] = ["Angle", "Line"];
 /// Bound on the flow's mean final-point error after the tiny budget, mm: under a fifth of
@@ -10,27 +11,11 @@ const SHAPES: [&str; 2] = ["Angle", "Line"];
 /// measured 4.0 mm on Angle, 2.0 mm on Line, where the baseline ends 25 and 7 mm off).
 const FINAL_ERROR_BOUND_MM: f64 = 8.0;
 
-fn ciflow(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_ciflow"))
-        .args(args)
-        .output()
-        .expect("run ciflow")
-}
-
-struct Scratch(PathBuf);
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 #[test]
 fn lasa_writes_finite_scores_and_plots_and_the_flow_ends_near_the_goal() {
-    let out = Scratch(std::env::temp_dir().join(format!("ciflow-lasa-{}", std::process::id())));
-    let _ = std::fs::remove_dir_all(&out.0);
-    let dir = out.0.to_string_lossy().into_owned();
-    let output = ciflow(&[
+    let out = Scratch::new("lasa");
+    let dir = out.dir().to_string_lossy().into_owned();
+    succeed(&[
         "lasa",
         "--shapes",
         &SHAPES.join(","),
@@ -43,13 +28,8 @@ fn lasa_writes_finite_scores_and_plots_and_the_flow_ends_near_the_goal() {
         "--out",
         &dir,
     ]);
-    assert!(
-        output.status.success(),
-        "ciflow lasa failed: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
 
-    let csv = std::fs::read_to_string(out.0.join("lasa.csv")).unwrap();
+    let csv = std::fs::read_to_string(out.join("lasa.csv")).unwrap();
     let mut lines = csv.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
     assert_eq!(
@@ -87,21 +67,21 @@ fn lasa_writes_finite_scores_and_plots_and_the_flow_ends_near_the_goal() {
         }
     }
 
-    let table = std::fs::read_to_string(out.0.join("lasa.md")).unwrap();
+    let table = std::fs::read_to_string(out.join("lasa.md")).unwrap();
     for shape in SHAPES {
         assert!(table.contains(&format!("| {shape} |")), "{table}");
     }
     assert!(table.contains("| **mean** |"), "{table}");
 
     let png_signature = b"\x89PNG\r\n\x1a\n";
-    let mut pngs = vec![out.0.join("lasa.png")];
-    pngs.extend(SHAPES.map(|s| out.0.join("plots").join(format!("{s}.png"))));
+    let mut pngs = vec![out.join("lasa.png")];
+    pngs.extend(SHAPES.map(|s| out.join("plots").join(format!("{s}.png"))));
     for png in pngs {
         let bytes = std::fs::read(&png).unwrap_or_else(|e| panic!("{}: {e}", png.display()));
         assert!(bytes.starts_with(png_signature), "{}", png.display());
     }
     for shape in SHAPES {
-        let checkpoint = out.0.join("checkpoints").join(shape).join("flow");
+        let checkpoint = out.join("checkpoints").join(shape).join("flow");
         assert!(checkpoint.join("config.json").exists());
     }
 }

@@ -3,10 +3,10 @@
 //! a restart (bad publications are ignored), and a policy-driven session recovers from a
 //! push while client steps are refused as `busy`.
 
+mod common;
+
 use std::collections::BTreeMap;
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use ciflow_bridge::protocol::{
@@ -14,7 +14,7 @@ use ciflow_bridge::protocol::{
     Telemetry, encode, keys,
 };
 use ciflow_bridge::zenoh::Wait;
-use ciflow_bridge::{BridgeError, CheckpointPublisher, Client, NetworkOptions, RemoteEnv, Role};
+use ciflow_bridge::{CheckpointPublisher, Client, NetworkOptions, RemoteEnv, Role};
 use ciflow_engine::flow::checkpoint::{self, CONFIG_FILE, WEIGHTS_FILE};
 use ciflow_engine::flow::{
     CheckpointConfig, CouplingKind, FlowConfig, LatentKind, Tensor, Weights,
@@ -22,69 +22,9 @@ use ciflow_engine::flow::{
 use ciflow_envs::ResetOptions;
 use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::tasks::obstacle_avoidance;
+use common::{Scratch, ciflow, code, connect, endpoint, serve};
 
 const OBSTACLE: &str = "ciflow/Obstacle-v0";
-
-/// A child process killed when dropped.
-struct Process(Child);
-
-impl Drop for Process {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-/// A fresh directory under the system's temporary directory, removed on drop.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(name: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!("ciflow-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        Self(dir)
-    }
-
-    fn path(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-fn endpoint(port: u16) -> String {
-    format!("tcp/127.0.0.1:{port}")
-}
-
-fn connect(port: u16) -> Client {
-    Client::open(&NetworkOptions::endpoint(Role::Client, &endpoint(port))).expect("connect")
-}
-
-/// Starts `ciflow serve` with `extra` arguments on a private port; waits for its ready line.
-fn serve(port: u16, name: &str, extra: &[&str]) -> Process {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_ciflow"))
-        .args(["serve", "--listen", &endpoint(port), "--name", name])
-        .args(extra)
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("spawn ciflow serve");
-    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
-    let ready = lines.next().expect("serve printed a line").expect("utf-8");
-    assert!(ready.contains("ready"), "unexpected first line: {ready}");
-    Process(child)
-}
-
-fn code(error: BridgeError) -> ErrorCode {
-    match error {
-        BridgeError::Remote(reply) => reply.code,
-        other => panic!("expected a typed engine error, got {other}"),
-    }
-}
 
 /// A go-to flow for Obstacle-v0 with one obstacle (context `[o_x, o_y, g_x, g_y]`, the
 /// attractor on the target) with small deterministic pseudo-random weights: `f` stays
@@ -138,7 +78,7 @@ const OBSERVATIONS: [f64; 24] = [
 #[test]
 fn served_policy_acts_like_the_in_process_actor_and_bad_checkpoints_are_refused() {
     let scratch = Scratch::new("policy-act");
-    let dir = scratch.path("a");
+    let dir = scratch.join("a");
     write_flow(&dir, 1.0);
     let dir_arg = format!("avoid={}", dir.display());
     let _server = serve(
@@ -188,24 +128,13 @@ fn served_policy_acts_like_the_in_process_actor_and_bad_checkpoints_are_refused(
 
     // Start-up errors: a missing checkpoint, and one that does not fit the task's
     // default construction arguments (three obstacles).
-    for (args, expected) in [
-        (
-            vec![
-                "--policy".to_owned(),
-                scratch.path("missing").display().to_string(),
-            ],
-            CONFIG_FILE,
-        ),
-        (
-            vec!["--policy".to_owned(), dir.display().to_string()],
-            "cannot act",
-        ),
+    let endpoint = endpoint(27532);
+    for (checkpoint, expected) in [
+        (scratch.arg("missing"), CONFIG_FILE),
+        (dir.display().to_string(), "cannot act"),
     ] {
-        let output = Command::new(env!("CARGO_BIN_EXE_ciflow"))
-            .args(["serve", "--listen", &endpoint(27532)])
-            .args(&args)
-            .output()
-            .unwrap();
+        let args = ["serve", "--listen", &endpoint, "--policy", &checkpoint];
+        let output = ciflow(&args);
         let stderr = String::from_utf8_lossy(&output.stderr);
         assert!(!output.status.success(), "{args:?} must fail");
         assert!(stderr.contains(expected), "{args:?}: {stderr}");
@@ -235,7 +164,7 @@ fn wait_for_epoch(client: &Client, engine: &str, name: &str, epoch: u64) {
 #[test]
 fn published_checkpoints_replace_the_policy_without_restart_and_bad_ones_are_ignored() {
     let scratch = Scratch::new("policy-hot");
-    let (a, b) = (scratch.path("a"), scratch.path("b"));
+    let (a, b) = (scratch.join("a"), scratch.join("b"));
     write_flow(&a, 1.0);
     write_flow(&b, 2.0);
     let (actions_a, actions_b) = (
@@ -341,7 +270,7 @@ fn record_run(env: &RemoteEnv, telemetry: &ciflow_bridge::TelemetryStream) -> Ve
 #[test]
 fn policy_driven_session_recovers_from_a_push_and_refuses_client_steps() {
     let scratch = Scratch::new("policy-run");
-    let dir = scratch.path("a");
+    let dir = scratch.join("a");
     write_flow(&dir, 1.0);
     let dir_arg = format!("avoid={}", dir.display());
     let _server = serve(

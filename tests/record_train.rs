@@ -7,13 +7,14 @@
 //! `scripts/setup-python.sh` and `scripts/build-python.sh`); `$CIFLOW_PYTHON` overrides
 //! `<workspace>/.venv/bin/python`. Fails, never skips, when it is missing.
 
-use std::io::{BufRead, BufReader};
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
+use std::process::Command;
 use std::time::Duration;
 
 use ciflow_envs::dataset;
+use common::{Scratch, endpoint, line_with, serve, spawn_ciflow};
 
 const PORT: u16 = 27471;
 const TASK: &str = "obstacle-avoidance";
@@ -41,99 +42,12 @@ fn python() -> PathBuf {
     path
 }
 
-/// A child process killed when dropped.
-struct Process(Child);
-
-impl Drop for Process {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl Process {
-    /// Waits up to `limit` for the exit; `None` if it still runs.
-    fn wait_for(&mut self, limit: Duration) -> Option<std::process::ExitStatus> {
-        let deadline = std::time::Instant::now() + limit;
-        while std::time::Instant::now() < deadline {
-            if let Some(status) = self.0.try_wait().expect("try_wait") {
-                return Some(status);
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        None
-    }
-}
-
-/// Spawns `ciflow <args>` and returns it with its stdout lines, read on a thread.
-fn spawn_ciflow(args: &[&str]) -> (Process, mpsc::Receiver<String>) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_ciflow"))
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("spawn ciflow");
-    let stdout = child.stdout.take().unwrap();
-    let (sender, lines) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            if sender.send(line).is_err() {
-                break;
-            }
-        }
-    });
-    (Process(child), lines)
-}
-
-/// The first line containing `needle`, within `limit`.
-fn line_with(lines: &mpsc::Receiver<String>, needle: &str, limit: Duration) -> String {
-    loop {
-        match lines.recv_timeout(limit) {
-            Ok(line) if line.contains(needle) => return line,
-            Ok(_) => {}
-            Err(e) => panic!("no line containing `{needle}`: {e}"),
-        }
-    }
-}
-
-fn stderr_of(process: &mut Process) -> String {
-    let mut text = String::new();
-    if let Some(mut stderr) = process.0.stderr.take() {
-        use std::io::Read;
-        let _ = stderr.read_to_string(&mut text);
-    }
-    text
-}
-
-/// A fresh directory under the system's temporary directory, removed on drop.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(name: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!("ciflow-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        Self(dir)
-    }
-
-    fn path(&self, name: &str) -> String {
-        self.0.join(name).to_string_lossy().into_owned()
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 #[test]
 fn recorder_episodes_reach_a_trainer_over_zenoh_and_train_a_policy() {
     let python = python();
     let scratch = Scratch::new("record-train");
-    let endpoint = format!("tcp/127.0.0.1:{PORT}");
-    let (_engine, engine_lines) = spawn_ciflow(&["serve", "--listen", &endpoint, "--name", "hub"]);
-    line_with(&engine_lines, "ready", Duration::from_secs(60));
+    let _engine = serve(PORT, "hub", &[]);
+    let endpoint = endpoint(PORT);
 
     // With no recorder, the trainer gives up with a clear error.
     let (mut lonely, _lines) = spawn_ciflow(&[
@@ -147,10 +61,10 @@ fn recorder_episodes_reach_a_trainer_over_zenoh_and_train_a_policy() {
         "--connect",
         &endpoint,
         "--out",
-        &scratch.path("unused"),
+        &scratch.arg("unused"),
     ]);
     let status = lonely.wait_for(Duration::from_secs(60)).expect("gave up");
-    let error = stderr_of(&mut lonely);
+    let error = lonely.stderr();
     assert!(!status.success());
     assert!(
         error.contains("0 of 2 episodes") && error.contains("recorder must be running"),
@@ -158,9 +72,9 @@ fn recorder_episodes_reach_a_trainer_over_zenoh_and_train_a_policy() {
     );
 
     let (policy, collected, recorded) = (
-        scratch.path("policy"),
-        scratch.path("collected"),
-        scratch.path("recorded"),
+        scratch.arg("policy"),
+        scratch.arg("collected"),
+        scratch.arg("recorded"),
     );
     let (mut trainer, trainer_lines) = spawn_ciflow(&[
         "train",
@@ -216,11 +130,7 @@ fn recorder_episodes_reach_a_trainer_over_zenoh_and_train_a_policy() {
     let status = trainer
         .wait_for(Duration::from_secs(300))
         .expect("the trainer finished");
-    assert!(
-        status.success(),
-        "trainer failed: {}",
-        stderr_of(&mut trainer)
-    );
+    assert!(status.success(), "trainer failed: {}", trainer.stderr());
 
     for file in ["config.json", "weights.safetensors"] {
         assert!(Path::new(&policy).join(file).is_file(), "checkpoint {file}");

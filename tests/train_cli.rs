@@ -2,10 +2,12 @@
 //! dataset one command writes trains a policy in the next, whose checkpoint is globally
 //! stable and, rolled out from the demonstrations' starts, reaches their targets.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
+
+use std::path::Path;
 
 use ciflow_engine::flow::Policy;
+use common::{Scratch, ciflow, succeed};
 use serde_json::Value;
 
 /// Converged: within 2 mm of the target (the task's workspace is about 2 m wide).
@@ -14,45 +16,6 @@ const GOAL_TOLERANCE: f64 = 2e-3;
 /// guaranteed latent rate of 0.5 /s set below, the latent distance shrinks by at least
 /// `e^-15` in that time whatever the training reached; a wrongly wired target misses.
 const ROLLOUT_STEPS: usize = 3000;
-
-fn ciflow(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_ciflow"))
-        .args(args)
-        .output()
-        .expect("run ciflow")
-}
-
-fn succeed(args: &[&str]) -> Output {
-    let output = ciflow(args);
-    assert!(
-        output.status.success(),
-        "ciflow {args:?} failed: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    output
-}
-
-/// A fresh directory under the system's temporary directory, removed on drop.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(name: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!("ciflow-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        Self(dir)
-    }
-
-    fn path(&self, name: &str) -> String {
-        self.0.join(name).to_string_lossy().into_owned()
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn distance(a: &[f64], b: &[f64]) -> f64 {
     a.iter()
@@ -65,7 +28,7 @@ fn distance(a: &[f64], b: &[f64]) -> f64 {
 #[test]
 fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targets() {
     let scratch = Scratch::new("train-cli");
-    let (demos, policy) = (scratch.path("demos"), scratch.path("policy"));
+    let (demos, policy) = (scratch.arg("demos"), scratch.arg("policy"));
     succeed(&[
         "demos",
         "--task",
@@ -164,7 +127,7 @@ fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targe
 #[test]
 fn train_refuses_a_dataset_of_another_task() {
     let scratch = Scratch::new("train-cli-task");
-    let (demos, policy) = (scratch.path("demos"), scratch.path("policy"));
+    let (demos, policy) = (scratch.arg("demos"), scratch.arg("policy"));
     succeed(&[
         "demos",
         "--task",

@@ -3,7 +3,7 @@
 //! of the task it was trained for.
 
 use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 
 use ciflow_engine::flow::FlowError;
 use ciflow_envs::actor::{Actor, ActorError, DEFAULT_VELOCITY_GAIN, Model};
@@ -37,14 +37,15 @@ pub enum PolicyLoadError {
     TaskMismatch { claimed: String, found: String },
 }
 
-/// A checkpoint acting in its task. Each concurrent caller borrows an [`Actor`] (model
-/// plus buffers) from a pool, so acting allocates nothing once the pool is warm.
+/// A checkpoint acting in its task. Each concurrent caller borrows an [`Actor`] (the
+/// shared weights plus its own buffers) from a pool, so acting allocates nothing once
+/// the pool is warm.
 pub struct CheckpointPolicy {
     info: PolicyInfo,
     kwargs: Kwargs,
-    model: Arc<Model>,
+    model: Model,
     spec: EnvSpec,
-    actors: Mutex<Vec<Actor<Arc<Model>>>>,
+    actors: Mutex<Vec<Actor>>,
 }
 
 impl CheckpointPolicy {
@@ -78,9 +79,8 @@ impl CheckpointPolicy {
             })?
             .spec()
             .clone();
-        let model = Arc::new(model);
         // Building the first actor checks the shapes; it then seeds the pool.
-        let actor = Actor::new(Arc::clone(&model), &spec, DEFAULT_VELOCITY_GAIN)?;
+        let actor = Actor::new(&model, &spec, DEFAULT_VELOCITY_GAIN)?;
         Ok(Self {
             info: PolicyInfo {
                 name,
@@ -149,11 +149,11 @@ impl CheckpointPolicy {
         &self.spec
     }
 
-    fn actor(&self) -> Result<Actor<Arc<Model>>, PolicyError> {
+    fn actor(&self) -> Result<Actor, PolicyError> {
         let pooled = self.actors.lock().unwrap_or_else(|p| p.into_inner()).pop();
         match pooled {
             Some(actor) => Ok(actor),
-            None => Actor::new(Arc::clone(&self.model), &self.spec, DEFAULT_VELOCITY_GAIN)
+            None => Actor::new(&self.model, &self.spec, DEFAULT_VELOCITY_GAIN)
                 .map_err(|e| PolicyError(e.to_string())),
         }
     }

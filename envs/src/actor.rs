@@ -12,8 +12,8 @@
 //! flow may ask for more, this is the saturated loop that `flow::robot_loop` measures. The behaviour-cloning baseline has no Jacobian; it
 //! tracks its finite-difference velocity `v = (ŷ_{k+1} − q) / dt` with the same gain.
 
-use std::borrow::Borrow;
 use std::path::Path;
+use std::sync::Arc;
 
 use ciflow_engine::flow::baseline::BaselineWorkspace;
 use ciflow_engine::flow::checkpoint;
@@ -52,11 +52,24 @@ pub enum ActorError {
     VelocityGain(f64),
 }
 
-/// A loaded checkpoint: the stable flow or its unconstrained baseline.
+/// A loaded checkpoint: the stable flow or its unconstrained baseline. The weights are
+/// shared: clones, and the [`Actor`]s built from a model, refer to the same ones.
 #[derive(Clone, Debug)]
 pub enum Model {
-    Flow(Policy),
-    Baseline(BehaviourCloning),
+    Flow(Arc<Policy>),
+    Baseline(Arc<BehaviourCloning>),
+}
+
+impl From<Policy> for Model {
+    fn from(policy: Policy) -> Self {
+        Self::Flow(Arc::new(policy))
+    }
+}
+
+impl From<BehaviourCloning> for Model {
+    fn from(baseline: BehaviourCloning) -> Self {
+        Self::Baseline(Arc::new(baseline))
+    }
 }
 
 impl Model {
@@ -79,10 +92,8 @@ impl Model {
     /// The model a configuration describes, with its weights (shapes checked).
     pub fn new(config: &CheckpointConfig, weights: Weights) -> Result<Self, FlowError> {
         Ok(match config {
-            CheckpointConfig::Flow(config) => Self::Flow(Policy::new(config, weights)?),
-            CheckpointConfig::MlpBaseline(config) => {
-                Self::Baseline(BehaviourCloning::new(config, weights)?)
-            }
+            CheckpointConfig::Flow(config) => Policy::new(config, weights)?.into(),
+            CheckpointConfig::MlpBaseline(config) => BehaviourCloning::new(config, weights)?.into(),
         })
     }
 
@@ -117,37 +128,61 @@ impl Model {
     }
 }
 
-/// The buffers of one model kind.
-enum Workspace {
-    Flow(Box<PolicyWorkspace>),
-    Baseline(BaselineWorkspace),
+/// A model with the buffers it is evaluated in. Each kind carries its own, so a model
+/// cannot meet the buffers of the other kind.
+enum Controller {
+    Flow {
+        policy: Arc<Policy>,
+        workspace: Box<PolicyWorkspace>,
+    },
+    Baseline {
+        baseline: Arc<BehaviourCloning>,
+        workspace: BaselineWorkspace,
+        /// `ŷ_{k+1}`, the baseline's predicted next position.
+        next: Vec<f64>,
+    },
+}
+
+impl Controller {
+    fn new(model: &Model) -> Self {
+        match model {
+            Model::Flow(policy) => Self::Flow {
+                workspace: Box::new(policy.workspace()),
+                policy: Arc::clone(policy),
+            },
+            Model::Baseline(baseline) => Self::Baseline {
+                workspace: baseline.workspace(),
+                next: vec![0.0; baseline.config().state_dim],
+                baseline: Arc::clone(baseline),
+            },
+        }
+    }
 }
 
 /// A [`Model`] with its buffers, acting on one environment's observations. Acting is
-/// allocation-free; create one actor per thread. `M` is how the model is held: `&Model`,
-/// or `Arc<Model>` for an actor that outlives the caller's borrow (pools, threads).
-pub struct Actor<M: Borrow<Model>> {
-    model: M,
-    workspace: Workspace,
+/// allocation-free; create one actor per thread. Actors of one model share its weights,
+/// so a pool of them costs one set of buffers each.
+pub struct Actor {
+    controller: Controller,
+    state_dim: usize,
+    observation_dim: usize,
     velocity_gain: f64,
     action_space: BoxSpace,
     velocity: Vec<f64>,
-    next: Vec<f64>,
 }
 
-impl<M: Borrow<Model>> Actor<M> {
+impl Actor {
     /// An actor of `model` for environments of `spec`: the observation must be
     /// `[q, q̇, c]` with `q` and `c` of the model's dimensions and the action `q̈_des`.
-    pub fn new(model: M, spec: &EnvSpec, velocity_gain: f64) -> Result<Self, ActorError> {
+    pub fn new(model: &Model, spec: &EnvSpec, velocity_gain: f64) -> Result<Self, ActorError> {
         if !(velocity_gain.is_finite() && velocity_gain > 0.0) {
             return Err(ActorError::VelocityGain(velocity_gain));
         }
-        let held = model.borrow();
-        let (d, c) = (held.state_dim(), held.context_dim());
+        let (d, c) = (model.state_dim(), model.context_dim());
         let (observation_dim, action_dim) = (spec.observation_space.dim(), spec.action_space.dim());
         if observation_dim != 2 * d + c || action_dim != d || spec.context_space.dim() != c {
             return Err(ActorError::Mismatch {
-                checkpoint: held.task().to_owned(),
+                checkpoint: model.task().to_owned(),
                 state_dim: d,
                 context_dim: c,
                 env: spec.id.clone(),
@@ -155,36 +190,27 @@ impl<M: Borrow<Model>> Actor<M> {
                 action_dim,
             });
         }
-        let workspace = match held {
-            Model::Flow(policy) => Workspace::Flow(Box::new(policy.workspace())),
-            Model::Baseline(baseline) => Workspace::Baseline(baseline.workspace()),
-        };
         Ok(Self {
-            model,
-            workspace,
+            controller: Controller::new(model),
+            state_dim: d,
+            observation_dim,
             velocity_gain,
             action_space: spec.action_space.clone(),
             velocity: vec![0.0; d],
-            next: vec![0.0; d],
         })
     }
 
-    pub fn model(&self) -> &Model {
-        self.model.borrow()
-    }
-
     pub fn observation_dim(&self) -> usize {
-        2 * self.model().state_dim() + self.model().context_dim()
+        self.observation_dim
     }
 
     /// Writes the desired acceleration for `observation = [q, q̇, c]`, clipped to the
     /// action space, to `action`.
     pub fn act(&mut self, observation: &[f64], action: &mut [f64]) -> Result<(), ActorError> {
-        let d = self.model().state_dim();
-        let expected = self.observation_dim();
-        if observation.len() != expected {
+        let d = self.state_dim;
+        if observation.len() != self.observation_dim {
             return Err(ActorError::ObservationDim {
-                expected,
+                expected: self.observation_dim,
                 found: observation.len(),
             });
         }
@@ -197,19 +223,22 @@ impl<M: Borrow<Model>> Actor<M> {
         let (q, rest) = observation.split_at(d);
         let (qd, context) = rest.split_at(d);
         let gain = self.velocity_gain;
-        match (self.model.borrow(), &mut self.workspace) {
-            (Model::Flow(policy), Workspace::Flow(ws)) => {
-                policy.acceleration(q, qd, context, gain, ws, action, &mut self.velocity)?;
+        match &mut self.controller {
+            Controller::Flow { policy, workspace } => {
+                policy.acceleration(q, qd, context, gain, workspace, action, &mut self.velocity)?;
             }
-            (Model::Baseline(baseline), Workspace::Baseline(ws)) => {
-                baseline.mean_next(q, context, ws, &mut self.next)?;
+            Controller::Baseline {
+                baseline,
+                workspace,
+                next,
+            } => {
+                baseline.mean_next(q, context, workspace, next)?;
                 let dt = baseline.config().dt;
                 for i in 0..d {
-                    self.velocity[i] = (self.next[i] - q[i]) / dt;
+                    self.velocity[i] = (next[i] - q[i]) / dt;
                     action[i] = gain * (self.velocity[i] - qd[i]);
                 }
             }
-            _ => unreachable!("`new` builds the workspace of its model's kind"),
         }
         let BoxSpace { low, high, .. } = &self.action_space;
         for ((a, lo), hi) in action.iter_mut().zip(low).zip(high) {

@@ -1,40 +1,21 @@
 //! A checkpoint acting in an environment: the actor's action is the flow's desired
-//! acceleration for `[q, q̇, c]` clipped to the action space, shapes are checked, and the
-//! saturated closed loop reaches the attractor, the target in the context.
+//! acceleration for `[q, q̇, c]` (the baseline's finite-difference tracking) clipped to
+//! the action space, shapes are checked, and the saturated closed loop reaches the
+//! attractor, the target in the context.
 
-use ciflow_engine::flow::{CouplingKind, FlowConfig, LatentKind, Policy, Weights};
+mod common;
+
+use ciflow_engine::flow::{BaselineConfig, BehaviourCloning, Goal, Policy, Weights};
 use ciflow_envs::actor::{Actor, ActorError, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::tasks::{limit_cycle, obstacle_avoidance};
 use ciflow_envs::{Env, ResetOptions};
+use common::{obstacle_flow, obstacle_flow_checkpoint};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-/// A random go-to flow for Obstacle-v0 with one obstacle: state 2-D, context
-/// `[o_x, o_y, g_x, g_y]`, attractor on the target; small weights keep `f` near the
-/// identity, so its paths run nearly straight to the target.
-fn random_obstacle_flow(seed: u64) -> Model {
-    let mut config = FlowConfig::new(
-        "obstacle-avoidance",
-        2,
-        4,
-        LatentKind::GoTo,
-        CouplingKind::Affine { scale_bound: 2.0 },
-        4,
-        vec![16, 16],
-    );
-    config.min_rate = 2.0;
-    config.goal_context_indices = Some(vec![2, 3]);
-    let weights = Weights::random(
-        &config.parameter_shapes(),
-        0.1,
-        &mut ChaCha8Rng::seed_from_u64(seed),
-    );
-    Model::Flow(Policy::new(&config, weights).expect("valid random flow"))
-}
-
 #[test]
 fn action_is_the_clipped_flow_acceleration() {
-    let model = random_obstacle_flow(1);
+    let model = Model::from(obstacle_flow(1));
     let env = obstacle_avoidance::make(1).unwrap();
     let mut actor = Actor::new(&model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
     let observation = [-0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2];
@@ -67,9 +48,54 @@ fn action_is_the_clipped_flow_acceleration() {
     assert_eq!(actor.desired_velocity(), &velocity);
 }
 
+/// The baseline has no Jacobian: its action tracks the finite-difference velocity
+/// `(ŷ_{k+1} − q) / dt` of its own prediction with the gain `K_v`.
+#[test]
+fn baseline_action_tracks_its_finite_difference_velocity() {
+    let (flow, _) = obstacle_flow_checkpoint(5);
+    let config = BaselineConfig {
+        task: flow.task,
+        state_dim: 2,
+        context_dim: 4,
+        dt: flow.dt,
+        hidden: vec![8],
+        goal: Goal::ContextIndices {
+            indices: vec![2, 3],
+        },
+        normalisation: flow.normalisation,
+        bounds: flow.bounds,
+    };
+    let weights = Weights::random(
+        &config.parameter_shapes(),
+        0.1,
+        &mut ChaCha8Rng::seed_from_u64(5),
+    );
+    let baseline = BehaviourCloning::new(&config, weights).unwrap();
+    let model = Model::from(baseline.clone());
+    let env = obstacle_avoidance::make(1).unwrap();
+    let mut actor = Actor::new(&model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
+    let observation = [-0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2];
+    let mut action = [0.0; 2];
+    actor.act(&observation, &mut action).unwrap();
+
+    let (q, qd, context) = (&observation[..2], &observation[2..4], &observation[4..]);
+    let mut next = [0.0; 2];
+    baseline
+        .mean_next(q, context, &mut baseline.workspace(), &mut next)
+        .unwrap();
+    let bound = &env.spec().action_space;
+    for i in 0..2 {
+        let velocity = (next[i] - q[i]) / config.dt;
+        assert_eq!(actor.desired_velocity()[i], velocity);
+        let expected = DEFAULT_VELOCITY_GAIN * (velocity - qd[i]);
+        assert_eq!(action[i], expected.clamp(bound.low[i], bound.high[i]));
+    }
+    assert!(action.iter().any(|a| a.abs() > 1e-6), "{action:?}");
+}
+
 #[test]
 fn shapes_and_gain_are_checked() {
-    let model = random_obstacle_flow(2);
+    let model = Model::from(obstacle_flow(2));
     let two_obstacles = obstacle_avoidance::make(2).unwrap();
     assert!(matches!(
         Actor::new(&model, two_obstacles.spec(), DEFAULT_VELOCITY_GAIN),
@@ -100,7 +126,7 @@ fn shapes_and_gain_are_checked() {
 
 #[test]
 fn closed_loop_reaches_the_target_in_the_context() {
-    let model = random_obstacle_flow(3);
+    let model = Model::from(obstacle_flow(3));
     let mut env = obstacle_avoidance::make(1).unwrap();
     // The obstacle sits far below the straight path from the start to the target.
     let target = [0.8, 0.1];
@@ -134,39 +160,22 @@ fn a_checkpoint_in_memory_loads_like_its_directory() {
     use ciflow_engine::flow::checkpoint::{self, CONFIG_FILE, WEIGHTS_FILE};
     use ciflow_engine::flow::{CheckpointConfig, FlowError};
 
-    let Model::Flow(policy) = random_obstacle_flow(4) else {
-        unreachable!()
-    };
+    let (config, weights) = obstacle_flow_checkpoint(4);
     let dir = std::env::temp_dir().join(format!("ciflow-actor-bytes-{}", std::process::id()));
-    let weights = Weights::random(
-        &policy.config().parameter_shapes(),
-        0.1,
-        &mut ChaCha8Rng::seed_from_u64(4),
-    );
-    checkpoint::write(
-        &dir,
-        &CheckpointConfig::Flow(policy.config().clone()),
-        &weights,
-    )
-    .unwrap();
-    let config = std::fs::read_to_string(dir.join(CONFIG_FILE)).unwrap();
+    checkpoint::write(&dir, &CheckpointConfig::Flow(config.clone()), &weights).unwrap();
+    let config_json = std::fs::read_to_string(dir.join(CONFIG_FILE)).unwrap();
     let bytes = std::fs::read(dir.join(WEIGHTS_FILE)).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
 
-    let from_bytes = Model::from_bytes(&config, &bytes, Some("obstacle-avoidance")).unwrap();
-    let direct = Model::Flow(Policy::new(policy.config(), weights).unwrap());
+    let from_bytes = Model::from_bytes(&config_json, &bytes, Some("obstacle-avoidance")).unwrap();
+    let direct = Model::from(Policy::new(&config, weights).unwrap());
     let env = obstacle_avoidance::make(1).unwrap();
     let observation = [-0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2];
     let (mut a, mut b) = ([0.0; 2], [0.0; 2]);
-    // An actor may own its model (`Arc`) or borrow it.
-    Actor::new(
-        std::sync::Arc::new(from_bytes),
-        env.spec(),
-        DEFAULT_VELOCITY_GAIN,
-    )
-    .unwrap()
-    .act(&observation, &mut a)
-    .unwrap();
+    // An actor shares its model's weights and outlives the model it was built from.
+    let mut actor = Actor::new(&from_bytes, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
+    drop(from_bytes);
+    actor.act(&observation, &mut a).unwrap();
     Actor::new(&direct, env.spec(), DEFAULT_VELOCITY_GAIN)
         .unwrap()
         .act(&observation, &mut b)
@@ -174,7 +183,7 @@ fn a_checkpoint_in_memory_loads_like_its_directory() {
     assert_eq!(a, b);
 
     assert!(matches!(
-        Model::from_bytes(&config, &bytes, Some("pouring")),
+        Model::from_bytes(&config_json, &bytes, Some("pouring")),
         Err(FlowError::TaskMismatch { .. })
     ));
     assert!(matches!(
@@ -182,7 +191,7 @@ fn a_checkpoint_in_memory_loads_like_its_directory() {
         Err(FlowError::ConfigText(_))
     ));
     assert!(matches!(
-        Model::from_bytes(&config, &bytes[..bytes.len() / 2], None),
+        Model::from_bytes(&config_json, &bytes[..bytes.len() / 2], None),
         Err(FlowError::SafeTensors(_))
     ));
 }

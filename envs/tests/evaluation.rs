@@ -4,7 +4,8 @@
 //! mean of `Policy::log_transition` with the earlier step's context, and the field data
 //! are the policy's velocity, rollouts and latent grid.
 
-use ciflow_engine::flow::{CouplingKind, FlowConfig, LatentKind, Policy, Weights};
+mod common;
+
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::dataset::Episode;
@@ -15,31 +16,7 @@ use ciflow_envs::evaluation::{
 };
 use ciflow_envs::tasks::obstacle_avoidance::{self, SUCCESS_DISTANCE};
 use ciflow_envs::{Env, ResetOptions};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-
-/// A random go-to flow for Obstacle-v0 with one obstacle (context `[o_x, o_y, g_x, g_y]`,
-/// attractor on the target) contracting at 2 /s at least, so it arrives within the
-/// episode; small weights keep `f` near the identity.
-fn obstacle_flow(seed: u64) -> Policy {
-    let mut config = FlowConfig::new(
-        "obstacle-avoidance",
-        2,
-        4,
-        LatentKind::GoTo,
-        CouplingKind::Affine { scale_bound: 2.0 },
-        4,
-        vec![16, 16],
-    );
-    config.min_rate = 2.0;
-    config.goal_context_indices = Some(vec![2, 3]);
-    let weights = Weights::random(
-        &config.parameter_shapes(),
-        0.1,
-        &mut ChaCha8Rng::seed_from_u64(seed),
-    );
-    Policy::new(&config, weights).expect("valid random flow")
-}
+use common::obstacle_flow;
 
 fn config(episodes: usize, disturbance: Disturbance) -> EvaluationConfig {
     EvaluationConfig {
@@ -80,7 +57,7 @@ fn replay(
 
 #[test]
 fn episodes_and_rates_are_those_of_the_closed_loop() {
-    let model = Model::Flow(obstacle_flow(1));
+    let model = Model::from(obstacle_flow(1));
     let mut env = obstacle_avoidance::make(1).unwrap();
     let report = evaluate(&mut env, &model, &config(8, Disturbance::None), |_| {}).unwrap();
     assert_eq!(report.episodes, 8);
@@ -120,7 +97,7 @@ fn episodes_and_rates_are_those_of_the_closed_loop() {
 
 #[test]
 fn a_push_displaces_the_state_by_the_requested_distance() {
-    let model = Model::Flow(obstacle_flow(2));
+    let model = Model::from(obstacle_flow(2));
     let mut env = obstacle_avoidance::make(1).unwrap();
     let push = PushConfig {
         start: 0.5,
@@ -176,7 +153,7 @@ fn a_push_displaces_the_state_by_the_requested_distance() {
 
 #[test]
 fn a_context_switch_moves_only_the_target_and_holds() {
-    let model = Model::Flow(obstacle_flow(3));
+    let model = Model::from(obstacle_flow(3));
     let mut env = obstacle_avoidance::make(1).unwrap();
     let switch = ContextSwitch {
         time: 0.5,
@@ -214,7 +191,7 @@ fn a_context_switch_moves_only_the_target_and_holds() {
 
 #[test]
 fn bad_settings_are_typed_errors() {
-    let model = Model::Flow(obstacle_flow(4));
+    let model = Model::from(obstacle_flow(4));
     let mut env = obstacle_avoidance::make(1).unwrap();
     let none = evaluate(&mut env, &model, &config(0, Disturbance::None), |_| {});
     assert!(matches!(none, Err(EvaluationError::InvalidConfig(_))));

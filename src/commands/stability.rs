@@ -10,12 +10,12 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use ciflow_engine::flow::checkpoint;
+use ciflow_engine::flow::Policy;
 use ciflow_engine::flow::robot_loop::{RobotLoopConfig, RobotLoopReport, measure_robot_loop};
 use ciflow_engine::flow::stability::{StabilityConfig, StabilityReport, measure};
-use ciflow_engine::flow::{BehaviourCloning, CheckpointConfig, Policy};
 use ciflow_engine::robot::{JointLimits, PointMass2d, Robot, panda};
 use ciflow_engine::sim::{SimConfig, Simulator};
+use ciflow_envs::actor::Model;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
@@ -114,28 +114,21 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
         ..StabilityConfig::default()
     };
     let dir = &args.checkpoint;
-    let task = args.task.as_deref();
+    let model = Model::load(dir, args.task.as_deref())
+        .with_context(|| format!("loading the checkpoint {}", dir.display()))?;
     let bar = rollout_bar(args.starts, "rollouts");
     let tick = |done: usize| bar.set_position(done as u64);
-    let read =
-        checkpoint::read_config(dir).with_context(|| format!("reading {}", dir.display()))?;
-    let (observation_space, policy) = match read {
-        CheckpointConfig::Flow(_) => {
-            let policy = Policy::load(dir, task)?;
-            (measure(&policy, &config, tick)?, Some(policy))
-        }
-        CheckpointConfig::MlpBaseline(_) => (
-            measure(&BehaviourCloning::load(dir, task)?, &config, tick)?,
-            None,
-        ),
+    let observation_space = match &model {
+        Model::Flow(policy) => measure(policy.as_ref(), &config, tick)?,
+        Model::Baseline(baseline) => measure(baseline.as_ref(), &config, tick)?,
     };
     bar.finish_and_clear();
-    let robot_loop = match (args.robot_loop, &policy) {
+    let robot_loop = match (args.robot_loop, &model) {
         (false, _) => None,
-        (true, None) => anyhow::bail!(
+        (true, Model::Baseline(_)) => anyhow::bail!(
             "--robot-loop needs a flow checkpoint: the baseline has no desired acceleration"
         ),
-        (true, Some(policy)) => {
+        (true, Model::Flow(policy)) => {
             let loop_config = RobotLoopConfig {
                 starts: args.robot_starts,
                 duration: args.robot_duration,

@@ -234,7 +234,7 @@ struct Run {
 /// Runs the policy from `reset(seed)` until the episode ends, applying `schedule`.
 fn run_episode(
     env: &mut dyn Env,
-    actor: &mut Actor<&Model>,
+    actor: &mut Actor,
     state_dim: usize,
     seed: u64,
     options: &ResetOptions,
