@@ -63,29 +63,60 @@ fn finish(mut process: Process, what: &str, limit: Duration) -> String {
 }
 
 /// The engine's policy `name`, once it serves it (it started with none).
-fn wait_for_policy(client: &Client, engine: &str, name: &str) -> ciflow_bridge::PolicyInfo {
+fn wait_for_policy(
+    client: &Client,
+    engine: &str,
+    name: &str,
+) -> ciflow_bridge::protocol::PolicyInfo {
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
         let info = client.engine_info(engine).expect("engine info");
         if let Some(policy) = info.policies.into_iter().find(|p| p.name == name) {
             return policy;
         }
-        assert!(Instant::now() < deadline, "the engine never loaded `{name}`");
+        assert!(
+            Instant::now() < deadline,
+            "the engine never loaded `{name}`"
+        );
         std::thread::sleep(Duration::from_millis(100));
     }
 }
 
 /// One perturbation-script run of the engine's policy from reset seed `seed`; its
 /// recorded telemetry samples.
-fn policy_run(config: &str, scratch: &Scratch, name: &str, seed: &str, push: &[&str]) -> Vec<Value> {
+fn policy_run(
+    config: &str,
+    scratch: &Scratch,
+    name: &str,
+    seed: &str,
+    push: &[&str],
+) -> Vec<Value> {
     let traces = scratch.arg(&format!("{name}.json"));
     let mut args = vec![
-        "-m", "ciflow.perturb", "--task", "obstacle-avoidance", "--kwarg", "obstacles=1",
-        "--policy", POLICY, "--seed", seed, "--zenoh-config", config, "--speed", "4",
-        "--quiet", "--record", &traces,
+        "-m",
+        "ciflow.perturb",
+        "--task",
+        "obstacle-avoidance",
+        "--kwarg",
+        "obstacles=1",
+        "--policy",
+        POLICY,
+        "--seed",
+        seed,
+        "--zenoh-config",
+        config,
+        "--speed",
+        "4",
+        "--quiet",
+        "--record",
+        &traces,
     ];
     args.extend(push);
-    finish(spawn_python(&args), "the perturbation script", Duration::from_secs(60));
+    finish(
+        spawn_python(&args),
+        "the perturbation script",
+        Duration::from_secs(60),
+    );
     let recorded: Value = serde_json::from_str(&std::fs::read_to_string(&traces).unwrap()).unwrap();
     recorded["samples"].as_array().expect("samples").clone()
 }
@@ -131,14 +162,41 @@ fn demonstrations_over_a_router_train_a_stable_policy_the_engine_runs_through_pu
     line_with(&engine_lines, "ready", Duration::from_secs(20));
     let (policy, demos) = (scratch.arg("policy"), scratch.arg("demos"));
     let (trainer, trainer_lines) = spawn_ciflow(&[
-        "train", "--task", "obstacle-avoidance", "--from-zenoh", DEMOS, "--demos", &demos,
-        "--out", &policy, "--publish", POLICY, "--kwarg", "obstacles=1", "--config", &config,
-        "--epochs", "4", "--batch-size", "512",
+        "train",
+        "--task",
+        "obstacle-avoidance",
+        "--from-zenoh",
+        DEMOS,
+        "--demos",
+        &demos,
+        "--out",
+        &policy,
+        "--publish",
+        POLICY,
+        "--kwarg",
+        "obstacles=1",
+        "--config",
+        &config,
+        "--epochs",
+        "4",
+        "--batch-size",
+        "512",
     ]);
     line_with(&trainer_lines, "waiting for", Duration::from_secs(30));
     let recorder = spawn_python(&[
-        "-m", "ciflow.record", "--task", "obstacle-avoidance", "--kwarg", "obstacles=1",
-        "--episodes", DEMOS, "--seed", "0", "--zenoh-config", &config, "--quiet",
+        "-m",
+        "ciflow.record",
+        "--task",
+        "obstacle-avoidance",
+        "--kwarg",
+        "obstacles=1",
+        "--episodes",
+        DEMOS,
+        "--seed",
+        "0",
+        "--zenoh-config",
+        &config,
+        "--quiet",
     ]);
     finish(recorder, "the recorder", Duration::from_secs(120));
     finish(trainer, "the trainer", Duration::from_secs(600));
@@ -156,7 +214,14 @@ fn demonstrations_over_a_router_train_a_stable_policy_the_engine_runs_through_pu
     // Stable by construction: every rollout converges, far outside the data too, and
     // through the point mass's computed-torque loop.
     let report: Value = serde_json::from_slice(
-        &succeed(&["stability", "--checkpoint", &policy, "--robot-loop", "--json"]).stdout,
+        &succeed(&[
+            "stability",
+            "--checkpoint",
+            &policy,
+            "--robot-loop",
+            "--json",
+        ])
+        .stdout,
     )
     .unwrap();
     for part in ["observation_space", "robot_loop"] {
@@ -171,23 +236,46 @@ fn demonstrations_over_a_router_train_a_stable_policy_the_engine_runs_through_pu
         let last = samples.last().unwrap();
         assert_eq!(last["episode_done"], true, "{name} run never ended");
         let distance = distance_to_target(last);
-        assert!(distance < 0.02, "{name} run ended {distance} m from the target");
+        assert!(
+            distance < 0.02,
+            "{name} run ended {distance} m from the target"
+        );
     }
     let (a, b) = (position_at(&calm, 1.0), position_at(&pushed, 1.0));
     let displacement = (a[0] - b[0]).hypot(a[1] - b[1]);
-    assert!(displacement > 0.05, "the push moved the mass only {displacement} m");
+    assert!(
+        displacement > 0.05,
+        "the push moved the mass only {displacement} m"
+    );
 
     // Recovery: back within 2 cm of the unpushed path within 2 s of the push's end, in most
     // of 10 pushed episodes (the closed-loop evaluator, pushes sized to >= 5 cm).
     let pushes = scratch.arg("push.json");
     succeed(&[
-        "evaluate", "--checkpoint", &policy, "--kwarg", "obstacles=1", "--episodes", "10",
-        "--seed", "2000", "--perturb", "push", "--push-start", "0.8",
-        "--recovery-tolerance", "0.02", "--out", &pushes,
+        "evaluate",
+        "--checkpoint",
+        &policy,
+        "--kwarg",
+        "obstacles=1",
+        "--episodes",
+        "10",
+        "--seed",
+        "2000",
+        "--perturb",
+        "push",
+        "--push-start",
+        "0.8",
+        "--recovery-tolerance",
+        "0.02",
+        "--out",
+        &pushes,
     ]);
     let result: Value = serde_json::from_str(&std::fs::read_to_string(&pushes).unwrap()).unwrap();
     let recovered = result["push"]["recovered_within_deadline_fraction"]
         .as_f64()
         .unwrap_or_else(|| panic!("no recovery figure in {result}"));
-    assert!(recovered >= 0.8, "recovered within 2 s in {recovered} of the pushes");
+    assert!(
+        recovered >= 0.8,
+        "recovered within 2 s in {recovered} of the pushes"
+    );
 }

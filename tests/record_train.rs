@@ -9,38 +9,15 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
 use ciflow_envs::dataset;
-use common::{Scratch, endpoint, line_with, serve, spawn_ciflow};
+use common::{Scratch, endpoint, line_with, python, serve, spawn_ciflow};
 
 const PORT: u16 = 27471;
 const TASK: &str = "obstacle-avoidance";
-
-fn python() -> PathBuf {
-    let path = std::env::var_os("CIFLOW_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python"));
-    assert!(
-        path.exists(),
-        "Python with the ciflow package not found at {}: run `make test` (or \
-         scripts/setup-python.sh and scripts/build-python.sh, or set CIFLOW_PYTHON)",
-        path.display()
-    );
-    let import = Command::new(&path)
-        .args(["-c", "import ciflow.record"])
-        .output()
-        .expect("run python");
-    assert!(
-        import.status.success(),
-        "{} cannot import ciflow.record (build it with scripts/build-python.sh): {}",
-        path.display(),
-        String::from_utf8_lossy(&import.stderr)
-    );
-    path
-}
 
 #[test]
 fn recorder_episodes_reach_a_trainer_over_zenoh_and_train_a_policy() {

@@ -182,3 +182,75 @@ fn render_shows_the_cup_held_by_the_hand_above_the_pot() {
         env.step(&action).unwrap();
     }
 }
+
+fn options(pairs: &[(&str, f64)]) -> ResetOptions {
+    ResetOptions {
+        extra: pairs.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+        ..ResetOptions::default()
+    }
+}
+
+#[test]
+fn start_spread_sets_how_far_starts_lie_from_home() {
+    let mut env = Pouring::new().unwrap();
+    let spread_of = |env: &mut Pouring, spread: f64| {
+        (0..20)
+            .map(|seed| {
+                let (observation, _) = env
+                    .reset(Some(seed), &options(&[("start_spread", spread)]))
+                    .unwrap();
+                observation[..7]
+                    .iter()
+                    .zip(ciflow_engine::robot::PANDA_HOME)
+                    .map(|(q, home)| (q - home).abs())
+                    .fold(0.0, f64::max)
+            })
+            .fold(0.0, f64::max)
+    };
+    assert_eq!(spread_of(&mut env, 0.0), 0.0);
+    let wide = spread_of(&mut env, 0.25);
+    assert!(wide > 0.2 && wide <= 0.25, "{wide}");
+    for bad in [-0.1, 0.31, f64::NAN] {
+        let error = env
+            .reset(Some(0), &options(&[("start_spread", bad)]))
+            .unwrap_err();
+        assert!(
+            matches!(error, EnvError::InvalidOption { .. }),
+            "{bad}: {error}"
+        );
+    }
+}
+
+#[test]
+fn push_force_pushes_each_episode_once_reproducibly() {
+    let mut env = Pouring::new().unwrap();
+    let pushed = options(&[("push_force", 60.0)]);
+    let spout_x = |episode: &ciflow_envs::dataset::Episode| episode.infos["spout_x"].clone();
+    let calm = expert_episode(&mut env, Some(3), &ResetOptions::default()).unwrap();
+    let first = expert_episode(&mut env, Some(3), &pushed).unwrap();
+    let again = expert_episode(&mut env, Some(3), &pushed).unwrap();
+    assert_eq!(
+        spout_x(&first),
+        spout_x(&again),
+        "the push depends on the seed only"
+    );
+    // Same start and context, so the runs agree until the push and differ after it.
+    assert_eq!(first.observations[0], calm.observations[0]);
+    let differ = first
+        .observations
+        .iter()
+        .zip(&calm.observations)
+        .position(|(a, b)| a != b)
+        .expect("the push changed the motion");
+    let time = differ as f64 * 0.01;
+    assert!((0.3..=3.2).contains(&time), "first change at {time} s");
+    for bad in [-1.0, f64::INFINITY] {
+        let error = env
+            .reset(Some(0), &options(&[("push_force", bad)]))
+            .unwrap_err();
+        assert!(
+            matches!(error, EnvError::InvalidOption { .. }),
+            "{bad}: {error}"
+        );
+    }
+}

@@ -13,14 +13,14 @@ mod episodes;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use ciflow_bridge::CheckpointPublisher;
 use ciflow_engine::flow::{CouplingKind, Goal, LatentKind};
 use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::{self, TaskEntry};
 use ciflow_envs::tasks::{lasa, limit_cycle, obstacle_avoidance};
-use ciflow_bridge::CheckpointPublisher;
 use ciflow_train::{
-    BaselineTrainConfig, Contexts, Demonstrations, Episode, Keep, OptimConfig, Progress,
-    Snapshot, TrainConfig, train_baseline, train_flow,
+    BaselineTrainConfig, Contexts, Demonstrations, Episode, Keep, OptimConfig, Progress, Snapshot,
+    TrainConfig, train_baseline, train_flow,
 };
 
 use super::demos::{parse_key_value, task_values};
@@ -294,7 +294,11 @@ pub fn to_demonstrations(
 
 /// `count` of `episodes` drawn without replacement by a generator seeded with `seed`, in
 /// their original order.
-pub(crate) fn random_subset<T>(episodes: Vec<T>, count: usize, seed: u64) -> anyhow::Result<Vec<T>> {
+pub(crate) fn random_subset<T>(
+    episodes: Vec<T>,
+    count: usize,
+    seed: u64,
+) -> anyhow::Result<Vec<T>> {
     use rand::SeedableRng;
     let available = episodes.len();
     anyhow::ensure!(

@@ -135,6 +135,32 @@ pub fn line_with(lines: &mpsc::Receiver<String>, needle: &str, limit: Duration) 
     }
 }
 
+/// The project's Python with the `ciflow` package built (`make test`, or
+/// scripts/setup-python.sh and scripts/build-python.sh): `$CIFLOW_PYTHON`, else
+/// `<workspace>/.venv/bin/python`. Panics, never skips, when it is missing.
+pub fn python() -> PathBuf {
+    let path = std::env::var_os("CIFLOW_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python"));
+    assert!(
+        path.exists(),
+        "Python with the ciflow package not found at {}: run `make test` (or \
+         scripts/setup-python.sh and scripts/build-python.sh, or set CIFLOW_PYTHON)",
+        path.display()
+    );
+    let import = Command::new(&path)
+        .args(["-c", "import ciflow.record"])
+        .output()
+        .expect("run python");
+    assert!(
+        import.status.success(),
+        "{} cannot import ciflow.record (build it with scripts/build-python.sh): {}",
+        path.display(),
+        String::from_utf8_lossy(&import.stderr)
+    );
+    path
+}
+
 /// The Zenoh endpoint of a test engine: loopback TCP on `port`. Each test picks its own
 /// port so that parallel tests never meet.
 pub fn endpoint(port: u16) -> String {

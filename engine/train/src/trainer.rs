@@ -106,7 +106,11 @@ pub struct Snapshot<'a> {
 impl Snapshot<'_> {
     /// Writes the current parameters as a checkpoint directory (loadable by `Policy::load`).
     pub fn save(&self, dir: &Path) -> TrainResult<()> {
-        save_checkpoint(dir, &CheckpointConfig::Flow(self.config.clone()), self.var_store)
+        save_checkpoint(
+            dir,
+            &CheckpointConfig::Flow(self.config.clone()),
+            self.var_store,
+        )
     }
 }
 

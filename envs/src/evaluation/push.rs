@@ -7,8 +7,10 @@
 //! **Displacement.** `δ = max_{t ≥ start} ‖p(t) − p_ref(t)‖`, where `p` is the tracked
 //! point ([`Trace::point`]: pouring's spout, else the position) and `p_ref` the same
 //! episode (same seed: same context and start) without the push. `F` starts at
-//! [`PushConfig::initial_force`] and grows until `δ ≥` [`PushConfig::displacement`]
-//! (`F ← F · clamp(1.25 δ*/δ, 1.5, 10)`, at most [`PushConfig::max_attempts`] runs).
+//! [`PushConfig::initial_force`] and is rescaled until `δ* ≤ δ ≤` [`OVERSHOOT`]` δ*`
+//! with `δ*` = [`PushConfig::displacement`] (`F ← F · clamp(1.25 δ*/δ, 0.1, 10)`, at most
+//! [`PushConfig::max_attempts`] runs; the last run that reached `δ*` is kept), so each
+//! episode gets about the smallest push the experiment asks for, not a much larger one.
 //!
 //! **Recovery.** With `d(t) = min_s ‖p(t) − p_ref(s)‖`, the distance to the undisturbed
 //! *path* (the polyline through its samples; not where it is at `t`: a pushed robot may return to the path late), the
@@ -21,6 +23,9 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use super::{EpisodeResult, EvaluationError, EvaluationResult, Summary, Trace};
+
+/// Largest accepted displacement, as a multiple of the required one.
+pub const OVERSHOOT: f64 = 1.5;
 
 /// Settings of a push.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -50,7 +55,7 @@ impl Default for PushConfig {
             duration: 0.2,
             displacement: 0.05,
             initial_force: 10.0,
-            max_attempts: 8,
+            max_attempts: 12,
             recovery_tolerance: 0.01,
             recovery_deadline: 2.0,
         }
@@ -199,6 +204,7 @@ pub fn sized_push<R>(
 ) -> EvaluationResult<(R, PushOutcome)> {
     let direction = push_direction(seed);
     let mut magnitude = config.initial_force;
+    let mut displaced_run = None;
     let mut attempts = 0;
     loop {
         attempts += 1;
@@ -206,26 +212,46 @@ pub fn sized_push<R>(
         let (trace, result) = run(config.perturbation(force))?;
         let delta = displacement(&trace, reference, config.start);
         let displaced = delta >= config.displacement;
-        if displaced || attempts == config.max_attempts {
-            let (recovery_time, max_path_distance) =
-                recovery(&trace, reference, config.end(), config.recovery_tolerance);
-            let outcome = PushOutcome {
-                force,
-                displacement: delta,
-                displaced,
-                attempts,
-                recovery_time,
-                max_path_distance,
-            };
-            return Ok((result, outcome));
+        let last = attempts >= config.max_attempts;
+        let run = (trace, result, force, delta, attempts);
+        if displaced && (delta <= OVERSHOOT * config.displacement || last) {
+            return Ok(outcome(config, reference, run, true));
         }
-        let growth = if delta > 0.0 {
-            (1.25 * config.displacement / delta).clamp(1.5, 10.0)
+        if last {
+            return Ok(match displaced_run {
+                Some(earlier) => outcome(config, reference, earlier, true),
+                None => outcome(config, reference, run, false),
+            });
+        }
+        magnitude *= if delta > 0.0 {
+            (1.25 * config.displacement / delta).clamp(0.1, 10.0)
         } else {
             10.0
         };
-        magnitude *= growth;
+        if displaced {
+            displaced_run = Some(run);
+        }
     }
+}
+
+/// The result of one pushed run `(trace, result, force, δ, attempts)`.
+fn outcome<R>(
+    config: &PushConfig,
+    reference: &Trace,
+    (trace, result, force, displacement, attempts): (Trace, R, [f64; 3], f64, usize),
+    displaced: bool,
+) -> (R, PushOutcome) {
+    let (recovery_time, max_path_distance) =
+        recovery(&trace, reference, config.end(), config.recovery_tolerance);
+    let outcome = PushOutcome {
+        force,
+        displacement,
+        displaced,
+        attempts,
+        recovery_time,
+        max_path_distance,
+    };
+    (result, outcome)
 }
 
 /// The push figures of an evaluation.

@@ -36,8 +36,8 @@ pub const CUP_CENTRE: [f64; 3] = [0.0, 0.0, 0.11];
 pub const CUP_HALF_HEIGHT: f64 = 0.05;
 pub const CUP_RADIUS: f64 = 0.035;
 
-const POSITION_GAIN: f64 = 2.5;
-const MAX_SPEED: f64 = 0.35;
+const POSITION_GAIN: f64 = 1.5;
+const MAX_SPEED: f64 = 0.15;
 const ORIENTATION_GAIN: f64 = 3.0;
 const MAX_ANGULAR_SPEED: f64 = 1.5;
 const VELOCITY_GAIN: f64 = 12.0;

@@ -38,6 +38,12 @@
 //! push would reach. `options.initial_position` / `initial_velocity` override them
 //! (within joint limits).
 //!
+//! Option `push_force` (N, default 0) pushes the hand once per episode: a horizontal
+//! force of magnitude `U(0, push_force)` in a uniform direction for [`DEMO_PUSH_DURATION`],
+//! starting at `U(`[`DEMO_PUSH_WINDOW`]`)` s, drawn from the episode's seed. Expert
+//! demonstrations recorded with it show how the expert recovers from pushes (noise
+//! injection in the spirit of DART), the states a pushed policy has to handle.
+//!
 //! ## Episode end
 //! Terminated on a spill: tilt ≥ [`SPILL_TILT`] with the spout not over the opening.
 //! Truncated after 600 steps (6 s).
@@ -50,7 +56,7 @@
 
 use ciflow_engine::math::{Isometry3, Vector3};
 use ciflow_engine::robot::{PANDA_HOME, Robot, panda};
-use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
+use ciflow_engine::sim::{Perturbation, PerturbationKind, SimConfig, Simulator};
 use nalgebra::{Rotation3, Translation3, UnitQuaternion, Vector2};
 use rand::RngExt;
 
@@ -79,6 +85,11 @@ pub const START_SPREAD: f64 = 0.05;
 /// Widest `start_spread` option: keeps every start within the Panda's joint limits, rad.
 pub const MAX_START_SPREAD: f64 = 0.3;
 pub const START_SPREAD_OPTION: &str = "start_spread";
+pub const PUSH_FORCE_OPTION: &str = "push_force";
+/// Duration of the `push_force` push, s.
+pub const DEMO_PUSH_DURATION: f64 = 0.2;
+/// When the `push_force` push starts: uniform in this window, s.
+pub const DEMO_PUSH_WINDOW: (f64, f64) = (0.3, 3.0);
 const CONTEXT_LOW: [f64; 6] = [0.42, -0.25, 0.0, -0.1, -0.1, -0.6];
 const CONTEXT_HIGH: [f64; 6] = [0.6, 0.25, 0.1, 0.1, 0.1, 0.6];
 const DOF: usize = 7;
@@ -299,7 +310,14 @@ impl Env for Pouring {
         seed: Option<u64>,
         options: &ResetOptions,
     ) -> Result<(Vec<f64>, Info), EnvError> {
-        reject_unknown_options(&options.extra, &[START_SPREAD_OPTION])?;
+        reject_unknown_options(&options.extra, &[START_SPREAD_OPTION, PUSH_FORCE_OPTION])?;
+        let push_force = options.extra.get(PUSH_FORCE_OPTION).copied().unwrap_or(0.0);
+        if !(push_force.is_finite() && push_force >= 0.0) {
+            return Err(EnvError::InvalidOption {
+                name: PUSH_FORCE_OPTION.into(),
+                detail: format!("{push_force} N; a finite force >= 0 is needed"),
+            });
+        }
         let spread = match options.extra.get(START_SPREAD_OPTION).copied() {
             None => START_SPREAD,
             Some(s) if (0.0..=MAX_START_SPREAD).contains(&s) => s,
@@ -342,10 +360,30 @@ impl Env for Pouring {
             Some(qd0) => self.joint_vector("initial_velocity", qd0)?,
             None => vec![0.0; DOF],
         };
+        // Drawn after the start, so a pushed episode starts where the unpushed one does.
+        let rng = self.rng.reseed(None);
+        let push = (push_force > 0.0).then(|| {
+            let magnitude = rng.random_range(0.0..=push_force);
+            let angle = rng.random_range(0.0..std::f64::consts::TAU);
+            Perturbation {
+                kind: PerturbationKind::LinkWrench {
+                    link: DOF - 1,
+                    force: [magnitude * angle.cos(), magnitude * angle.sin(), 0.0],
+                    torque: [0.0; 3],
+                },
+                start: rng.random_range(DEMO_PUSH_WINDOW.0..=DEMO_PUSH_WINDOW.1),
+                duration: DEMO_PUSH_DURATION,
+            }
+        });
         self.apply_context(&context)?;
         self.simulator
             .reset(&q0, &qd0)
             .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        if let Some(push) = push {
+            self.simulator
+                .perturb(push)
+                .map_err(|e| EnvError::InvalidPerturbation(e.to_string()))?;
+        }
         self.phase = Phase::Running;
         self.steps = 0;
         self.spout_trail = vec![self.cup()?.spout];
