@@ -55,8 +55,8 @@ LIMIT_CYCLE_MODEL = ["--epochs", "40"]
 OBSTACLE_MODEL = ["--epochs", "8"]
 # What the perturbation script does to the running pouring session (simulated seconds):
 # a 0.2 s push on the hand, then the pot moved to another valid pose, where it stays.
-PERTURB_PUSH = "link=6,force=0:60:0,at=1.0,duration=0.2"
-PERTURB_CONTEXT = "at=2.5,value=0.55:-0.15:0.05:0:0:0.4"
+PERTURB_PUSH = "link=6,force=0:25:0,at=1.0,duration=0.2"
+PERTURB_CONTEXT = "at=1.5,value=0.55:-0.15:0.05:0:0:0.4"
 
 
 @dataclass

@@ -15,6 +15,8 @@ Layout of EXPERIMENTS_DIR (every file optional: a missing one gives a "not run" 
     pouring/eval.json                 ciflow evaluate (no perturbation), 100 episodes
     pouring/push.json                 ciflow evaluate --perturb push
     pouring/context.json              ciflow evaluate --perturb context
+    pouring/perturb.json              python -m ciflow.perturb --record (a policy-driven
+                                      session over Zenoh, pushed and its pot moved)
     stability/<name>.json             ciflow stability --json > ... (name e.g. pouring-flow,
                                       pouring-baseline: every trained policy and the baseline)
 """
@@ -347,6 +349,36 @@ def pouring(report, root):
     else:
         plot_disturbed(report, context, "pouring_context.png",
                        "Pouring: the pot moved mid-motion (dotted line)")
+    script = load(folder / "perturb.json")
+    if script is None:
+        report.not_run("the perturbation script's run", folder / "perturb.json")
+    else:
+        plot_script_run(report, script)
+
+
+def plot_script_run(report, script):
+    """The engine's policy driving a session while `python -m ciflow.perturb` pushed it and
+    moved the pot: joint positions and commands against simulated time."""
+    samples = script["samples"]
+    time = np.array([s["time"] for s in samples])
+    fig, axes = plt.subplots(2, 1, sharex=True, figsize=(8, 5.5))
+    for axis, field, label in ((axes[0], "state", "joint position (rad)"),
+                               (axes[1], "command", "commanded q̈ (rad/s²)")):
+        values = as_array([s[field] for s in samples])
+        axis.plot(time, values[:, :7] if values.shape[1] >= 7 else values, lw=1)
+        axis.set_ylabel(label)
+        for event in script["events"]:
+            color = "tab:red" if event["kind"] == "push" else "tab:blue"
+            axis.axvspan(event["start"], event["start"] + max(event["duration"], 0.02),
+                         color=color, alpha=0.2)
+    axes[1].set_xlabel("simulated time (s)")
+    last = samples[-1]
+    ended = "ended" if last.get("episode_done") else "was still running"
+    report.figure(fig, "pouring_script_run.png",
+                  "Pouring over Zenoh: the engine's policy pushed (red) and its pot moved (blue) "
+                  "by the perturbation script")
+    report.add(f"The perturbation script's session ran {last['time']:.2f} simulated s "
+               f"({len(samples)} telemetry samples) and {ended}.", "")
 
 
 def stability(report, root):
@@ -356,14 +388,17 @@ def stability(report, root):
     if not runs:
         report.not_run("stability", folder)
         return
-    report.add("", "| policy | converged | rollouts | non-finite |", "|---|---|---|---|")
+    report.add("", "| policy | converged | rollouts | non-finite | through the robot loop |",
+               "|---|---|---|---|---|")
     names, fractions = [], []
     for path in runs:
-        s = load(path)
+        measured = load(path)
+        s, loop = measured["observation_space"], measured.get("robot_loop")
         names.append(path.stem)
         fractions.append(s["fraction"])
+        through = "not run" if loop is None else f"{percent(loop['fraction'])} of {loop['rollouts']}"
         report.add(f"| {path.stem} | {percent(s['fraction'])} | {s['rollouts']} | "
-                   f"{s.get('diverged_to_non_finite', 0)} |")
+                   f"{s.get('diverged_to_non_finite', 0)} | {through} |")
     fig, ax = plt.subplots(figsize=(max(4, 1.2 * len(names)), 3.5))
     colors = ["tab:red" if "baseline" in n else "tab:blue" for n in names]
     ax.bar(names, [100 * f for f in fractions], color=colors)

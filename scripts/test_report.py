@@ -82,8 +82,20 @@ def experiments(tmp_path):
     }
     write(root / "pouring" / "push.json",
           evaluation(0.8, 10, {"mode": "push", "start": 0.05, "duration": 0.05}, push=push))
-    write(root / "stability" / "pouring-flow.json",
-          {"fraction": 1.0, "rollouts": 50, "diverged_to_non_finite": 0})
+    write(root / "stability" / "pouring-flow.json", {
+        "observation_space": {"fraction": 1.0, "rollouts": 50, "diverged_to_non_finite": 0},
+        "robot_loop": {"fraction": 0.95, "rollouts": 20},
+    })
+    write(root / "stability" / "pouring-baseline.json", {
+        "observation_space": {"fraction": 0.4, "rollouts": 50, "diverged_to_non_finite": 3},
+    })
+    samples = [{"time": 0.01 * k, "state": [0.1 * k] * 7, "command": [1.0] * 7,
+                "running": True, "episode_done": k == 99} for k in range(100)]
+    write(root / "pouring" / "perturb.json", {
+        "events": [{"kind": "push", "start": 0.3, "duration": 0.2},
+                   {"kind": "context", "start": 0.6, "duration": 0.0}],
+        "samples": samples,
+    })
     return root
 
 
@@ -99,10 +111,12 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert "90.0% | ≥ 80% of pushes | **pass** |" in text
     assert "2 obstacle(s): not run" in text
     assert "pot moved mid-motion: not run" in text
-    assert "| pouring-flow | 100.0% | 50 | 0 |" in text
+    assert "| pouring-flow | 100.0% | 50 | 0 | 95.0% of 20 |" in text
+    assert "| pouring-baseline | 40.0% | 50 | 3 | not run |" in text
+    assert "session ran 0.99 simulated s (100 telemetry samples) and ended" in text
     figures = tmp_path / "out" / "figures"
     for name in ("limit_cycle_field.png", "limit_cycle_nll.png", "obstacles_rollouts.png",
-                 "pouring_push.png", "stability.png"):
+                 "pouring_push.png", "pouring_script_run.png", "stability.png"):
         assert (figures / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
         assert f"(figures/{name})" in text
 
