@@ -20,6 +20,8 @@ use ciflow_bridge::zenoh::query::ConsolidationMode;
 use ciflow_bridge::{Client, EngineServer, NetworkOptions, Role, ServerOptions};
 
 const TASK: &str = "ciflow/LimitCycle-v0";
+/// The 2-D tasks whose batched stepping has the 1M env-steps/s target.
+const BATCHED_TASKS: [&str; 2] = ["ciflow/LimitCycle-v0", "ciflow/Obstacle-v0"];
 const WARMUP: usize = 500;
 const SAMPLES: usize = 5000;
 const BATCH_SIZES: [u32; 4] = [1024, 16384, 65536, 262144];
@@ -50,8 +52,8 @@ fn micros(d: Duration) -> f64 {
 
 /// Env-steps per second of the task called directly (what the engine cannot beat per
 /// core), with the same zero action as the batched runs.
-fn local_rate() -> Result<f64, Box<dyn std::error::Error + Send + Sync>> {
-    let mut env = ciflow_envs::make(TASK)?;
+fn local_rate(task: &str) -> Result<f64, Box<dyn std::error::Error + Send + Sync>> {
+    let mut env = ciflow_envs::make(task)?;
     let options = ciflow_envs::ResetOptions::default();
     env.reset(Some(0), &options)?;
     let action = vec![0.0; env.spec().action_space.dim()];
@@ -150,13 +152,26 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
         step_p99.as_secs_f64() / raw_p99.as_secs_f64()
     );
 
-    println!("batched stepping ({TASK}, step_batch, next-step autoreset)");
+    for task in BATCHED_TASKS {
+        batched_rates(&client, &engine, task)?;
+    }
+    Ok(())
+}
+
+/// Batched env-steps per second of `task` for each of [`BATCH_SIZES`], after the rate of
+/// the task alone for reference.
+fn batched_rates(
+    client: &Client,
+    engine: &str,
+    task: &str,
+) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
+    println!("batched stepping ({task}, step_batch, next-step autoreset)");
     println!(
         "  reference: the task alone, one thread, no network: {:.0} env-steps/s",
-        local_rate()?
+        local_rate(task)?
     );
     for n in BATCH_SIZES {
-        let batch = client.make(&engine, TASK, n, &BTreeMap::new())?;
+        let batch = client.make(engine, task, n, &BTreeMap::new())?;
         batch.reset_batch(Some(0), None)?;
         let actions = vec![0.0; n as usize * batch.spec().action_space.dim()];
         batch.step_batch(&actions)?;
