@@ -4,6 +4,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$PWD/target}
+# The workspace's libtorch (the `ciflow` binary links it), as the Makefile sets it.
+export LIBTORCH=${LIBTORCH:-$PWD/.libtorch} LIBTORCH_CXX11_ABI=1
+export LD_LIBRARY_PATH=$LIBTORCH/lib:$LIBTORCH/cuda-lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}
 PYTHON=${PYTHON:-$PWD/.venv/bin/python}
 PORT=${PORT:-27490}
 ENDPOINT=tcp/127.0.0.1:$PORT
