@@ -157,9 +157,17 @@ impl FlowModel {
 
     /// `z = f⁻¹(y, c)` and `log|det ∂f⁻¹/∂y|` per row.
     pub fn inverse(&self, y: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
-        let (normalised, offset) = self.condition(context);
+        self.inverse_conditioned(y, &self.condition(context))
+    }
+
+    /// [`inverse`](Self::inverse) with the conditioning `(c̃, o(c))` already computed.
+    fn inverse_conditioned(
+        &self,
+        y: &Tensor,
+        (normalised, offset): &(Tensor, Tensor),
+    ) -> (Tensor, Tensor) {
         let x = (y - &self.state_mean) / &self.state_std - offset;
-        let (z, log_det) = self.g_inverse(&x, &normalised);
+        let (z, log_det) = self.g_inverse(&x, normalised);
         (z, log_det - self.log_state_scale())
     }
 
@@ -171,9 +179,15 @@ impl FlowModel {
         context: &Tensor,
         horizon: usize,
     ) -> Tensor {
+        // Both ends share `c`: condition once (the offset costs a network pass), then
+        // invert both ends in one batch.
+        let (normalised, offset) = self.condition(context);
         let both = Tensor::cat(&[y_prev, y_next], 0);
-        let contexts = Tensor::cat(&[context, context], 0);
-        let (z, log_det) = self.inverse(&both, &contexts);
+        let conditioning = (
+            Tensor::cat(&[&normalised, &normalised], 0),
+            Tensor::cat(&[&offset, &offset], 0),
+        );
+        let (z, log_det) = self.inverse_conditioned(&both, &conditioning);
         let rows = y_prev.size()[0];
         let (z_prev, z_next) = (z.narrow(0, 0, rows), z.narrow(0, rows, rows));
         self.latent.log_transition(&z_prev, &z_next, horizon) + log_det.narrow(0, rows, rows)
