@@ -4,7 +4,8 @@ mod flow_common;
 
 use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
 use ciflow_engine::flow::{
-    BaselineConfig, CheckpointConfig, FlowError, Goal, LatentKind, Policy, Tensor, Weights,
+    BaselineConfig, CheckpointConfig, ContextSet, FlowError, Goal, LatentKind, Policy, Tensor,
+    Weights,
 };
 use flow_common::*;
 
@@ -143,4 +144,36 @@ fn bad_inputs_are_typed_errors() {
         Policy::new(&bad, random_weights(&config, 4)),
         Err(FlowError::InvalidConfig(_))
     ));
+}
+
+/// A `config.json` written before context sets existed has none; one with sets round-trips
+/// them; sets outside the context or overlapping are typed errors.
+#[test]
+fn context_sets_default_to_none_round_trip_and_are_validated() {
+    let mut config = config(2, 5, LatentKind::GoTo, SPLINE);
+    let mut json = serde_json::to_value(CheckpointConfig::Flow(config.clone())).unwrap();
+    json.as_object_mut().unwrap().remove("context_sets");
+    let old: CheckpointConfig = serde_json::from_value(json).unwrap();
+    assert_eq!(old, CheckpointConfig::Flow(config.clone()));
+
+    let set = |start, count| ContextSet {
+        start,
+        count,
+        size: 2,
+    };
+    config.context_sets = vec![set(1, 2)];
+    let text = serde_json::to_string(&CheckpointConfig::Flow(config.clone())).unwrap();
+    assert!(text.contains("context_sets"));
+    let back: CheckpointConfig = serde_json::from_str(&text).unwrap();
+    assert_eq!(back, CheckpointConfig::Flow(config.clone()));
+    assert!(config.validate().is_ok());
+
+    for bad in [vec![set(2, 2)], vec![set(0, 0)], vec![set(0, 2), set(3, 1)]] {
+        let mut invalid = config.clone();
+        invalid.context_sets = bad;
+        assert!(matches!(
+            invalid.validate(),
+            Err(FlowError::InvalidConfig(_))
+        ));
+    }
 }

@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use ciflow_bridge::CheckpointPublisher;
-use ciflow_engine::flow::{CouplingKind, Goal, LatentKind};
+use ciflow_engine::flow::{ContextSet, CouplingKind, Goal, LatentKind};
 use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::{self, TaskEntry};
 use ciflow_envs::tasks::{lasa, limit_cycle, obstacle_avoidance};
@@ -22,10 +22,10 @@ use ciflow_train::{
     BaselineTrainConfig, Contexts, Demonstrations, Episode, Keep, OptimConfig, Progress, Snapshot,
     TrainConfig, train_baseline, train_flow,
 };
-
-use super::demos::{parse_key_value, task_values};
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
+
+use super::demos::{parse_key_value, task_values};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum LatentArg {
@@ -74,6 +74,13 @@ impl From<KeepArg> for Keep {
 pub struct ModelArgs {
     #[arg(long, value_enum, default_value = "spline")]
     pub coupling: CouplingArg,
+    /// Bins of each spline coupling.
+    #[arg(long, default_value_t = 8)]
+    pub spline_bins: usize,
+    /// Half-width `B` of the spline's interval `[-B, B]` (normalised units; identity
+    /// outside).
+    #[arg(long, default_value_t = 4.0)]
+    pub tail_bound: f64,
     /// Number of (mixing, coupling) blocks.
     #[arg(long, default_value_t = 6)]
     pub layers: usize,
@@ -128,8 +135,8 @@ impl ModelArgs {
         let coupling = match self.coupling {
             CouplingArg::Affine => CouplingKind::Affine { scale_bound: 2.0 },
             CouplingArg::Spline => CouplingKind::Spline {
-                bins: 8,
-                tail_bound: 4.0,
+                bins: self.spline_bins,
+                tail_bound: self.tail_bound,
             },
         };
         TrainConfig {
@@ -138,6 +145,7 @@ impl ModelArgs {
             hidden: self.hidden.clone(),
             min_rate: self.min_rate.unwrap_or(defaults.min_rate),
             goal_context_indices: defaults.goal_context_indices,
+            context_sets: defaults.context_sets,
             horizon: self.horizon,
             state_noise: self.state_noise,
             threads: self.threads,
@@ -174,6 +182,12 @@ pub struct TrainArgs {
     /// of lasa, none otherwise].
     #[arg(long, value_delimiter = ',')]
     pub goal_context_indices: Option<Vec<usize>>,
+    /// Unordered sets in the context, which the conditioners see sorted by their elements'
+    /// first entry: START:COUNT:SIZE (COUNT elements of SIZE entries from context index
+    /// START), comma-separated, or `none` [default: the task's: the obstacle centres of
+    /// obstacle-avoidance, none otherwise].
+    #[arg(long, value_delimiter = ',', value_parser = parse_context_set)]
+    pub context_sets: Option<Vec<Option<ContextSet>>>,
     #[command(flatten)]
     pub model: ModelArgs,
     /// Also train the behaviour-cloning baseline into `<out>/baseline`.
@@ -200,6 +214,23 @@ pub struct TaskDefaults {
     pub goal_context_indices: Option<Vec<usize>>,
     /// Guaranteed latent contraction rate (1/s).
     pub min_rate: f64,
+    /// Unordered sets in the context.
+    pub context_sets: Vec<ContextSet>,
+}
+
+/// `START:COUNT:SIZE` as a [`ContextSet`], `none` as no set.
+fn parse_context_set(text: &str) -> Result<Option<ContextSet>, String> {
+    if text == "none" {
+        return Ok(None);
+    }
+    let fields: Vec<usize> = text
+        .split(':')
+        .map(|f| f.parse().map_err(|e| format!("`{f}`: {e}")))
+        .collect::<Result<_, _>>()?;
+    match fields[..] {
+        [start, count, size] => Ok(Some(ContextSet { start, count, size })),
+        _ => Err(format!("`{text}` is not START:COUNT:SIZE or `none`")),
+    }
 }
 
 /// The guaranteed latent rate of the limit cycle's linear dimensions (1/s).
@@ -214,12 +245,14 @@ const GO_TO_MIN_RATE: f64 = 1.0;
 /// The defaults of `task` for a context of dimension `context_dim`: a limit cycle for
 /// the limit-cycle task; go-to elsewhere, with the target read from the context where
 /// the task puts it there (obstacle avoidance: its last two entries, `[…, g_x, g_y]`;
-/// LASA: the goal `[g_x, g_y]`); pouring's attractor is learned as `f(0, c)`.
+/// LASA: the goal `[g_x, g_y]`); pouring's attractor is learned as `f(0, c)`. The
+/// obstacle centres `[o₁, …, o_K]` of obstacle avoidance form an unordered set.
 pub fn task_defaults(task: &TaskEntry, context_dim: usize) -> anyhow::Result<TaskDefaults> {
     let go_to = |goal_context_indices| TaskDefaults {
         latent: LatentKind::GoTo,
         goal_context_indices,
         min_rate: GO_TO_MIN_RATE,
+        context_sets: Vec::new(),
     };
     let planar_target = || match context_dim.checked_sub(2) {
         Some(x) => Ok(Some(vec![x, x + 1])),
@@ -233,8 +266,17 @@ pub fn task_defaults(task: &TaskEntry, context_dim: usize) -> anyhow::Result<Tas
             latent: LatentKind::LimitCycle,
             goal_context_indices: None,
             min_rate: LIMIT_CYCLE_MIN_RATE,
+            context_sets: Vec::new(),
         },
-        obstacle_avoidance::ID | lasa::ID => go_to(planar_target()?),
+        obstacle_avoidance::ID => TaskDefaults {
+            context_sets: vec![ContextSet {
+                start: 0,
+                count: (context_dim - 2) / 2,
+                size: 2,
+            }],
+            ..go_to(planar_target()?)
+        },
+        lasa::ID => go_to(planar_target()?),
         _ => go_to(None),
     })
 }
@@ -405,18 +447,23 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             .goal_context_indices
             .clone()
             .or(defaults.goal_context_indices),
+        context_sets: match &args.context_sets {
+            Some(sets) => sets.iter().flatten().copied().collect(),
+            None => defaults.context_sets,
+        },
         ..defaults
     };
     let config = args.model.flow(task.name, defaults);
     let (latent, goal_context_indices) = (config.latent, &config.goal_context_indices);
     println!(
         "{}: {} episodes, state {}-D, context {}-D, dt = {} s; latent {latent:?}, target in \
-         context {goal_context_indices:?}",
+         context {goal_context_indices:?}, unordered context sets {:?}",
         spec.dataset_id,
         data.episodes.len(),
         data.episodes.first().map_or(0, |e| e.states[0].len()),
         spec.context_space.dim(),
-        data.dt
+        data.dt,
+        config.context_sets
     );
     let publisher = args
         .publish

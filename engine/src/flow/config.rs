@@ -4,6 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::context_set::ContextSet;
 use super::error::{FlowError, FlowResult};
 use super::mlp::mlp_parameter_shapes;
 
@@ -151,7 +152,14 @@ pub struct FlowConfig {
     /// (raw units, one index per state dimension); the attractor then sits on it.
     #[serde(default)]
     pub goal_context_indices: Option<Vec<usize>>,
+    /// Unordered sets in the context, which the conditioners see canonicalised
+    /// ([`super::context_set`]); the goal is read from the raw context. Checkpoints
+    /// without the key have none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub context_sets: Vec<ContextSet>,
+    /// Statistics of the states and of the canonicalised contexts.
     pub normalisation: Normalisation,
+    /// Box of the states and of the raw contexts.
     pub bounds: Bounds,
 }
 
@@ -177,6 +185,7 @@ impl FlowConfig {
             layers,
             hidden,
             goal_context_indices: None,
+            context_sets: Vec::new(),
             normalisation: Normalisation::identity(state_dim, context_dim),
             bounds: Bounds {
                 state_min: vec![-1.0; state_dim],
@@ -284,9 +293,33 @@ impl FlowConfig {
                 )));
             }
         }
+        validate_context_sets(&self.context_sets, m)?;
         self.normalisation.validate(d, m)?;
         self.bounds.validate(d, m)
     }
+}
+
+/// Sets need elements of at least one entry, must lie inside a context of dimension `m`
+/// and must not overlap.
+fn validate_context_sets(sets: &[ContextSet], m: usize) -> FlowResult<()> {
+    let mut sorted = sets.to_vec();
+    sorted.sort_by_key(|s| s.start);
+    for (i, set) in sorted.iter().enumerate() {
+        if set.count == 0 || set.size == 0 || set.end() > m {
+            return Err(invalid(format!(
+                "context set {set:?} needs count and size >= 1 and must end within the \
+                 {m}-D context"
+            )));
+        }
+        if let Some(next) = sorted.get(i + 1)
+            && next.start < set.end()
+        {
+            return Err(invalid(format!(
+                "context sets {set:?} and {next:?} overlap"
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// The negative control for stability: unconstrained behaviour cloning

@@ -60,6 +60,7 @@ pub mod affine;
 pub mod baseline;
 pub mod checkpoint;
 pub mod config;
+pub mod context_set;
 pub mod coupling;
 pub mod error;
 pub mod latent;
@@ -78,6 +79,7 @@ pub use config::{
     BaselineConfig, Bounds, CheckpointConfig, CouplingKind, FlowConfig, Goal, LatentKind,
     Normalisation,
 };
+pub use context_set::ContextSet;
 pub use error::{FlowError, FlowResult};
 pub use policy::{Policy, PolicyWorkspace};
 pub use weights::{Tensor, Weights};

@@ -1,13 +1,16 @@
 //! The conditioned invertible network `y = f(z, c)` in observation units:
 //!
-//! `f(z, c) = μ_y + σ_y ⊙ (g(z, c̃) + o(c))`, `c̃ = (c - μ_c) ⊘ σ_c`,
+//! `f(z, c) = μ_y + σ_y ⊙ (g(z, c̃) + o(c))`, `c̃ = (κ(c) - μ_c) ⊘ σ_c`,
 //!
-//! where `g` is the stack of (LU mixing, coupling) blocks and the offset is
+//! where `κ` puts the context's unordered sets in canonical order ([`super::context_set`];
+//! the identity when there are none), `g` is the stack of (LU mixing, coupling) blocks and
+//! the offset is
 //! `o(c) = (target(c) - μ_y) ⊘ σ_y - g(0, c̃)` for go-to tasks whose target is part of the
 //! context (so `f(0, c) = target(c)` exactly, for every `c`) and `o = 0` otherwise. For
 //! each `c`, `f(·, c)` is a bijection with `log|det ∂f/∂z| = Σ log σ_y + log|det ∂g/∂z|`.
 
 use super::config::FlowConfig;
+use super::context_set::canonicalise;
 use super::coupling::{Coupling, CouplingRecord, CouplingScratch, TangentScratch};
 use super::error::{FlowResult, check_input};
 use super::mixing::LuMixing;
@@ -171,13 +174,14 @@ impl ConditionalFlow {
         check_input("context", self.config.context_dim, context)?;
         let norm = &self.config.normalisation;
         conditioning.raw.copy_from_slice(context);
-        for ((n, c), (m, s)) in conditioning
+        conditioning.normalised.copy_from_slice(context);
+        canonicalise(&self.config.context_sets, &mut conditioning.normalised);
+        for (n, (m, s)) in conditioning
             .normalised
             .iter_mut()
-            .zip(context)
             .zip(norm.context_mean.iter().zip(&norm.context_std))
         {
-            *n = (c - m) / s;
+            *n = (*n - m) / s;
         }
         let bias_len = conditioning.context_biases.len() / self.blocks.len();
         let biases = conditioning.context_biases.chunks_exact_mut(bias_len);

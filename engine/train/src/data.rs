@@ -1,7 +1,8 @@
 //! Demonstrations: episodes of states `[T × d]` with contexts `[T × m]` or one per
 //! episode, sampled every `dt` seconds.
 
-use ciflow_engine::flow::{Bounds, Normalisation};
+use ciflow_engine::flow::context_set::canonicalise;
+use ciflow_engine::flow::{Bounds, ContextSet, Normalisation};
 use tch::{Kind, Tensor};
 
 use crate::error::{TrainError, TrainResult};
@@ -79,6 +80,31 @@ impl Demonstrations {
             }
         }
         Ok((d, m))
+    }
+
+    /// The demonstrations with every context canonicalised (`κ(c)`, see
+    /// [`ciflow_engine::flow::context_set`]), the contexts the conditioners see.
+    pub fn canonicalised(&self, sets: &[ContextSet]) -> Self {
+        let canonical = |c: &Vec<f64>| {
+            let mut c = c.clone();
+            canonicalise(sets, &mut c);
+            c
+        };
+        let episodes = self
+            .episodes
+            .iter()
+            .map(|e| Episode {
+                states: e.states.clone(),
+                contexts: match &e.contexts {
+                    Contexts::PerStep(c) => Contexts::PerStep(c.iter().map(canonical).collect()),
+                    Contexts::PerEpisode(c) => Contexts::PerEpisode(canonical(c)),
+                },
+            })
+            .collect();
+        Self {
+            episodes,
+            dt: self.dt,
+        }
     }
 
     fn rows(&self) -> impl Iterator<Item = (&[f64], &[f64])> + Clone {

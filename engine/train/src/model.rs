@@ -1,4 +1,5 @@
-//! The conditioned ImitationFlow in tch: `y = μ_y + σ_y ⊙ (g(z, c̃) + o(c))` with the
+//! The conditioned ImitationFlow in tch: `y = μ_y + σ_y ⊙ (g(z, c̃) + o(c))`,
+//! `c̃ = (κ(c) - μ_c) ⊘ σ_c`, with the
 //! latent dynamics of [`LatentModel`], mirroring `ciflow_engine::flow` parameter for
 //! parameter, so `VarStore::save("weights.safetensors")` loads in the pure-Rust policy.
 
@@ -97,9 +98,40 @@ impl FlowModel {
         (x, log_det)
     }
 
+    /// `κ(c)`: each context set's elements `[B, count, size]` sorted (stably) by their
+    /// first entry, as `ciflow_engine::flow::context_set` does.
+    fn canonicalise(&self, context: &Tensor) -> Tensor {
+        let mut canonical = context.shallow_clone();
+        for set in &self.config.context_sets {
+            let (start, count, size) = (set.start as i64, set.count as i64, set.size as i64);
+            let rows = context.size()[0];
+            let elements = canonical
+                .narrow(1, start, count * size)
+                .reshape([rows, count, size]);
+            let (_, order) = elements.select(2, 0).sort_stable(true, 1, false);
+            let sorted = elements
+                .gather(
+                    1,
+                    &order.unsqueeze(2).expand([rows, count, size], false),
+                    false,
+                )
+                .reshape([rows, count * size]);
+            let m = canonical.size()[1];
+            canonical = Tensor::cat(
+                &[
+                    canonical.narrow(1, 0, start),
+                    sorted,
+                    canonical.narrow(1, start + count * size, m - start - count * size),
+                ],
+                1,
+            );
+        }
+        canonical
+    }
+
     /// `(c̃, o(c))` for raw contexts `[B, m]`.
     fn condition(&self, context: &Tensor) -> (Tensor, Tensor) {
-        let normalised = (context - &self.context_mean) / &self.context_std;
+        let normalised = (self.canonicalise(context) - &self.context_mean) / &self.context_std;
         let rows = context.size()[0];
         let d = self.config.state_dim as i64;
         let offset = match &self.goal_index {
@@ -125,9 +157,17 @@ impl FlowModel {
 
     /// `z = f⁻¹(y, c)` and `log|det ∂f⁻¹/∂y|` per row.
     pub fn inverse(&self, y: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
-        let (normalised, offset) = self.condition(context);
+        self.inverse_conditioned(y, &self.condition(context))
+    }
+
+    /// [`inverse`](Self::inverse) with the conditioning `(c̃, o(c))` already computed.
+    fn inverse_conditioned(
+        &self,
+        y: &Tensor,
+        (normalised, offset): &(Tensor, Tensor),
+    ) -> (Tensor, Tensor) {
         let x = (y - &self.state_mean) / &self.state_std - offset;
-        let (z, log_det) = self.g_inverse(&x, &normalised);
+        let (z, log_det) = self.g_inverse(&x, normalised);
         (z, log_det - self.log_state_scale())
     }
 
@@ -139,9 +179,15 @@ impl FlowModel {
         context: &Tensor,
         horizon: usize,
     ) -> Tensor {
+        // Both ends share `c`: condition once (the offset costs a network pass), then
+        // invert both ends in one batch.
+        let (normalised, offset) = self.condition(context);
         let both = Tensor::cat(&[y_prev, y_next], 0);
-        let contexts = Tensor::cat(&[context, context], 0);
-        let (z, log_det) = self.inverse(&both, &contexts);
+        let conditioning = (
+            Tensor::cat(&[&normalised, &normalised], 0),
+            Tensor::cat(&[&offset, &offset], 0),
+        );
+        let (z, log_det) = self.inverse_conditioned(&both, &conditioning);
         let rows = y_prev.size()[0];
         let (z_prev, z_next) = (z.narrow(0, 0, rows), z.narrow(0, rows, rows));
         self.latent.log_transition(&z_prev, &z_next, horizon) + log_det.narrow(0, rows, rows)

@@ -10,7 +10,7 @@
 use std::path::Path;
 
 use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
-use ciflow_engine::flow::{CheckpointConfig, CouplingKind, FlowConfig, LatentKind};
+use ciflow_engine::flow::{CheckpointConfig, ContextSet, CouplingKind, FlowConfig, LatentKind};
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor, nn};
 
@@ -38,6 +38,10 @@ pub struct TrainConfig {
     pub min_rate: f64,
     /// `target(c) = c[indices]` for go-to tasks whose target is in the context.
     pub goal_context_indices: Option<Vec<usize>>,
+    /// Unordered sets in the context (e.g. obstacle centres) that the conditioners see in
+    /// canonical order ([`ciflow_engine::flow::context_set`]).
+    #[serde(default)]
+    pub context_sets: Vec<ContextSet>,
     /// Steps per modelled transition (`k` of the `k`-step density; 1 = the paper's).
     pub horizon: usize,
     /// Standard deviation of the Gaussian jitter added to every training state, as a
@@ -66,6 +70,7 @@ impl TrainConfig {
             hidden: vec![64, 64],
             min_rate: 0.1,
             goal_context_indices: None,
+            context_sets: Vec::new(),
             horizon: 1,
             state_noise: DEFAULT_STATE_NOISE,
             validation_fraction: 0.2,
@@ -175,10 +180,15 @@ pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<Fl
         layers: train.layers,
         hidden: train.hidden.clone(),
         goal_context_indices: train.goal_context_indices.clone(),
+        context_sets: train.context_sets.clone(),
         normalisation: data.normalisation(),
         bounds: data.bounds(),
     };
     config.validate()?;
+    let config = FlowConfig {
+        normalisation: data.canonicalised(&config.context_sets).normalisation(),
+        ..config
+    };
     Ok(config)
 }
 

@@ -4,11 +4,14 @@
 //! avoidance", Autonomous Robots 32 (2012). The nominal system
 //! `f(x) = sat(−k (x − g))` is reshaped around each circular obstacle `i` by
 //!
-//! `M_i(x) = E_i D_i E_iᵀ`, `E_i = [n_i  t_i]`, `D_i = diag(1 − 1/Γ_i, 1 + 1/Γ_i)`,
+//! `M_i(x) = E_i D_i E_iᵀ`, `E_i = [n_i  t_i]`, `D_i = diag(1 − Γ_i^{−1/ρ}, 1 + Γ_i^{−1/ρ})`,
 //! `Γ_i(x) = (‖x − o_i‖ / R_i)²`,
 //!
-//! with `n_i` the outward normal and `t_i` the tangent. On the boundary (`Γ = 1`) the
-//! normal component vanishes, so trajectories cannot enter; far away `M_i → I`. With
+//! with `n_i` the outward normal, `t_i` the tangent and `ρ ≥ 1` the reactivity (their
+//! Eq. 17): a larger `ρ` starts the deflection farther out, so the motion turns gradually
+//! instead of running at the obstacle and wrapping around its boundary at the last moment.
+//! On the boundary (`Γ = 1`) the normal component vanishes for every `ρ`, so trajectories
+//! cannot enter; far away `M_i → I`. With
 //! several obstacles each `1/Γ_i` is weighted by (their Eq. 20)
 //!
 //! `ω_i = Π_{j≠i} (Γ_j − 1) / ((Γ_i − 1) + (Γ_j − 1))`,
@@ -44,8 +47,8 @@ impl Disc {
         (x - self.center).norm_squared() / (self.radius * self.radius)
     }
 
-    /// The modulation matrix `M(x) = E D Eᵀ` with `1/Γ` weighted by `weight` (`ω`).
-    pub fn modulation(&self, x: &Vector2<f64>, weight: f64) -> Matrix2<f64> {
+    /// The modulation matrix `M(x) = E D Eᵀ` with `Γ^{−1/ρ}` weighted by `weight` (`ω`).
+    pub fn modulation(&self, x: &Vector2<f64>, weight: f64, reactivity: f64) -> Matrix2<f64> {
         let offset = x - self.center;
         let distance = offset.norm();
         if distance < 1e-12 {
@@ -53,7 +56,7 @@ impl Disc {
         }
         let normal = offset / distance;
         let tangent = Vector2::new(-normal.y, normal.x);
-        let inverse_gamma = weight / self.gamma(x).max(MIN_GAMMA);
+        let inverse_gamma = weight / self.gamma(x).max(MIN_GAMMA).powf(1.0 / reactivity);
         (1.0 - inverse_gamma) * normal * normal.transpose()
             + (1.0 + inverse_gamma) * tangent * tangent.transpose()
     }
@@ -64,6 +67,8 @@ impl Disc {
 pub struct ModulatedField {
     pub target: Vector2<f64>,
     pub obstacles: Vec<Disc>,
+    /// `ρ ≥ 1`: how far out the obstacles deflect the motion (1: the least).
+    pub reactivity: f64,
 }
 
 impl VelocityField for ModulatedField {
@@ -85,7 +90,9 @@ impl VelocityField for ModulatedField {
             .iter()
             .enumerate()
             .rev()
-            .fold(nominal, |v, (i, disc)| disc.modulation(x, weight(i)) * v)
+            .fold(nominal, |v, (i, disc)| {
+                disc.modulation(x, weight(i), self.reactivity) * v
+            })
     }
 }
 
@@ -99,15 +106,18 @@ mod tests {
             center: Vector2::new(0.1, -0.2),
             radius: 0.3,
         };
-        let field = ModulatedField {
-            target: Vector2::new(2.0, 0.5),
-            obstacles: vec![disc],
-        };
-        for i in 0..36 {
-            let angle = (i as f64 * 10.0).to_radians();
-            let normal = Vector2::new(angle.cos(), angle.sin());
-            let v = field.velocity(&(disc.center + disc.radius * normal));
-            assert!(v.dot(&normal).abs() < 1e-12);
+        for reactivity in [1.0, 3.0] {
+            let field = ModulatedField {
+                target: Vector2::new(2.0, 0.5),
+                obstacles: vec![disc],
+                reactivity,
+            };
+            for i in 0..36 {
+                let angle = (i as f64 * 10.0).to_radians();
+                let normal = Vector2::new(angle.cos(), angle.sin());
+                let v = field.velocity(&(disc.center + disc.radius * normal));
+                assert!(v.dot(&normal).abs() < 1e-12);
+            }
         }
     }
 
@@ -117,16 +127,19 @@ mod tests {
             center,
             radius: 0.16,
         });
-        let field = ModulatedField {
-            target: Vector2::new(1.0, 0.3),
-            obstacles: discs.to_vec(),
-        };
-        for disc in &discs {
-            for i in 0..72 {
-                let angle = (i as f64 * 5.0).to_radians();
-                let normal = Vector2::new(angle.cos(), angle.sin());
-                let v = field.velocity(&(disc.center + disc.radius * normal));
-                assert!(v.dot(&normal) > -1e-6, "{}", v.dot(&normal));
+        for reactivity in [1.0, 3.0] {
+            let field = ModulatedField {
+                target: Vector2::new(1.0, 0.3),
+                obstacles: discs.to_vec(),
+                reactivity,
+            };
+            for disc in &discs {
+                for i in 0..72 {
+                    let angle = (i as f64 * 5.0).to_radians();
+                    let normal = Vector2::new(angle.cos(), angle.sin());
+                    let v = field.velocity(&(disc.center + disc.radius * normal));
+                    assert!(v.dot(&normal) > -1e-6, "{}", v.dot(&normal));
+                }
             }
         }
     }
@@ -139,8 +152,34 @@ mod tests {
                 center: Vector2::new(100.0, 0.0),
                 radius: 0.1,
             }],
+            reactivity: 1.0,
         };
         let x = Vector2::new(0.005, -0.002);
         assert!((field.velocity(&x) + ATTRACTOR_GAIN * x).norm() < 1e-5);
+    }
+
+    #[test]
+    fn a_larger_reactivity_turns_earlier() {
+        let disc = Disc {
+            center: Vector2::zeros(),
+            radius: 0.16,
+        };
+        // Two radii in front of the obstacle, heading at it slightly off-centre.
+        let x = Vector2::new(-0.32, 0.01);
+        let turn = |reactivity| {
+            let field = ModulatedField {
+                target: Vector2::new(1.0, 0.0),
+                obstacles: vec![disc],
+                reactivity,
+            };
+            let v = field.velocity(&x);
+            v.y.atan2(v.x)
+        };
+        assert!(
+            turn(3.0) > 2.0 * turn(1.0),
+            "{} vs {}",
+            turn(3.0),
+            turn(1.0)
+        );
     }
 }
