@@ -1,0 +1,65 @@
+"""scripts/demo.py's job runner on tiny jobs: dependencies run first, a failed job skips
+only its dependents, stdout can go to a file, and `--only` selects jobs with their needs."""
+
+import importlib.util
+import pathlib
+import sys
+
+import pytest
+
+spec = importlib.util.spec_from_file_location(
+    "demo", pathlib.Path(__file__).with_name("demo.py"))
+demo = importlib.util.module_from_spec(spec)
+sys.modules["demo"] = demo  # dataclasses look their module up while the class is built
+spec.loader.exec_module(demo)
+
+
+def python(code):
+    return [sys.executable, "-c", code]
+
+
+def test_a_failed_job_skips_its_dependents_and_the_others_run(tmp_path):
+    trail = tmp_path / "trail.txt"
+
+    def append(word):
+        return python(f"open({str(trail)!r}, 'a').write({word!r} + ' ')")
+
+    jobs = [
+        demo.Job("first", [append("first")]),
+        demo.Job("second", [append("second")], after=["first"]),
+        demo.Job("broken", [python("import sys; sys.exit(3)")]),
+        demo.Job("needs-broken", [append("never")], after=["broken"]),
+        demo.Job("after-that", [append("never")], after=["needs-broken"]),
+        demo.Job("printer", [python("print('to the file')")], stdout=tmp_path / "out.txt"),
+    ]
+    runner = demo.Runner(tmp_path, slots=2)
+    done, failed = runner.run(jobs)
+    assert sorted(done) == ["first", "printer", "second"]
+    assert [f.log.name for f in failed] == ["broken.log"]
+    assert "exited with 3" in str(failed[0])
+    assert trail.read_text().split() == ["first", "second"]
+    assert (tmp_path / "out.txt").read_text() == "to the file\n"
+    assert "$ " in (tmp_path / "first.log").read_text()
+
+
+def test_unknown_dependencies_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="unknown jobs"):
+        demo.Runner(tmp_path, slots=1).run([demo.Job("a", [], after=["missing"])])
+
+
+def test_only_keeps_the_named_jobs_and_what_they_need():
+    jobs = [demo.Job("record", []), demo.Job("train", [], after=["record"]),
+            demo.Job("evaluate", [], after=["train"]), demo.Job("other", [])]
+    assert [j.name for j in demo.needed(jobs, ["eval"])] == ["record", "train", "evaluate"]
+    with pytest.raises(SystemExit, match="no job starts with"):
+        demo.needed(jobs, ["nothing"])
+
+
+def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
+    jobs = demo.plan(tmp_path)
+    names = {job.name for job in jobs}
+    for name in ("pouring-record-train", "pouring-perturb", "pouring-push", "pouring-context",
+                 "obstacles-3", "stability-obstacles-3-baseline", "limit-cycle-field",
+                 "limit-cycle-10-seed2", "pouring-0.1-seed2"):
+        assert name in names
+    assert all(set(job.after) <= names for job in jobs)
