@@ -313,6 +313,9 @@ pub struct StepResult {
     pub time: f64,
 }
 
+/// `info` of a batch: key → one value per environment (NaN where absent).
+pub type InfoColumns = BTreeMap<String, Vec<f64>>;
+
 /// Result of [`RemoteEnv::step_batch`] (next-step autoreset, see the protocol).
 #[derive(Clone, Debug, PartialEq)]
 pub struct BatchStep {
@@ -321,8 +324,7 @@ pub struct BatchStep {
     pub rewards: Vec<f64>,
     pub terminated: Vec<bool>,
     pub truncated: Vec<bool>,
-    /// Key → one value per environment (NaN where absent).
-    pub info: BTreeMap<String, Vec<f64>>,
+    pub info: InfoColumns,
 }
 
 /// A session on an engine, owned by the [`Client`] that made it. Closed on drop.
@@ -455,7 +457,7 @@ impl RemoteEnv {
         &self,
         seed: Option<u64>,
         options: Option<ResetOptions>,
-    ) -> Result<(Vec<f64>, BTreeMap<String, Vec<f64>>), BridgeError> {
+    ) -> Result<(Vec<f64>, InfoColumns), BridgeError> {
         let reply: BatchResetReply =
             self.call(SessionOp::ResetBatch, &self.reset_request(seed, options))?;
         Ok((reply.observations.0, unwrap_columns(reply.info)))
@@ -657,6 +659,6 @@ fn receive_frame(
     Ok(None)
 }
 
-fn unwrap_columns(columns: BTreeMap<String, F64s>) -> BTreeMap<String, Vec<f64>> {
+fn unwrap_columns(columns: BTreeMap<String, F64s>) -> InfoColumns {
     columns.into_iter().map(|(k, v)| (k, v.0)).collect()
 }

@@ -32,7 +32,7 @@ impl F64s {
 
     /// Decodes little-endian `f64` bytes; `None` if the length is not a multiple of 8.
     pub fn from_le_bytes(bytes: &[u8]) -> Option<Vec<f64>> {
-        if bytes.len() % 8 != 0 {
+        if !bytes.len().is_multiple_of(8) {
             return None;
         }
         Some(

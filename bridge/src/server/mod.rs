@@ -698,7 +698,7 @@ impl Shared {
         let observations = &request.observations.0;
         if observation_dim == 0
             || observations.is_empty()
-            || observations.len() % observation_dim != 0
+            || !observations.len().is_multiple_of(observation_dim)
         {
             return Err(ErrorReply::new(
                 ErrorCode::WrongDimension,
