@@ -7,6 +7,7 @@ mod common;
 use std::path::Path;
 
 use ciflow_engine::flow::Policy;
+use ciflow_engine::math::distance;
 use common::{Scratch, ciflow, succeed};
 use serde_json::Value;
 
@@ -16,14 +17,6 @@ const GOAL_TOLERANCE: f64 = 2e-3;
 /// guaranteed latent rate of 0.5 /s set below, the latent distance shrinks by at least
 /// `e^-15` in that time whatever the training reached; a wrongly wired target misses.
 const ROLLOUT_STEPS: usize = 3000;
-
-fn distance(a: &[f64], b: &[f64]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y) * (x - y))
-        .sum::<f64>()
-        .sqrt()
-}
 
 #[test]
 fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targets() {

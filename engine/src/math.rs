@@ -12,3 +12,12 @@ pub type Matrix3 = nalgebra::Matrix3<Real>;
 pub type Matrix6 = nalgebra::Matrix6<Real>;
 pub type Isometry3 = nalgebra::Isometry3<Real>;
 pub type UnitQuaternion = nalgebra::UnitQuaternion<Real>;
+
+/// Euclidean distance `‖a − b‖` between two points given as equally long slices.
+pub fn distance(a: &[Real], b: &[Real]) -> Real {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<Real>()
+        .sqrt()
+}

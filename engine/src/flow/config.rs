@@ -4,6 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::math::distance;
+
 use super::context_set::ContextSet;
 use super::error::{FlowError, FlowResult};
 use super::mlp::mlp_parameter_shapes;
@@ -119,12 +121,7 @@ impl Bounds {
 
     /// Length of the state box's diagonal: the unit of the stability tolerances.
     pub fn state_diagonal(&self) -> f64 {
-        self.state_min
-            .iter()
-            .zip(&self.state_max)
-            .map(|(a, b)| (b - a) * (b - a))
-            .sum::<f64>()
-            .sqrt()
+        distance(&self.state_min, &self.state_max)
     }
 }
 

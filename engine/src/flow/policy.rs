@@ -7,6 +7,8 @@ use std::path::Path;
 
 use rand::Rng;
 
+use crate::math::distance;
+
 use super::checkpoint;
 use super::config::{CheckpointConfig, FlowConfig, LatentKind};
 use super::coupling::{CouplingScratch, TangentScratch};
@@ -346,11 +348,7 @@ impl Policy {
         self.latent.project_onto_attractor(&ws.z, &mut ws.z_next);
         self.flow
             .forward(&ws.z_next, &ws.conditioning, &mut ws.scratch, scratch_point);
-        Ok(y.iter()
-            .zip(scratch_point.iter())
-            .map(|(a, b)| (a - b) * (a - b))
-            .sum::<f64>()
-            .sqrt())
+        Ok(distance(y, scratch_point))
     }
 
     /// Exact `log p(y_k | y_{k-1}, c) = log p(z_k | z_{k-1}) + log|det ∂f⁻¹/∂y (y_k)|`,

@@ -14,6 +14,8 @@ use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
+use crate::math::distance;
+
 use super::baseline::{BaselineWorkspace, BehaviourCloning};
 use super::config::Bounds;
 use super::error::{FlowError, FlowResult};
@@ -225,12 +227,4 @@ fn sample_box(lo: &[f64], hi: &[f64], scale: f64, rng: &mut impl Rng, out: &mut 
         let (centre, half) = (0.5 * (a + b), 0.5 * (b - a) * scale);
         *o = centre + half * rng.random_range(-1.0..=1.0);
     }
-}
-
-fn distance(a: &[f64], b: &[f64]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y) * (x - y))
-        .sum::<f64>()
-        .sqrt()
 }
