@@ -4,6 +4,8 @@
 //! push while client steps are refused as `busy`.
 
 mod common;
+#[path = "../envs/tests/common/mod.rs"]
+mod envs_common;
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -15,10 +17,8 @@ use ciflow_bridge::protocol::{
 };
 use ciflow_bridge::zenoh::Wait;
 use ciflow_bridge::{CheckpointPublisher, Client, NetworkOptions, RemoteEnv, Role};
+use ciflow_engine::flow::CheckpointConfig;
 use ciflow_engine::flow::checkpoint::{self, CONFIG_FILE, WEIGHTS_FILE};
-use ciflow_engine::flow::{
-    CheckpointConfig, CouplingKind, FlowConfig, LatentKind, Tensor, Weights,
-};
 use ciflow_envs::ResetOptions;
 use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::tasks::obstacle_avoidance;
@@ -26,33 +26,10 @@ use common::{Scratch, ciflow, code, connect, endpoint, serve};
 
 const OBSTACLE: &str = "ciflow/Obstacle-v0";
 
-/// A go-to flow for Obstacle-v0 with one obstacle (context `[o_x, o_y, g_x, g_y]`, the
-/// attractor on the target) with small deterministic pseudo-random weights: `f` stays
-/// near the identity, so its paths run nearly straight to the target. `seed` varies them.
-fn write_flow(dir: &Path, seed: f64) {
-    let mut config = FlowConfig::new(
-        "obstacle-avoidance",
-        2,
-        4,
-        LatentKind::GoTo,
-        CouplingKind::Affine { scale_bound: 2.0 },
-        4,
-        vec![16, 16],
-    );
-    config.min_rate = 2.0;
-    config.goal_context_indices = Some(vec![2, 3]);
-    let mut weights = Weights::default();
-    for (k, (name, shape)) in config.parameter_shapes().into_iter().enumerate() {
-        let fan_in = if shape.len() == 2 { shape[1] } else { 1 };
-        let scale = 0.1 / (fan_in as f64).sqrt();
-        let data = (0..shape.iter().product::<usize>())
-            .map(|i| {
-                let x = (i as f64 * 12.9898 + k as f64 * 4.1414 + seed * 78.233).sin();
-                scale * ((x * 43758.5453).fract())
-            })
-            .collect();
-        weights.insert(name, Tensor { shape, data });
-    }
+/// Writes [`envs_common::obstacle_flow_checkpoint`]`(seed)` (the envs tests' random flow
+/// for Obstacle-v0 with one obstacle) as a checkpoint directory.
+fn write_flow(dir: &Path, seed: u64) {
+    let (config, weights) = envs_common::obstacle_flow_checkpoint(seed);
     checkpoint::write(dir, &CheckpointConfig::Flow(config), &weights).unwrap();
 }
 
@@ -79,7 +56,7 @@ const OBSERVATIONS: [f64; 24] = [
 fn served_policy_acts_like_the_in_process_actor_and_bad_checkpoints_are_refused() {
     let scratch = Scratch::new("policy-act");
     let dir = scratch.join("a");
-    write_flow(&dir, 1.0);
+    write_flow(&dir, 1);
     let dir_arg = format!("avoid={}", dir.display());
     let _server = serve(
         27531,
@@ -165,8 +142,8 @@ fn wait_for_epoch(client: &Client, engine: &str, name: &str, epoch: u64) {
 fn published_checkpoints_replace_the_policy_without_restart_and_bad_ones_are_ignored() {
     let scratch = Scratch::new("policy-hot");
     let (a, b) = (scratch.join("a"), scratch.join("b"));
-    write_flow(&a, 1.0);
-    write_flow(&b, 2.0);
+    write_flow(&a, 1);
+    write_flow(&b, 2);
     let (actions_a, actions_b) = (
         local_actions(&a, &OBSERVATIONS),
         local_actions(&b, &OBSERVATIONS),
@@ -271,7 +248,7 @@ fn record_run(env: &RemoteEnv, telemetry: &ciflow_bridge::TelemetryStream) -> Ve
 fn policy_driven_session_recovers_from_a_push_and_refuses_client_steps() {
     let scratch = Scratch::new("policy-run");
     let dir = scratch.join("a");
-    write_flow(&dir, 1.0);
+    write_flow(&dir, 1);
     let dir_arg = format!("avoid={}", dir.display());
     let _server = serve(
         27535,
