@@ -179,6 +179,16 @@ def nll_table(report, points, xlabel):
         report.add(f"| {x:g} | {cells[0]} | {cells[1]} | {seeds} |")
 
 
+def learning_curve(report, folder, table_label, axis_label, name, title):
+    """Train and test log-likelihood against the amount of data: table and figure."""
+    points = nll_points(folder)
+    if not points["train"] and not points["test"]:
+        report.not_run(f"log-likelihood versus {axis_label}", folder)
+        return
+    nll_table(report, points, table_label)
+    plot_nll(report, points, name, axis_label, title)
+
+
 def plot_trajectories(report, evaluations, name, title):
     """Closed-loop obstacle-avoidance rollouts: one row per obstacle count."""
     rows = [(k, e) for k, e in evaluations if e.get("trajectories")]
@@ -255,13 +265,8 @@ def limit_cycle(report, root):
     else:
         plot_field(report, field, "limit_cycle_field.png",
                    "Limit cycle: learned field, rollouts (blue), demonstrations (dashed)")
-    points = nll_points(folder / "nll")
-    if not points["train"] and not points["test"]:
-        report.not_run("log-likelihood versus training trajectories", folder / "nll")
-    else:
-        nll_table(report, points, "training trajectories")
-        plot_nll(report, points, "limit_cycle_nll.png", "training trajectories",
-                 "Limit cycle: log-likelihood per transition")
+    learning_curve(report, folder / "nll", "training trajectories", "training trajectories",
+                   "limit_cycle_nll.png", "Limit cycle: log-likelihood per transition")
 
 
 def obstacles(report, root):
@@ -303,13 +308,9 @@ def obstacles(report, root):
 def pouring(report, root):
     report.add("## Pouring", "")
     folder = root / "pouring"
-    points = nll_points(folder / "nll")
-    if not points["train"] and not points["test"]:
-        report.not_run("log-likelihood versus data", folder / "nll")
-    else:
-        nll_table(report, points, "fraction of the 220 demonstrations")
-        plot_nll(report, points, "pouring_nll.png", "fraction of the demonstrations",
-                 "Pouring: log-likelihood per transition")
+    learning_curve(report, folder / "nll", "fraction of the 220 demonstrations",
+                   "fraction of the demonstrations", "pouring_nll.png",
+                   "Pouring: log-likelihood per transition")
     free, push, context = (load(folder / f"{n}.json") for n in ("eval", "push", "context"))
     report.add("", "| target | measured | required | |", "|---|---|---|---|")
     if free is None:
