@@ -17,6 +17,7 @@
 //! recovery time is `t_r − t_end`, `t_end = start + duration`, where `t_r ≥ t_end` is the
 //! first time after which `d ≤` [`PushConfig::recovery_tolerance`] until the episode ends.
 
+use ciflow_engine::math::distance;
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -120,14 +121,6 @@ pub struct PushOutcome {
     pub max_path_distance: f64,
 }
 
-fn distance(a: &[f64], b: &[f64]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y) * (x - y))
-        .sum::<f64>()
-        .sqrt()
-}
-
 /// `δ = max_{t ≥ start} ‖p(t) − p_ref(t)‖` (module docs).
 pub fn displacement(trace: &Trace, reference: &Trace, start: f64) -> f64 {
     trace
@@ -204,24 +197,27 @@ pub fn sized_push<R>(
 ) -> EvaluationResult<(R, PushOutcome)> {
     let direction = push_direction(seed);
     let mut magnitude = config.initial_force;
-    let mut displaced_run = None;
+    let mut last_displaced = None;
     let mut attempts = 0;
     loop {
         attempts += 1;
         let force = direction.map(|u| magnitude * u);
         let (trace, result) = run(config.perturbation(force))?;
-        let delta = displacement(&trace, reference, config.start);
+        let attempt = Attempt {
+            displacement: displacement(&trace, reference, config.start),
+            trace,
+            result,
+            force,
+            attempts,
+        };
+        let delta = attempt.displacement;
         let displaced = delta >= config.displacement;
         let last = attempts >= config.max_attempts;
-        let run = (trace, result, force, delta, attempts);
         if displaced && (delta <= OVERSHOOT * config.displacement || last) {
-            return Ok(outcome(config, reference, run, true));
+            return Ok(attempt.outcome(config, reference));
         }
         if last {
-            return Ok(match displaced_run {
-                Some(earlier) => outcome(config, reference, earlier, true),
-                None => outcome(config, reference, run, false),
-            });
+            return Ok(last_displaced.unwrap_or(attempt).outcome(config, reference));
         }
         magnitude *= if delta > 0.0 {
             (1.25 * config.displacement / delta).clamp(0.1, 10.0)
@@ -229,29 +225,40 @@ pub fn sized_push<R>(
             10.0
         };
         if displaced {
-            displaced_run = Some(run);
+            last_displaced = Some(attempt);
         }
     }
 }
 
-/// The result of one pushed run `(trace, result, force, δ, attempts)`.
-fn outcome<R>(
-    config: &PushConfig,
-    reference: &Trace,
-    (trace, result, force, displacement, attempts): (Trace, R, [f64; 3], f64, usize),
-    displaced: bool,
-) -> (R, PushOutcome) {
-    let (recovery_time, max_path_distance) =
-        recovery(&trace, reference, config.end(), config.recovery_tolerance);
-    let outcome = PushOutcome {
-        force,
-        displacement,
-        displaced,
-        attempts,
-        recovery_time,
-        max_path_distance,
-    };
-    (result, outcome)
+/// One pushed run while the force is being sized.
+struct Attempt<R> {
+    trace: Trace,
+    result: R,
+    force: [f64; 3],
+    /// `δ` of the run.
+    displacement: f64,
+    /// Runs so far, this one included.
+    attempts: usize,
+}
+
+impl<R> Attempt<R> {
+    fn outcome(self, config: &PushConfig, reference: &Trace) -> (R, PushOutcome) {
+        let (recovery_time, max_path_distance) = recovery(
+            &self.trace,
+            reference,
+            config.end(),
+            config.recovery_tolerance,
+        );
+        let outcome = PushOutcome {
+            force: self.force,
+            displacement: self.displacement,
+            displaced: self.displacement >= config.displacement,
+            attempts: self.attempts,
+            recovery_time,
+            max_path_distance,
+        };
+        (self.result, outcome)
+    }
 }
 
 /// The push figures of an evaluation.
