@@ -476,33 +476,43 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .transpose()
         .context("--publish")?;
     let bar = epoch_bar(args.model.epochs, "flow");
-    let mut kept = Ok(());
+    // The last epoch written to --out (and published): the first one always improves.
+    let mut kept_epoch = Ok(0);
     let trained = train_flow(&data, &config, |p: &Progress, snapshot: &Snapshot| {
         bar.set_position(p.epoch as u64);
         bar.set_message(format!(
             "loss {:.3} val NLL/transition {:.3}",
             p.train_loss, p.validation
         ));
-        if p.improved && kept.is_ok() {
-            kept = keep_checkpoint(snapshot, &args.out, publisher.as_ref(), p);
+        if p.improved && kept_epoch.is_ok() {
+            kept_epoch =
+                keep_checkpoint(snapshot, &args.out, publisher.as_ref(), p).map(|()| p.epoch);
         }
     })
     .context("training the flow")?;
-    kept?;
+    let kept_epoch = kept_epoch?;
     bar.finish();
-    trained
-        .save(&args.out)
-        .with_context(|| format!("writing {}", args.out.display()))?;
+    // With --keep last the parameters kept need not be the last ones written.
+    if trained.best_epoch != kept_epoch {
+        trained
+            .save(&args.out)
+            .with_context(|| format!("writing {}", args.out.display()))?;
+        if let Some(publisher) = &publisher {
+            let kept = trained
+                .history
+                .get(trained.best_epoch.wrapping_sub(1))
+                .context("training ran no epoch")?;
+            publisher
+                .publish(&args.out, kept.epoch as u64, kept.validation)
+                .with_context(|| format!("publishing policy `{}`", publisher.name()))?;
+        }
+    }
     if let Some(publisher) = &publisher {
-        // With --keep last the kept parameters need not be the last ones published.
-        let kept = trained
-            .history
-            .get(trained.best_epoch.wrapping_sub(1))
-            .context("training ran no epoch")?;
-        publisher
-            .publish(&args.out, kept.epoch as u64, kept.validation)
-            .with_context(|| format!("publishing policy `{}`", publisher.name()))?;
-        println!("published policy `{}`", publisher.name());
+        println!(
+            "published policy `{}` (epoch {})",
+            publisher.name(),
+            trained.best_epoch
+        );
     }
     let best = trained
         .history
