@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use ciflow_bridge::CheckpointPublisher;
-use ciflow_engine::flow::{ContextSet, CouplingKind, Goal, LatentKind};
+use ciflow_engine::flow::{ContextSet, ContractionConfig, CouplingKind, Goal, LatentKind};
 use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::{self, TaskEntry};
 use ciflow_envs::tasks::{lasa, limit_cycle, obstacle_avoidance};
@@ -146,6 +146,7 @@ impl ModelArgs {
             min_rate: self.min_rate.unwrap_or(defaults.min_rate),
             goal_context_indices: defaults.goal_context_indices,
             context_sets: defaults.context_sets,
+            contractions: defaults.contractions,
             horizon: self.horizon,
             state_noise: self.state_noise,
             threads: self.threads,
@@ -188,6 +189,11 @@ pub struct TrainArgs {
     /// obstacle-avoidance, none otherwise].
     #[arg(long, value_delimiter = ',', value_parser = parse_context_set)]
     pub context_sets: Option<Vec<Option<ContextSet>>>,
+    /// Radial contraction layers about each obstacle centre in front of the network (0:
+    /// none) [default: the task's: 2 for obstacle-avoidance; other tasks have no
+    /// centres to contract about].
+    #[arg(long)]
+    pub contraction_layers: Option<usize>,
     #[command(flatten)]
     pub model: ModelArgs,
     /// Also train the behaviour-cloning baseline into `<out>/baseline`.
@@ -216,6 +222,8 @@ pub struct TaskDefaults {
     pub min_rate: f64,
     /// Unordered sets in the context.
     pub context_sets: Vec<ContextSet>,
+    /// Radial contractions about context points.
+    pub contractions: Option<ContractionConfig>,
 }
 
 /// `START:COUNT:SIZE` as a [`ContextSet`], `none` as no set.
@@ -242,6 +250,11 @@ const LIMIT_CYCLE_MIN_RATE: f64 = 0.1;
 /// 67% of 100 random contexts reached against 3%.
 const GO_TO_MIN_RATE: f64 = 1.0;
 
+/// Radial contractions about each obstacle centre ([`ciflow_engine::flow::radial`]) and
+/// the exponent `m` of their profile.
+const OBSTACLE_CONTRACTION_LAYERS: usize = 2;
+const OBSTACLE_CONTRACTION_EXPONENT: u32 = 2;
+
 /// The defaults of `task` for a context of dimension `context_dim`: a limit cycle for
 /// the limit-cycle task; go-to elsewhere, with the target read from the context where
 /// the task puts it there (obstacle avoidance: its last two entries, `[…, g_x, g_y]`;
@@ -253,6 +266,7 @@ pub fn task_defaults(task: &TaskEntry, context_dim: usize) -> anyhow::Result<Tas
         goal_context_indices,
         min_rate: GO_TO_MIN_RATE,
         context_sets: Vec::new(),
+        contractions: None,
     };
     let planar_target = || match context_dim.checked_sub(2) {
         Some(x) => Ok(Some(vec![x, x + 1])),
@@ -267,15 +281,25 @@ pub fn task_defaults(task: &TaskEntry, context_dim: usize) -> anyhow::Result<Tas
             goal_context_indices: None,
             min_rate: LIMIT_CYCLE_MIN_RATE,
             context_sets: Vec::new(),
+            contractions: None,
         },
-        obstacle_avoidance::ID => TaskDefaults {
-            context_sets: vec![ContextSet {
+        obstacle_avoidance::ID => {
+            let obstacles = ContextSet {
                 start: 0,
                 count: (context_dim - 2) / 2,
                 size: 2,
-            }],
-            ..go_to(planar_target()?)
-        },
+            };
+            TaskDefaults {
+                context_sets: vec![obstacles],
+                contractions: Some(ContractionConfig {
+                    centres: obstacles,
+                    layers: OBSTACLE_CONTRACTION_LAYERS,
+                    exponent: OBSTACLE_CONTRACTION_EXPONENT,
+                    radius: obstacle_avoidance::SAFETY_RADIUS,
+                }),
+                ..go_to(planar_target()?)
+            }
+        }
         lasa::ID => go_to(planar_target()?),
         _ => go_to(None),
     })
@@ -451,19 +475,31 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             Some(sets) => sets.iter().flatten().copied().collect(),
             None => defaults.context_sets,
         },
+        contractions: match (args.contraction_layers, defaults.contractions) {
+            (Some(0), _) => None,
+            (Some(layers), Some(contractions)) => Some(ContractionConfig {
+                layers,
+                ..contractions
+            }),
+            (Some(_), None) => {
+                anyhow::bail!("--contraction-layers: task `{}` has no centres", task.name)
+            }
+            (None, contractions) => contractions,
+        },
         ..defaults
     };
     let config = args.model.flow(task.name, defaults);
     let (latent, goal_context_indices) = (config.latent, &config.goal_context_indices);
     println!(
         "{}: {} episodes, state {}-D, context {}-D, dt = {} s; latent {latent:?}, target in \
-         context {goal_context_indices:?}, unordered context sets {:?}",
+         context {goal_context_indices:?}, unordered context sets {:?}, contractions {:?}",
         spec.dataset_id,
         data.episodes.len(),
         data.episodes.first().map_or(0, |e| e.states[0].len()),
         spec.context_space.dim(),
         data.dt,
-        config.context_sets
+        config.context_sets,
+        config.contractions
     );
     let publisher = args
         .publish

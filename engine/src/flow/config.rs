@@ -7,8 +7,9 @@ use serde::{Deserialize, Serialize};
 use crate::math::distance;
 
 use super::context_set::ContextSet;
-use super::error::{FlowError, FlowResult};
+use super::error::{FlowResult, invalid};
 use super::mlp::mlp_parameter_shapes;
+use super::radial::ContractionConfig;
 
 /// Minimum bin width / height and knot derivative of the rational-quadratic spline
 /// (the defaults of Durkan et al. 2019).
@@ -154,6 +155,10 @@ pub struct FlowConfig {
     /// without the key have none.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub context_sets: Vec<ContextSet>,
+    /// Radial contractions about context points in front of the network
+    /// ([`super::radial`]); checkpoints without the key have none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contractions: Option<ContractionConfig>,
     /// Statistics of the states and of the canonicalised contexts.
     pub normalisation: Normalisation,
     /// Box of the states and of the raw contexts.
@@ -183,6 +188,7 @@ impl FlowConfig {
             hidden,
             goal_context_indices: None,
             context_sets: Vec::new(),
+            contractions: None,
             normalisation: Normalisation::identity(state_dim, context_dim),
             bounds: Bounds {
                 state_min: vec![-1.0; state_dim],
@@ -246,6 +252,11 @@ impl FlowConfig {
                 shapes.push((format!("latent.{name}"), vec![1]));
             }
         }
+        if let Some(contractions) = &self.contractions {
+            for l in 0..contractions.layers {
+                shapes.extend(ContractionConfig::parameter_names(l).map(|name| (name, vec![1])));
+            }
+        }
         shapes
     }
 
@@ -291,6 +302,9 @@ impl FlowConfig {
             }
         }
         validate_context_sets(&self.context_sets, m)?;
+        if let Some(contractions) = &self.contractions {
+            contractions.validate(d, m)?;
+        }
         self.normalisation.validate(d, m)?;
         self.bounds.validate(d, m)
     }
@@ -404,8 +418,4 @@ impl CheckpointConfig {
             Self::MlpBaseline(_) => "mlp_baseline",
         }
     }
-}
-
-fn invalid(message: String) -> FlowError {
-    FlowError::InvalidConfig(message)
 }

@@ -51,6 +51,10 @@ pub enum FlowError {
 
 pub type FlowResult<T> = Result<T, FlowError>;
 
+pub(crate) fn invalid(message: String) -> FlowError {
+    FlowError::InvalidConfig(message)
+}
+
 /// Checks a slice's length.
 pub(crate) fn check_dim(what: &'static str, expected: usize, values: &[f64]) -> FlowResult<()> {
     if values.len() != expected {

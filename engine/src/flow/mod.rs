@@ -68,6 +68,7 @@ pub mod mixing;
 pub mod mlp;
 pub mod network;
 pub mod policy;
+pub mod radial;
 pub mod robot_loop;
 pub mod scalar;
 pub mod spline;
@@ -82,4 +83,5 @@ pub use config::{
 pub use context_set::ContextSet;
 pub use error::{FlowError, FlowResult};
 pub use policy::{Policy, PolicyWorkspace};
+pub use radial::ContractionConfig;
 pub use weights::{Tensor, Weights};

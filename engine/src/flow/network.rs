@@ -1,13 +1,15 @@
 //! The conditioned invertible network `y = f(z, c)` in observation units:
 //!
-//! `f(z, c) = μ_y + σ_y ⊙ (g(z, c̃) + o(c))`, `c̃ = (κ(c) - μ_c) ⊘ σ_c`,
+//! `f(z, c) = P_c⁻¹(μ_y + σ_y ⊙ (g(z, c̃) + o(c)))`, `c̃ = (κ(c) - μ_c) ⊘ σ_c`,
 //!
 //! where `κ` puts the context's unordered sets in canonical order ([`super::context_set`];
-//! the identity when there are none), `g` is the stack of (LU mixing, coupling) blocks and
-//! the offset is
-//! `o(c) = (target(c) - μ_y) ⊘ σ_y - g(0, c̃)` for go-to tasks whose target is part of the
-//! context (so `f(0, c) = target(c)` exactly, for every `c`) and `o = 0` otherwise. For
-//! each `c`, `f(·, c)` is a bijection with `log|det ∂f/∂z| = Σ log σ_y + log|det ∂g/∂z|`.
+//! the identity when there are none), `g` is the stack of (LU mixing, coupling) blocks,
+//! `P_c` the radial contractions about context points ([`super::radial`]; the identity
+//! when there are none) and the offset is
+//! `o(c) = (P_c(target(c)) - μ_y) ⊘ σ_y - g(0, c̃)` for go-to tasks whose target is part
+//! of the context (so `f(0, c) = target(c)` exactly, for every `c`) and `o = 0` otherwise.
+//! For each `c`, `f(·, c)` is a bijection with
+//! `log|det ∂f/∂z| = Σ log σ_y + log|det ∂g/∂z| + log|det ∂P_c⁻¹/∂u|`.
 
 use super::config::FlowConfig;
 use super::context_set::canonicalise;
@@ -15,6 +17,7 @@ use super::coupling::{Coupling, CouplingRecord, CouplingScratch, TangentScratch}
 use super::error::{FlowResult, check_input};
 use super::mixing::LuMixing;
 use super::mlp::Mlp;
+use super::radial::{ContractionTape, RadialContractions};
 use super::scalar::Scalar;
 use super::weights::Weights;
 
@@ -22,6 +25,7 @@ use super::weights::Weights;
 pub struct ConditionalFlow {
     config: FlowConfig,
     blocks: Vec<(LuMixing, Coupling)>,
+    contractions: Option<RadialContractions>,
     log_state_scale: f64,
 }
 
@@ -35,6 +39,8 @@ pub struct Conditioning {
     /// One context bias per coupling, back to back.
     context_biases: Vec<f64>,
     offset: Vec<f64>,
+    /// The contraction centres in canonical order, raw units.
+    centres: Vec<f64>,
     valid: bool,
 }
 
@@ -46,6 +52,12 @@ impl Conditioning {
             normalised: vec![0.0; config.context_dim],
             context_biases: vec![0.0; config.layers * bias_len],
             offset: vec![0.0; config.state_dim],
+            centres: vec![
+                0.0;
+                config
+                    .contractions
+                    .map_or(0, |c| c.centres.count * c.centres.size)
+            ],
             valid: false,
         }
     }
@@ -67,6 +79,7 @@ impl Conditioning {
 #[derive(Clone, Debug)]
 pub struct FlowTape {
     couplings: Vec<CouplingRecord>,
+    contraction: ContractionTape,
 }
 
 impl ConditionalFlow {
@@ -81,9 +94,15 @@ impl ConditionalFlow {
                 ))
             })
             .collect::<FlowResult<Vec<_>>>()?;
+        let contractions = config
+            .contractions
+            .as_ref()
+            .map(|c| RadialContractions::from_weights(c, weights))
+            .transpose()?;
         Ok(Self {
             config: config.clone(),
             blocks,
+            contractions,
             log_state_scale: config.normalisation.state_std.iter().map(|s| s.ln()).sum(),
         })
     }
@@ -121,6 +140,7 @@ impl ConditionalFlow {
                 .iter()
                 .map(|(_, c)| CouplingRecord::new(c))
                 .collect(),
+            contraction: ContractionTape::default(),
         }
     }
 
@@ -176,6 +196,12 @@ impl ConditionalFlow {
         conditioning.raw.copy_from_slice(context);
         conditioning.normalised.copy_from_slice(context);
         canonicalise(&self.config.context_sets, &mut conditioning.normalised);
+        if let Some(contractions) = &self.contractions {
+            let set = contractions.config().centres;
+            conditioning
+                .centres
+                .copy_from_slice(&conditioning.normalised[set.start..set.end()]);
+        }
         for (n, (m, s)) in conditioning
             .normalised
             .iter_mut()
@@ -193,9 +219,12 @@ impl ConditionalFlow {
             let mut offset = std::mem::take(&mut conditioning.offset);
             self.g_forward(&mut offset, conditioning, scratch);
             conditioning.offset = offset;
+            let mut target: Vec<f64> = indices.iter().map(|&i| context[i]).collect();
+            if let Some(contractions) = &self.contractions {
+                contractions.apply(&conditioning.centres, &mut target);
+            }
             for (i, o) in conditioning.offset.iter_mut().enumerate() {
-                let target = (context[indices[i]] - norm.state_mean[i]) / norm.state_std[i];
-                *o = target - *o;
+                *o = (target[i] - norm.state_mean[i]) / norm.state_std[i] - *o;
             }
         }
         conditioning.valid = true;
@@ -212,11 +241,20 @@ impl ConditionalFlow {
     ) -> S {
         y.copy_from_slice(z);
         let log_det = self.g_forward(y, conditioning, scratch);
+        self.leave(y, conditioning) + log_det + self.log_state_scale
+    }
+
+    /// `y ← P_c⁻¹(μ_y + σ_y ⊙ (x + o(c)))`, the output of `g` to the observation;
+    /// returns `log|det ∂P_c⁻¹/∂u|`.
+    fn leave<S: Scalar>(&self, x: &mut [S], conditioning: &Conditioning) -> S {
         let norm = &self.config.normalisation;
-        for (i, yi) in y.iter_mut().enumerate() {
-            *yi = (*yi + conditioning.offset[i]) * norm.state_std[i] + norm.state_mean[i];
+        for (i, xi) in x.iter_mut().enumerate() {
+            *xi = (*xi + conditioning.offset[i]) * norm.state_std[i] + norm.state_mean[i];
         }
-        log_det + self.log_state_scale
+        match &self.contractions {
+            Some(contractions) => contractions.invert(&conditioning.centres, x),
+            None => S::constant(0.0),
+        }
     }
 
     /// `z = f⁻¹(y, c)`; returns `log|det ∂f⁻¹/∂y|`.
@@ -227,8 +265,13 @@ impl ConditionalFlow {
         scratch: &mut CouplingScratch<S>,
         z: &mut [S],
     ) -> S {
-        self.normalise_state(y, conditioning, z);
-        self.g_inverse(z, conditioning, scratch) + (-self.log_state_scale)
+        z.copy_from_slice(y);
+        let log_det = match &self.contractions {
+            Some(contractions) => contractions.apply(&conditioning.centres, z),
+            None => S::constant(0.0),
+        };
+        self.normalise_state(conditioning, z);
+        log_det + self.g_inverse(z, conditioning, scratch) + (-self.log_state_scale)
     }
 
     /// `z = f⁻¹(y, c)`, recording in `tape` what [`tangent`](Self::tangent) needs at that
@@ -241,22 +284,26 @@ impl ConditionalFlow {
         z: &mut [f64],
         tape: &mut FlowTape,
     ) {
-        self.normalise_state(y, conditioning, z);
+        z.copy_from_slice(y);
+        if let Some(contractions) = &self.contractions {
+            contractions.apply_recorded(&conditioning.centres, z, &mut tape.contraction);
+        }
+        self.normalise_state(conditioning, z);
         self.g_inverse_recorded(z, conditioning, scratch, tape);
     }
 
-    /// `z ← (y - μ_y) ⊘ σ_y - o(c)`, the input of `g⁻¹`.
-    fn normalise_state<S: Scalar>(&self, y: &[S], conditioning: &Conditioning, z: &mut [S]) {
+    /// `x ← (x - μ_y) ⊘ σ_y - o(c)`, the input of `g⁻¹`.
+    fn normalise_state<S: Scalar>(&self, conditioning: &Conditioning, x: &mut [S]) {
         let norm = &self.config.normalisation;
-        for (i, zi) in z.iter_mut().enumerate() {
-            *zi = (y[i] + (-norm.state_mean[i])) * (1.0 / norm.state_std[i])
+        for (i, xi) in x.iter_mut().enumerate() {
+            *xi = (*xi + (-norm.state_mean[i])) * (1.0 / norm.state_std[i])
                 + (-conditioning.offset[i]);
         }
     }
 
     /// The Jacobian-vector product `dy = ∂f(z, c)/∂z · dz` at the `z` of the
     /// [`inverse_recorded`](Self::inverse_recorded) call that filled `tape`:
-    /// `dy = σ_y ⊙ J_g dz`, one tangent sweep through the blocks in forward order.
+    /// `dy = J_{P⁻¹} (σ_y ⊙ J_g dz)`, one tangent sweep through the blocks in forward order.
     pub fn tangent(
         &self,
         tape: &FlowTape,
@@ -283,13 +330,10 @@ impl ConditionalFlow {
     ) {
         y_other.copy_from_slice(z_other);
         self.sweep(tape, dz, scratch, dy, Some((y_other, conditioning)));
-        let norm = &self.config.normalisation;
-        for (i, yi) in y_other.iter_mut().enumerate() {
-            *yi = (*yi + conditioning.offset[i]) * norm.state_std[i] + norm.state_mean[i];
-        }
+        self.leave(y_other, conditioning);
     }
 
-    /// `dy ← σ_y ⊙ J_g dz` and, when given, `x ← g(x, c̃)`.
+    /// `dy ← J_{P⁻¹} (σ_y ⊙ J_g dz)` and, when given, `x ← g(x, c̃)`.
     fn sweep(
         &self,
         tape: &FlowTape,
@@ -316,6 +360,9 @@ impl ConditionalFlow {
         }
         for (d, s) in dy.iter_mut().zip(&self.config.normalisation.state_std) {
             *d *= s;
+        }
+        if let Some(contractions) = &self.contractions {
+            contractions.tangent(&tape.contraction, dy);
         }
     }
 }

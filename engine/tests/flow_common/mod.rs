@@ -1,7 +1,9 @@
 //! Shared helpers of the flow integration tests: random architectures and weights.
 #![allow(dead_code)]
 
-use ciflow_engine::flow::{CouplingKind, FlowConfig, LatentKind, Policy, Weights};
+use ciflow_engine::flow::{
+    ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind, Policy, Weights,
+};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -30,6 +32,7 @@ pub fn variants() -> Vec<FlowConfig> {
         let mut goal = config(2, 3, LatentKind::GoTo, coupling.clone());
         goal.goal_context_indices = Some(vec![2, 0]);
         out.push(goal);
+        out.push(contracted(coupling.clone()));
     }
     // Non-trivial normalisation.
     let mut scaled = config(3, 1, LatentKind::GoTo, SPLINE);
@@ -39,6 +42,26 @@ pub fn variants() -> Vec<FlowConfig> {
     scaled.normalisation.context_std = vec![3.0];
     out.push(scaled);
     out
+}
+
+/// Go-to in the plane, contracted about two context points `[o₁, o₂, g]` (a set) with
+/// the target `g`, as obstacle avoidance is.
+pub fn contracted(coupling: CouplingKind) -> FlowConfig {
+    let mut config = config(2, 6, LatentKind::GoTo, coupling);
+    let centres = ContextSet {
+        start: 0,
+        count: 2,
+        size: 2,
+    };
+    config.goal_context_indices = Some(vec![4, 5]);
+    config.context_sets = vec![centres];
+    config.contractions = Some(ContractionConfig {
+        centres,
+        layers: 2,
+        exponent: 2,
+        radius: 0.3,
+    });
+    config
 }
 
 pub fn rng(seed: u64) -> ChaCha8Rng {

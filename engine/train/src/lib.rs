@@ -10,6 +10,7 @@
 //! unconstrained behaviour-cloning MLP used as the stability check's negative control.
 
 pub mod baseline;
+pub mod contraction;
 pub mod data;
 pub mod error;
 pub mod latent;

@@ -1,4 +1,4 @@
-//! The conditioned ImitationFlow in tch: `y = μ_y + σ_y ⊙ (g(z, c̃) + o(c))`,
+//! The conditioned ImitationFlow in tch: `y = P_c⁻¹(μ_y + σ_y ⊙ (g(z, c̃) + o(c)))`,
 //! `c̃ = (κ(c) - μ_c) ⊘ σ_c`, with the
 //! latent dynamics of [`LatentModel`], mirroring `ciflow_engine::flow` parameter for
 //! parameter, so `VarStore::save("weights.safetensors")` loads in the pure-Rust policy.
@@ -7,6 +7,7 @@ use ciflow_engine::flow::FlowConfig;
 use tch::nn;
 use tch::{Device, Kind, Tensor};
 
+use crate::contraction::Contractions;
 use crate::latent::{LatentInit, LatentModel};
 use crate::nets::{Coupling, LuMixing};
 
@@ -20,6 +21,27 @@ pub struct FlowModel {
     context_mean: Tensor,
     context_std: Tensor,
     goal_index: Option<Tensor>,
+    contractions: Option<Contractions>,
+}
+
+/// A batch of contexts prepared for the network: `c̃`, `o(c)` and the contraction
+/// centres (`[B, count, d]`, canonical order, raw units).
+struct Conditioned {
+    normalised: Tensor,
+    offset: Tensor,
+    centres: Option<Tensor>,
+}
+
+impl Conditioned {
+    /// Both batches, `self` first.
+    fn twice(&self) -> Self {
+        let doubled = |t: &Tensor| Tensor::cat(&[t, t], 0);
+        Self {
+            normalised: doubled(&self.normalised),
+            offset: doubled(&self.offset),
+            centres: self.centres.as_ref().map(doubled),
+        }
+    }
 }
 
 pub(crate) fn row(values: &[f64]) -> Tensor {
@@ -54,6 +76,10 @@ impl FlowModel {
                 Tensor::from_slice(&indices.iter().map(|&i| i as i64).collect::<Vec<_>>())
                     .to_device(Device::Cpu)
             }),
+            contractions: config
+                .contractions
+                .as_ref()
+                .map(|c| Contractions::new(path, c)),
         }
     }
 
@@ -129,30 +155,48 @@ impl FlowModel {
         canonical
     }
 
-    /// `(c̃, o(c))` for raw contexts `[B, m]`.
-    fn condition(&self, context: &Tensor) -> (Tensor, Tensor) {
-        let normalised = (self.canonicalise(context) - &self.context_mean) / &self.context_std;
+    /// `(c̃, o(c), centres)` for raw contexts `[B, m]`.
+    fn condition(&self, context: &Tensor) -> Conditioned {
+        let canonical = self.canonicalise(context);
+        let normalised = (&canonical - &self.context_mean) / &self.context_std;
+        let centres = self.contractions.as_ref().map(|p| p.centres(&canonical));
         let rows = context.size()[0];
         let d = self.config.state_dim as i64;
         let offset = match &self.goal_index {
             Some(index) => {
-                let target = (context.index_select(1, index) - &self.state_mean) / &self.state_std;
+                let target = context.index_select(1, index);
+                let target = match (&self.contractions, &centres) {
+                    (Some(p), Some(centres)) => p.apply(&target, centres).0,
+                    _ => target,
+                };
                 let origin = Tensor::zeros([rows, d], (Kind::Double, context.device()));
-                target - self.g_forward(&origin, &normalised).0
+                (target - &self.state_mean) / &self.state_std
+                    - self.g_forward(&origin, &normalised).0
             }
             None => Tensor::zeros([rows, d], (Kind::Double, context.device())),
         };
-        (normalised, offset)
+        Conditioned {
+            normalised,
+            offset,
+            centres,
+        }
     }
 
-    /// `y = f(z, c)` and `log|det ∂f/∂z|` per row.
+    /// `y = f(z, c)` and `log|det ∂f/∂z|` per row; through the contractions without
+    /// gradient (their inverse is iterative: only inference needs it).
     pub fn forward(&self, z: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
-        let (normalised, offset) = self.condition(context);
-        let (y, log_det) = self.g_forward(z, &normalised);
-        (
-            (y + offset) * &self.state_std + &self.state_mean,
-            log_det + self.log_state_scale(),
-        )
+        let conditioned = self.condition(context);
+        let (y, log_det) = self.g_forward(z, &conditioned.normalised);
+        let u = (y + &conditioned.offset) * &self.state_std + &self.state_mean;
+        let log_det = log_det + self.log_state_scale();
+        match (&self.contractions, &conditioned.centres) {
+            (Some(p), Some(centres)) => {
+                let y = p.invert(&u, centres);
+                let contraction_log_det = p.apply(&y, centres).1;
+                (y, log_det - contraction_log_det)
+            }
+            _ => (u, log_det),
+        }
     }
 
     /// `z = f⁻¹(y, c)` and `log|det ∂f⁻¹/∂y|` per row.
@@ -161,14 +205,17 @@ impl FlowModel {
     }
 
     /// [`inverse`](Self::inverse) with the conditioning `(c̃, o(c))` already computed.
-    fn inverse_conditioned(
-        &self,
-        y: &Tensor,
-        (normalised, offset): &(Tensor, Tensor),
-    ) -> (Tensor, Tensor) {
-        let x = (y - &self.state_mean) / &self.state_std - offset;
-        let (z, log_det) = self.g_inverse(&x, normalised);
-        (z, log_det - self.log_state_scale())
+    fn inverse_conditioned(&self, y: &Tensor, conditioned: &Conditioned) -> (Tensor, Tensor) {
+        let (u, contraction_log_det) = match (&self.contractions, &conditioned.centres) {
+            (Some(p), Some(centres)) => p.apply(y, centres),
+            _ => (
+                y.shallow_clone(),
+                Tensor::zeros([y.size()[0]], (Kind::Double, y.device())),
+            ),
+        };
+        let x = (u - &self.state_mean) / &self.state_std - &conditioned.offset;
+        let (z, log_det) = self.g_inverse(&x, &conditioned.normalised);
+        (z, log_det - self.log_state_scale() + contraction_log_det)
     }
 
     /// `log p(y_next | y_prev, c)` per row (the `horizon`-step model), with `c = c_{k-1}`.
@@ -181,12 +228,8 @@ impl FlowModel {
     ) -> Tensor {
         // Both ends share `c`: condition once (the offset costs a network pass), then
         // invert both ends in one batch.
-        let (normalised, offset) = self.condition(context);
+        let conditioning = self.condition(context).twice();
         let both = Tensor::cat(&[y_prev, y_next], 0);
-        let conditioning = (
-            Tensor::cat(&[&normalised, &normalised], 0),
-            Tensor::cat(&[&offset, &offset], 0),
-        );
         let (z, log_det) = self.inverse_conditioned(&both, &conditioning);
         let rows = y_prev.size()[0];
         let (z_prev, z_next) = (z.narrow(0, 0, rows), z.narrow(0, rows, rows));

@@ -10,7 +10,9 @@
 use std::path::Path;
 
 use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
-use ciflow_engine::flow::{CheckpointConfig, ContextSet, CouplingKind, FlowConfig, LatentKind};
+use ciflow_engine::flow::{
+    CheckpointConfig, ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind,
+};
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor, nn};
 
@@ -42,6 +44,10 @@ pub struct TrainConfig {
     /// canonical order ([`ciflow_engine::flow::context_set`]).
     #[serde(default)]
     pub context_sets: Vec<ContextSet>,
+    /// Radial contractions about context points (e.g. obstacle centres) in front of the
+    /// network ([`ciflow_engine::flow::radial`]).
+    #[serde(default)]
+    pub contractions: Option<ContractionConfig>,
     /// Steps per modelled transition (`k` of the `k`-step density; 1 = the paper's).
     pub horizon: usize,
     /// Standard deviation of the Gaussian jitter added to every training state, as a
@@ -71,6 +77,7 @@ impl TrainConfig {
             min_rate: 0.1,
             goal_context_indices: None,
             context_sets: Vec::new(),
+            contractions: None,
             horizon: 1,
             state_noise: DEFAULT_STATE_NOISE,
             validation_fraction: 0.2,
@@ -181,6 +188,7 @@ pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<Fl
         hidden: train.hidden.clone(),
         goal_context_indices: train.goal_context_indices.clone(),
         context_sets: train.context_sets.clone(),
+        contractions: train.contractions,
         normalisation: data.normalisation(),
         bounds: data.bounds(),
     };

@@ -3,7 +3,7 @@
 //! tch's log-determinant equals that of its own autograd Jacobian.
 
 use ciflow_engine::flow::{
-    CheckpointConfig, ContextSet, CouplingKind, FlowConfig, LatentKind, Policy,
+    CheckpointConfig, ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind, Policy,
 };
 use ciflow_train::latent::LatentInit;
 use ciflow_train::model::FlowModel;
@@ -39,6 +39,7 @@ fn configs() -> Vec<FlowConfig> {
         goal.goal_context_indices = Some(vec![2, 1]);
         out.push(goal);
         out.push(with_obstacle_set(coupling.clone(), vec![0, 3]));
+        out.push(contracted(with_obstacle_set(coupling.clone(), vec![5, 6])));
     }
     out
 }
@@ -55,6 +56,17 @@ fn with_obstacle_set(coupling: CouplingKind, goal: Vec<usize>) -> FlowConfig {
     }];
     config.normalisation.context_mean = vec![0.1, -0.2, 0.3, 0.0, 0.5, -0.1, 0.2];
     config.normalisation.context_std = vec![1.5, 0.5, 2.0, 1.0, 0.8, 1.2, 0.6];
+    config
+}
+
+/// `config` contracted about its set's elements (obstacle centres).
+fn contracted(mut config: FlowConfig) -> FlowConfig {
+    config.contractions = Some(ContractionConfig {
+        centres: config.context_sets[0],
+        layers: 2,
+        exponent: 2,
+        radius: 0.6,
+    });
     config
 }
 
@@ -186,17 +198,18 @@ fn log_determinant_equals_the_autograd_jacobian() {
 }
 
 /// Permuting the set's elements changes neither model, while moving one element does
-/// (the invariance is not the conditioners ignoring the set).
+/// (the invariance is not the conditioners ignoring the set); the contractions about the
+/// elements apply in the canonical order too.
 #[test]
 fn context_sets_make_both_models_invariant_to_permutations_of_the_set() {
     let dir = std::env::temp_dir().join(format!("ciflow-sets-{}", std::process::id()));
-    let config = with_obstacle_set(
+    let config = contracted(with_obstacle_set(
         CouplingKind::Spline {
             bins: 6,
             tail_bound: 2.5,
         },
         vec![0, 0],
-    );
+    ));
     let vs = double_var_store();
     let model = FlowModel::new(
         &vs.root(),
