@@ -3,16 +3,36 @@
 //! desired velocity (`Policy::act`), plus the second-order `Policy::acceleration`.
 //! Target: `act` < 20 µs. The tch eager figure is printed beside it by
 //! `cargo bench -p ciflow-train --bench flow_tch`.
+//!
+//! Also `act` at the obstacle-avoidance size (d = 2, 3 obstacles + target, 6 spline
+//! layers) with and without the radial contractions about the obstacles, side by side:
+//! their cost is the six iterative inverses of the forward pass.
 
 use std::hint::black_box;
 
-use ciflow_engine::flow::{CouplingKind, FlowConfig, LatentKind, Policy, Weights};
+use ciflow_engine::flow::{
+    ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind, Policy, Weights,
+};
 use criterion::{Criterion, criterion_group, criterion_main};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+const SPLINE: CouplingKind = CouplingKind::Spline {
+    bins: 8,
+    tail_bound: 4.0,
+};
+
+fn random_policy(config: &FlowConfig) -> Policy {
+    let weights = Weights::random(
+        &config.parameter_shapes(),
+        0.5,
+        &mut ChaCha8Rng::seed_from_u64(0),
+    );
+    Policy::new(config, weights).expect("valid policy")
+}
+
 fn pouring_policy(coupling: CouplingKind) -> Policy {
-    let config = FlowConfig::new(
+    random_policy(&FlowConfig::new(
         "pouring",
         7,
         6,
@@ -20,13 +40,34 @@ fn pouring_policy(coupling: CouplingKind) -> Policy {
         coupling,
         10,
         vec![64, 64],
+    ))
+}
+
+/// The obstacle-avoidance architecture of `ciflow train` (3 obstacles).
+fn obstacle_policy(contracted: bool) -> Policy {
+    let mut config = FlowConfig::new(
+        "obstacle-avoidance",
+        2,
+        8,
+        LatentKind::GoTo,
+        SPLINE,
+        6,
+        vec![64, 64],
     );
-    let weights = Weights::random(
-        &config.parameter_shapes(),
-        0.5,
-        &mut ChaCha8Rng::seed_from_u64(0),
-    );
-    Policy::new(&config, weights).expect("valid policy")
+    let obstacles = ContextSet {
+        start: 0,
+        count: 3,
+        size: 2,
+    };
+    config.goal_context_indices = Some(vec![6, 7]);
+    config.context_sets = vec![obstacles];
+    config.contractions = contracted.then_some(ContractionConfig {
+        centres: obstacles,
+        layers: 2,
+        exponent: 2,
+        radius: 0.16,
+    });
+    random_policy(&config)
 }
 
 fn bench(c: &mut Criterion) {
@@ -35,13 +76,7 @@ fn bench(c: &mut Criterion) {
     let context = [0.5, 0.2, 0.3, 0.0, 0.1, -0.2];
     for (name, coupling) in [
         ("affine", CouplingKind::Affine { scale_bound: 2.0 }),
-        (
-            "spline",
-            CouplingKind::Spline {
-                bins: 8,
-                tail_bound: 4.0,
-            },
-        ),
+        ("spline", SPLINE),
     ] {
         let policy = pouring_policy(coupling);
         let mut ws = policy.workspace();
@@ -79,5 +114,29 @@ fn bench(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench);
+fn bench_obstacle(c: &mut Criterion) {
+    let y = [-0.5, 0.1];
+    let context = [-0.2, 0.3, 0.1, -0.4, 0.3, 0.5, 0.8, 0.0];
+    for (name, contracted) in [("plain", false), ("contracted", true)] {
+        let policy = obstacle_policy(contracted);
+        let mut ws = policy.workspace();
+        let (mut next, mut velocity) = ([0.0; 2], [0.0; 2]);
+        c.bench_function(&format!("flow/act/obstacle-3/{name}"), |b| {
+            b.iter(|| {
+                policy
+                    .act(
+                        black_box(&y),
+                        black_box(&context),
+                        &mut ws,
+                        &mut next,
+                        &mut velocity,
+                    )
+                    .unwrap();
+                black_box(&next);
+            })
+        });
+    }
+}
+
+criterion_group!(benches, bench, bench_obstacle);
 criterion_main!(benches);
