@@ -5,20 +5,13 @@
 //! desired motion is a first-order system toward the pour point `p*` with an orientation
 //! that tilts only near it,
 //!
-//! `ṗ_des = sat(−K_p (p − p*))`, `K_p = diag(k_h, k_h, k_z)`, `ω_des = k_o log(R_des(p) Rᵀ)`,
+//! `ṗ_des = sat(−k_p (p − p*))`, `ω_des = k_o log(R_des(p) Rᵀ)`,
 //! `R_des(p) = Rot(w, θ_des(‖p − p*‖)) R_upright`,
 //!
 //! where `θ_des` is a smooth step from 0 (farther than [`TILT_START`]) to
 //! [`POUR_TILT`] (closer than [`TILT_END`]) and `w = up × u` tilts the cup's opening toward
 //! the pour direction `u`. So the cup travels upright to the pre-pour pose above the lip,
-//! then tilts.
-//!
-//! The horizontal gain `k_h` ([`HORIZONTAL_GAIN`]) is twice the vertical `k_z`
-//! ([`VERTICAL_GAIN`]): the spout comes over the pour point first and then descends onto
-//! it, so every path funnels into the vertical line above `p*`. A horizontal push is then
-//! undone at the rate `k_h` — the demonstrated path attracts. With one isotropic gain the
-//! paths are straight rays into `p*`, and a pushed spout rejoins the demonstrated path
-//! only as both reach the goal (recovery in the 2 s was then the exception). Joint accelerations follow from damped least squares with a null-space
+//! then tilts. Joint accelerations follow from damped least squares with a null-space
 //! posture term (Siciliano et al., "Robotics", §3.5 and §8.6):
 //!
 //! `q̈ = J⁺_λ (k_v (ẋ_des − J q̇) − J̇ q̇) + (I − J⁺_λ J)(k_n (q_nom − q) − d_n q̇)`,
@@ -43,9 +36,7 @@ pub const CUP_CENTRE: [f64; 3] = [0.0, 0.0, 0.11];
 pub const CUP_HALF_HEIGHT: f64 = 0.05;
 pub const CUP_RADIUS: f64 = 0.035;
 
-/// `k_h`, `k_z`: position gains of the spout, horizontal and vertical, 1/s.
-pub const HORIZONTAL_GAIN: f64 = 3.0;
-pub const VERTICAL_GAIN: f64 = 1.5;
+const POSITION_GAIN: f64 = 1.5;
 const MAX_SPEED: f64 = 0.15;
 const ORIENTATION_GAIN: f64 = 3.0;
 const MAX_ANGULAR_SPEED: f64 = 1.5;
@@ -149,8 +140,7 @@ pub fn expert_acceleration(
     let hand = robot.frame_placement(q, frame)?;
     let cup = CupPose::of_hand(&hand);
     let offset = cup.spout - target.point;
-    let gains = Vector3::new(HORIZONTAL_GAIN, HORIZONTAL_GAIN, VERTICAL_GAIN);
-    let velocity = cap(-gains.component_mul(&offset), MAX_SPEED);
+    let velocity = cap(-POSITION_GAIN * offset, MAX_SPEED);
     let desired = target.hand_orientation(desired_tilt(offset.norm()));
     let error = Rotation3::from_matrix_unchecked(desired * cup.hand.transpose()).scaled_axis();
     let angular = cap(ORIENTATION_GAIN * error, MAX_ANGULAR_SPEED);

@@ -25,10 +25,8 @@
 //!
 //! ## Expert
 //! [`crate::expert::pouring`]: resolved-acceleration control of the spout toward the pour
-//! point (6 cm above the lip), twice as fast horizontally as vertically (over the pour
-//! point first, then down onto it: the paths attract a pushed spout), with the cup
-//! upright until 5 cm away, then tilted by 1.45 rad toward the pot's centre; redundancy
-//! resolved toward a nominal posture.
+//! point (6 cm above the lip) with the cup upright until 5 cm away, then tilted by
+//! 1.45 rad toward the pot's centre; redundancy resolved toward a nominal posture.
 //!
 //! ## Rewards
 //! `−‖spout − p*‖` (m) per step, `−100` on a spill. `info`: `spout_x/y/z` (m), `tilt`
