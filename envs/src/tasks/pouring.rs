@@ -44,7 +44,9 @@
 //! force of magnitude `U(0, push_force)` in a uniform direction for [`DEMO_PUSH_DURATION`],
 //! starting at `U(`[`DEMO_PUSH_WINDOW`]`)` s, drawn from the episode's seed. Expert
 //! demonstrations recorded with it show how the expert recovers from pushes (noise
-//! injection in the spirit of DART), the states a pushed policy has to handle.
+//! injection in the spirit of DART), the states a pushed policy has to handle; the
+//! experiments record theirs with 40 N (`scripts/demo.py`), without which the flow, like
+//! the expert heading straight for the pour point, rejoins its path only near the goal.
 //!
 //! ## Episode end
 //! Terminated on a spill: tilt ≥ [`SPILL_TILT`] with the spout not over the opening.
