@@ -52,6 +52,11 @@ TEST_SEED = 100_000
 # The pouring policy: the model measured at 49/50 successes (README "Pouring").
 POURING_MODEL = ["--coupling", "affine", "--layers", "10", "--batch-size", "512",
                  "--epochs", "6"]
+# Every pouring demonstration (train and test) is pushed once on the hand, U(0, 40) N for
+# 0.2 s in a random horizontal direction (the task's `push_force` option, DART-style noise
+# injection): the demonstrations then show the expert returning to its path, which the
+# flow needs to recover from the evaluation's pushes within 2 s (README "Pouring").
+POURING_DEMO_OPTIONS = ["--option", "push_force=40"]
 LIMIT_CYCLE_MODEL = ["--epochs", "40"]
 # 1000 demonstrations, two epochs, the last kept: as good as 8+ CPU-minutes of longer
 # training on fewer (README "Obstacle avoidance"), in about 2.5 CPU-minutes.
@@ -230,7 +235,8 @@ def plan(out: pathlib.Path) -> list[Job]:
             trainer = runner.spawn(trainer_command, tlog)
             wait_for_line(trainer_log, "waiting for", trainer, timeout=60)
             recorder = [PYTHON, "-m", "ciflow.record", "--task", "pouring", "--episodes",
-                        POURING_DEMOS, "--seed", 0, "--recorder", "demo", "--quiet"]
+                        POURING_DEMOS, "--seed", 0, "--recorder", "demo", "--quiet",
+                        *POURING_DEMO_OPTIONS]
             log.write(f"$ {' '.join(map(str, recorder))}\n")
             log.flush()
             runner.finish(runner.spawn(recorder, log), recorder)
@@ -238,7 +244,7 @@ def plan(out: pathlib.Path) -> list[Job]:
 
     jobs.append(Job("pouring-record-train", [], action=record_and_train))
     jobs.append(record("record-pouring-test", "pouring", POURING_TEST_DEMOS, TEST_SEED,
-                       pouring_test))
+                       pouring_test, *POURING_DEMO_OPTIONS))
     jobs.append(Job("pouring-perturb", [[
         PYTHON, "-m", "ciflow.perturb", "--task", "pouring", "--policy", "pouring", "--seed",
         TEST_SEED, "--push", PERTURB_PUSH, "--context-step", PERTURB_CONTEXT, "--quiet",

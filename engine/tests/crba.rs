@@ -80,6 +80,15 @@ fn kinetic_energy_matches_the_sum_over_bodies() {
             energy +=
                 0.5 * body.inertia.mass * v.norm_squared() + 0.5 * w.dot(&(inertia_world * w));
         }
+        // The rotors turn with their joints: ½ Σ I_a q̇².
+        energy += 0.5
+            * chain
+                .model()
+                .armature()
+                .iter()
+                .zip(s.qd.iter())
+                .map(|(a, v)| a * v * v)
+                .sum::<f64>();
         assert!(
             (energy - expected).abs() < 1e-10 * (1.0 + expected),
             "{energy} vs {expected}"

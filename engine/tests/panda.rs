@@ -2,8 +2,9 @@
 
 mod common;
 
+use ciflow_engine::math::{DMatrix, DVector};
 use ciflow_engine::model::{Model, ModelError};
-use ciflow_engine::robot::{PANDA_HOME, Robot, panda, panda_from_dh, panda_limits};
+use ciflow_engine::robot::{PANDA_ARMATURE, PANDA_HOME, Robot, panda, panda_from_dh, panda_limits};
 use common::*;
 
 #[test]
@@ -61,6 +62,39 @@ fn limits_come_from_the_reference_data() {
         .enumerate()
         .all(|(i, &q)| limits.q_min[i] <= q && q <= limits.q_max[i]);
     assert!(home_inside, "the home posture lies within the limits");
+}
+
+#[test]
+fn armature_adds_the_reflected_rotor_inertia_to_the_joints() {
+    let mut robot = panda();
+    let mut bare = panda();
+    bare.set_armature(DVector::zeros(7)).unwrap();
+    assert_eq!(robot.model().armature().as_slice(), &PANDA_ARMATURE);
+    let mut rng = rng(41);
+    for _ in 0..10 {
+        let s = random_state(&robot, &mut rng);
+        let armature = DMatrix::from_diagonal(&DVector::from_row_slice(&PANDA_ARMATURE));
+        assert_matrix_close(
+            &mass_matrix(&mut robot, &s.q),
+            &(mass_matrix(&mut bare, &s.q) + &armature),
+            1e-12,
+            "M = M_links + diag(I_a)",
+        );
+        let expected = inverse_dynamics(&mut bare, &s.q, &s.qd, &s.qdd) + &armature * &s.qdd;
+        assert_close(
+            inverse_dynamics(&mut robot, &s.q, &s.qd, &s.qdd).as_slice(),
+            expected.as_slice(),
+            1e-9,
+            "τ = τ_links + I_a ⊙ q̈",
+        );
+    }
+    for bad in [
+        DVector::zeros(6),
+        DVector::from_element(7, -0.1),
+        DVector::from_element(7, f64::NAN),
+    ] {
+        assert!(bare.set_armature(bad).is_err());
+    }
 }
 
 #[test]

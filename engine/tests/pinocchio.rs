@@ -1,5 +1,6 @@
 //! Agreement with Pinocchio (an independent rigid-body library) on the shipped Panda URDF:
-//! RNEA, CRBA and generalized gravity over random states, to 1e-9.
+//! RNEA, CRBA and generalized gravity over random states, to 1e-9, with the Panda's
+//! armature (reflected rotor inertias) given to Pinocchio's `model.armature`.
 //!
 //! Needs the project's Python environment (`make test` or `scripts/setup-python.sh`);
 //! `$CIFLOW_PYTHON` overrides `<workspace>/.venv/bin/python`.
@@ -55,6 +56,7 @@ fn panda_rnea_crba_gravity_match_pinocchio() {
         .map(|_| random_state(&robot, &mut rng))
         .collect();
     let request = json!({
+        "armature": robot.model().armature().as_slice(),
         "states": states.iter().map(|s| json!({
             "q": s.q.as_slice(), "qd": s.qd.as_slice(), "qdd": s.qdd.as_slice()
         })).collect::<Vec<_>>()

@@ -1,7 +1,7 @@
 """Reference dynamics of a URDF robot with Pinocchio, for engine/tests/pinocchio.rs.
 
 Usage: pinocchio_reference.py ROBOT.urdf STATES.json OUT.json
-STATES.json: {"states": [{"q": [...], "qd": [...], "qdd": [...]}, ...]}
+STATES.json: {"armature": [...], "states": [{"q": [...], "qd": [...], "qdd": [...]}, ...]}
 OUT.json:    {"pinocchio": version, "results": [{"tau": rnea, "m": crba (symmetrised,
              row-major), "g": computeGeneralizedGravity}, ...]}
 Gravity is Pinocchio's default, 9.81 m/s^2 along -z.
@@ -15,10 +15,13 @@ import pinocchio as pin
 
 
 def main(urdf, states_path, out_path):
-    model = pin.buildModelFromUrdf(urdf)
-    data = model.createData()
     with open(states_path) as f:
-        states = json.load(f)["states"]
+        request = json.load(f)
+    model = pin.buildModelFromUrdf(urdf)
+    # The reflected rotor inertias (Pinocchio adds them to rnea and crba, as the engine).
+    model.armature = np.array(request["armature"], dtype=float)
+    data = model.createData()
+    states = request["states"]
     results = []
     for state in states:
         q, qd, qdd = (np.array(state[k], dtype=float) for k in ("q", "qd", "qdd"))

@@ -111,6 +111,63 @@ fn a_push_on_the_hand_moves_the_arm_and_the_expert_recovers() {
     assert_eq!(last.unwrap().info["is_success"], 1.0);
 }
 
+/// The push, with the expert in control: for each of four horizontal directions,
+/// the weakest 0.2 s push on the hand (in 10 N steps) that moves the cup's centre by 5 cm
+/// from where it would have been spills nothing. The Panda's reflected rotor inertia
+/// (`PANDA_ARMATURE`) makes the arm give way as a whole; without it the light wrist spins
+/// and such pushes tip the cup past `SPILL_TILT`.
+#[test]
+fn the_weakest_push_that_displaces_the_cup_5_cm_spills_nothing() {
+    let mut env = Pouring::new().unwrap();
+    let options = ResetOptions {
+        context: Some(vec![0.5, 0.0, 0.05, 0.0, 0.0, 0.0]),
+        initial_position: Some(ciflow_engine::robot::PANDA_HOME.to_vec()),
+        ..ResetOptions::default()
+    };
+    // The cup's centre at each step, and whether the episode spilled.
+    let run = |env: &mut Pouring, force: [f64; 3]| {
+        env.reset(None, &options).unwrap();
+        env.perturb(Perturbation {
+            kind: PerturbationKind::LinkWrench {
+                link: 6,
+                force,
+                torque: [0.0; 3],
+            },
+            start: 1.0,
+            duration: 0.2,
+        })
+        .unwrap();
+        let mut centres = vec![];
+        for _ in 0..400 {
+            let action = env.expert_action().unwrap();
+            let step = env.step(&action).unwrap();
+            let cup = env.cup().unwrap();
+            centres.push((cup.bottom + cup.top) / 2.0);
+            if step.terminated {
+                return (centres, true);
+            }
+        }
+        (centres, false)
+    };
+    let (calm, _) = run(&mut env, [0.0; 3]);
+    for angle in [0.0, 0.5, 1.0, 1.5].map(|a: f64| a * std::f64::consts::PI) {
+        let (force, spilled) = (1..=30)
+            .map(|k| 10.0 * k as f64)
+            .find_map(|force| {
+                let (pushed, spilled) =
+                    run(&mut env, [force * angle.cos(), force * angle.sin(), 0.0]);
+                let displacement = pushed
+                    .iter()
+                    .zip(&calm)
+                    .map(|(p, c)| (p - c).norm())
+                    .fold(0.0, f64::max);
+                (displacement >= 0.05).then_some((force, spilled))
+            })
+            .expect("a push of at most 300 N displaces the cup by 5 cm");
+        assert!(!spilled, "the {force} N push at {angle} rad spilled");
+    }
+}
+
 #[test]
 fn invalid_inputs_are_typed_errors() {
     let mut env = Pouring::new().unwrap();

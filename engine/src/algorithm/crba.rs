@@ -1,6 +1,7 @@
 //! The composite rigid-body algorithm (CRBA): the joint-space inertia matrix `M(q)`.
 //! Featherstone (2008), Table 6.2: `Mᵢⱼ = Sⱼᵀ ʲXᵢ* Iᶜᵢ Sᵢ` for `j ⪯ i`, with the composite
-//! inertia `Iᶜᵢ = Iᵢ + Σ_children Iᶜ`.
+//! inertia `Iᶜᵢ = Iᵢ + Σ_children Iᶜ`; the joints' armature adds `diag(I_a)`
+//! ([`Model::armature`](crate::model::Model::armature)).
 
 use super::{DynamicsError, check_vector};
 use crate::math::{DMatrix, Real};
@@ -29,7 +30,7 @@ pub(crate) fn composite_rigid_body(model: &Model, data: &mut Data) {
     }
     for i in (0..bodies.len()).rev() {
         let mut force = data.ycrb[i] * bodies[i].joint.motion_subspace();
-        data.m[(i, i)] = bodies[i].joint.axis.dot(&force.angular);
+        data.m[(i, i)] = bodies[i].joint.axis.dot(&force.angular) + model.armature()[i];
         for j in (0..i).rev() {
             force = data.li_m_i[j + 1].act_force(&force);
             let m_ij = bodies[j].joint.axis.dot(&force.angular);

@@ -1,7 +1,8 @@
 //! The recursive Newton–Euler algorithm (RNEA): inverse dynamics
 //! `τ = M(q) q̈ + C(q, q̇) q̇ + g(q)`, and its special cases `C q̇ + g` (q̈ = 0) and `g`
 //! (q̇ = q̈ = 0). Featherstone (2008), Table 5.1, in body coordinates; gravity enters as
-//! the base acceleration `a₀ = −g`.
+//! the base acceleration `a₀ = −g`. The joints' armature adds `I_a ⊙ q̈`
+//! ([`Model::armature`](crate::model::Model::armature)).
 
 use super::{DynamicsError, check_vector};
 use crate::math::{DVector, Real, Vector3};
@@ -86,6 +87,9 @@ fn newton_euler(
     }
     for i in (0..bodies.len()).rev() {
         data.tau[i] = bodies[i].joint.axis.dot(&data.f[i].angular);
+        if let Some(qdd) = qdd {
+            data.tau[i] += model.armature()[i] * qdd[i];
+        }
         if i > 0 {
             let f_parent = data.li_m_i[i].act_force(&data.f[i]);
             data.f[i - 1] += f_parent;

@@ -1,7 +1,7 @@
 //! The read-only description of a serial chain.
 
 use super::{Frame, JointLimits, ModelError, RevoluteJoint};
-use crate::math::{Real, Vector3};
+use crate::math::{DVector, Real, Vector3};
 use crate::spatial::{Inertia, Se3};
 
 /// Standard gravity along `−z` of the base frame (Pinocchio's default), m/s².
@@ -26,6 +26,7 @@ pub struct Model {
     bodies: Vec<Body>,
     frames: Vec<Frame>,
     limits: JointLimits,
+    armature: DVector,
 }
 
 impl Model {
@@ -71,6 +72,7 @@ impl Model {
             name: name.into(),
             gravity: Vector3::new(0.0, 0.0, -STANDARD_GRAVITY),
             limits: JointLimits::unlimited(bodies.len()),
+            armature: DVector::zeros(bodies.len()),
             bodies,
             frames,
         })
@@ -109,6 +111,33 @@ impl Model {
     pub fn set_limits(&mut self, limits: JointLimits) -> Result<(), ModelError> {
         limits.validate(self.nv())?;
         self.limits = limits;
+        Ok(())
+    }
+
+    /// Reflected rotor inertias `I_a` (kg·m²), one per joint: the motor's rotor turning
+    /// with the joint through its gearbox (`I_rotor · gear_ratio²`). They add `diag(I_a)` to
+    /// `M(q)` and `I_a ⊙ q̈` to the inverse dynamics; the rotors' gyroscopic terms are
+    /// neglected (Pinocchio's `model.armature`, MuJoCo's `armature`). Zero by default.
+    pub fn armature(&self) -> &DVector {
+        &self.armature
+    }
+
+    pub fn set_armature(&mut self, armature: DVector) -> Result<(), ModelError> {
+        if armature.len() != self.nv() {
+            return Err(ModelError::Dimension {
+                what: "armature",
+                expected: self.nv(),
+                actual: armature.len(),
+            });
+        }
+        if let Some(joint) = armature.iter().position(|a| !(a.is_finite() && *a >= 0.0)) {
+            return Err(ModelError::InvalidLimits {
+                what: "armature",
+                joint,
+                reason: "must be finite and >= 0",
+            });
+        }
+        self.armature = armature;
         Ok(())
     }
 

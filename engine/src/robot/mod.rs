@@ -7,7 +7,7 @@ mod serial_chain;
 
 pub use crate::algorithm::DynamicsError;
 pub use crate::model::{Frame, JointLimits};
-pub use panda::{PANDA_HOME, PANDA_URDF, panda, panda_from_dh, panda_limits};
+pub use panda::{PANDA_ARMATURE, PANDA_HOME, PANDA_URDF, panda, panda_from_dh, panda_limits};
 pub use point_mass::PointMass2d;
 pub use serial_chain::SerialChain;
 

@@ -3,6 +3,14 @@
 //! "Dynamic identification of the Franka Emika Panda robot with retrieval of feasible
 //! parameters using penalty-based optimization", IEEE RA-L 2019, and the hand as a fixed
 //! body on the flange.
+//!
+//! The joints carry their motors' reflected rotor inertia ([`PANDA_ARMATURE`], the
+//! model's armature), which the link-side identification does not include. It matters
+//! under external forces: without it the wrist's joint-space inertia is a few 0.01 kg·m²,
+//! so a push on the hand mostly spins the wrist; with it the same push mostly translates
+//! the arm, as on the real robot. Franka's joint-torque loop hides part of the rotor
+//! inertia from the commanded torque, so the full reflected value is the upper end of what
+//! a push meets.
 
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
 
@@ -112,6 +120,18 @@ const QD_MAX: [Real; 7] = [2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61];
 const QDD_MAX: [Real; 7] = [15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0];
 const TAU_MAX: [Real; 7] = [87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0];
 const TAU_RATE_MAX: Real = 1000.0;
+/// Reflected rotor inertia of each joint, kg·m²: Franka's figures for its FR3 drives
+/// (the Panda's successor, same drive sizes: 87 N·m joints 1–4, 12 N·m joints 5–7), as
+/// used by Drake's `franka_description` (`rotor_inertia · gear_ratio²`).
+pub const PANDA_ARMATURE: [Real; 7] = [
+    0.605721456,
+    0.605721456,
+    0.462474144,
+    0.462474144,
+    0.205544064,
+    0.205544064,
+    0.205544064,
+];
 
 /// Franka's published joint limits, including `q̈` and the 1000 N·m/s torque rate.
 pub fn panda_limits() -> JointLimits {
@@ -125,13 +145,17 @@ pub fn panda_limits() -> JointLimits {
     }
 }
 
-/// The Panda from the shipped URDF, with [`panda_limits`] and the hand as tool frame.
+/// The Panda from the shipped URDF, with [`panda_limits`], [`PANDA_ARMATURE`] and the hand
+/// as tool frame.
 pub fn panda() -> SerialChain {
     let mut robot =
         SerialChain::from_urdf_str(PANDA_URDF).expect("the shipped Panda URDF is valid (tested)");
     robot
         .set_limits(panda_limits())
         .expect("the Panda limits are valid (tested)");
+    robot
+        .set_armature(DVector::from_row_slice(&PANDA_ARMATURE))
+        .expect("the Panda armature is valid (tested)");
     robot
 }
 
@@ -166,5 +190,6 @@ pub fn panda_from_dh() -> Result<SerialChain, ModelError> {
         frames,
     )?);
     robot.set_limits(panda_limits())?;
+    robot.set_armature(DVector::from_row_slice(&PANDA_ARMATURE))?;
     Ok(robot)
 }

@@ -51,6 +51,11 @@ impl SerialChain {
         self.model.set_limits(limits)
     }
 
+    /// Reflected rotor inertias, one per joint ([`Model::armature`]).
+    pub fn set_armature(&mut self, armature: DVector) -> Result<(), ModelError> {
+        self.model.set_armature(armature)
+    }
+
     /// Gravity acceleration in the base frame (default `(0, 0, −9.81)`).
     pub fn set_gravity(&mut self, gravity: Vector3) -> Result<(), ModelError> {
         self.model.set_gravity(gravity)

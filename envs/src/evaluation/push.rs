@@ -9,8 +9,12 @@
 //! episode (same seed: same context and start) without the push. `F` starts at
 //! [`PushConfig::initial_force`] and is rescaled until `δ* ≤ δ ≤` [`OVERSHOOT`]` δ*`
 //! with `δ*` = [`PushConfig::displacement`] (`F ← F · clamp(1.25 δ*/δ, 0.1, 10)`, at most
-//! [`PushConfig::max_attempts`] runs; the last run that reached `δ*` is kept), so each
-//! episode gets about the smallest push the experiment asks for, not a much larger one.
+//! [`PushConfig::max_attempts`] runs), so each episode gets about the smallest push the
+//! experiment asks for, not a much larger one. `δ(F)` can jump (a push just strong enough
+//! to spill ends the run early; one a little stronger may reach a joint limit), so the
+//! forces tried so far bracket the threshold — the strongest that fell short of `δ*` and
+//! the weakest that reached it — and a step that would leave the bracket bisects it
+//! instead. If no run lands in the window, the weakest run that reached `δ*` is kept.
 //!
 //! **Recovery.** With `d(t) = min_s ‖p(t) − p_ref(s)‖`, the distance to the undisturbed
 //! *path* (the polyline through its samples; not where it is at `t`: a pushed robot may return to the path late), the
@@ -197,7 +201,9 @@ pub fn sized_push<R>(
 ) -> EvaluationResult<(R, PushOutcome)> {
     let direction = push_direction(seed);
     let mut magnitude = config.initial_force;
-    let mut last_displaced = None;
+    // The bracket: the strongest push that fell short of δ*, the weakest that reached it.
+    let mut strongest_short = 0.0_f64;
+    let mut weakest_displaced: Option<Attempt<R>> = None;
     let mut attempts = 0;
     loop {
         attempts += 1;
@@ -208,25 +214,42 @@ pub fn sized_push<R>(
             trace,
             result,
             force,
+            magnitude,
             attempts,
         };
         let delta = attempt.displacement;
         let displaced = delta >= config.displacement;
-        let last = attempts >= config.max_attempts;
-        if displaced && (delta <= OVERSHOOT * config.displacement || last) {
+        if displaced && delta <= OVERSHOOT * config.displacement {
             return Ok(attempt.outcome(config, reference));
         }
-        if last {
-            return Ok(last_displaced.unwrap_or(attempt).outcome(config, reference));
+        let proposed = magnitude
+            * if delta > 0.0 {
+                (1.25 * config.displacement / delta).clamp(0.1, 10.0)
+            } else {
+                10.0
+            };
+        let weakest_so_far = displaced
+            && weakest_displaced
+                .as_ref()
+                .is_none_or(|weakest| magnitude < weakest.magnitude);
+        if attempts >= config.max_attempts {
+            let kept = match weakest_displaced {
+                Some(weakest) if !weakest_so_far => weakest,
+                _ => attempt,
+            };
+            return Ok(kept.outcome(config, reference));
         }
-        magnitude *= if delta > 0.0 {
-            (1.25 * config.displacement / delta).clamp(0.1, 10.0)
-        } else {
-            10.0
+        if weakest_so_far {
+            weakest_displaced = Some(attempt);
+        } else if !displaced {
+            strongest_short = strongest_short.max(magnitude);
+        }
+        magnitude = match weakest_displaced.as_ref().map(|w| w.magnitude) {
+            Some(upper) if !(strongest_short < proposed && proposed < upper) => {
+                0.5 * (strongest_short + upper)
+            }
+            _ => proposed,
         };
-        if displaced {
-            last_displaced = Some(attempt);
-        }
     }
 }
 
@@ -235,6 +258,8 @@ struct Attempt<R> {
     trace: Trace,
     result: R,
     force: [f64; 3],
+    /// `F`, N.
+    magnitude: f64,
     /// `δ` of the run.
     displacement: f64,
     /// Runs so far, this one included.
@@ -352,6 +377,39 @@ mod tests {
         assert_eq!(recovery(&away, &reference, 0.0, 0.01).0, None);
     }
 
+    /// A run whose push of `F` N displaces the tracked point by `plant(F)`; it returns `F`.
+    fn plant_run(
+        plant: impl Fn(f64) -> f64,
+    ) -> impl FnMut(Perturbation) -> EvaluationResult<(Trace, f64)> {
+        move |p| {
+            let PerturbationKind::LinkWrench { force, .. } = p.kind else {
+                unreachable!()
+            };
+            let magnitude = force.iter().map(|f| f * f).sum::<f64>().sqrt();
+            let moved = trace(&[[0.0, 0.0], [plant(magnitude), 0.0], [0.0, 0.0]], 0.5);
+            Ok((moved, magnitude))
+        }
+    }
+
+    #[test]
+    fn a_jump_in_the_response_keeps_the_weakest_push_that_reaches_the_displacement() {
+        // 1 mm per newton up to 45 N (short of 5 cm), then a jump to 20 cm (e.g. the run
+        // hits a joint limit): no force lands in [5, 7.5] cm. The bracket closes on 45 N.
+        let reference = trace(&[[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]], 0.5);
+        let config = PushConfig {
+            start: 0.5,
+            ..PushConfig::default()
+        };
+        let plant = |f: f64| if f < 45.0 { 0.001 * f } else { 0.2 };
+        let (force, outcome) = sized_push(&config, 3, &reference, plant_run(plant)).unwrap();
+        assert!(outcome.displaced);
+        assert!((45.0..46.0).contains(&force), "kept {force} N");
+        // Never displaced: the last run is reported as not displaced.
+        let weak = |_: f64| 0.0001;
+        let (_, outcome) = sized_push(&config, 3, &reference, plant_run(weak)).unwrap();
+        assert!(!outcome.displaced);
+    }
+
     #[test]
     fn the_force_grows_until_the_displacement_is_reached() {
         // A linear plant: displacement = 0.004 m per newton.
@@ -360,15 +418,8 @@ mod tests {
             start: 0.5,
             ..PushConfig::default()
         };
-        let (forces, outcome) = sized_push(&config, 3, &reference, |p| {
-            let PerturbationKind::LinkWrench { force, .. } = p.kind else {
-                unreachable!()
-            };
-            let magnitude = force.iter().map(|f| f * f).sum::<f64>().sqrt();
-            let moved = trace(&[[0.0, 0.0], [0.004 * magnitude, 0.0], [0.0, 0.0]], 0.5);
-            Ok((moved, magnitude))
-        })
-        .unwrap();
+        let (forces, outcome) =
+            sized_push(&config, 3, &reference, plant_run(|f| 0.004 * f)).unwrap();
         assert!(outcome.displaced && outcome.attempts == 2, "{outcome:?}");
         assert!(outcome.displacement >= 0.05);
         assert!((forces * 0.004 - outcome.displacement).abs() < 1e-12);

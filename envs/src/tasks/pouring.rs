@@ -1,8 +1,10 @@
 //! `ciflow/Pouring-v0` — the Franka Panda pours from a cup into a pot.
 //!
 //! ## Description
-//! The 7-DOF Panda with its identified dynamics (the engine's [`panda`] under the
-//! computed-torque [`Simulator`], 1 ms physics, 10 ms control) holds a cup. A pot stands
+//! The 7-DOF Panda with its identified dynamics and its motors' reflected rotor inertia
+//! (the engine's [`panda`] under the computed-torque [`Simulator`], 1 ms physics, 10 ms
+//! control) holds a cup. The rotor inertia is what makes a push on the hand move the arm
+//! rather than spin the light wrist and tip the cup (see `PANDA_ARMATURE`). A pot stands
 //! at a 6-D pose; its rim has a lip on one side (local `−x`), and water must be poured
 //! over the lip: the cup has to reach a pre-pour pose above the lip upright, then tilt
 //! toward the pot's centre. Tilting anywhere else spills.
@@ -42,7 +44,9 @@
 //! force of magnitude `U(0, push_force)` in a uniform direction for [`DEMO_PUSH_DURATION`],
 //! starting at `U(`[`DEMO_PUSH_WINDOW`]`)` s, drawn from the episode's seed. Expert
 //! demonstrations recorded with it show how the expert recovers from pushes (noise
-//! injection in the spirit of DART), the states a pushed policy has to handle.
+//! injection in the spirit of DART), the states a pushed policy has to handle; the
+//! experiments record theirs with 40 N (`scripts/demo.py`), without which the flow, like
+//! the expert heading straight for the pour point, rejoins its path only near the goal.
 //!
 //! ## Episode end
 //! Terminated on a spill: tilt ≥ [`SPILL_TILT`] with the spout not over the opening.
