@@ -62,9 +62,12 @@ LIMIT_CYCLE_MODEL = ["--epochs", "40"]
 # training on fewer (README "Obstacle avoidance"), in about 2.5 CPU-minutes.
 OBSTACLE_MODEL = ["--epochs", "2", "--keep", "last"]
 # What the perturbation script does to the running pouring session (simulated seconds):
-# a 0.2 s push on the hand, then the pot moved to another valid pose, where it stays.
+# a 0.2 s push on the hand, then the pot moved to another valid pose, where it stays:
+# 5 cm along x, 8 cm along y, turned by 0.33 rad. (Turning it by 0.93 rad instead, most
+# of the yaw range, saturates the joint accelerations and spills; `ciflow evaluate
+# --perturb context` gives the rate over 100 random moves.)
 PERTURB_PUSH = "link=6,force=0:-15:0,at=1.0,duration=0.2"
-PERTURB_CONTEXT = "at=1.5,value=0.55:-0.15:0.05:0:0:0.4"
+PERTURB_CONTEXT = "at=1.5,value=0.55:-0.1:0.05:0:0:-0.2"
 
 
 @dataclass

@@ -41,6 +41,8 @@ PUSH_DISPLACEMENT_TARGET = 0.05  # m
 RECOVERY_DEADLINE = 2.0  # s
 # The obstacle-avoidance task's obstacle body radius (m), drawn in the figures.
 OBSTACLE_RADIUS = 0.1
+# Pouring's reward on a spill (envs/src/tasks/pouring.rs `SPILL_REWARD`).
+SPILL_REWARD = -100.0
 NLL_NAME = re.compile(r"^(?P<x>[0-9]+(?:\.[0-9]+)?)_seed(?P<seed>[0-9]+)_(?P<split>train|test)\.json$")
 
 
@@ -374,7 +376,12 @@ def plot_script_run(report, script):
                          color=color, alpha=0.2)
     axes[1].set_xlabel("simulated time (s)")
     last = samples[-1]
-    ended = "ended" if last.get("episode_done") else "was still running"
+    if not last.get("episode_done"):
+        ended = "was still running"
+    elif last["reward"] <= SPILL_REWARD:
+        ended = "ended in a spill"
+    else:  # pouring's reward is minus the spout's distance to the pour point
+        ended = f"ended with the spout {-100 * last['reward']:.1f} cm from the pour point"
     report.figure(fig, "pouring_script_run.png",
                   "Pouring over Zenoh: the engine's policy pushed (red) and its pot moved (blue) "
                   "by the perturbation script")

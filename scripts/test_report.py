@@ -90,7 +90,8 @@ def experiments(tmp_path):
         "observation_space": {"fraction": 0.4, "rollouts": 50, "diverged_to_non_finite": 3},
     })
     samples = [{"time": 0.01 * k, "state": [0.1 * k] * 7, "command": [1.0] * 7,
-                "running": True, "episode_done": k == 99} for k in range(100)]
+                "reward": -0.5 + 0.005 * k, "running": True, "episode_done": k == 99}
+               for k in range(100)]
     write(root / "pouring" / "perturb.json", {
         "events": [{"kind": "push", "start": 0.3, "duration": 0.2},
                    {"kind": "context", "start": 0.6, "duration": 0.0}],
@@ -113,7 +114,8 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert "pot moved mid-motion: not run" in text
     assert "| pouring-flow | 100.0% | 50 | 0 | 95.0% of 20 |" in text
     assert "| pouring-baseline | 40.0% | 50 | 3 | not run |" in text
-    assert "session ran 0.99 simulated s (100 telemetry samples) and ended" in text
+    assert ("session ran 0.99 simulated s (100 telemetry samples) and ended with the spout "
+            "0.5 cm from the pour point") in text
     figures = tmp_path / "out" / "figures"
     for name in ("limit_cycle_field.png", "limit_cycle_nll.png", "obstacles_rollouts.png",
                  "pouring_push.png", "pouring_script_run.png", "stability.png"):
@@ -133,3 +135,12 @@ def test_a_malformed_file_is_reported_not_raised(tmp_path):
     text = report.build(root, tmp_path / "report.md").read_text()
     assert "pouring: could not be read (KeyError" in text
     assert "## Stability" in text
+
+
+def test_a_spilled_script_run_says_so(experiments, tmp_path):
+    script = experiments / "pouring" / "perturb.json"
+    run = json.loads(script.read_text())
+    run["samples"][-1]["reward"] = report.SPILL_REWARD
+    write(script, run)
+    text = report.build(experiments, tmp_path / "report.md").read_text()
+    assert "(100 telemetry samples) and ended in a spill." in text
