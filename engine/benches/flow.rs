@@ -79,22 +79,9 @@ fn bench(c: &mut Criterion) {
         ("spline", SPLINE),
     ] {
         let policy = pouring_policy(coupling);
+        bench_act(c, &format!("flow/act/{name}"), &policy, &y, &context);
         let mut ws = policy.workspace();
-        let (mut next, mut velocity, mut acceleration) = ([0.0; 7], [0.0; 7], [0.0; 7]);
-        c.bench_function(&format!("flow/act/{name}"), |b| {
-            b.iter(|| {
-                policy
-                    .act(
-                        black_box(&y),
-                        black_box(&context),
-                        &mut ws,
-                        &mut next,
-                        &mut velocity,
-                    )
-                    .unwrap();
-                black_box(&next);
-            })
-        });
+        let (mut velocity, mut acceleration) = ([0.0; 7], [0.0; 7]);
         c.bench_function(&format!("flow/acceleration/{name}"), |b| {
             b.iter(|| {
                 policy
@@ -119,23 +106,34 @@ fn bench_obstacle(c: &mut Criterion) {
     let context = [-0.2, 0.3, 0.1, -0.4, 0.3, 0.5, 0.8, 0.0];
     for (name, contracted) in [("plain", false), ("contracted", true)] {
         let policy = obstacle_policy(contracted);
-        let mut ws = policy.workspace();
-        let (mut next, mut velocity) = ([0.0; 2], [0.0; 2]);
-        c.bench_function(&format!("flow/act/obstacle-3/{name}"), |b| {
-            b.iter(|| {
-                policy
-                    .act(
-                        black_box(&y),
-                        black_box(&context),
-                        &mut ws,
-                        &mut next,
-                        &mut velocity,
-                    )
-                    .unwrap();
-                black_box(&next);
-            })
-        });
+        bench_act(
+            c,
+            &format!("flow/act/obstacle-3/{name}"),
+            &policy,
+            &y,
+            &context,
+        );
     }
+}
+
+/// `Policy::act` at `(y, c)`.
+fn bench_act(c: &mut Criterion, name: &str, policy: &Policy, y: &[f64], context: &[f64]) {
+    let mut ws = policy.workspace();
+    let (mut next, mut velocity) = (vec![0.0; y.len()], vec![0.0; y.len()]);
+    c.bench_function(name, |b| {
+        b.iter(|| {
+            policy
+                .act(
+                    black_box(y),
+                    black_box(context),
+                    &mut ws,
+                    &mut next,
+                    &mut velocity,
+                )
+                .unwrap();
+            black_box(&next);
+        })
+    });
 }
 
 criterion_group!(benches, bench, bench_obstacle);
