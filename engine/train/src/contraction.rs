@@ -84,15 +84,14 @@ impl Contractions {
     /// with it, which carries the exact first derivatives through the root.
     pub fn invert(&self, u: &Tensor, centres: &Tensor) -> Tensor {
         let mut y = u.shallow_clone();
-        let profiles: Vec<_> = self.profiles().collect();
         let exponent = self.config.exponent;
-        for (alpha, width_sq) in profiles.iter().rev() {
+        for (alpha, width_sq) in self.profiles().rev() {
             for j in (0..self.config.centres.count as i64).rev() {
                 let o = centres.select(1, j);
                 let v = &y - &o;
                 let rho_sq = v.square().sum_dim_intlist(1, true, Kind::Double);
                 let residual = |q: &Tensor| {
-                    let (scale, radial) = slopes(q, alpha, width_sq, exponent);
+                    let (scale, radial) = slopes(q, &alpha, &width_sq, exponent);
                     (q * scale.square() - &rho_sq, &scale * radial)
                 };
                 let root = tch::no_grad(|| {
@@ -112,7 +111,7 @@ impl Contractions {
                 });
                 let (h, slope) = residual(&root);
                 let q = &root - h / slope;
-                let (scale, _) = slopes(&q, alpha, width_sq, exponent);
+                let (scale, _) = slopes(&q, &alpha, &width_sq, exponent);
                 y = o + v / scale;
             }
         }

@@ -164,11 +164,7 @@ impl FlowModel {
         let d = self.config.state_dim as i64;
         let offset = match &self.goal_index {
             Some(index) => {
-                let target = context.index_select(1, index);
-                let target = match (&self.contractions, &centres) {
-                    (Some(p), Some(centres)) => p.apply(&target, centres).0,
-                    _ => target,
-                };
+                let target = self.contract(&context.index_select(1, index), &centres).0;
                 let origin = Tensor::zeros([rows, d], (Kind::Double, context.device()));
                 (target - &self.state_mean) / &self.state_std
                     - self.g_forward(&origin, &normalised).0
@@ -204,15 +200,21 @@ impl FlowModel {
         self.inverse_conditioned(y, &self.condition(context))
     }
 
-    /// [`inverse`](Self::inverse) with the conditioning `(c̃, o(c))` already computed.
-    fn inverse_conditioned(&self, y: &Tensor, conditioned: &Conditioned) -> (Tensor, Tensor) {
-        let (u, contraction_log_det) = match (&self.contractions, &conditioned.centres) {
+    /// `(P_c(y), log|det ∂P_c/∂y|)` about `centres`; the identity without contractions.
+    fn contract(&self, y: &Tensor, centres: &Option<Tensor>) -> (Tensor, Tensor) {
+        match (&self.contractions, centres) {
             (Some(p), Some(centres)) => p.apply(y, centres),
             _ => (
                 y.shallow_clone(),
                 Tensor::zeros([y.size()[0]], (Kind::Double, y.device())),
             ),
-        };
+        }
+    }
+
+    /// [`inverse`](Self::inverse) with the conditioning `(c̃, o(c), centres)` already
+    /// computed.
+    fn inverse_conditioned(&self, y: &Tensor, conditioned: &Conditioned) -> (Tensor, Tensor) {
+        let (u, contraction_log_det) = self.contract(y, &conditioned.centres);
         let x = (u - &self.state_mean) / &self.state_std - &conditioned.offset;
         let (z, log_det) = self.g_inverse(&x, &conditioned.normalised);
         (z, log_det - self.log_state_scale() + contraction_log_det)
