@@ -12,7 +12,7 @@ use flow_common::*;
 const BODY_RADIUS: f64 = 0.1;
 const TARGET: [f64; 2] = [0.8, 0.0];
 
-/// `f(z, c) = P_c⁻¹(z + o(c))` about one centre at the origin (context
+/// `f(z, c) = P_c⁻¹(z + a(c))` about one centre at the origin (context
 /// `[o₁, o₂, g]`, the second centre far away), each contraction with `strength`.
 fn policy(strength: Option<f64>) -> Policy {
     let mut config = contracted(AFFINE);

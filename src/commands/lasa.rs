@@ -11,7 +11,6 @@
 //! rollouts and vector fields: `<out>/plots/<shape>.png` and the overview `<out>/lasa.png`.
 
 pub mod metrics;
-
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -21,16 +20,18 @@ use anyhow::Context;
 use ciflow_engine::flow::stability::MeanDynamics;
 use ciflow_engine::flow::{BehaviourCloning, Goal, Policy};
 use ciflow_envs::lasa::{self, Shape};
-use ciflow_envs::tasks::lasa::GOAL_TOLERANCE;
 use ciflow_train::{
-    Contexts, Demonstrations, Episode, Progress, TrainConfig, train_baseline, train_flow,
+    BaselineTrainConfig, Contexts, Demonstrations, Episode, OptimConfig, Progress, TrainConfig,
+    train_baseline, train_flow,
 };
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use serde_json::json;
 
-use super::train::{ModelArgs, baseline_config, task_defaults};
+use super::train::{ModelArgs, task_recipe};
 use metrics::{Point, dtw_distance, final_point_error, swept_error_area};
+
+pub mod ablation;
 
 /// The plotting script, embedded so the command runs from any directory.
 const PLOT_SCRIPT: &str = include_str!("../../bench/lasa_plot.py");
@@ -38,6 +39,9 @@ const PLOT_SCRIPT: &str = include_str!("../../bench/lasa_plot.py");
 const TASK: &str = "lasa";
 /// The goal `g` is the context (the origin in the dataset), as in `ciflow/Lasa-v0`.
 const GOAL: [f64; 2] = [0.0, 0.0];
+/// DTW compares every this many samples of the reproduction and the demonstration (100
+/// points of LASA's 1000), as the published LASA comparisons do.
+const DTW_STRIDE: usize = 10;
 /// Every this many samples of a path go to the plot files.
 const PLOT_STRIDE: usize = 5;
 /// Vector-field grid points per axis in the plot files.
@@ -56,6 +60,11 @@ pub struct LasaArgs {
     /// Skip the PNG plots (they need Python with matplotlib).
     #[arg(long)]
     pub no_plots: bool,
+    /// Instead of the benchmark, measure what each of the default recipe's choices buys:
+    /// the flow retrained with one setting changed at a time, on the shapes given
+    /// (default: the six of ImitationFlow's comparison), into `<out>/ablation.md`.
+    #[arg(long)]
+    pub ablation: bool,
     #[command(flatten)]
     pub model: ModelArgs,
 }
@@ -93,6 +102,8 @@ struct Scores {
     best_epoch: usize,
     /// Epochs run before early stopping (or the budget).
     epochs_run: usize,
+    /// The last epoch's validation score (flow: one-step NLL per transition; baseline: MSE).
+    validation: f64,
 }
 
 /// A trained model with the figures of its training run.
@@ -101,9 +112,11 @@ struct Trained<M> {
     seconds: f64,
     best_epoch: usize,
     epochs_run: usize,
+    validation: f64,
 }
 
-/// A shape's demonstrations as the policy sees them: positions, the goal as context.
+/// A shape's demonstrations as the policy sees them: positions, the goal as context,
+/// sampled at the shape's mean period.
 fn demonstrations(shape: &Shape) -> Demonstrations {
     Demonstrations {
         episodes: shape
@@ -196,7 +209,8 @@ fn evaluate<M: MeanDynamics>(
     let (mut dtw, mut area, mut final_error) = (Vec::new(), Vec::new(), Vec::new());
     for demo in &shape.demos {
         let reproduction = rollout(&trained.model, demo.positions[0], demo.positions.len())?;
-        dtw.push(dtw_distance(&reproduction, &demo.positions));
+        let every = |path: &[Point]| path.iter().step_by(DTW_STRIDE).copied().collect::<Vec<_>>();
+        dtw.push(dtw_distance(&every(&reproduction), &every(&demo.positions)));
         // A rollout cut short by a non-finite point has no time-aligned partner left.
         let complete = reproduction.len() == demo.positions.len();
         area.push(match complete {
@@ -213,6 +227,7 @@ fn evaluate<M: MeanDynamics>(
         train_seconds: trained.seconds,
         best_epoch: trained.best_epoch,
         epochs_run: trained.epochs_run,
+        validation: trained.validation,
     };
     let plot = json!({
         "rollouts": rollouts,
@@ -224,23 +239,19 @@ fn evaluate<M: MeanDynamics>(
 /// One bar over every epoch of the run; each model advances it by its budget.
 struct RunProgress {
     bar: ProgressBar,
-    epochs: usize,
     done: u64,
 }
 
 impl RunProgress {
-    fn new(shapes: usize, epochs: usize) -> Self {
-        let bar = ProgressBar::new((shapes * Model::ALL.len() * epochs) as u64);
+    /// A bar over `epochs`, every model's budget added up.
+    fn new(epochs: usize) -> Self {
+        let bar = ProgressBar::new(epochs as u64);
         bar.set_style(
             ProgressStyle::with_template("lasa [{bar:30}] {percent}% {msg} ({elapsed}, eta {eta})")
                 .expect("valid template")
                 .progress_chars("=> "),
         );
-        Self {
-            bar,
-            epochs,
-            done: 0,
-        }
+        Self { bar, done: 0 }
     }
 
     fn epoch(&self, shape: &str, model: Model, p: &Progress) {
@@ -254,30 +265,29 @@ impl RunProgress {
         ));
     }
 
-    /// A model finished (perhaps early): its whole budget counts as done.
-    fn finish_model(&mut self) {
-        self.done += self.epochs as u64;
+    /// A model finished (perhaps early): its whole budget of `epochs` counts as done.
+    fn finish_model(&mut self, epochs: usize) {
+        self.done += epochs as u64;
         self.bar.set_position(self.done);
     }
 }
 
-/// The flow's configuration: `ciflow train`'s for `ciflow/Lasa-v0` (go-to, the goal as
-/// context).
+/// The flow's configuration: `ciflow train`'s for `ciflow/Lasa-v0` (the task's recipe,
+/// the goal as context) with the command line's settings.
 fn flow_config(args: &ModelArgs) -> anyhow::Result<TrainConfig> {
     let task = ciflow_envs::registry::entry(TASK)?;
-    Ok(args.flow(task.name, task_defaults(task, GOAL.len())?))
+    Ok(args.flow(task_recipe(task, GOAL.len())?))
 }
 
 fn train_shape_flow(
     shape: &Shape,
     data: &Demonstrations,
-    args: &ModelArgs,
+    config: &TrainConfig,
     progress: &RunProgress,
     dir: &Path,
 ) -> anyhow::Result<Trained<Policy>> {
-    let config = flow_config(args)?;
     let start = Instant::now();
-    let trained = train_flow(data, &config, |p, _| {
+    let trained = train_flow(data, config, |p, _| {
         progress.epoch(&shape.name, Model::Flow, p)
     })
     .with_context(|| format!("training the flow on {}", shape.name))?;
@@ -290,21 +300,30 @@ fn train_shape_flow(
         seconds,
         best_epoch: trained.best_epoch,
         epochs_run: trained.history.len(),
+        validation: trained.history.last().map_or(f64::NAN, |p| p.validation),
     })
 }
 
+/// Trains the unconstrained baseline. The control keeps its standing settings
+/// ([`BaselineTrainConfig::new`]) whatever the flow's recipe or flags say; only the seed
+/// follows the run's.
 fn train_shape_baseline(
     shape: &Shape,
     data: &Demonstrations,
-    args: &ModelArgs,
+    flow: &TrainConfig,
     progress: &RunProgress,
     dir: &Path,
 ) -> anyhow::Result<Trained<BehaviourCloning>> {
-    let flow = flow_config(args)?;
     let goal = Goal::ContextIndices {
         indices: flow.goal_context_indices.clone().unwrap_or_default(),
     };
-    let config = baseline_config(&flow, goal);
+    let config = BaselineTrainConfig {
+        optim: OptimConfig {
+            seed: flow.optim.seed,
+            ..OptimConfig::default()
+        },
+        ..BaselineTrainConfig::new(TASK, goal)
+    };
     let start = Instant::now();
     let trained = train_baseline(data, &config, |p| {
         progress.epoch(&shape.name, Model::Baseline, p)
@@ -319,10 +338,12 @@ fn train_shape_baseline(
         seconds,
         best_epoch: trained.best_epoch,
         epochs_run: trained.history.len(),
+        validation: trained.history.last().map_or(f64::NAN, |p| p.validation),
     })
 }
 
 /// One shape's results: scores per model, in [`Model::ALL`]'s order.
+#[derive(Clone)]
 struct ShapeResult {
     name: String,
     scores: [Scores; 2],
@@ -330,29 +351,30 @@ struct ShapeResult {
 
 fn run_shape(
     name: &str,
-    args: &LasaArgs,
+    config: &TrainConfig,
+    out: &Path,
     progress: &mut RunProgress,
 ) -> anyhow::Result<ShapeResult> {
     let shape = lasa::load(name)?;
     let data = demonstrations(&shape);
-    let checkpoints = args.out.join("checkpoints").join(name);
+    let checkpoints = out.join("checkpoints").join(name);
     let flow = train_shape_flow(
         &shape,
         &data,
-        &args.model,
+        config,
         progress,
         &checkpoints.join(Model::Flow.name()),
     )?;
-    progress.finish_model();
+    progress.finish_model(config.optim.epochs);
     let (flow_scores, flow_plot) = evaluate(&flow, &shape)?;
     let baseline = train_shape_baseline(
         &shape,
         &data,
-        &args.model,
+        config,
         progress,
         &checkpoints.join(Model::Baseline.name()),
     )?;
-    progress.finish_model();
+    progress.finish_model(OptimConfig::default().epochs);
     let (baseline_scores, baseline_plot) = evaluate(&baseline, &shape)?;
     let demos: Vec<Vec<Point>> = shape.demos.iter().map(|d| thinned(&d.positions)).collect();
     let plot = json!({
@@ -363,7 +385,7 @@ fn run_shape(
         "flow": flow_plot,
         "baseline": baseline_plot,
     });
-    let plots = args.out.join("plots");
+    let plots = out.join("plots");
     std::fs::create_dir_all(&plots)?;
     let path = plots.join(format!("{name}.json"));
     std::fs::write(&path, serde_json::to_string(&plot)?)
@@ -376,13 +398,13 @@ fn run_shape(
 
 fn csv(results: &[ShapeResult]) -> String {
     let mut text = String::from(
-        "shape,model,dtw_mm,swept_area_mm2,final_error_mm,train_seconds,best_epoch,epochs_run\n",
+        "shape,model,dtw_mm,swept_area_mm2,final_error_mm,train_seconds,best_epoch,epochs_run,validation\n",
     );
     for result in results {
         for (model, s) in Model::ALL.iter().zip(&result.scores) {
             writeln!(
                 text,
-                "{},{},{},{},{},{:.3},{},{}",
+                "{},{},{},{},{},{:.3},{},{},{}",
                 result.name,
                 model.name(),
                 s.dtw,
@@ -390,7 +412,8 @@ fn csv(results: &[ShapeResult]) -> String {
                 s.final_error,
                 s.train_seconds,
                 s.best_epoch,
-                s.epochs_run
+                s.epochs_run,
+                s.validation
             )
             .expect("writing to a String");
         }
@@ -431,43 +454,127 @@ fn mean_scores(results: &[ShapeResult], model: usize) -> Scores {
         train_seconds: of(|s| s.train_seconds),
         best_epoch: 0,
         epochs_run: 0,
+        validation: f64::NAN,
     }
 }
 
-fn markdown(
-    results: &[ShapeResult],
-    args: &ModelArgs,
-    flow: &TrainConfig,
-    total_seconds: f64,
-) -> String {
+/// The training settings of both models, as the reports state them.
+fn settings(flow: &TrainConfig) -> String {
+    let baseline = BaselineTrainConfig::new(
+        TASK,
+        Goal::ContextIndices {
+            indices: Vec::new(),
+        },
+    );
+    let optim = &flow.optim;
+    format!(
+        "Stable C-IFlow: {:?} latent (min rate {} /s), {} × {:?} coupling, conditioners \
+         {:?}, spans of up to {} steps, state jitter {} × RMS step, {:.0}% of the \
+         demonstrations held out, {} epochs (keep {:?}, patience {}), batch {}, learning \
+         rate {}, seed {}; the goal as context. Unconstrained MLP behaviour-cloning \
+         baseline: its standing settings, hidden {:?}, {:.0}% held out for early stopping, \
+         at most {} epochs (patience {}). Both trained in the same run, one libtorch \
+         thread each.",
+        flow.latent,
+        flow.min_rate,
+        flow.layers,
+        flow.coupling,
+        flow.hidden,
+        flow.horizon,
+        flow.state_noise,
+        100.0 * flow.validation_fraction,
+        optim.epochs,
+        optim.keep,
+        optim.patience,
+        optim.batch_size,
+        optim.learning_rate,
+        optim.seed,
+        baseline.hidden,
+        100.0 * baseline.validation_fraction,
+        baseline.optim.epochs,
+        baseline.optim.patience,
+    )
+}
+
+/// How each score is measured, for the reports.
+const METRICS: &str = "Reproductions are noise-free rollouts in observation space (mm) \
+    from each of a shape's 7 demonstrations' starts, as many steps as the demonstration at \
+    the shape's mean sampling period; scores are means over the 7 demonstrations.\n\n\
+    - **DTW**: reproduction and demonstration taken at every 10th sample (100 points), \
+    dynamic time warping with Euclidean point distance, the accumulated cost divided by \
+    the longer length (mm)\n\
+    - **SEA**: swept error area between reproduction and demonstration (mm²)\n\
+    - **final**: distance between the reproduction's and the demonstration's last points \
+    (mm)\n\
+    - **time**: training wall-clock (s)\n\
+    - ∞: the reproduction left the finite numbers\n";
+
+/// The shapes of the published comparison with ImitationFlow, and its scores on them:
+/// mean DTW and final-point error (mm) of the authors' 2020 code (depth-10 affine
+/// coupling with LU mixing, tanh latent, 1000 epochs of multi-step windows), measured
+/// with this command's metric on a 2-core machine of this project.
+pub const REFERENCE_SHAPES: [&str; 6] =
+    ["Sshape", "Angle", "CShape", "NShape", "WShape", "Khamesh"];
+const IMITATION_FLOW_DTW: f64 = 2.27;
+const IMITATION_FLOW_FINAL: f64 = 0.70;
+
+/// The run's verdicts: flow against baseline over every shape and, when the run holds
+/// the reference shapes, against ImitationFlow on them.
+fn summary(results: &[ShapeResult]) -> String {
+    let (flow, baseline) = (mean_scores(results, 0), mean_scores(results, 1));
+    let better = results
+        .iter()
+        .filter(|r| r.scores[0].dtw < r.scores[1].dtw)
+        .count();
+    let worst = results
+        .iter()
+        .max_by(|a, b| a.scores[0].final_error.total_cmp(&b.scores[0].final_error))
+        .expect("a run has shapes");
     let mut text = format!(
-        "# LASA handwriting benchmark\n\n\
-         Stable C-IFlow (go-to latent, {:?} coupling, {} layers, hidden {:?}, min rate {} /s, \
-         the goal as context) against an unconstrained MLP behaviour-cloning baseline \
-         (hidden {:?}), both trained by `ciflow lasa` in the same run with the same budget: \
-         at most {} epochs (patience {}), batch {}, learning rate {}, seed {}, one \
-         libtorch thread; {} shapes in {:.0} s.\n\n\
-         Reproductions are noise-free rollouts in observation space (mm) from each of a \
-         shape's 7 demonstrations' starts, as many steps as the demonstration at the \
-         shape's mean sampling period; scores are means over the 7 demonstrations.\n\n\
-         - **DTW**: dynamic-time-warping distance per demonstration sample (mm)\n\
-         - **SEA**: swept error area between reproduction and demonstration (mm²)\n\
-         - **final**: distance between the reproduction's and the demonstration's last \
-         points (mm; the env's success radius is {GOAL_TOLERANCE} mm)\n\
-         - **time**: training wall-clock (s)\n\
-         - ∞: the reproduction left the finite numbers\n\n\
+        "\n## Summary\n\n\
+         - flow / baseline mean DTW: {} / {} mm = **{}**; the flow is closer on {better} \
+         of {} shapes\n\
+         - flow final-point error: mean {} mm, worst {} mm ({}); baseline mean {} mm\n\
+         - training time per shape: flow {} s, baseline {} s\n",
+        cell(flow.dtw, 2),
+        cell(baseline.dtw, 2),
+        cell(flow.dtw / baseline.dtw, 2),
+        results.len(),
+        cell(flow.final_error, 2),
+        cell(worst.scores[0].final_error, 2),
+        worst.name,
+        cell(baseline.final_error, 2),
+        cell(flow.train_seconds, 1),
+        cell(baseline.train_seconds, 1),
+    );
+    let reference: Vec<ShapeResult> = results
+        .iter()
+        .filter(|r| REFERENCE_SHAPES.contains(&r.name.as_str()))
+        .cloned()
+        .collect();
+    if reference.len() == REFERENCE_SHAPES.len() {
+        let (flow, baseline) = (mean_scores(&reference, 0), mean_scores(&reference, 1));
+        text += &format!(
+            "- on ImitationFlow's six shapes ({}): mean DTW flow {} mm, baseline {} mm, \
+             ImitationFlow {IMITATION_FLOW_DTW} mm (flow / ImitationFlow **{}**); final \
+             error flow {} mm, baseline {} mm, ImitationFlow {IMITATION_FLOW_FINAL} mm\n",
+            REFERENCE_SHAPES.join(", "),
+            cell(flow.dtw, 2),
+            cell(baseline.dtw, 2),
+            cell(flow.dtw / IMITATION_FLOW_DTW, 2),
+            cell(flow.final_error, 2),
+            cell(baseline.final_error, 2),
+        );
+    }
+    text
+}
+
+fn markdown(results: &[ShapeResult], flow: &TrainConfig, total_seconds: f64) -> String {
+    let mut text = format!(
+        "# LASA handwriting benchmark\n\n{}\n{} shapes in {:.0} s.\n\n{METRICS}\n\
          | shape | DTW flow | DTW BC | SEA flow | SEA BC | final flow | final BC | time flow | time BC |\n\
          |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
-        args.coupling,
-        args.layers,
-        args.hidden,
-        flow.min_rate,
-        args.hidden,
-        args.epochs,
-        args.patience,
-        args.batch_size,
-        args.learning_rate,
-        args.seed,
+        settings(flow),
         results.len(),
         total_seconds,
     );
@@ -476,6 +583,7 @@ fn markdown(
     }
     let (flow, baseline) = (mean_scores(results, 0), mean_scores(results, 1));
     text += &table_row("**mean**", [&flow, &baseline]);
+    text += &summary(results);
     text
 }
 
@@ -508,11 +616,9 @@ fn plot(out: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub fn run(args: LasaArgs) -> anyhow::Result<()> {
-    let names = match &args.shapes {
-        Some(names) => names.clone(),
-        None => lasa::shape_names()?,
-    };
+/// The shapes named on the command line, checked against the dataset's, else `default`.
+fn shape_names(args: &LasaArgs, default: Vec<String>) -> anyhow::Result<Vec<String>> {
+    let names = args.shapes.clone().unwrap_or(default);
     anyhow::ensure!(!names.is_empty(), "--shapes names no shape");
     let known = lasa::shape_names()?;
     if let Some(unknown) = names.iter().find(|n| !known.contains(n)) {
@@ -521,21 +627,29 @@ pub fn run(args: LasaArgs) -> anyhow::Result<()> {
             known.join(", ")
         );
     }
+    Ok(names)
+}
+
+pub fn run(args: LasaArgs) -> anyhow::Result<()> {
+    let config = flow_config(&args.model)?;
+    let names = match args.ablation {
+        true => shape_names(&args, REFERENCE_SHAPES.map(String::from).to_vec())?,
+        false => shape_names(&args, lasa::shape_names()?)?,
+    };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
+    if args.ablation {
+        return ablation::run(&names, &config, &args.out);
+    }
     let start = Instant::now();
-    let mut progress = RunProgress::new(names.len(), args.model.epochs);
+    let budget = config.optim.epochs + OptimConfig::default().epochs;
+    let mut progress = RunProgress::new(names.len() * budget);
     let results = names
         .iter()
-        .map(|name| run_shape(name, &args, &mut progress))
+        .map(|name| run_shape(name, &config, &args.out, &mut progress))
         .collect::<anyhow::Result<Vec<_>>>()?;
     progress.bar.finish_and_clear();
-    let table = markdown(
-        &results,
-        &args.model,
-        &flow_config(&args.model)?,
-        start.elapsed().as_secs_f64(),
-    );
+    let table = markdown(&results, &config, start.elapsed().as_secs_f64());
     for (file, text) in [("lasa.md", &table), ("lasa.csv", &csv(&results))] {
         let path = args.out.join(file);
         std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;

@@ -42,8 +42,19 @@ impl CouplingKind {
 pub enum LatentKind {
     /// A fixed point at the origin: `z_{k+1} = exp(A·dt) z_k + ε`.
     GoTo,
+    /// A fixed point at the origin approached at bounded speed while turning about it:
+    /// `ż = -v tanh(λρ/v) z/ρ + Ω z` for `ρ = ‖z‖`, `Ω` skew (constant radial speed `v`
+    /// far away, rate `λ` near).
+    SaturatedGoTo,
     /// A circle of radius `ρ*` in the first two latent dimensions, a fixed point in the rest.
     LimitCycle,
+}
+
+impl LatentKind {
+    /// Whether the motion ends at a point (the origin), so `f(0, c)` is the attractor.
+    pub fn is_go_to(self) -> bool {
+        matches!(self, Self::GoTo | Self::SaturatedGoTo)
+    }
 }
 
 /// Affine normalisation `x = mean + std ⊙ x̃` of states and contexts; part of the model.
@@ -126,10 +137,22 @@ impl Bounds {
     }
 }
 
+/// The checkpoint format this build reads and writes. Format 2 anchors a go-to target by
+/// shifting the latent ([`super::network`]); format 1 shifted the network's output, so
+/// the same weights meant another map.
+pub const FORMAT: u32 = 2;
+
+fn first_format() -> u32 {
+    1
+}
+
 /// Architecture and data description of a conditioned ImitationFlow
 /// `y = f(z, c)`, `z_{k+1} ~ p(z_{k+1} | z_k)`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FlowConfig {
+    /// Checkpoint format ([`FORMAT`]); configurations without the key are format 1.
+    #[serde(default = "first_format")]
+    pub format: u32,
     /// Name of the task the policy was trained for; loading checks it.
     pub task: String,
     /// `d`, the dimension of `y` and `z`.
@@ -177,6 +200,7 @@ impl FlowConfig {
         hidden: Vec<usize>,
     ) -> Self {
         Self {
+            format: FORMAT,
             task: task.to_owned(),
             state_dim,
             context_dim,
@@ -221,6 +245,7 @@ impl FlowConfig {
     pub fn linear_latent_dim(&self) -> usize {
         match self.latent {
             LatentKind::GoTo => self.state_dim,
+            LatentKind::SaturatedGoTo => 0,
             LatentKind::LimitCycle => self.state_dim - 2,
         }
     }
@@ -247,10 +272,16 @@ impl FlowConfig {
             shapes.push(("latent.factor".into(), vec![r, r]));
             shapes.push(("latent.skew".into(), vec![r, r]));
         }
-        if self.latent == LatentKind::LimitCycle {
-            for name in ["log_radius", "log_rate", "omega"] {
-                shapes.push((format!("latent.{name}"), vec![1]));
-            }
+        if self.latent == LatentKind::SaturatedGoTo {
+            shapes.push(("latent.skew".into(), vec![d, d]));
+        }
+        let scalars: &[&str] = match self.latent {
+            LatentKind::GoTo => &[],
+            LatentKind::SaturatedGoTo => &["log_rate", "log_speed"],
+            LatentKind::LimitCycle => &["log_radius", "log_rate", "omega"],
+        };
+        for name in scalars {
+            shapes.push((format!("latent.{name}"), vec![1]));
         }
         if let Some(contractions) = &self.contractions {
             for l in 0..contractions.layers {
@@ -261,6 +292,12 @@ impl FlowConfig {
     }
 
     pub fn validate(&self) -> FlowResult<()> {
+        if self.format != FORMAT {
+            return Err(invalid(format!(
+                "checkpoint format {} is not this build's {FORMAT}: retrain the policy",
+                self.format
+            )));
+        }
         let (d, m) = (self.state_dim, self.context_dim);
         if d < 2 {
             return Err(invalid("state_dim must be at least 2".into()));
@@ -292,8 +329,8 @@ impl FlowConfig {
             _ => {}
         }
         if let Some(indices) = &self.goal_context_indices {
-            if self.latent != LatentKind::GoTo {
-                return Err(invalid("goal_context_indices needs a go_to latent".into()));
+            if !self.latent.is_go_to() {
+                return Err(invalid("goal_context_indices needs a go-to latent".into()));
             }
             if indices.len() != d || indices.iter().any(|&i| i >= m) {
                 return Err(invalid(format!(

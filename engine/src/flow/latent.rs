@@ -13,12 +13,26 @@
 //! `ρ* = e^{r} > 0`. Every start (the origin included: it is mapped to `ρ = ρ*(1 - e^{α dt})`)
 //! converges to the circle `ρ = ρ*`.
 //!
+//! **Saturated go-to**: the origin approached at nearly constant speed, then
+//! exponentially, while turning about it: `ż = -g(ρ) z + Ω z`, `ρ = ‖z‖`, `Ω = W_l - W_lᵀ`,
+//! with the radius following `ρ̇ = -v cosh(u/κ) tanh(u)`, `u = κ asinh(ερ/v)`,
+//! `κ = λ/ε`, `v = e^{b}`, `λ = ε + e^{a}`. Three regimes: near the origin (`u ≪ 1`)
+//! `ρ̇ ≈ -λρ`; in between (`u ≫ 1`, `ερ ≪ v`) `ρ̇ ≈ -v`, the constant pace of a drawn stroke
+//! (ImitationFlow's tanh dynamics, made isotropic); far out (`ερ ≫ v`) `ρ̇ ≈ -ερ`. Since
+//! `tanh(u) ≥ tanh(u/κ)` for `κ ≥ 1`, `ρ̇ ≤ -v sinh(u/κ) = -ερ` everywhere: the same
+//! guaranteed exponential rate `ε` as the linear attractor, so a start far outside the
+//! data returns in a time logarithmic in its distance. (Without the `asinh` the far speed
+//! would stay `v`, and that time would be linear.) The skew `Ω` turns the approach about
+//! the origin without changing `ρ`, so strokes that wind around their end need no twist of
+//! the network. The radial part commutes with the rotation, so the exact flow over `t` is
+//! `z(t) = (ρ(t)/ρ) e^{Ω t} z` with `sinh(u(t)) = sinh(u) e^{-λt}` ([`settle`]).
+//!
 //! **Noise** is Gaussian in Cartesian latent coordinates around the mean next state,
 //! `z_{k+1} ~ N(μ(z_k), diag σ²)`, so `p(z_{k+1} | z_k)` is an exact density. The
 //! `k`-step density is `N(μ^k(z), Σ_k)` with `μ^k` the exact noise-free `k`-step map and,
-//! on the linear part, the exact `Σ_k = Σ_{j<k} Φ^j Σ Φ^{jᵀ}`; on the cycle plane
-//! `Σ_k = k σ²` (random-walk accumulation — a model choice, since the `k`-fold composition
-//! of the polar step has no closed-form density). The initial state has `z₀ ~ N(0, diag σ₀²)`.
+//! on the linear part, the exact `Σ_k = Σ_{j<k} Φ^j Σ Φ^{jᵀ}`; on the cycle plane and for
+//! the saturated go-to `Σ_k = k σ²` (random-walk accumulation — a model choice, since the
+//! `k`-fold composition of a nonlinear step has no closed-form density). The initial state has `z₀ ~ N(0, diag σ₀²)`.
 
 use nalgebra::{Cholesky, DMatrix, DVector};
 use rand::Rng;
@@ -42,6 +56,70 @@ pub struct Cycle {
     pub omega: f64,
 }
 
+/// Parameters of the saturated go-to.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Saturation {
+    /// `λ ≥ ε`, the rate near the origin (1/s).
+    pub rate: f64,
+    /// `v > 0`, the pace between the near and far regimes (latent units per second).
+    pub speed: f64,
+    /// `ε > 0`, the rate guaranteed everywhere and reached far out (1/s).
+    pub floor: f64,
+}
+
+impl Saturation {
+    /// `κ = λ/ε ≥ 1`.
+    fn ratio(&self) -> f64 {
+        self.rate / self.floor
+    }
+
+    /// The factor `ρ(t)/ρ` by which the flow over `t` shrinks a latent point at radius `ρ`.
+    pub fn shrink(&self, rho: f64, t: f64) -> f64 {
+        let (kappa, x) = (self.ratio(), self.floor * rho / self.speed);
+        let u = kappa * x.asinh();
+        if u < 1e-6 {
+            // ρ(t)/ρ = e^{-λt} (1 + O(u²)).
+            return (-self.rate * t).exp();
+        }
+        (settle(u, self.rate * t) / kappa).sinh() / x
+    }
+
+    /// `g(ρ) = -ρ̇/ρ = ε √(1 + x²) tanh(κ asinh x) / x` with `x = ερ/v`, so that
+    /// `ż = -g(ρ) z` on the radius; on `ρ² = z·z` near the origin, where the square root
+    /// has no derivative.
+    fn gain<S: Scalar>(&self, rho_squared: S) -> S {
+        let kappa = self.ratio();
+        let scale = self.floor / self.speed;
+        let x_squared = rho_squared * (scale * scale);
+        if x_squared.value() * kappa * kappa < 1e-8 {
+            // λ (1 + x² (1 - κ²)/3 + O(κ⁴x⁴)): relative error below 1e-16 here.
+            return (x_squared * ((1.0 - kappa * kappa) / 3.0) + 1.0) * self.rate;
+        }
+        let x = x_squared.sqrt();
+        let root = (x_squared + 1.0).sqrt();
+        let asinh = (x + root).ln();
+        (asinh * kappa).tanh() * root * self.floor / x
+    }
+}
+
+/// `asinh(sinh(u) e^{-τ})` for `u, τ ≥ 0`: where the scaled radius `u = βρ` of the saturated
+/// go-to is after a time `τ/λ`. Evaluated in the log domain once `sinh u` would overflow
+/// (`u` beyond 20), so starts far outside the data stay finite and exact.
+pub fn settle(u: f64, tau: f64) -> f64 {
+    const DIRECT: f64 = 20.0;
+    if u < DIRECT {
+        return (u.sinh() * (-tau).exp()).asinh();
+    }
+    // ln sinh u = u - ln 2 + ln(1 - e^{-2u}), the last term below 1e-17 here.
+    let a = u - std::f64::consts::LN_2 - tau;
+    if a < DIRECT {
+        a.exp().asinh()
+    } else {
+        // asinh(e^a) = a + ln 2 + O(e^{-2a}).
+        a + std::f64::consts::LN_2
+    }
+}
+
 #[derive(Clone, Debug)]
 pub struct LatentDynamics {
     kind: LatentKind,
@@ -53,6 +131,10 @@ pub struct LatentDynamics {
     sigma: Vec<f64>,
     sigma0: Vec<f64>,
     cycle: Option<Cycle>,
+    saturation: Option<Saturation>,
+    /// The saturated go-to's `Ω` and `e^{Ω dt}` (`d × d`; empty for the other kinds).
+    rotation: DMatrix<f64>,
+    turn: DMatrix<f64>,
 }
 
 /// `A = -(F Fᵀ + ε I) + (W_l - W_lᵀ)`.
@@ -79,24 +161,52 @@ impl LatentDynamics {
         } else {
             DMatrix::zeros(0, 0)
         };
-        let cycle = match config.latent {
-            LatentKind::GoTo => None,
+        let rotation = match config.latent {
+            LatentKind::SaturatedGoTo => {
+                let skew = DMatrix::from_row_slice(d, d, &weights.take("latent.skew", &[d, d])?);
+                let lower = skew.lower_triangle() - DMatrix::from_diagonal(&skew.diagonal());
+                &lower - lower.transpose()
+            }
+            _ => DMatrix::zeros(0, 0),
+        };
+        let turn = match rotation.is_empty() {
+            true => DMatrix::zeros(0, 0),
+            false => (&rotation * config.dt).exp(),
+        };
+        let mut scalar = |name: &str| weights.take(&format!("latent.{name}"), &[1]).map(|v| v[0]);
+        let (mut cycle, mut saturation) = (None, None);
+        match config.latent {
+            LatentKind::GoTo => {}
+            LatentKind::SaturatedGoTo => {
+                saturation = Some(Saturation {
+                    rate: config.min_rate + scalar("log_rate")?.exp(),
+                    speed: scalar("log_speed")?.exp(),
+                    floor: config.min_rate,
+                });
+            }
             LatentKind::LimitCycle => {
-                let mut scalar =
-                    |name: &str| weights.take(&format!("latent.{name}"), &[1]).map(|v| v[0]);
-                Some(Cycle {
+                cycle = Some(Cycle {
                     radius: scalar("log_radius")?.exp(),
                     rate: -scalar("log_rate")?.exp(),
                     omega: scalar("omega")?,
-                })
+                });
             }
-        };
+        }
+        if let Some(saturation) = saturation
+            && !(saturation.rate.is_finite()
+                && saturation.speed.is_finite()
+                && saturation.speed > 0.0)
+        {
+            return Err(FlowError::NonFinite {
+                what: "latent rate and speed",
+            });
+        }
         let transition = if r > 0 {
             (&rate_matrix * config.dt).exp()
         } else {
             DMatrix::zeros(0, 0)
         };
-        if transition.iter().any(|v| !v.is_finite()) {
+        if transition.iter().chain(turn.iter()).any(|v| !v.is_finite()) {
             return Err(FlowError::NonFinite {
                 what: "latent transition matrix",
             });
@@ -109,6 +219,9 @@ impl LatentDynamics {
             sigma,
             sigma0,
             cycle,
+            saturation,
+            rotation,
+            turn,
         })
     }
 
@@ -118,6 +231,10 @@ impl LatentDynamics {
 
     pub fn cycle(&self) -> Option<Cycle> {
         self.cycle
+    }
+
+    pub fn saturation(&self) -> Option<Saturation> {
+        self.saturation
     }
 
     /// `Φ = exp(A dt)` of the linear part.
@@ -140,19 +257,58 @@ impl LatentDynamics {
         if self.cycle.is_some() { 2 } else { 0 }
     }
 
-    /// Noise-free step `out = μ(z)`.
+    /// Noise-free step `out = μ(z)`, with the matrices precomputed for `dt`.
     pub fn mean_step(&self, z: &[f64], out: &mut [f64]) {
+        self.flow(z, self.dt, &self.transition, &self.turn, out);
+    }
+
+    /// The exact noise-free `k`-step map `out = μ^k(z)`.
+    pub fn mean_steps(&self, z: &[f64], steps: usize, out: &mut [f64]) {
+        match steps {
+            1 => self.mean_step(z, out),
+            _ => self.mean_after(z, steps as f64 * self.dt, out),
+        }
+    }
+
+    /// The exact noise-free flow over `seconds` (any duration, not only whole steps):
+    /// `μ^k = ` this at `k dt`. Allocates the matrix exponentials it needs.
+    pub fn mean_after(&self, z: &[f64], seconds: f64, out: &mut [f64]) {
+        let exp = |generator: &DMatrix<f64>| match generator.is_empty() {
+            true => DMatrix::zeros(0, 0),
+            false => (generator * seconds).exp(),
+        };
+        let (transition, turn) = (exp(&self.rate_matrix), exp(&self.rotation));
+        self.flow(z, seconds, &transition, &turn, out);
+    }
+
+    /// The flow over `t`, given `exp(A t)` and `exp(Ω t)`.
+    fn flow(
+        &self,
+        z: &[f64],
+        t: f64,
+        transition: &DMatrix<f64>,
+        turn: &DMatrix<f64>,
+        out: &mut [f64],
+    ) {
+        if let Some(saturation) = self.saturation {
+            let rho = z.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let shrink = saturation.shrink(rho, t);
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = shrink * (0..z.len()).map(|j| turn[(i, j)] * z[j]).sum::<f64>();
+            }
+            return;
+        }
         let s = self.linear_start();
         if let Some(cycle) = self.cycle {
             let (rho, psi) = (z[0].hypot(z[1]), z[1].atan2(z[0]));
-            let rho_next = cycle.radius + (rho - cycle.radius) * (cycle.rate * self.dt).exp();
-            let psi_next = psi + cycle.omega * self.dt;
+            let rho_next = cycle.radius + (rho - cycle.radius) * (cycle.rate * t).exp();
+            let psi_next = psi + cycle.omega * t;
             out[0] = rho_next * psi_next.cos();
             out[1] = rho_next * psi_next.sin();
         }
-        let r = self.transition.nrows();
+        let r = transition.nrows();
         for i in 0..r {
-            out[s + i] = (0..r).map(|j| self.transition[(i, j)] * z[s + j]).sum();
+            out[s + i] = (0..r).map(|j| transition[(i, j)] * z[s + j]).sum();
         }
     }
 
@@ -166,6 +322,18 @@ impl LatentDynamics {
 
     /// The continuous-time field `ż = v(z)` whose time-`dt` flow is [`mean_step`](Self::mean_step).
     pub fn velocity<S: Scalar>(&self, z: &[S], out: &mut [S]) {
+        if let Some(saturation) = self.saturation {
+            let rho_squared = z.iter().fold(S::constant(0.0), |acc, &v| acc + v * v);
+            let gain = saturation.gain(rho_squared);
+            for (i, o) in out.iter_mut().enumerate() {
+                let mut turning = S::constant(0.0);
+                for (j, &v) in z.iter().enumerate() {
+                    turning += v * self.rotation[(i, j)];
+                }
+                *o = turning - z[i] * gain;
+            }
+            return;
+        }
         let s = self.linear_start();
         if let Some(cycle) = self.cycle {
             let rho = (z[0] * z[0] + z[1] * z[1]).sqrt();
@@ -214,12 +382,8 @@ impl LatentDynamics {
             ));
         }
         let d = z.len();
-        let mut mean = z.to_vec();
-        let mut next = vec![0.0; d];
-        for _ in 0..horizon {
-            self.mean_step(&mean, &mut next);
-            std::mem::swap(&mut mean, &mut next);
-        }
+        let mut mean = vec![0.0; d];
+        self.mean_steps(z, horizon, &mut mean);
         let covariance = self.multi_step_covariance(horizon);
         let cholesky = Cholesky::new(covariance).ok_or_else(|| {
             FlowError::InvalidConfig("k-step covariance is not positive definite".into())
@@ -233,10 +397,14 @@ impl LatentDynamics {
         Ok(-0.5 * (whitened.norm_squared() + log_det + d as f64 * LN_2PI))
     }
 
-    /// `Σ_k`: exact on the linear part, `k σ²` on the cycle plane.
+    /// `Σ_k`: exact on the linear part, `k σ²` on the cycle plane and for the saturated
+    /// go-to.
     pub fn multi_step_covariance(&self, horizon: usize) -> DMatrix<f64> {
         let d = self.sigma.len();
-        let s = self.linear_start();
+        let s = match self.saturation {
+            Some(_) => d,
+            None => self.linear_start(),
+        };
         let mut covariance = DMatrix::zeros(d, d);
         for i in 0..s {
             covariance[(i, i)] = horizon as f64 * self.sigma[i] * self.sigma[i];

@@ -1,13 +1,15 @@
 //! The conditioned invertible network `y = f(z, c)` in observation units:
 //!
-//! `f(z, c) = P_c⁻¹(μ_y + σ_y ⊙ (g(z, c̃) + o(c)))`, `c̃ = (κ(c) - μ_c) ⊘ σ_c`,
+//! `f(z, c) = P_c⁻¹(μ_y + σ_y ⊙ g(z + a(c), c̃))`, `c̃ = (κ(c) - μ_c) ⊘ σ_c`,
 //!
 //! where `κ` puts the context's unordered sets in canonical order ([`super::context_set`];
 //! the identity when there are none), `g` is the stack of (LU mixing, coupling) blocks,
 //! `P_c` the radial contractions about context points ([`super::radial`]; the identity
-//! when there are none) and the offset is
-//! `o(c) = (P_c(target(c)) - μ_y) ⊘ σ_y - g(0, c̃)` for go-to tasks whose target is part
-//! of the context (so `f(0, c) = target(c)` exactly, for every `c`) and `o = 0` otherwise.
+//! when there are none) and the anchor is
+//! `a(c) = g⁻¹((P_c(target(c)) - μ_y) ⊘ σ_y, c̃)` for go-to tasks whose target is part
+//! of the context (so `f(0, c) = target(c)` exactly, for every `c`) and `a = 0` otherwise.
+//! The anchor shifts the latent rather than the output so that a trainer finds it by
+//! inverting the target in the same batch (and direction) as the demonstrations.
 //! For each `c`, `f(·, c)` is a bijection with
 //! `log|det ∂f/∂z| = Σ log σ_y + log|det ∂g/∂z| + log|det ∂P_c⁻¹/∂u|`.
 
@@ -30,7 +32,7 @@ pub struct ConditionalFlow {
 }
 
 /// A context prepared for the network: normalised, folded into each conditioner's
-/// first-layer bias ([`Coupling::fold_context`]), with its anchor offset `o(c)`.
+/// first-layer bias ([`Coupling::fold_context`]), with its anchor `a(c)`.
 /// Recomputed only when the raw context changes (the anchor costs one network pass).
 #[derive(Clone, Debug)]
 pub struct Conditioning {
@@ -38,7 +40,7 @@ pub struct Conditioning {
     normalised: Vec<f64>,
     /// One context bias per coupling, back to back.
     context_biases: Vec<f64>,
-    offset: Vec<f64>,
+    anchor: Vec<f64>,
     /// The contraction centres in canonical order, raw units.
     centres: Vec<f64>,
     valid: bool,
@@ -51,7 +53,7 @@ impl Conditioning {
             raw: vec![0.0; config.context_dim],
             normalised: vec![0.0; config.context_dim],
             context_biases: vec![0.0; config.layers * bias_len],
-            offset: vec![0.0; config.state_dim],
+            anchor: vec![0.0; config.state_dim],
             centres: vec![
                 0.0;
                 config
@@ -214,18 +216,15 @@ impl ConditionalFlow {
         for ((_, coupling), bias) in self.blocks.iter().zip(biases) {
             coupling.fold_context(&conditioning.normalised, bias);
         }
-        conditioning.offset.fill(0.0);
+        conditioning.anchor.fill(0.0);
         if let Some(indices) = &self.config.goal_context_indices {
-            let mut offset = std::mem::take(&mut conditioning.offset);
-            self.g_forward(&mut offset, conditioning, scratch);
-            conditioning.offset = offset;
-            let mut target: Vec<f64> = indices.iter().map(|&i| context[i]).collect();
-            if let Some(contractions) = &self.contractions {
-                contractions.apply(&conditioning.centres, &mut target);
+            let mut anchor = std::mem::take(&mut conditioning.anchor);
+            for (a, &i) in anchor.iter_mut().zip(indices) {
+                *a = context[i];
             }
-            for (i, o) in conditioning.offset.iter_mut().enumerate() {
-                *o = (target[i] - norm.state_mean[i]) / norm.state_std[i] - *o;
-            }
+            self.enter(&mut anchor, conditioning);
+            self.g_inverse(&mut anchor, conditioning, scratch);
+            conditioning.anchor = anchor;
         }
         conditioning.valid = true;
         Ok(())
@@ -239,17 +238,19 @@ impl ConditionalFlow {
         scratch: &mut CouplingScratch<S>,
         y: &mut [S],
     ) -> S {
-        y.copy_from_slice(z);
+        for ((yi, &zi), a) in y.iter_mut().zip(z).zip(&conditioning.anchor) {
+            *yi = zi + *a;
+        }
         let log_det = self.g_forward(y, conditioning, scratch);
         self.leave(y, conditioning) + log_det + self.log_state_scale
     }
 
-    /// `y ← P_c⁻¹(μ_y + σ_y ⊙ (x + o(c)))`, the output of `g` to the observation;
-    /// returns `log|det ∂P_c⁻¹/∂u|`.
+    /// `y ← P_c⁻¹(μ_y + σ_y ⊙ x)`, the output of `g` to the observation; returns
+    /// `log|det ∂P_c⁻¹/∂u|`.
     fn leave<S: Scalar>(&self, x: &mut [S], conditioning: &Conditioning) -> S {
         let norm = &self.config.normalisation;
         for (i, xi) in x.iter_mut().enumerate() {
-            *xi = (*xi + conditioning.offset[i]) * norm.state_std[i] + norm.state_mean[i];
+            *xi = *xi * norm.state_std[i] + norm.state_mean[i];
         }
         match &self.contractions {
             Some(contractions) => contractions.invert(&conditioning.centres, x),
@@ -266,12 +267,10 @@ impl ConditionalFlow {
         z: &mut [S],
     ) -> S {
         z.copy_from_slice(y);
-        let log_det = match &self.contractions {
-            Some(contractions) => contractions.apply(&conditioning.centres, z),
-            None => S::constant(0.0),
-        };
-        self.normalise_state(conditioning, z);
-        log_det + self.g_inverse(z, conditioning, scratch) + (-self.log_state_scale)
+        let log_det = self.enter(z, conditioning);
+        let log_det = log_det + self.g_inverse(z, conditioning, scratch);
+        self.unanchor(z, conditioning);
+        log_det + (-self.log_state_scale)
     }
 
     /// `z = f⁻¹(y, c)`, recording in `tape` what [`tangent`](Self::tangent) needs at that
@@ -288,16 +287,34 @@ impl ConditionalFlow {
         if let Some(contractions) = &self.contractions {
             contractions.apply_recorded(&conditioning.centres, z, &mut tape.contraction);
         }
-        self.normalise_state(conditioning, z);
+        self.normalise_state(z);
         self.g_inverse_recorded(z, conditioning, scratch, tape);
+        self.unanchor(z, conditioning);
     }
 
-    /// `x ← (x - μ_y) ⊘ σ_y - o(c)`, the input of `g⁻¹`.
-    fn normalise_state<S: Scalar>(&self, conditioning: &Conditioning, x: &mut [S]) {
+    /// `x ← (P_c(x) - μ_y) ⊘ σ_y`, an observation to the input of `g⁻¹`; returns
+    /// `log|det ∂P_c/∂y|`.
+    fn enter<S: Scalar>(&self, x: &mut [S], conditioning: &Conditioning) -> S {
+        let log_det = match &self.contractions {
+            Some(contractions) => contractions.apply(&conditioning.centres, x),
+            None => S::constant(0.0),
+        };
+        self.normalise_state(x);
+        log_det
+    }
+
+    /// `x ← (x - μ_y) ⊘ σ_y`.
+    fn normalise_state<S: Scalar>(&self, x: &mut [S]) {
         let norm = &self.config.normalisation;
         for (i, xi) in x.iter_mut().enumerate() {
-            *xi = (*xi + (-norm.state_mean[i])) * (1.0 / norm.state_std[i])
-                + (-conditioning.offset[i]);
+            *xi = (*xi + (-norm.state_mean[i])) * (1.0 / norm.state_std[i]);
+        }
+    }
+
+    /// `z ← z - a(c)`, the output of `g⁻¹` to the latent.
+    fn unanchor<S: Scalar>(&self, z: &mut [S], conditioning: &Conditioning) {
+        for (zi, a) in z.iter_mut().zip(&conditioning.anchor) {
+            *zi = *zi + (-*a);
         }
     }
 
@@ -328,7 +345,9 @@ impl ConditionalFlow {
         y_other: &mut [f64],
         dy: &mut [f64],
     ) {
-        y_other.copy_from_slice(z_other);
+        for ((y, &z), a) in y_other.iter_mut().zip(z_other).zip(&conditioning.anchor) {
+            *y = z + a;
+        }
         self.sweep(tape, dz, scratch, dy, Some((y_other, conditioning)));
         self.leave(y_other, conditioning);
     }

@@ -10,7 +10,7 @@ use rand::Rng;
 use crate::math::distance;
 
 use super::checkpoint;
-use super::config::{CheckpointConfig, FlowConfig, LatentKind};
+use super::config::{CheckpointConfig, FlowConfig};
 use super::coupling::{CouplingScratch, TangentScratch};
 use super::error::{FlowError, FlowResult, check_input};
 use super::latent::LatentDynamics;
@@ -321,7 +321,7 @@ impl Policy {
         ws: &mut PolicyWorkspace,
         out: &mut [f64],
     ) -> FlowResult<()> {
-        if self.latent.kind() != LatentKind::GoTo {
+        if !self.latent.kind().is_go_to() {
             return Err(FlowError::InvalidConfig(
                 "only go-to policies have a fixed-point attractor".into(),
             ));
@@ -414,7 +414,7 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     use super::*;
-    use crate::flow::CouplingKind;
+    use crate::flow::{CouplingKind, LatentKind};
 
     /// `act` shares one forward sweep between the mean step and the velocity; it must give
     /// what `mean_next` and `velocity` give separately.
@@ -428,10 +428,14 @@ mod tests {
             },
         ];
         for (k, coupling) in couplings.into_iter().enumerate() {
-            for latent in [LatentKind::GoTo, LatentKind::LimitCycle] {
+            for latent in [
+                LatentKind::GoTo,
+                LatentKind::SaturatedGoTo,
+                LatentKind::LimitCycle,
+            ] {
                 let mut config =
                     FlowConfig::new("act", 5, 3, latent, coupling.clone(), 4, vec![19, 33]);
-                if latent == LatentKind::GoTo {
+                if latent.is_go_to() {
                     config.goal_context_indices = Some(vec![2, 0, 1, 2, 0]);
                 }
                 let mut rng = ChaCha8Rng::seed_from_u64(k as u64);

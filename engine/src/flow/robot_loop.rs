@@ -12,7 +12,6 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use super::config::LatentKind;
 use super::error::FlowError;
 use super::policy::Policy;
 use crate::sim::{SimError, Simulator};
@@ -103,7 +102,7 @@ pub fn measure_robot_loop(
     }
     let periods = (config.duration / simulator.config().control_dt).ceil() as usize;
     let bounds = &policy.config().bounds;
-    let go_to = policy.latent().kind() == LatentKind::GoTo;
+    let go_to = policy.latent().kind().is_go_to();
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     let mut ws = policy.workspace();
     let (mut acceleration, mut velocity, mut scratch) = (vec![0.0; d], vec![0.0; d], vec![0.0; d]);

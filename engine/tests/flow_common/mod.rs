@@ -24,14 +24,20 @@ pub fn config(d: usize, m: usize, latent: LatentKind, coupling: CouplingKind) ->
 pub fn variants() -> Vec<FlowConfig> {
     let mut out = Vec::new();
     for coupling in [AFFINE, SPLINE] {
-        for latent in [LatentKind::GoTo, LatentKind::LimitCycle] {
+        for latent in [
+            LatentKind::GoTo,
+            LatentKind::SaturatedGoTo,
+            LatentKind::LimitCycle,
+        ] {
             out.push(config(2, 0, latent, coupling.clone()));
             out.push(config(3, 2, latent, coupling.clone()));
             out.push(config(5, 3, latent, coupling.clone()));
         }
-        let mut goal = config(2, 3, LatentKind::GoTo, coupling.clone());
-        goal.goal_context_indices = Some(vec![2, 0]);
-        out.push(goal);
+        for latent in [LatentKind::GoTo, LatentKind::SaturatedGoTo] {
+            let mut goal = config(2, 3, latent, coupling.clone());
+            goal.goal_context_indices = Some(vec![2, 0]);
+            out.push(goal);
+        }
         out.push(contracted(coupling.clone()));
     }
     // Non-trivial normalisation.

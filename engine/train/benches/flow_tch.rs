@@ -90,6 +90,7 @@ fn main() {
             LatentInit {
                 sigma: 0.1,
                 omega: 0.0,
+                speed: 1.0,
             },
         );
         tch::manual_seed(0);

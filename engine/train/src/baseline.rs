@@ -26,6 +26,21 @@ pub struct BaselineTrainConfig {
     pub optim: OptimConfig,
 }
 
+impl BaselineTrainConfig {
+    /// The baseline's standing settings: hidden widths 64-64, 20% of the episodes held out
+    /// for early stopping, the optimiser's defaults ([`OptimConfig::default`]).
+    pub fn new(task: &str, goal: Goal) -> Self {
+        Self {
+            task: task.to_owned(),
+            hidden: vec![64, 64],
+            goal,
+            validation_fraction: 0.2,
+            threads: 1,
+            optim: OptimConfig::default(),
+        }
+    }
+}
+
 #[derive(Debug)]
 pub struct TrainedBaseline {
     pub config: BaselineConfig,
@@ -70,13 +85,16 @@ pub fn train_baseline(
     let (context_mean, context_std) = (row(&norm.context_mean), row(&norm.context_std));
     let (train_set, validation_set) = split(data, train.validation_fraction, train.optim.seed);
     let prepare = |t: &Transitions| {
-        let prev = (&t.prev - &state_mean) / &state_std;
-        let next = (&t.next - &state_mean) / &state_std;
-        let context = (&t.context - &context_mean) / &context_std;
-        (Tensor::cat(&[&prev, &context], 1), (next - prev) / data.dt)
+        let pairs = t.one_step();
+        let prev = (pairs.prev - &state_mean) / &state_std;
+        let next = (pairs.next - &state_mean) / &state_std;
+        let context = (pairs.context - &context_mean) / &context_std;
+        let velocity = (next - &prev) / data.dt;
+        (Tensor::cat(&[&prev, &context], 1), velocity)
     };
-    let (inputs, targets) = prepare(&Transitions::new(&train_set, 1, d, m));
-    let (check_inputs, check_targets) = prepare(&Transitions::new(&validation_set, 1, d, m));
+    let (inputs, targets) = prepare(&Transitions::new(&train_set, d, m));
+    let check =
+        (!validation_set.is_empty()).then(|| prepare(&Transitions::new(&validation_set, d, m)));
     let mse = |x: &Tensor, y: &Tensor| (net.forward(x) - y).square().mean(Kind::Double);
     let loss = |batch: &Tensor| {
         mse(
@@ -84,7 +102,7 @@ pub fn train_baseline(
             &targets.index_select(0, batch),
         )
     };
-    let validation = || mean_value(&mse(&check_inputs, &check_targets));
+    let validation = || check.as_ref().map(|(x, y)| mean_value(&mse(x, y)));
     let samples = inputs.size()[0] as usize;
     let (history, best_epoch) = optimise(&vs, samples, &train.optim, loss, validation, progress)?;
     Ok(TrainedBaseline {

@@ -175,14 +175,31 @@ fn extent<'a>(rows: impl Iterator<Item = &'a [f64]>) -> (Vec<f64>, Vec<f64>) {
     (lo, hi)
 }
 
-/// Transition pairs `(y_t, y_{t+h}, c_t)` and initial pairs `(y_0, c_0)` as `[N, ·]` tensors.
+/// Transitions `(y_t → y_{t+k} | c_t)`, row `i` over `k = steps[i]` steps of `dt`.
 #[derive(Debug)]
-pub struct Transitions {
+pub struct Pairs {
     pub prev: Tensor,
     pub next: Tensor,
     pub context: Tensor,
+    pub steps: Tensor,
+}
+
+/// The demonstrations as tensors: every state `y_t` with its context `c_t`, the rows that
+/// start a transition, and each episode's first state.
+///
+/// Transition row `i` starts at state `starts[i] = t` and may span `k ∈ 1..=room[i]`
+/// steps (to `y_{t+k}`, within its episode); [`draw`](Self::draw) gathers a batch of rows
+/// with random spans.
+#[derive(Debug)]
+pub struct Transitions {
+    states: Tensor,
+    contexts: Tensor,
+    starts: Tensor,
+    room: Tensor,
     pub initial: Tensor,
     pub initial_context: Tensor,
+    /// The most steps of any episode.
+    longest: usize,
 }
 
 fn matrix(rows: &[&[f64]], cols: usize) -> Tensor {
@@ -192,29 +209,47 @@ fn matrix(rows: &[&[f64]], cols: usize) -> Tensor {
         .reshape([rows.len() as i64, cols as i64])
 }
 
+/// `k ~ U{1, …, span}` per entry of `spans`.
+fn uniform_steps(spans: &Tensor) -> Tensor {
+    let spans = spans.to_kind(Kind::Double);
+    (spans.rand_like() * spans).floor().to_kind(Kind::Int64) + 1
+}
+
 impl Transitions {
-    pub fn new(episodes: &[&Episode], horizon: usize, d: usize, m: usize) -> Self {
-        let (mut prev, mut next, mut context) = (Vec::new(), Vec::new(), Vec::new());
+    pub fn new(episodes: &[&Episode], d: usize, m: usize) -> Self {
+        let (mut states, mut contexts) = (Vec::new(), Vec::new());
+        let (mut starts, mut room) = (Vec::new(), Vec::new());
         for e in episodes {
-            for t in 0..e.states.len().saturating_sub(horizon) {
-                prev.push(e.states[t].as_slice());
-                next.push(e.states[t + horizon].as_slice());
-                context.push(e.context(t));
+            let (offset, steps) = (states.len() as i64, e.states.len() as i64 - 1);
+            for t in 0..e.states.len() {
+                states.push(e.states[t].as_slice());
+                contexts.push(e.context(t));
+            }
+            for t in 0..steps {
+                starts.push(offset + t);
+                room.push(steps - t);
             }
         }
         let initial: Vec<&[f64]> = episodes.iter().map(|e| e.states[0].as_slice()).collect();
         let initial_context: Vec<&[f64]> = episodes.iter().map(|e| e.context(0)).collect();
         Self {
-            prev: matrix(&prev, d),
-            next: matrix(&next, d),
-            context: matrix(&context, m),
+            states: matrix(&states, d),
+            contexts: matrix(&contexts, m),
+            starts: Tensor::from_slice(&starts),
+            room: Tensor::from_slice(&room),
             initial: matrix(&initial, d),
             initial_context: matrix(&initial_context, m),
+            longest: episodes
+                .iter()
+                .map(|e| e.states.len() - 1)
+                .max()
+                .unwrap_or(0),
         }
     }
 
+    /// Number of transition rows (states that have a successor).
     pub fn len(&self) -> usize {
-        self.prev.size()[0] as usize
+        self.starts.size()[0] as usize
     }
 
     pub fn is_empty(&self) -> bool {
@@ -223,5 +258,44 @@ impl Transitions {
 
     pub fn episodes(&self) -> usize {
         self.initial.size()[0] as usize
+    }
+
+    /// The most steps of any episode: the longest span [`draw`](Self::draw) can return.
+    pub fn longest(&self) -> usize {
+        self.longest
+    }
+
+    /// The transitions of `rows`: with probability `arrival` a row spans every step left
+    /// in its episode (`y_t → y_T`, where and when the motion ends), otherwise
+    /// `k ~ U{1, …, min(max_steps, room)}` steps, `room` the steps left. Drawn within the
+    /// room rather than clamped to it: clamping would pile the late rows' spans onto each
+    /// episode's last state.
+    pub fn draw(&self, rows: &Tensor, max_steps: usize, arrival: f64) -> Pairs {
+        let room = self.room.index_select(0, rows);
+        let mut steps = match max_steps {
+            1 => rows.ones_like(),
+            _ => uniform_steps(&room.clamp_max(max_steps as i64)),
+        };
+        if arrival > 0.0 {
+            let to_end = room.to_kind(Kind::Double).rand_like().lt(arrival);
+            steps = room.where_self(&to_end, &steps);
+        }
+        self.gather(&self.starts.index_select(0, rows), steps)
+    }
+
+    /// Every one-step transition.
+    pub fn one_step(&self) -> Pairs {
+        let rows = Tensor::arange(self.len() as i64, tch::kind::INT64_CPU);
+        self.draw(&rows, 1, 0.0)
+    }
+
+    /// The pairs `(y_s → y_{s+k} | c_s)` for state rows `s` and spans `k`.
+    fn gather(&self, start: &Tensor, steps: Tensor) -> Pairs {
+        Pairs {
+            prev: self.states.index_select(0, start),
+            next: self.states.index_select(0, &(start + &steps)),
+            context: self.contexts.index_select(0, start),
+            steps,
+        }
     }
 }

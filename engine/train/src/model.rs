@@ -1,4 +1,4 @@
-//! The conditioned ImitationFlow in tch: `y = P_c⁻¹(μ_y + σ_y ⊙ (g(z, c̃) + o(c)))`,
+//! The conditioned ImitationFlow in tch: `y = P_c⁻¹(μ_y + σ_y ⊙ g(z + a(c), c̃))`,
 //! `c̃ = (κ(c) - μ_c) ⊘ σ_c`, with the
 //! latent dynamics of [`LatentModel`], mirroring `ciflow_engine::flow` parameter for
 //! parameter, so `VarStore::save("weights.safetensors")` loads in the pure-Rust policy.
@@ -8,6 +8,7 @@ use tch::nn;
 use tch::{Device, Kind, Tensor};
 
 use crate::contraction::Contractions;
+use crate::data::Pairs;
 use crate::latent::{LatentInit, LatentModel};
 use crate::nets::{Coupling, LuMixing};
 
@@ -24,24 +25,11 @@ pub struct FlowModel {
     contractions: Option<Contractions>,
 }
 
-/// A batch of contexts prepared for the network: `c̃`, `o(c)` and the contraction
-/// centres (`[B, count, d]`, canonical order, raw units).
+/// A batch of contexts prepared for the network: `c̃` and the contraction centres
+/// (`[B, count, d]`, canonical order, raw units).
 struct Conditioned {
     normalised: Tensor,
-    offset: Tensor,
     centres: Option<Tensor>,
-}
-
-impl Conditioned {
-    /// Both batches, `self` first.
-    fn twice(&self) -> Self {
-        let doubled = |t: &Tensor| Tensor::cat(&[t, t], 0);
-        Self {
-            normalised: doubled(&self.normalised),
-            offset: doubled(&self.offset),
-            centres: self.centres.as_ref().map(doubled),
-        }
-    }
 }
 
 pub(crate) fn row(values: &[f64]) -> Tensor {
@@ -155,35 +143,36 @@ impl FlowModel {
         canonical
     }
 
-    /// `(c̃, o(c), centres)` for raw contexts `[B, m]`.
+    /// `(c̃, centres)` for raw contexts `[B, m]`.
     fn condition(&self, context: &Tensor) -> Conditioned {
         let canonical = self.canonicalise(context);
         let normalised = (&canonical - &self.context_mean) / &self.context_std;
         let centres = self.contractions.as_ref().map(|p| p.centres(&canonical));
-        let rows = context.size()[0];
-        let d = self.config.state_dim as i64;
-        let offset = match &self.goal_index {
-            Some(index) => {
-                let target = self.contract(&context.index_select(1, index), &centres).0;
-                let origin = Tensor::zeros([rows, d], (Kind::Double, context.device()));
-                (target - &self.state_mean) / &self.state_std
-                    - self.g_forward(&origin, &normalised).0
-            }
-            None => Tensor::zeros([rows, d], (Kind::Double, context.device())),
-        };
         Conditioned {
             normalised,
-            offset,
             centres,
         }
+    }
+
+    /// `x̃ = (P_c(y) - μ_y) ⊘ σ_y` and `log|det ∂P_c/∂y|` per row.
+    fn enter(&self, y: &Tensor, conditioned: &Conditioned) -> (Tensor, Tensor) {
+        let (u, contraction_log_det) = self.contract(y, &conditioned.centres);
+        (
+            (u - &self.state_mean) / &self.state_std,
+            contraction_log_det,
+        )
     }
 
     /// `y = f(z, c)` and `log|det ∂f/∂z|` per row; through the contractions without
     /// gradient (their inverse is iterative: only inference needs it).
     pub fn forward(&self, z: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
         let conditioned = self.condition(context);
-        let (y, log_det) = self.g_forward(z, &conditioned.normalised);
-        let u = (y + &conditioned.offset) * &self.state_std + &self.state_mean;
+        let shifted = match self.anchors(context, &conditioned) {
+            Some(anchor) => z + anchor,
+            None => z.shallow_clone(),
+        };
+        let (x, log_det) = self.g_forward(&shifted, &conditioned.normalised);
+        let u = x * &self.state_std + &self.state_mean;
         let log_det = log_det + self.log_state_scale();
         match (&self.contractions, &conditioned.centres) {
             (Some(p), Some(centres)) => {
@@ -195,9 +184,42 @@ impl FlowModel {
         }
     }
 
-    /// `z = f⁻¹(y, c)` and `log|det ∂f⁻¹/∂y|` per row.
+    /// The anchors `a(c) = g⁻¹(x̃_target(c), c̃)` per row, when the target is in the context.
+    fn anchors(&self, context: &Tensor, conditioned: &Conditioned) -> Option<Tensor> {
+        let index = self.goal_index.as_ref()?;
+        let target = self.enter(&context.index_select(1, index), conditioned).0;
+        Some(self.g_inverse(&target, &conditioned.normalised).0)
+    }
+
+    /// `z = f⁻¹(y, c)` and `log|det ∂f⁻¹/∂y|` per row. With the target in the context, its
+    /// anchor `a(c)` is inverted in the same batch as `y`, once per distinct context (a
+    /// batch of transitions holds few: one per episode), so the anchoring costs a few
+    /// rows rather than a second pass through the network.
     pub fn inverse(&self, y: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
-        self.inverse_conditioned(y, &self.condition(context))
+        let conditioned = self.condition(context);
+        let (x, contraction_log_det) = self.enter(y, &conditioned);
+        let log_det = contraction_log_det - self.log_state_scale();
+        let Some(index) = &self.goal_index else {
+            let (z, g_log_det) = self.g_inverse(&x, &conditioned.normalised);
+            return (z, log_det + g_log_det);
+        };
+        let rows = y.size()[0];
+        let (distinct_raw, row_of, _) = context.unique_dim(0, false, true, false);
+        let distinct = self.condition(&distinct_raw);
+        let targets = self
+            .enter(&distinct_raw.index_select(1, index), &distinct)
+            .0;
+        let (z, g_log_det) = self.g_inverse(
+            &Tensor::cat(&[&x, &targets], 0),
+            &Tensor::cat(&[&conditioned.normalised, &distinct.normalised], 0),
+        );
+        let anchor = z
+            .narrow(0, rows, targets.size()[0])
+            .index_select(0, &row_of);
+        (
+            z.narrow(0, 0, rows) - anchor,
+            log_det + g_log_det.narrow(0, 0, rows),
+        )
     }
 
     /// `(P_c(y), log|det ∂P_c/∂y|)` about `centres`; the identity without contractions.
@@ -211,31 +233,51 @@ impl FlowModel {
         }
     }
 
-    /// [`inverse`](Self::inverse) with the conditioning `(c̃, o(c), centres)` already
-    /// computed.
-    fn inverse_conditioned(&self, y: &Tensor, conditioned: &Conditioned) -> (Tensor, Tensor) {
-        let (u, contraction_log_det) = self.contract(y, &conditioned.centres);
-        let x = (u - &self.state_mean) / &self.state_std - &conditioned.offset;
-        let (z, log_det) = self.g_inverse(&x, &conditioned.normalised);
-        (z, log_det - self.log_state_scale() + contraction_log_det)
-    }
-
-    /// `log p(y_next | y_prev, c)` per row (the `horizon`-step model), with `c = c_{k-1}`.
+    /// `log p(y_next | y_prev, c)` per row, with `c` the context at `y_prev`; row `i` spans
+    /// `steps[i]` steps of `dt` ([`LatentModel::log_transition`]).
     pub fn log_transition(
         &self,
         y_prev: &Tensor,
         y_next: &Tensor,
         context: &Tensor,
-        horizon: usize,
+        steps: &Tensor,
+        max_steps: usize,
     ) -> Tensor {
-        // Both ends share `c`: condition once (the offset costs a network pass), then
-        // invert both ends in one batch.
-        let conditioning = self.condition(context).twice();
-        let both = Tensor::cat(&[y_prev, y_next], 0);
-        let (z, log_det) = self.inverse_conditioned(&both, &conditioning);
-        let rows = y_prev.size()[0];
+        let pairs = Pairs {
+            prev: y_prev.shallow_clone(),
+            next: y_next.shallow_clone(),
+            context: context.shallow_clone(),
+            steps: steps.shallow_clone(),
+        };
+        let none = |t: &Tensor| t.narrow(0, 0, 0);
+        self.log_densities(&pairs, max_steps, &none(y_prev), &none(context))
+            .0
+    }
+
+    /// `(log p(y_next | y_prev, c), log p(y₀ | c₀))` per row of `pairs` (spans of at most
+    /// `max_steps`) and of the starts, in one pass through the network: every end, and
+    /// the anchor of each distinct context among them, is inverted in a single batch.
+    pub fn log_densities(
+        &self,
+        pairs: &Pairs,
+        max_steps: usize,
+        starts: &Tensor,
+        start_contexts: &Tensor,
+    ) -> (Tensor, Tensor) {
+        let rows = pairs.prev.size()[0];
+        let ends = Tensor::cat(&[&pairs.prev, &pairs.next, starts], 0);
+        let contexts = Tensor::cat(&[&pairs.context, &pairs.context, start_contexts], 0);
+        let (z, log_det) = self.inverse(&ends, &contexts);
         let (z_prev, z_next) = (z.narrow(0, 0, rows), z.narrow(0, rows, rows));
-        self.latent.log_transition(&z_prev, &z_next, horizon) + log_det.narrow(0, rows, rows)
+        let log_transition = self
+            .latent
+            .log_transition(&z_prev, &z_next, &pairs.steps, max_steps)
+            + log_det.narrow(0, rows, rows);
+        let first = 2 * rows;
+        let count = starts.size()[0];
+        let log_initial =
+            self.latent.log_initial(&z.narrow(0, first, count)) + log_det.narrow(0, first, count);
+        (log_transition, log_initial)
     }
 
     /// `log p(y₀ | c₀)` per row.

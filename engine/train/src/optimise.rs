@@ -73,7 +73,8 @@ pub struct Progress {
     pub epochs: usize,
     /// Mean training loss of the epoch.
     pub train_loss: f64,
-    /// Validation score (lower is better): NLL per transition for flows, MSE for the baseline.
+    /// Validation score (lower is better): NLL per transition for flows, MSE for the
+    /// baseline, on the held-out episodes; the training loss when none are held out.
     pub validation: f64,
     pub best_validation: f64,
     /// Whether this epoch set a new best validation score.
@@ -82,14 +83,15 @@ pub struct Progress {
 }
 
 /// Runs the loop over `samples` minibatch rows; `loss(indices)` returns the batch loss,
-/// `validation()` the score. Returns the history and the best epoch; `vs` holds the best
+/// `validation()` the held-out score (`None` when nothing is held out: the epoch's
+/// training loss stands in for it, so training fits every episode). Returns the history and the best epoch; `vs` holds the best
 /// parameters on return.
 pub fn optimise(
     vs: &nn::VarStore,
     samples: usize,
     config: &OptimConfig,
     mut loss: impl FnMut(&Tensor) -> Tensor,
-    mut validation: impl FnMut() -> f64,
+    mut validation: impl FnMut() -> Option<f64>,
     mut progress: impl FnMut(&Progress),
 ) -> TrainResult<(Vec<Progress>, usize)> {
     config.validate()?;
@@ -117,7 +119,8 @@ pub fn optimise(
             total += value;
             batches += 1;
         }
-        let score = tch::no_grad(&mut validation);
+        let train_loss = total / batches as f64;
+        let score = tch::no_grad(&mut validation).unwrap_or(train_loss);
         let improved = score < best;
         if improved {
             best = score;
@@ -127,7 +130,7 @@ pub fn optimise(
         let record = Progress {
             epoch: epoch + 1,
             epochs: config.epochs,
-            train_loss: total / batches as f64,
+            train_loss,
             validation: score,
             best_validation: best,
             improved,

@@ -1,11 +1,21 @@
-//! Exact maximum-likelihood training of a conditioned ImitationFlow (the paper's
-//! Appendix "Behavioural Cloning Learning"):
+//! Maximum-likelihood training of a conditioned ImitationFlow (the paper's Appendix
+//! "Behavioural Cloning Learning"). What is maximised, precisely:
 //!
-//! `max_θ Σ_i [log p(y₀ⁱ | c₀ⁱ) + Σ_t log p(y_tⁱ | y_{t-1}ⁱ, c_{t-1}ⁱ)]`,
-//!
-//! minibatched over transitions (the initial-state term enters every batch scaled by
-//! episodes / transitions, so an epoch's expected gradient is that of the full objective
-//! divided by the number of transitions).
+//! - `horizon = 1`, `arrival = 0`, `state_noise = 0`: the exact log-likelihood of the
+//!   demonstrations, `Σ_i [log p(y₀ⁱ | c₀ⁱ) + Σ_t log p(y_tⁱ | y_{t-1}ⁱ, c_{t-1}ⁱ)]`,
+//!   minibatched over transitions (the initial-state term enters every batch scaled by
+//!   episodes / transitions, so an epoch's expected gradient is that of the full objective
+//!   divided by the number of transitions);
+//! - `horizon = K > 1`: each row is a span `y_t → y_{t+k}`, `k ~ U{1, …, min(K, T - t)}`,
+//!   scored with the model's `k`-step density `p(y_{t+k} | y_t, c_t)` — ImitationFlow's
+//!   multi-step windows. The objective is then a composite likelihood (a sum of span
+//!   log-densities, which overlap), not the joint one: it asks the noise-free `k`-step map
+//!   to land where the demonstration is `k` steps later, so a field that matches each
+//!   step but drifts across several (cutting a corner) scores worse;
+//! - `arrival = p > 0`: a share `p` of the rows span instead every step left in their
+//!   episode, `y_t → y_T`, scored the same way: where and when the motion ends;
+//! - `state_noise > 0`: the likelihood of states jittered by Gaussian noise, a smoothed
+//!   density that keeps deterministic expert data's likelihood bounded.
 
 use std::path::Path;
 
@@ -48,15 +58,24 @@ pub struct TrainConfig {
     /// network ([`ciflow_engine::flow::radial`]).
     #[serde(default)]
     pub contractions: Option<ContractionConfig>,
-    /// Steps per modelled transition (`k` of the `k`-step density; 1 = the paper's).
+    /// Longest modelled transition: each minibatch row spans `k ~ U{1, …, horizon}` steps
+    /// and enters the loss with the exact `k`-step density (1 = the paper's one-step
+    /// transitions).
     pub horizon: usize,
+    /// Share of the minibatch rows whose span runs to the end of their episode
+    /// (`y_t → y_T`, however many steps), so the motion ends where and when the
+    /// demonstrations do; 0 leaves them out.
+    #[serde(default)]
+    pub arrival: f64,
     /// Standard deviation of the Gaussian jitter added to every training state, as a
-    /// fraction of the demonstrations' RMS step (per normalised coordinate). Expert
-    /// demonstrations are deterministic: their exact likelihood grows without bound as the
-    /// flow contracts onto them, and the held-out likelihood that early stopping watches
-    /// collapses within a few epochs. Jitter gives the data a density.
+    /// fraction of the demonstrations' RMS step (per normalised coordinate); 0 trains on
+    /// the states as recorded (exact maximum likelihood). Deterministic expert
+    /// demonstrations have an unbounded likelihood as the flow contracts onto them, and a
+    /// held-out likelihood watched for early stopping can collapse within a few epochs:
+    /// jitter gives them a density.
     pub state_noise: f64,
-    /// Fraction of episodes held out for early stopping (at least one when there are two).
+    /// Fraction of episodes held out for early stopping (at least one when there are two);
+    /// 0 fits every episode and reports the one-step likelihood of the fitted ones.
     pub validation_fraction: f64,
     /// libtorch intra-op threads (1 suits these small networks).
     pub threads: i32,
@@ -79,6 +98,7 @@ impl TrainConfig {
             context_sets: Vec::new(),
             contractions: None,
             horizon: 1,
+            arrival: 0.0,
             state_noise: DEFAULT_STATE_NOISE,
             validation_fraction: 0.2,
             threads: 1,
@@ -150,7 +170,8 @@ pub fn double_var_store() -> nn::VarStore {
     vs
 }
 
-/// Splits episodes into (training, validation) with a seeded shuffle.
+/// Splits episodes into (training, validation) with a seeded shuffle; the validation set
+/// is empty when `fraction` is 0 (or there is a single episode).
 pub(crate) fn split(
     data: &Demonstrations,
     fraction: f64,
@@ -161,15 +182,12 @@ pub(crate) fn split(
     let mut episodes: Vec<&Episode> = data.episodes.iter().collect();
     episodes.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5eed));
     let n = episodes.len();
-    let held_out = if n >= 2 {
+    let held_out = if n >= 2 && fraction > 0.0 {
         ((fraction * n as f64).round() as usize).clamp(1, n - 1)
     } else {
         0
     };
     let validation = episodes.split_off(n - held_out);
-    if validation.is_empty() {
-        return (episodes.clone(), episodes);
-    }
     (episodes, validation)
 }
 
@@ -177,6 +195,7 @@ pub(crate) fn split(
 pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<FlowConfig> {
     let (d, m) = data.validate()?;
     let config = FlowConfig {
+        format: ciflow_engine::flow::config::FORMAT,
         task: train.task.clone(),
         state_dim: d,
         context_dim: m,
@@ -201,17 +220,24 @@ pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<Fl
 }
 
 /// The demonstrations' RMS step per normalised coordinate and starting values of the
-/// latent noise and cycle frequency.
+/// latent noise, speed and turning rate: the mean angular velocity of the first two
+/// normalised coordinates about the cycle's centre (the data's mean) or, for go-to
+/// motions, about where each demonstration ends.
 fn latent_init(data: &Demonstrations, config: &FlowConfig) -> (f64, LatentInit) {
     let norm = &config.normalisation;
     let normalised = |y: &[f64], i: usize| (y[i] - norm.state_mean[i]) / norm.state_std[i];
     let (mut squares, mut angle, mut n) = (0.0, 0.0, 0.0);
     for e in &data.episodes {
+        let end = e.states.last().expect("validated episodes are not empty");
+        let centre: [f64; 2] = match config.latent.is_go_to() {
+            true => [normalised(end, 0), normalised(end, 1)],
+            false => [0.0, 0.0],
+        };
+        let psi = |y: &[f64]| (normalised(y, 1) - centre[1]).atan2(normalised(y, 0) - centre[0]);
         for w in e.states.windows(2) {
             for i in 0..config.state_dim {
                 squares += (normalised(&w[1], i) - normalised(&w[0], i)).powi(2);
             }
-            let psi = |y: &[f64]| normalised(y, 1).atan2(normalised(y, 0));
             let delta = psi(&w[1]) - psi(&w[0]);
             angle += delta.sin().atan2(delta.cos());
             n += 1.0;
@@ -221,11 +247,12 @@ fn latent_init(data: &Demonstrations, config: &FlowConfig) -> (f64, LatentInit) 
     let init = LatentInit {
         sigma: rms_step.max(1e-3),
         omega: angle / (n * config.dt),
+        speed: (rms_step * (config.state_dim as f64).sqrt() / config.dt).max(1e-3),
     };
     (rms_step, init)
 }
 
-/// Trains a flow by exact maximum likelihood; `progress` is called once per epoch with
+/// Trains a flow by maximum likelihood (the module's doc says which); `progress` is called once per epoch with
 /// its figures and the parameters at its end (to save or publish each better checkpoint).
 pub fn train_flow(
     data: &Demonstrations,
@@ -249,39 +276,47 @@ pub fn train_flow(
     let model = FlowModel::new(&vs.root(), &config, init);
     let (train_set, validation_set) = split(data, train.validation_fraction, train.optim.seed);
     let (d, m) = (config.state_dim, config.context_dim);
-    let fit = Transitions::new(&train_set, train.horizon, d, m);
-    let check = Transitions::new(&validation_set, 1, d, m);
-    if fit.is_empty() || check.is_empty() {
-        return Err(TrainError::InvalidData(format!(
-            "episodes are shorter than the horizon {}",
-            train.horizon
-        )));
-    }
+    let fit = Transitions::new(&train_set, d, m);
+    let check =
+        (!validation_set.is_empty()).then(|| Transitions::new(&validation_set, d, m).one_step());
     let initial_weight = fit.episodes() as f64 / fit.len() as f64;
     let initial_rows = fit.episodes().min(INITIAL_ROWS_PER_BATCH) as i64;
     let jitter_std = model.state_std() * (train.state_noise * rms_step);
-    let jitter = |states: Tensor| {
-        let noise = states.randn_like() * &jitter_std;
-        states + noise
+    let jitter = |states: Tensor| match train.state_noise > 0.0 {
+        true => {
+            let noise = states.randn_like() * &jitter_std;
+            states + noise
+        }
+        false => states,
+    };
+    let max_steps = match train.arrival > 0.0 {
+        true => fit.longest().max(train.horizon),
+        false => train.horizon,
     };
     let loss = |batch: &Tensor| {
-        let transitions = model.log_transition(
-            &jitter(fit.prev.index_select(0, batch)),
-            &jitter(fit.next.index_select(0, batch)),
-            &fit.context.index_select(0, batch),
-            train.horizon,
-        );
+        let mut pairs = fit.draw(batch, train.horizon, train.arrival);
         // An unbiased estimate of the initial term's mean from a few episodes: all of
         // them would cost as much as the transitions (pouring: 176 starts per batch of 256).
-        let starts = Tensor::randint(fit.episodes() as i64, [initial_rows], tch::kind::INT64_CPU);
-        let initial = model.log_initial(
-            &fit.initial.index_select(0, &starts),
-            &fit.initial_context.index_select(0, &starts),
+        let episodes = Tensor::randint(fit.episodes() as i64, [initial_rows], tch::kind::INT64_CPU);
+        pairs.prev = jitter(pairs.prev);
+        pairs.next = jitter(pairs.next);
+        let (transitions, initial) = model.log_densities(
+            &pairs,
+            max_steps,
+            &fit.initial.index_select(0, &episodes),
+            &fit.initial_context.index_select(0, &episodes),
         );
         -(transitions.mean(Kind::Double) + initial.mean(Kind::Double) * initial_weight)
     };
-    let validation =
-        || -mean_value(&model.log_transition(&check.prev, &check.next, &check.context, 1));
+    // The held-out episodes' one-step negative log-likelihood per transition.
+    let validation = || {
+        check.as_ref().map(|check| {
+            let none = |t: &Tensor| t.narrow(0, 0, 0);
+            let (transitions, _) =
+                model.log_densities(check, 1, &none(&check.prev), &none(&check.context));
+            -mean_value(&transitions)
+        })
+    };
     let snapshot = Snapshot {
         config: &config,
         var_store: &vs,

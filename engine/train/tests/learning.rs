@@ -80,6 +80,7 @@ fn flow_learns_a_known_stable_system_and_stays_stable_while_bc_does_not() {
         LatentInit {
             sigma: 0.1,
             omega: 0.0,
+            speed: 1.0,
         },
     );
     save_checkpoint(&untrained_dir, &CheckpointConfig::Flow(flow), &vs).unwrap();

@@ -19,7 +19,11 @@ fn configs() -> Vec<FlowConfig> {
             tail_bound: 2.5,
         },
     ] {
-        for latent in [LatentKind::GoTo, LatentKind::LimitCycle] {
+        for latent in [
+            LatentKind::GoTo,
+            LatentKind::SaturatedGoTo,
+            LatentKind::LimitCycle,
+        ] {
             let mut c = FlowConfig::new("parity", 3, 2, latent, coupling.clone(), 3, vec![12, 12]);
             c.normalisation.state_mean = vec![0.2, -0.4, 1.0];
             c.normalisation.state_std = vec![0.7, 1.8, 0.4];
@@ -106,6 +110,7 @@ fn saved_var_store_loads_in_the_pure_rust_policy_and_agrees() {
             LatentInit {
                 sigma: 0.1,
                 omega: 1.0,
+                speed: 1.0,
             },
         );
         randomise(&vs, k as i64);
@@ -120,8 +125,11 @@ fn saved_var_store_loads_in_the_pure_rust_policy_and_agrees() {
         let c = Tensor::randn([n, m], (Kind::Double, tch::Device::Cpu));
         let (z, _) = model.inverse(&y, &c);
         let mean_next = model.mean_next(&y, &c);
-        let log_transition = model.log_transition(&y, &y_next, &c, 1);
-        let log_transition3 = model.log_transition(&y, &y_next, &c, 3);
+        let one = Tensor::ones([n], tch::kind::INT64_CPU);
+        let log_transition = model.log_transition(&y, &y_next, &c, &one, 1);
+        // Spans of 1, 2 and 3 steps mixed in one batch, as the trainer draws them.
+        let spans = Tensor::arange(n, tch::kind::INT64_CPU).remainder(3) + 1;
+        let log_transition_k = model.log_transition(&y, &y_next, &c, &spans, 3);
         let log_initial = model.log_initial(&y, &c);
         let (ys, cs, ns) = (rows(&y), rows(&c), rows(&y_next));
         let (zs, means) = (rows(&z), rows(&mean_next));
@@ -145,12 +153,13 @@ fn saved_var_store_loads_in_the_pure_rust_policy_and_agrees() {
                     .unwrap(),
                 "log p",
             );
+            let k = spans.int64_value(&[i as i64]) as usize;
             relative_close(
-                at(&log_transition3),
+                at(&log_transition_k),
                 policy
-                    .log_transition_multi(&ys[i], &ns[i], &cs[i], 3, &mut ws)
+                    .log_transition_multi(&ys[i], &ns[i], &cs[i], k, &mut ws)
                     .unwrap(),
-                "3-step log p",
+                "k-step log p",
             );
             relative_close(
                 at(&log_initial),
@@ -172,6 +181,7 @@ fn log_determinant_equals_the_autograd_jacobian() {
             LatentInit {
                 sigma: 0.1,
                 omega: 1.0,
+                speed: 1.0,
             },
         );
         randomise(&vs, 50 + k as i64);
@@ -217,6 +227,7 @@ fn context_sets_make_both_models_invariant_to_permutations_of_the_set() {
         LatentInit {
             sigma: 0.1,
             omega: 1.0,
+            speed: 1.0,
         },
     );
     randomise(&vs, 7);

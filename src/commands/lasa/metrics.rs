@@ -12,14 +12,14 @@ fn distance(a: &Point, b: &Point) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
-/// Dynamic-time-warping distance per demonstration sample (mm):
+/// Dynamic-time-warping distance per aligned sample (mm):
 ///
-/// `DTW(ŷ, y) / |y|`, `DTW = D(|ŷ|, |y|)`,
+/// `DTW(ŷ, y) / max(|ŷ|, |y|)`, `DTW = D(|ŷ|, |y|)`,
 /// `D(i, j) = ‖ŷ_i − y_j‖ + min(D(i−1, j), D(i, j−1), D(i−1, j−1))`,
 ///
-/// the cumulative Euclidean cost of the best monotone alignment, divided by the number of
-/// demonstration samples so shapes of different lengths compare. Infinite when either
-/// path is empty or holds a non-finite point.
+/// the cumulative Euclidean cost of the best monotone alignment, divided by the longer
+/// path's length so shapes of different lengths compare. Infinite when either path is
+/// empty or holds a non-finite point.
 pub fn dtw_distance(reproduction: &[Point], demonstration: &[Point]) -> f64 {
     if reproduction.is_empty() || demonstration.is_empty() {
         return f64::INFINITY;
@@ -39,7 +39,7 @@ pub fn dtw_distance(reproduction: &[Point], demonstration: &[Point]) -> f64 {
         }
         std::mem::swap(&mut previous, &mut current);
     }
-    previous[m] / m as f64
+    previous[m] / m.max(reproduction.len()) as f64
 }
 
 /// Swept error area (mm²), as in Khansari-Zadeh & Billard (2014): the sum over time of the
