@@ -61,6 +61,11 @@ LIMIT_CYCLE_MODEL = ["--epochs", "40"]
 # 1000 demonstrations, two epochs, the last kept: as good as 8+ CPU-minutes of longer
 # training on fewer (README "Obstacle avoidance"), in about 2.5 CPU-minutes.
 OBSTACLE_MODEL = ["--epochs", "2", "--keep", "last"]
+# The paper's model beside it, for 3 obstacles: the same recipe without the radial
+# contractions, so the obstacle set enters only through the permutation-invariant set
+# encoder and the couplings' local features (README "Obstacle avoidance").
+OBSTACLE_GENERIC = "3-generic"
+OBSTACLE_GENERIC_MODEL = [*OBSTACLE_MODEL, "--contraction-layers", "0"]
 # What the perturbation script does to the running pouring session (simulated seconds):
 # a 0.2 s push on the hand, then the pot moved to another valid pose, where it stays:
 # 5 cm along x, 8 cm along y, turned by 0.33 rad. (Turning it by 0.93 rad instead, most
@@ -294,6 +299,16 @@ def plan(out: pathlib.Path) -> list[Job]:
         ], after=[f"record-obstacles-{k}"]))
         jobs.append(stability(f"obstacles-{k}-flow", policy, f"obstacles-{k}"))
     k = max(OBSTACLE_COUNTS)
+    policy, results = policies / f"obstacles-{OBSTACLE_GENERIC}", exp / "obstacles" / OBSTACLE_GENERIC
+    results.mkdir(parents=True, exist_ok=True)
+    jobs.append(Job(f"obstacles-{OBSTACLE_GENERIC}", [
+        [CIFLOW, "train", "--task", "obstacle-avoidance", "--demos", data / f"obstacles-{k}",
+         "--out", policy, *OBSTACLE_GENERIC_MODEL],
+        evaluate(policy, "--kwarg", f"obstacles={k}", "--episodes", EVALUATION_EPISODES,
+                 "--seed", TEST_SEED, "--trajectories", 8, "--out", results / "eval.json"),
+        evaluate(policy, "--kwarg", f"obstacles={k}", "--field", results / "field.json",
+                 "--field-demos", data / f"obstacles-{k}"),
+    ], after=[f"record-obstacles-{k}"]))
     jobs.append(stability(f"obstacles-{k}-baseline", policies / f"obstacles-{k}" / "baseline",
                           f"obstacles-{k}"))
 

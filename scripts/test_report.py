@@ -48,19 +48,19 @@ def evaluation(success_rate, episodes, disturbance, push=None, example=True):
     }
 
 
-def field_json():
+def field_json(contexts=([0.0], [0.5], [1.0])):
     grid = [[0.1, -0.2, 0.3], [0.0, 0.5, -0.1], [0.2, 0.2, 0.2]]
     return {
         "window": [-1, 1, -1, 1],
         "fields": [{
-            "context": [c],
+            "context": c,
             "x": [-1, 0, 1],
             "y": [-1, 0, 1],
             "velocity_x": grid,
             "velocity_y": grid[::-1],
             "rollouts": [[[0.9, 0.9], [0.5, 0.5], [0.1, 0.0]]],
             "latent_grid": [[[-1, 0], [1, 0]], [[0, -1], [0, 1]]],
-        } for c in (0.0, 0.5, 1.0)],
+        } for c in contexts],
         "demonstrations": [{"context": [0.0], "points": [[0.5, 0.5], [0.0, 0.0]]}],
     }
 
@@ -73,6 +73,8 @@ def experiments(tmp_path):
         write(root / "limit_cycle" / "nll" / f"5_seed{seed}_train.json", {"per_transition": value})
         write(root / "limit_cycle" / "nll" / f"5_seed{seed}_test.json", {"per_transition": value - 1})
     write(root / "obstacles" / "3" / "eval.json", evaluation(0.96, 100, {"mode": "none"}))
+    write(root / "obstacles" / "3-generic" / "eval.json", evaluation(0.7, 100, {"mode": "none"}))
+    write(root / "obstacles" / "3-generic" / "field.json", field_json([[0.0, 0.3, 0.8, -0.1]]))
     write(root / "pouring" / "eval.json", evaluation(0.85, 100, {"mode": "none"}))
     push = {
         "required_displacement": 0.05,
@@ -105,7 +107,9 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     text = output.read_text()
     # Mean ± population std over the three seeds: train 2 ± 0.816, test 1 ± 0.816.
     assert "| 5 | 2.000 ± 0.816 | 1.000 ± 0.816 | 3 |" in text
-    assert "| goal reached, 3 obstacles | 96.0% | ≥ 95% | **pass** |" in text
+    assert "| goal reached, 3 obstacles | 96.0% (collisions 0.0%) | ≥ 95% | **pass** |" in text
+    assert ("| goal reached, 3 obstacles, generic INN | 70.0% (collisions 0.0%) | ≥ 95% | "
+            "**FAIL** |") in text
     assert "| success, no perturbation (100 contexts) | 85.0% | ≥ 90% | **FAIL** |" in text
     assert "| push displacement (min over episodes) | 5.5 cm | ≥ 5 cm | **pass** |" in text
     assert "| success under pushes (10 episodes) | 80.0% | ≥ 80% | **pass** |" in text
@@ -118,6 +122,7 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
             "0.5 cm from the pour point") in text
     figures = tmp_path / "out" / "figures"
     for name in ("limit_cycle_field.png", "limit_cycle_nll.png", "obstacles_rollouts.png",
+                 "obstacles_generic_rollouts.png", "obstacles_3_generic_field.png",
                  "pouring_push.png", "pouring_script_run.png", "stability.png"):
         assert (figures / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
         assert f"(figures/{name})" in text

@@ -6,7 +6,7 @@ mod common;
 
 use std::path::Path;
 
-use ciflow_engine::flow::Policy;
+use ciflow_engine::flow::{CouplingKind, Policy};
 use ciflow_engine::math::distance;
 use common::{Scratch, ciflow, succeed};
 use serde_json::Value;
@@ -50,6 +50,8 @@ fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targe
         "4",
         "--hidden",
         "32,32",
+        "--spline-bins",
+        "6",
     ]);
     let report: Value = serde_json::from_slice(
         &succeed(&[
@@ -95,6 +97,14 @@ fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targe
     // Context [o_x, o_y, g_x, g_y]: the go-to target is its tail.
     assert_eq!(policy.config().goal_context_indices, Some(vec![2, 3]));
     assert_eq!(policy.config().state_dim, 2);
+    // The spline flag shapes the task's spline coupling (no --coupling needed).
+    assert_eq!(
+        policy.config().coupling,
+        CouplingKind::Spline {
+            bins: 6,
+            tail_bound: 4.0
+        }
+    );
     let (_, episodes) = ciflow_envs::dataset::read(Path::new(&demos)).unwrap();
     assert_eq!(episodes.len(), 8);
     let mut ws = policy.workspace();
@@ -147,5 +157,38 @@ fn train_refuses_a_dataset_of_another_task() {
         stderr.contains("ciflow/LimitCycle-v0") && stderr.contains("obstacle-avoidance"),
         "{stderr}"
     );
+    assert!(!Path::new(&policy).exists(), "no checkpoint may be written");
+}
+
+/// Spline settings for an affine coupling are refused, not silently ignored.
+#[test]
+fn train_refuses_spline_flags_for_an_affine_coupling() {
+    let scratch = Scratch::new("train-cli-spline");
+    let (demos, policy) = (scratch.arg("demos"), scratch.arg("policy"));
+    succeed(&[
+        "demos",
+        "--task",
+        "limit-cycle",
+        "--episodes",
+        "1",
+        "--out",
+        &demos,
+    ]);
+    let output = ciflow(&[
+        "train",
+        "--task",
+        "limit-cycle",
+        "--demos",
+        &demos,
+        "--out",
+        &policy,
+        "--coupling",
+        "affine",
+        "--spline-bins",
+        "12",
+    ]);
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(stderr.contains("--spline-bins"), "{stderr}");
     assert!(!Path::new(&policy).exists(), "no checkpoint may be written");
 }

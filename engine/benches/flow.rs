@@ -11,7 +11,8 @@
 use std::hint::black_box;
 
 use ciflow_engine::flow::{
-    ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind, Policy, Weights,
+    ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind, Policy, SetEncoderConfig,
+    Weights,
 };
 use criterion::{Criterion, criterion_group, criterion_main};
 use rand::SeedableRng;
@@ -61,6 +62,7 @@ fn obstacle_policy(contracted: bool) -> Policy {
     };
     config.goal_context_indices = Some(vec![6, 7]);
     config.context_sets = vec![obstacles];
+    config.set_encoder = Some(SetEncoderConfig::default());
     config.contractions = contracted.then_some(ContractionConfig {
         centres: obstacles,
         layers: 2,

@@ -4,8 +4,8 @@ mod flow_common;
 
 use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
 use ciflow_engine::flow::{
-    BaselineConfig, CheckpointConfig, ContextSet, FlowError, Goal, LatentKind, Policy, Tensor,
-    Weights,
+    BaselineConfig, CheckpointConfig, ContextSet, FlowError, Goal, LatentKind, LocalConfig, Policy,
+    SetEncoderConfig, Tensor, Weights,
 };
 use flow_common::*;
 
@@ -147,7 +147,8 @@ fn bad_inputs_are_typed_errors() {
 }
 
 /// A `config.json` written before context sets existed has none; one with sets round-trips
-/// them; sets outside the context or overlapping are typed errors.
+/// them; sets outside the context or overlapping, sets without an encoder (or an encoder
+/// without sets) and slots normalised differently are typed errors.
 #[test]
 fn context_sets_default_to_none_round_trip_and_are_validated() {
     let mut config = config(2, 5, LatentKind::GoTo, SPLINE);
@@ -162,18 +163,39 @@ fn context_sets_default_to_none_round_trip_and_are_validated() {
         size: 2,
     };
     config.context_sets = vec![set(1, 2)];
+    config.set_encoder = Some(SetEncoderConfig {
+        hidden: vec![8],
+        width: 3,
+        local: Some(LocalConfig {
+            hidden: vec![4],
+            width: 2,
+        }),
+    });
     let text = serde_json::to_string(&CheckpointConfig::Flow(config.clone())).unwrap();
     assert!(text.contains("context_sets"));
     let back: CheckpointConfig = serde_json::from_str(&text).unwrap();
     assert_eq!(back, CheckpointConfig::Flow(config.clone()));
     assert!(config.validate().is_ok());
 
-    for bad in [vec![set(2, 2)], vec![set(0, 0)], vec![set(0, 2), set(3, 1)]] {
-        let mut invalid = config.clone();
-        invalid.context_sets = bad;
-        assert!(matches!(
-            invalid.validate(),
-            Err(FlowError::InvalidConfig(_))
-        ));
+    let mut invalid = Vec::new();
+    for bad in [
+        vec![set(2, 2)],
+        vec![set(0, 0)],
+        vec![set(0, 2), set(3, 1)],
+        vec![],
+    ] {
+        let mut config = config.clone();
+        config.context_sets = bad;
+        invalid.push(config);
+    }
+    let mut no_encoder = config.clone();
+    no_encoder.set_encoder = None;
+    let mut unshared = config.clone();
+    unshared.normalisation.context_std[3] = 2.0;
+    for config in invalid.into_iter().chain([no_encoder, unshared]) {
+        assert!(
+            matches!(config.validate(), Err(FlowError::InvalidConfig(_))),
+            "{config:?}"
+        );
     }
 }

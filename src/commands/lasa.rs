@@ -276,7 +276,7 @@ impl RunProgress {
 /// the goal as context) with the command line's settings.
 fn flow_config(args: &ModelArgs) -> anyhow::Result<TrainConfig> {
     let task = ciflow_envs::registry::entry(TASK)?;
-    Ok(args.flow(task_recipe(task, GOAL.len())?))
+    args.flow(task_recipe(task, GOAL.len())?)
 }
 
 fn train_shape_flow(

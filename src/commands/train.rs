@@ -14,7 +14,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use ciflow_bridge::CheckpointPublisher;
-use ciflow_engine::flow::{ContextSet, ContractionConfig, CouplingKind, Goal, LatentKind};
+use ciflow_engine::flow::{
+    ContextSet, ContractionConfig, CouplingKind, Goal, LatentKind, LocalConfig, SetEncoderConfig,
+};
 use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::{self, TaskEntry};
 use ciflow_envs::tasks::{lasa, limit_cycle, obstacle_avoidance};
@@ -89,13 +91,13 @@ pub struct ModelArgs {
     /// Coupling layers [default: the task's: affine for lasa, else spline].
     #[arg(long, value_enum)]
     pub coupling: Option<CouplingArg>,
-    /// Bins of each spline coupling.
-    #[arg(long, default_value_t = 8)]
-    pub spline_bins: usize,
+    /// Bins of each spline coupling [default: the task's spline's, else 8].
+    #[arg(long)]
+    pub spline_bins: Option<usize>,
     /// Half-width `B` of the spline's interval `[-B, B]` (normalised units; identity
-    /// outside).
-    #[arg(long, default_value_t = 4.0)]
-    pub tail_bound: f64,
+    /// outside) [default: the task's spline's, else 4].
+    #[arg(long)]
+    pub tail_bound: Option<f64>,
     /// Number of (mixing, coupling) blocks [default: the task's: 10 for lasa, else 6].
     #[arg(long)]
     pub layers: Option<usize>,
@@ -153,16 +155,34 @@ pub struct ModelArgs {
 impl ModelArgs {
     /// The flow's training configuration: `recipe` (the task's) with what the command line
     /// sets in its place.
-    pub fn flow(&self, recipe: TrainConfig) -> TrainConfig {
-        let coupling = match self.coupling.map(CouplingArg::is_spline) {
-            None => recipe.coupling,
-            Some(false) => CouplingKind::Affine { scale_bound: 2.0 },
-            Some(true) => CouplingKind::Spline {
-                bins: self.spline_bins,
-                tail_bound: self.tail_bound,
-            },
+    /// The spline flags apply to whichever spline the coupling is; with an affine one they
+    /// are an error rather than silently ignored.
+    pub fn flow(&self, recipe: TrainConfig) -> anyhow::Result<TrainConfig> {
+        let (bins, tail_bound) = match recipe.coupling {
+            CouplingKind::Spline { bins, tail_bound } => (bins, tail_bound),
+            CouplingKind::Affine { .. } => (8, 4.0),
         };
-        TrainConfig {
+        let spline = CouplingKind::Spline {
+            bins: self.spline_bins.unwrap_or(bins),
+            tail_bound: self.tail_bound.unwrap_or(tail_bound),
+        };
+        let coupling = match self.coupling.map(CouplingArg::is_spline) {
+            None if matches!(recipe.coupling, CouplingKind::Spline { .. }) => spline,
+            Some(true) => spline,
+            None | Some(false) => {
+                if self.spline_bins.is_some() || self.tail_bound.is_some() {
+                    anyhow::bail!(
+                        "--spline-bins and --tail-bound set a spline coupling, and this one is \
+                         affine (add --coupling spline)"
+                    );
+                }
+                match self.coupling {
+                    Some(_) => CouplingKind::Affine { scale_bound: 2.0 },
+                    None => recipe.coupling,
+                }
+            }
+        };
+        Ok(TrainConfig {
             latent: self.latent.map_or(recipe.latent, LatentKind::from),
             coupling,
             layers: self.layers.unwrap_or(recipe.layers),
@@ -185,7 +205,7 @@ impl ModelArgs {
                 ..recipe.optim
             },
             ..recipe
-        }
+        })
     }
 }
 
@@ -213,8 +233,8 @@ pub struct TrainArgs {
     /// of lasa, none otherwise].
     #[arg(long, value_delimiter = ',')]
     pub goal_context_indices: Option<Vec<usize>>,
-    /// Unordered sets in the context, which the conditioners see sorted by their elements'
-    /// first entry: START:COUNT:SIZE (COUNT elements of SIZE entries from context index
+    /// Unordered sets in the context, which the conditioners see through a
+    /// permutation-invariant set encoder: START:COUNT:SIZE (COUNT elements of SIZE entries from context index
     /// START), comma-separated, or `none` [default: the task's: the obstacle centres of
     /// obstacle-avoidance, none otherwise].
     #[arg(long, value_delimiter = ',', value_parser = parse_context_set)]
@@ -224,6 +244,11 @@ pub struct TrainArgs {
     /// centres to contract about].
     #[arg(long)]
     pub contraction_layers: Option<usize>,
+    /// Width `W_ψ` of the local features each coupling pools over every context set,
+    /// from a network with one hidden layer of `2 W_ψ` (0: none; the set encoder's
+    /// summary alone) [default: the set encoder's].
+    #[arg(long)]
+    pub local_features: Option<usize>,
     #[command(flatten)]
     pub model: ModelArgs,
     /// Also train the behaviour-cloning baseline into `<out>/baseline`.
@@ -528,9 +553,23 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             }
             (None, contractions) => contractions,
         },
+        set_encoder: match args.local_features {
+            Some(0) => SetEncoderConfig {
+                local: None,
+                ..recipe.set_encoder
+            },
+            Some(width) => SetEncoderConfig {
+                local: Some(LocalConfig {
+                    hidden: vec![2 * width],
+                    width,
+                }),
+                ..recipe.set_encoder
+            },
+            None => recipe.set_encoder,
+        },
         ..recipe
     };
-    let config = args.model.flow(recipe);
+    let config = args.model.flow(recipe)?;
     let (latent, goal_context_indices) = (config.latent, &config.goal_context_indices);
     println!(
         "{}: {} episodes, state {}-D, context {}-D, dt = {} s; latent {latent:?}, target in \

@@ -6,7 +6,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::math::distance;
 
-use super::context_set::ContextSet;
+use super::context_set::{
+    ContextSet, LocalConfig, SetEncoderConfig, encoder_parameter_shapes, local_prefix, local_sizes,
+    rest_indices,
+};
 use super::error::{FlowResult, invalid};
 use super::mlp::mlp_parameter_shapes;
 use super::radial::ContractionConfig;
@@ -173,16 +176,19 @@ pub struct FlowConfig {
     /// (raw units, one index per state dimension); the attractor then sits on it.
     #[serde(default)]
     pub goal_context_indices: Option<Vec<usize>>,
-    /// Unordered sets in the context, which the conditioners see canonicalised
-    /// ([`super::context_set`]); the goal is read from the raw context. Checkpoints
-    /// without the key have none.
+    /// Unordered sets in the context, which the conditioners see through permutation-
+    /// invariant encoders ([`super::context_set`]); the goal is read from the raw
+    /// context. Checkpoints without the key have none.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub context_sets: Vec<ContextSet>,
+    /// The set encoders' architecture: present exactly when there are sets.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub set_encoder: Option<SetEncoderConfig>,
     /// Radial contractions about context points in front of the network
     /// ([`super::radial`]); checkpoints without the key have none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contractions: Option<ContractionConfig>,
-    /// Statistics of the states and of the canonicalised contexts.
+    /// Statistics of the states and of the contexts (a set's slots share theirs).
     pub normalisation: Normalisation,
     /// Box of the states and of the raw contexts.
     pub bounds: Bounds,
@@ -212,6 +218,7 @@ impl FlowConfig {
             hidden,
             goal_context_indices: None,
             context_sets: Vec::new(),
+            set_encoder: None,
             contractions: None,
             normalisation: Normalisation::identity(state_dim, context_dim),
             bounds: Bounds {
@@ -233,9 +240,34 @@ impl FlowConfig {
         self.state_dim - self.kept_dim()
     }
 
-    /// Layer sizes of the conditioner MLP: `[kept + m, hidden.., transformed · P]`.
+    /// `|ĉ|`, the dimension of the conditioning vector the conditioners see: the context
+    /// itself without sets, else its entries outside them and one summary per set
+    /// ([`super::context_set`]).
+    pub fn conditioning_dim(&self) -> usize {
+        match &self.set_encoder {
+            Some(encoder) => {
+                rest_indices(&self.context_sets, self.context_dim).len()
+                    + self.context_sets.len() * encoder.width
+            }
+            None => self.context_dim,
+        }
+    }
+
+    /// The couplings' local element networks ([`super::conditioner`]), if any.
+    pub fn local(&self) -> Option<&LocalConfig> {
+        self.set_encoder.as_ref().and_then(|e| e.local.as_ref())
+    }
+
+    /// `K W_ψ`, the width of the local features pooled in each coupling.
+    pub fn local_features_dim(&self) -> usize {
+        self.local()
+            .map_or(0, |l| self.context_sets.len() * l.width)
+    }
+
+    /// Layer sizes of the conditioner MLP:
+    /// `[kept + K W_ψ + |ĉ|, hidden.., transformed · P]`.
     pub fn conditioner_sizes(&self) -> Vec<usize> {
-        let mut sizes = vec![self.kept_dim() + self.context_dim];
+        let mut sizes = vec![self.kept_dim() + self.local_features_dim() + self.conditioning_dim()];
         sizes.extend(&self.hidden);
         sizes.push(self.transformed_dim() * self.coupling.params_per_dim());
         sizes
@@ -264,6 +296,12 @@ impl FlowConfig {
                 &format!("{prefix}.conditioner"),
                 &self.conditioner_sizes(),
             ));
+            if let Some(local) = self.local() {
+                for (k, set) in self.context_sets.iter().enumerate() {
+                    let sizes = local_sizes(set, self.kept_dim(), self.conditioning_dim(), local);
+                    shapes.extend(mlp_parameter_shapes(&local_prefix(&prefix, k), &sizes));
+                }
+            }
         }
         shapes.push(("latent.log_sigma".into(), vec![d]));
         shapes.push(("latent.log_sigma0".into(), vec![d]));
@@ -282,6 +320,13 @@ impl FlowConfig {
         };
         for name in scalars {
             shapes.push((format!("latent.{name}"), vec![1]));
+        }
+        if let Some(encoder) = &self.set_encoder {
+            shapes.extend(encoder_parameter_shapes(
+                &self.context_sets,
+                self.context_dim,
+                encoder,
+            ));
         }
         if let Some(contractions) = &self.contractions {
             for l in 0..contractions.layers {
@@ -339,6 +384,38 @@ impl FlowConfig {
             }
         }
         validate_context_sets(&self.context_sets, m)?;
+        for set in &self.context_sets {
+            let norm = &self.normalisation;
+            let shared = |stats: &[f64]| {
+                let slots = stats[set.start..set.end()].chunks_exact(set.size);
+                slots
+                    .clone()
+                    .all(|slot| slot == &stats[set.start..set.start + set.size])
+            };
+            if !(shared(&norm.context_mean) && shared(&norm.context_std)) {
+                return Err(invalid(format!(
+                    "the slots of context set {set:?} need the same normalisation"
+                )));
+            }
+        }
+        match &self.set_encoder {
+            None if !self.context_sets.is_empty() => {
+                return Err(invalid("context sets need a set_encoder".into()));
+            }
+            Some(_) if self.context_sets.is_empty() => {
+                return Err(invalid("set_encoder without context sets".into()));
+            }
+            Some(e)
+                if e.width == 0
+                    || e.hidden.contains(&0)
+                    || e.local
+                        .as_ref()
+                        .is_some_and(|l| l.width == 0 || l.hidden.contains(&0)) =>
+            {
+                return Err(invalid("set_encoder widths must be >= 1".into()));
+            }
+            _ => {}
+        }
         if let Some(contractions) = &self.contractions {
             contractions.validate(d, m)?;
         }

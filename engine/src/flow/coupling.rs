@@ -2,7 +2,8 @@
 //! generation with conditional invertible neural networks"):
 //!
 //! `y_kept = x_kept`, `y_i = h(x_i; θ_i)` for the transformed dimensions, with
-//! `θ = MLP([x_kept, c])`. The Jacobian is triangular, so `log|det| = Σ_i log|h'(x_i)|`,
+//! `θ = MLP([x_kept, c])` ([`super::conditioner`], which also pools local features of the
+//! context's sets). The Jacobian is triangular, so `log|det| = Σ_i log|h'(x_i)|`,
 //! and the inverse evaluates the same `θ` from `y_kept = x_kept`.
 //!
 //! Even layers keep the first `⌊d/2⌋` dimensions, odd layers the last ones, so every
@@ -11,11 +12,11 @@
 use std::ops::Range;
 
 use super::affine::AffineTransform;
+use super::conditioner::{Conditioner, ConditionerScratch, ConditionerTangentScratch};
 use super::config::{CouplingKind, FlowConfig};
 use super::error::FlowResult;
 #[cfg(target_arch = "x86_64")]
 use super::mlp::has_avx2_fma;
-use super::mlp::{Mlp, MlpScratch};
 use super::scalar::{Dual, Scalar};
 use super::spline::SplineTransform;
 use super::weights::Weights;
@@ -66,7 +67,7 @@ impl Transform {
 #[derive(Clone, Debug)]
 pub struct Coupling {
     transform: Transform,
-    conditioner: Mlp,
+    conditioner: Conditioner,
     kept: Range<usize>,
     transformed: Range<usize>,
     params_per_dim: usize,
@@ -77,20 +78,18 @@ pub struct Coupling {
 pub struct CouplingScratch<S> {
     /// A state-sized buffer for the layers around the coupling (the mixing).
     pub(super) state: Vec<S>,
-    input: Vec<S>,
     params: Vec<S>,
     transform: Vec<S>,
-    mlp: MlpScratch<S>,
+    conditioner: ConditionerScratch<S>,
 }
 
 impl<S: Scalar> CouplingScratch<S> {
     pub fn new(coupling: &Coupling) -> Self {
         Self {
             state: vec![S::constant(0.0); coupling.state_dim()],
-            input: vec![S::constant(0.0); coupling.conditioner.input_dim()],
             params: vec![S::constant(0.0); coupling.conditioner.output_dim()],
             transform: vec![S::constant(0.0); coupling.transform.scratch_len()],
-            mlp: MlpScratch::new(&coupling.conditioner),
+            conditioner: ConditionerScratch::new(&coupling.conditioner),
         }
     }
 }
@@ -121,40 +120,34 @@ impl CouplingRecord {
 pub struct TangentScratch {
     /// Two state-sized buffers for the layers around the coupling (the mixing).
     pub(super) state: Vec<f64>,
-    input: Vec<f64>,
-    input_tangent: Vec<f64>,
     params: Vec<f64>,
     params_tangent: Vec<f64>,
     dual_params: Vec<Dual<f64>>,
     transform: Vec<f64>,
     dual_transform: Vec<Dual<f64>>,
-    mlp: MlpScratch<Dual<f64>>,
+    conditioner: ConditionerTangentScratch,
 }
 
 impl TangentScratch {
     pub fn new(coupling: &Coupling) -> Self {
         let zero = Dual::new(0.0, 0.0);
-        let (inputs, outputs) = (
-            coupling.conditioner.input_dim(),
-            coupling.conditioner.output_dim(),
-        );
+        let outputs = coupling.conditioner.output_dim();
         let transform = coupling.transform.scratch_len();
         Self {
             state: vec![0.0; 2 * coupling.state_dim()],
-            input: vec![0.0; inputs],
-            input_tangent: vec![0.0; inputs],
             params: vec![0.0; outputs],
             params_tangent: vec![0.0; outputs],
             dual_params: vec![zero; outputs],
             transform: vec![0.0; transform],
             dual_transform: vec![zero; transform],
-            mlp: MlpScratch::new(&coupling.conditioner),
+            conditioner: ConditionerTangentScratch::new(&coupling.conditioner),
         }
     }
 }
 
 impl Coupling {
-    /// Coupling layer `index` of `config`, parameters under `{prefix}.conditioner`.
+    /// Coupling layer `index` of `config`, parameters under `{prefix}.conditioner` (and
+    /// `{prefix}.local`).
     pub fn from_weights(
         weights: &mut Weights,
         prefix: &str,
@@ -169,10 +162,14 @@ impl Coupling {
         };
         Ok(Self {
             transform: Transform::new(&config.coupling),
-            conditioner: Mlp::from_weights(
+            conditioner: Conditioner::from_weights(
                 weights,
-                &format!("{prefix}.conditioner"),
+                prefix,
                 &config.conditioner_sizes(),
+                kept_dim,
+                &config.context_sets,
+                config.local(),
+                config.conditioning_dim(),
             )?,
             kept,
             transformed,
@@ -187,14 +184,16 @@ impl Coupling {
 
     /// Length of the context bias [`fold_context`](Self::fold_context) writes.
     pub fn context_bias_len(&self) -> usize {
-        self.conditioner.folded_bias_len()
+        self.conditioner.context_bias_len()
     }
 
-    /// The conditioner's first-layer bias with the (normalised) context folded in, the
-    /// form every evaluation takes its context in: the context is the same for all the
-    /// points of a step, so its columns of the first layer are read once per context.
-    pub fn fold_context(&self, context: &[f64], context_bias: &mut [f64]) {
-        self.conditioner.fold_trailing_inputs(context, context_bias);
+    /// The conditioner's first-layer biases with the context (the conditioning vector
+    /// `encoded` and the normalised context) folded in, the form every evaluation takes
+    /// its context in: the context is the same for all the points of a step, so its
+    /// columns of the first layers are read once per context.
+    pub fn fold_context(&self, encoded: &[f64], normalised: &[f64], context_bias: &mut [f64]) {
+        self.conditioner
+            .fold_context(encoded, normalised, context_bias);
     }
 
     fn condition<S: Scalar>(
@@ -204,14 +203,19 @@ impl Coupling {
         scratch: &mut CouplingScratch<S>,
         record: Option<&mut CouplingRecord>,
     ) {
-        let kept = self.kept.len();
-        scratch.input[..kept].copy_from_slice(&x[self.kept.clone()]);
         let CouplingScratch {
-            input, params, mlp, ..
+            params,
+            conditioner,
+            ..
         } = scratch;
         let activations = record.map(|r| &mut r.activations[..]);
-        self.conditioner
-            .eval_folded(&input[..kept], context_bias, mlp, params, activations);
+        self.conditioner.eval(
+            &x[self.kept.clone()],
+            context_bias,
+            conditioner,
+            params,
+            activations,
+        );
     }
 
     /// Applies `h` (or `h⁻¹` when `inverse`) in place; returns the log-determinant, or
@@ -371,35 +375,27 @@ impl Coupling {
         primal: Option<(&mut [f64], &[f64])>,
         scratch: &mut TangentScratch,
     ) {
-        let kept = self.kept.len();
-        scratch.input_tangent[..kept].copy_from_slice(&dx[self.kept.clone()]);
         let TangentScratch {
-            input,
-            input_tangent,
             params,
             params_tangent,
-            mlp,
+            conditioner,
             ..
         } = scratch;
+        let dx_kept = &dx[self.kept.clone()];
         match &primal {
-            Some((x, context_bias)) => {
-                input[..kept].copy_from_slice(&x[self.kept.clone()]);
-                self.conditioner.eval_and_tangent(
-                    &input[..kept],
-                    context_bias,
-                    params,
-                    &record.activations,
-                    &input_tangent[..kept],
-                    params_tangent,
-                    mlp,
-                );
-            }
-            None => self.conditioner.tangent(
+            Some((x, context_bias)) => self.conditioner.eval_and_tangent(
+                &x[self.kept.clone()],
+                context_bias,
+                params,
                 &record.activations,
-                &input_tangent[..kept],
-                mlp,
+                dx_kept,
                 params_tangent,
+                conditioner,
             ),
+            None => {
+                self.conditioner
+                    .tangent(&record.activations, dx_kept, conditioner, params_tangent)
+            }
         }
         for ((d, p), dp) in scratch
             .dual_params

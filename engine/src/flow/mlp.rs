@@ -428,11 +428,6 @@ impl Mlp {
         self.layers[0].padded_outputs
     }
 
-    /// [`folded_bias_len`](Self::folded_bias_len) of an MLP of layer sizes `sizes`.
-    pub fn folded_bias_len_of(sizes: &[usize]) -> usize {
-        sizes[1].div_ceil(NARROW) * NARROW
-    }
-
     /// `bias = b₀ + W₀[:, n - m..] t`: the first layer's bias with its last `m` inputs
     /// fixed to `t` (a context), so evaluations at many points with the same `t` read
     /// only the first `n - m` columns of `W₀` ([`eval_folded`](Self::eval_folded)).

@@ -59,6 +59,7 @@
 pub mod affine;
 pub mod baseline;
 pub mod checkpoint;
+pub mod conditioner;
 pub mod config;
 pub mod context_set;
 pub mod coupling;
@@ -80,7 +81,7 @@ pub use config::{
     BaselineConfig, Bounds, CheckpointConfig, CouplingKind, FlowConfig, Goal, LatentKind,
     Normalisation,
 };
-pub use context_set::ContextSet;
+pub use context_set::{ContextSet, LocalConfig, SetEncoderConfig};
 pub use error::{FlowError, FlowResult};
 pub use policy::{Policy, PolicyWorkspace};
 pub use radial::ContractionConfig;

@@ -1,12 +1,13 @@
 //! The conditioned invertible network `y = f(z, c)` in observation units:
 //!
-//! `f(z, c) = P_c⁻¹(μ_y + σ_y ⊙ g(z + a(c), c̃))`, `c̃ = (κ(c) - μ_c) ⊘ σ_c`,
+//! `f(z, c) = P_c⁻¹(μ_y + σ_y ⊙ g(z + a(c), ĉ))`, `ĉ = E((c - μ_c) ⊘ σ_c)`,
 //!
-//! where `κ` puts the context's unordered sets in canonical order ([`super::context_set`];
-//! the identity when there are none), `g` is the stack of (LU mixing, coupling) blocks,
+//! where `E` encodes the context's unordered sets into permutation-invariant summaries
+//! ([`super::context_set`]; the identity when there are none), `g` is the stack of
+//! (LU mixing, coupling) blocks,
 //! `P_c` the radial contractions about context points ([`super::radial`]; the identity
 //! when there are none) and the anchor is
-//! `a(c) = g⁻¹((P_c(target(c)) - μ_y) ⊘ σ_y, c̃)` for go-to tasks whose target is part
+//! `a(c) = g⁻¹((P_c(target(c)) - μ_y) ⊘ σ_y, ĉ)` for go-to tasks whose target is part
 //! of the context (so `f(0, c) = target(c)` exactly, for every `c`) and `a = 0` otherwise.
 //! The anchor shifts the latent rather than the output so that a trainer finds it by
 //! inverting the target in the same batch (and direction) as the demonstrations.
@@ -14,11 +15,10 @@
 //! `log|det ∂f/∂z| = Σ log σ_y + log|det ∂g/∂z| + log|det ∂P_c⁻¹/∂u|`.
 
 use super::config::FlowConfig;
-use super::context_set::canonicalise;
+use super::context_set::{ContextEncoder, EncoderScratch};
 use super::coupling::{Coupling, CouplingRecord, CouplingScratch, TangentScratch};
 use super::error::{FlowResult, check_input};
 use super::mixing::LuMixing;
-use super::mlp::Mlp;
 use super::radial::{ContractionTape, RadialContractions};
 use super::scalar::Scalar;
 use super::weights::Weights;
@@ -26,52 +26,40 @@ use super::weights::Weights;
 #[derive(Clone, Debug)]
 pub struct ConditionalFlow {
     config: FlowConfig,
+    encoder: ContextEncoder,
     blocks: Vec<(LuMixing, Coupling)>,
     contractions: Option<RadialContractions>,
     log_state_scale: f64,
 }
 
-/// A context prepared for the network: normalised, folded into each conditioner's
-/// first-layer bias ([`Coupling::fold_context`]), with its anchor `a(c)`.
-/// Recomputed only when the raw context changes (the anchor costs one network pass).
+/// A context prepared for the network: normalised, encoded into the conditioning vector
+/// `ĉ` ([`super::context_set`]), folded into each conditioner's first-layer bias
+/// ([`Coupling::fold_context`]), with its anchor `a(c)`. Recomputed only when the raw
+/// context changes (the anchor costs one network pass).
 #[derive(Clone, Debug)]
 pub struct Conditioning {
     raw: Vec<f64>,
     normalised: Vec<f64>,
+    encoded: Vec<f64>,
+    encoder_scratch: EncoderScratch,
     /// One context bias per coupling, back to back.
     context_biases: Vec<f64>,
     anchor: Vec<f64>,
-    /// The contraction centres in canonical order, raw units.
+    /// The contraction centres as given, raw units.
     centres: Vec<f64>,
     valid: bool,
 }
 
 impl Conditioning {
-    pub fn new(config: &FlowConfig) -> Self {
-        let bias_len = Mlp::folded_bias_len_of(&config.conditioner_sizes());
-        Self {
-            raw: vec![0.0; config.context_dim],
-            normalised: vec![0.0; config.context_dim],
-            context_biases: vec![0.0; config.layers * bias_len],
-            anchor: vec![0.0; config.state_dim],
-            centres: vec![
-                0.0;
-                config
-                    .contractions
-                    .map_or(0, |c| c.centres.count * c.centres.size)
-            ],
-            valid: false,
-        }
-    }
-
     /// The context bias of each coupling.
     fn context_biases(&self, couplings: usize) -> std::slice::ChunksExact<'_, f64> {
         self.context_biases
             .chunks_exact(self.context_biases.len() / couplings)
     }
 
-    pub fn normalised(&self) -> &[f64] {
-        &self.normalised
+    /// `ĉ`, the conditioning vector.
+    pub fn encoded(&self) -> &[f64] {
+        &self.encoded
     }
 }
 
@@ -87,6 +75,12 @@ pub struct FlowTape {
 impl ConditionalFlow {
     pub fn from_weights(config: &FlowConfig, weights: &mut Weights) -> FlowResult<Self> {
         config.validate()?;
+        let encoder = ContextEncoder::from_weights(
+            &config.context_sets,
+            config.context_dim,
+            config.set_encoder.as_ref(),
+            weights,
+        )?;
         let blocks = (0..config.layers)
             .map(|i| {
                 let prefix = format!("layers.{i}");
@@ -103,6 +97,7 @@ impl ConditionalFlow {
             .transpose()?;
         Ok(Self {
             config: config.clone(),
+            encoder,
             blocks,
             contractions,
             log_state_scale: config.normalisation.state_std.iter().map(|s| s.ln()).sum(),
@@ -111,6 +106,27 @@ impl ConditionalFlow {
 
     pub fn config(&self) -> &FlowConfig {
         &self.config
+    }
+
+    /// Buffers for [`condition`](Self::condition), holding no context yet.
+    pub fn conditioning(&self) -> Conditioning {
+        let config = &self.config;
+        let bias_len = self.blocks[0].1.context_bias_len();
+        Conditioning {
+            raw: vec![0.0; config.context_dim],
+            normalised: vec![0.0; config.context_dim],
+            encoded: vec![0.0; self.encoder.output_dim()],
+            encoder_scratch: self.encoder.scratch(),
+            context_biases: vec![0.0; config.layers * bias_len],
+            anchor: vec![0.0; config.state_dim],
+            centres: vec![
+                0.0;
+                config
+                    .contractions
+                    .map_or(0, |c| c.centres.count * c.centres.size)
+            ],
+            valid: false,
+        }
     }
 
     /// Scratch for evaluations in scalar type `S`.
@@ -196,25 +212,29 @@ impl ConditionalFlow {
         check_input("context", self.config.context_dim, context)?;
         let norm = &self.config.normalisation;
         conditioning.raw.copy_from_slice(context);
-        conditioning.normalised.copy_from_slice(context);
-        canonicalise(&self.config.context_sets, &mut conditioning.normalised);
         if let Some(contractions) = &self.contractions {
             let set = contractions.config().centres;
             conditioning
                 .centres
-                .copy_from_slice(&conditioning.normalised[set.start..set.end()]);
+                .copy_from_slice(&context[set.start..set.end()]);
         }
-        for (n, (m, s)) in conditioning
+        for ((n, c), (m, s)) in conditioning
             .normalised
             .iter_mut()
+            .zip(context)
             .zip(norm.context_mean.iter().zip(&norm.context_std))
         {
-            *n = (*n - m) / s;
+            *n = (c - m) / s;
         }
+        self.encoder.encode(
+            &conditioning.normalised,
+            &mut conditioning.encoder_scratch,
+            &mut conditioning.encoded,
+        );
         let bias_len = conditioning.context_biases.len() / self.blocks.len();
         let biases = conditioning.context_biases.chunks_exact_mut(bias_len);
         for ((_, coupling), bias) in self.blocks.iter().zip(biases) {
-            coupling.fold_context(&conditioning.normalised, bias);
+            coupling.fold_context(&conditioning.encoded, &conditioning.normalised, bias);
         }
         conditioning.anchor.fill(0.0);
         if let Some(indices) = &self.config.goal_context_indices {

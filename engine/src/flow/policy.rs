@@ -87,7 +87,7 @@ impl Policy {
         let config = self.config();
         let d = config.state_dim;
         PolicyWorkspace {
-            conditioning: Conditioning::new(config),
+            conditioning: self.flow.conditioning(),
             scratch: self.flow.scratch(),
             scratch_dual: self.flow.scratch(),
             scratch_dual2: self.flow.scratch(),

@@ -26,6 +26,13 @@
 //! `α` and `w` (in units of the configured `radius`) are learned per layer, shared by the
 //! centres, which are interchangeable.
 //!
+//! **Order.** Each layer composes its centres' contractions in the order the context gives
+//! them: continuous in every centre (no re-sorting, so no jump where two centres' keys
+//! cross), but not invariant to the order of the centres, since contractions about
+//! different points do not commute. Contractions about well-separated centres nearly
+//! do; the set encoder and the couplings' local features ([`super::conditioner`]) are
+//! exactly invariant.
+//!
 //! `P⁻¹` has no closed form: `q` solves `q s(q)² = ‖u − o‖²` (increasing in `q`, root
 //! bracketed by `[ρ², ρ² / (1 − α)²]`), found by safeguarded Newton in `f64` and then
 //! refined by two Newton steps in the caller's scalar type, which makes first and second

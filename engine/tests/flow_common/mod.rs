@@ -2,7 +2,8 @@
 #![allow(dead_code)]
 
 use ciflow_engine::flow::{
-    ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind, Policy, Weights,
+    ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind, LocalConfig, Policy,
+    SetEncoderConfig, Weights,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -47,22 +48,49 @@ pub fn variants() -> Vec<FlowConfig> {
     scaled.normalisation.context_mean = vec![1.0];
     scaled.normalisation.context_std = vec![3.0];
     out.push(scaled);
+    // Sets seen through the encoder, with and without local features (appended, so the
+    // variants above keep their seeds).
+    for coupling in [AFFINE, SPLINE] {
+        out.push(obstacle_set(coupling.clone()));
+        let mut summary_only = obstacle_set(coupling);
+        if let Some(encoder) = &mut summary_only.set_encoder {
+            encoder.local = None;
+        }
+        out.push(summary_only);
+    }
     out
 }
 
-/// Go-to in the plane, contracted about two context points `[o₁, o₂, g]` (a set) with
-/// the target `g`, as obstacle avoidance is.
-pub fn contracted(coupling: CouplingKind) -> FlowConfig {
+/// Go-to in the plane among two context points `[o₁, o₂, g]` (a set, seen through the
+/// set encoder and the couplings' local features) with the target `g`, as obstacle
+/// avoidance is.
+pub fn obstacle_set(coupling: CouplingKind) -> FlowConfig {
     let mut config = config(2, 6, LatentKind::GoTo, coupling);
-    let centres = ContextSet {
-        start: 0,
-        count: 2,
-        size: 2,
-    };
     config.goal_context_indices = Some(vec![4, 5]);
-    config.context_sets = vec![centres];
+    config.context_sets = vec![CENTRES];
+    config.set_encoder = Some(SetEncoderConfig {
+        hidden: vec![8],
+        width: 4,
+        local: Some(LocalConfig {
+            hidden: vec![6],
+            width: 3,
+        }),
+    });
+    config
+}
+
+/// The two context points of [`obstacle_set`].
+pub const CENTRES: ContextSet = ContextSet {
+    start: 0,
+    count: 2,
+    size: 2,
+};
+
+/// [`obstacle_set`], contracted about the two context points.
+pub fn contracted(coupling: CouplingKind) -> FlowConfig {
+    let mut config = obstacle_set(coupling);
     config.contractions = Some(ContractionConfig {
-        centres,
+        centres: CENTRES,
         layers: 2,
         exponent: 2,
         radius: 0.3,

@@ -72,7 +72,7 @@ pub fn train_baseline(
         dt: data.dt,
         hidden: train.hidden.clone(),
         goal: train.goal.clone(),
-        normalisation: data.normalisation(),
+        normalisation: data.normalisation(&[]),
         bounds: data.bounds(),
     };
     config.validate()?;

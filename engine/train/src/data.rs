@@ -1,7 +1,6 @@
 //! Demonstrations: episodes of states `[T × d]` with contexts `[T × m]` or one per
 //! episode, sampled every `dt` seconds.
 
-use ciflow_engine::flow::context_set::canonicalise;
 use ciflow_engine::flow::{Bounds, ContextSet, Normalisation};
 use tch::{Kind, Tensor};
 
@@ -82,41 +81,21 @@ impl Demonstrations {
         Ok((d, m))
     }
 
-    /// The demonstrations with every context canonicalised (`κ(c)`, see
-    /// [`ciflow_engine::flow::context_set`]), the contexts the conditioners see.
-    pub fn canonicalised(&self, sets: &[ContextSet]) -> Self {
-        let canonical = |c: &Vec<f64>| {
-            let mut c = c.clone();
-            canonicalise(sets, &mut c);
-            c
-        };
-        let episodes = self
-            .episodes
-            .iter()
-            .map(|e| Episode {
-                states: e.states.clone(),
-                contexts: match &e.contexts {
-                    Contexts::PerStep(c) => Contexts::PerStep(c.iter().map(canonical).collect()),
-                    Contexts::PerEpisode(c) => Contexts::PerEpisode(canonical(c)),
-                },
-            })
-            .collect();
-        Self {
-            episodes,
-            dt: self.dt,
-        }
-    }
-
     fn rows(&self) -> impl Iterator<Item = (&[f64], &[f64])> + Clone {
         self.episodes
             .iter()
             .flat_map(|e| (0..e.states.len()).map(move |t| (e.states[t].as_slice(), e.context(t))))
     }
 
-    /// Per-coordinate mean and standard deviation of all states and contexts.
-    pub fn normalisation(&self) -> Normalisation {
+    /// Per-coordinate mean and standard deviation of all states and contexts; the slots of
+    /// each of `sets` share the statistics of all their elements (so the normalisation does
+    /// not depend on the elements' order).
+    pub fn normalisation(&self, sets: &[ContextSet]) -> Normalisation {
         let (state_mean, state_std) = moments(self.rows().map(|(y, _)| y));
-        let (context_mean, context_std) = moments(self.rows().map(|(_, c)| c));
+        let (mut context_mean, mut context_std) = moments(self.rows().map(|(_, c)| c));
+        for set in sets {
+            pool_slots(set, &mut context_mean, &mut context_std);
+        }
         Normalisation {
             state_mean,
             state_std,
@@ -157,6 +136,26 @@ fn moments<'a>(rows: impl Iterator<Item = &'a [f64]> + Clone) -> (Vec<f64>, Vec<
         mean,
         var.into_iter().map(|v| v.sqrt().max(MIN_STD)).collect(),
     )
+}
+
+/// Replaces each slot's `(mean, std)` of `set` by those of all its elements together:
+/// the slots hold equally many rows, so the pooled mean is the slots' mean and the pooled
+/// variance the mean of `σ² + (μ_slot - μ)²`.
+fn pool_slots(set: &ContextSet, mean: &mut [f64], std: &mut [f64]) {
+    let n = set.count as f64;
+    for i in 0..set.size {
+        let slots = (0..set.count).map(|j| set.start + j * set.size + i);
+        let pooled_mean = slots.clone().map(|k| mean[k]).sum::<f64>() / n;
+        let variance = slots
+            .clone()
+            .map(|k| std[k].powi(2) + (mean[k] - pooled_mean).powi(2))
+            .sum::<f64>()
+            / n;
+        for k in slots {
+            mean[k] = pooled_mean;
+            std[k] = variance.sqrt();
+        }
+    }
 }
 
 fn extent<'a>(rows: impl Iterator<Item = &'a [f64]>) -> (Vec<f64>, Vec<f64>) {

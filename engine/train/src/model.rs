@@ -1,16 +1,17 @@
-//! The conditioned ImitationFlow in tch: `y = P_c⁻¹(μ_y + σ_y ⊙ g(z + a(c), c̃))`,
-//! `c̃ = (κ(c) - μ_c) ⊘ σ_c`, with the
+//! The conditioned ImitationFlow in tch: `y = P_c⁻¹(μ_y + σ_y ⊙ g(z + a(c), ĉ))`,
+//! `ĉ = E((c - μ_c) ⊘ σ_c)`, with the
 //! latent dynamics of [`LatentModel`], mirroring `ciflow_engine::flow` parameter for
 //! parameter, so `VarStore::save("weights.safetensors")` loads in the pure-Rust policy.
 
-use ciflow_engine::flow::FlowConfig;
+use ciflow_engine::flow::context_set::{encoder_prefix, encoder_sizes, rest_indices};
+use ciflow_engine::flow::{ContextSet, FlowConfig};
 use tch::nn;
 use tch::{Device, Kind, Tensor};
 
 use crate::contraction::Contractions;
 use crate::data::Pairs;
 use crate::latent::{LatentInit, LatentModel};
-use crate::nets::{Coupling, LuMixing};
+use crate::nets::{Coupling, CouplingContext, LuMixing, Mlp};
 
 #[derive(Debug)]
 pub struct FlowModel {
@@ -22,13 +23,16 @@ pub struct FlowModel {
     context_mean: Tensor,
     context_std: Tensor,
     goal_index: Option<Tensor>,
+    /// The context indices outside every set, when there are sets, and each set's encoder.
+    rest: Option<Tensor>,
+    set_encoders: Vec<(ContextSet, Mlp)>,
     contractions: Option<Contractions>,
 }
 
-/// A batch of contexts prepared for the network: `c̃` and the contraction centres
-/// (`[B, count, d]`, canonical order, raw units).
+/// A batch of contexts prepared for the network: what the couplings see and the
+/// contraction centres (`[B, count, d]`, raw units).
 struct Conditioned {
-    normalised: Tensor,
+    couplings: CouplingContext,
     centres: Option<Tensor>,
 }
 
@@ -64,6 +68,27 @@ impl FlowModel {
                 Tensor::from_slice(&indices.iter().map(|&i| i as i64).collect::<Vec<_>>())
                     .to_device(Device::Cpu)
             }),
+            rest: config.set_encoder.as_ref().map(|_| {
+                let rest = rest_indices(&config.context_sets, config.context_dim);
+                Tensor::from_slice(&rest.iter().map(|&i| i as i64).collect::<Vec<_>>())
+            }),
+            set_encoders: match &config.set_encoder {
+                Some(encoder) => {
+                    let rest = rest_indices(&config.context_sets, config.context_dim).len();
+                    config
+                        .context_sets
+                        .iter()
+                        .enumerate()
+                        .map(|(k, set)| {
+                            let sizes = encoder_sizes(set, rest, encoder);
+                            let prefix = encoder_prefix(k);
+                            let at = prefix.split('.').fold(path.clone(), |p, part| &p / part);
+                            (*set, Mlp::new(&at, &sizes, false))
+                        })
+                        .collect()
+                }
+                None => Vec::new(),
+            },
             contractions: config
                 .contractions
                 .as_ref()
@@ -88,7 +113,7 @@ impl FlowModel {
         self.state_std.log().sum(Kind::Double)
     }
 
-    fn g_forward(&self, z: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
+    fn g_forward(&self, z: &Tensor, context: &CouplingContext) -> (Tensor, Tensor) {
         let mut x = z.shallow_clone();
         let mut log_det = Tensor::zeros([z.size()[0]], (Kind::Double, z.device()));
         for (mixing, coupling) in &self.blocks {
@@ -100,7 +125,7 @@ impl FlowModel {
         (x, log_det)
     }
 
-    fn g_inverse(&self, y: &Tensor, context: &Tensor) -> (Tensor, Tensor) {
+    fn g_inverse(&self, y: &Tensor, context: &CouplingContext) -> (Tensor, Tensor) {
         let mut x = y.shallow_clone();
         let mut log_det = Tensor::zeros([y.size()[0]], (Kind::Double, y.device()));
         for (mixing, coupling) in self.blocks.iter().rev() {
@@ -112,44 +137,42 @@ impl FlowModel {
         (x, log_det)
     }
 
-    /// `κ(c)`: each context set's elements `[B, count, size]` sorted (stably) by their
-    /// first entry, as `ciflow_engine::flow::context_set` does.
-    fn canonicalise(&self, context: &Tensor) -> Tensor {
-        let mut canonical = context.shallow_clone();
-        for set in &self.config.context_sets {
-            let (start, count, size) = (set.start as i64, set.count as i64, set.size as i64);
-            let rows = context.size()[0];
-            let elements = canonical
-                .narrow(1, start, count * size)
+    /// What the couplings see for normalised contexts `[B, m]`: `ĉ` (the entries outside
+    /// the sets, then each set's mean-pooled encoding, `ciflow_engine::flow::context_set`)
+    /// and each set's elements.
+    fn encode(&self, normalised: &Tensor) -> CouplingContext {
+        let Some(rest) = &self.rest else {
+            return CouplingContext {
+                encoded: normalised.shallow_clone(),
+                elements: Vec::new(),
+            };
+        };
+        let rest = normalised.index_select(1, rest);
+        let rows = normalised.size()[0];
+        let mut parts = vec![rest.shallow_clone()];
+        let mut elements = Vec::new();
+        for (set, encoder) in &self.set_encoders {
+            let (count, size) = (set.count as i64, set.size as i64);
+            let set_elements = normalised
+                .narrow(1, set.start as i64, count * size)
                 .reshape([rows, count, size]);
-            let (_, order) = elements.select(2, 0).sort_stable(true, 1, false);
-            let sorted = elements
-                .gather(
-                    1,
-                    &order.unsqueeze(2).expand([rows, count, size], false),
-                    false,
-                )
-                .reshape([rows, count * size]);
-            let m = canonical.size()[1];
-            canonical = Tensor::cat(
-                &[
-                    canonical.narrow(1, 0, start),
-                    sorted,
-                    canonical.narrow(1, start + count * size, m - start - count * size),
-                ],
-                1,
-            );
+            let others = rest.unsqueeze(1).expand([rows, count, -1], false);
+            let input = Tensor::cat(&[&set_elements, &others], 2);
+            parts.push(encoder.forward(&input).mean_dim(1, false, Kind::Double));
+            elements.push(set_elements);
         }
-        canonical
+        CouplingContext {
+            encoded: Tensor::cat(&parts, 1),
+            elements,
+        }
     }
 
-    /// `(c̃, centres)` for raw contexts `[B, m]`.
+    /// `(ĉ, centres)` for raw contexts `[B, m]`.
     fn condition(&self, context: &Tensor) -> Conditioned {
-        let canonical = self.canonicalise(context);
-        let normalised = (&canonical - &self.context_mean) / &self.context_std;
-        let centres = self.contractions.as_ref().map(|p| p.centres(&canonical));
+        let normalised = (context - &self.context_mean) / &self.context_std;
+        let centres = self.contractions.as_ref().map(|p| p.centres(context));
         Conditioned {
-            normalised,
+            couplings: self.encode(&normalised),
             centres,
         }
     }
@@ -171,7 +194,7 @@ impl FlowModel {
             Some(anchor) => z + anchor,
             None => z.shallow_clone(),
         };
-        let (x, log_det) = self.g_forward(&shifted, &conditioned.normalised);
+        let (x, log_det) = self.g_forward(&shifted, &conditioned.couplings);
         let u = x * &self.state_std + &self.state_mean;
         let log_det = log_det + self.log_state_scale();
         match (&self.contractions, &conditioned.centres) {
@@ -188,7 +211,7 @@ impl FlowModel {
     fn anchors(&self, context: &Tensor, conditioned: &Conditioned) -> Option<Tensor> {
         let index = self.goal_index.as_ref()?;
         let target = self.enter(&context.index_select(1, index), conditioned).0;
-        Some(self.g_inverse(&target, &conditioned.normalised).0)
+        Some(self.g_inverse(&target, &conditioned.couplings).0)
     }
 
     /// `z = f⁻¹(y, c)` and `log|det ∂f⁻¹/∂y|` per row. With the target in the context, its
@@ -200,7 +223,7 @@ impl FlowModel {
         let (x, contraction_log_det) = self.enter(y, &conditioned);
         let log_det = contraction_log_det - self.log_state_scale();
         let Some(index) = &self.goal_index else {
-            let (z, g_log_det) = self.g_inverse(&x, &conditioned.normalised);
+            let (z, g_log_det) = self.g_inverse(&x, &conditioned.couplings);
             return (z, log_det + g_log_det);
         };
         let rows = y.size()[0];
@@ -211,7 +234,7 @@ impl FlowModel {
             .0;
         let (z, g_log_det) = self.g_inverse(
             &Tensor::cat(&[&x, &targets], 0),
-            &Tensor::cat(&[&conditioned.normalised, &distinct.normalised], 0),
+            &conditioned.couplings.cat(&distinct.couplings),
         );
         let anchor = z
             .narrow(0, rows, targets.size()[0])

@@ -3,6 +3,7 @@
 //! equations: `mlp`, `mixing`, `affine`, `spline`, `coupling`).
 
 use ciflow_engine::flow::config::{SPLINE_MIN_BIN, SPLINE_MIN_DERIVATIVE};
+use ciflow_engine::flow::context_set::local_sizes;
 use ciflow_engine::flow::{CouplingKind, FlowConfig};
 use tch::nn::{self, Module};
 use tch::{Kind, Tensor};
@@ -94,11 +95,38 @@ impl LuMixing {
     }
 }
 
-/// A conditioned coupling layer (affine or rational-quadratic spline).
+/// What the couplings are conditioned on, per row: the conditioning vector `ĉ`
+/// `[B, |ĉ|]` and the normalised elements `[B, n, s]` of each context set.
+#[derive(Debug)]
+pub struct CouplingContext {
+    pub encoded: Tensor,
+    pub elements: Vec<Tensor>,
+}
+
+impl CouplingContext {
+    /// The rows of `self`, then those of `other`.
+    pub fn cat(&self, other: &Self) -> Self {
+        Self {
+            encoded: Tensor::cat(&[&self.encoded, &other.encoded], 0),
+            elements: self
+                .elements
+                .iter()
+                .zip(&other.elements)
+                .map(|(a, b)| Tensor::cat(&[a, b], 0))
+                .collect(),
+        }
+    }
+}
+
+/// A conditioned coupling layer (affine or rational-quadratic spline) whose conditioner
+/// pools local features of the context's sets when the config has them
+/// (`ciflow_engine::flow::conditioner`).
 #[derive(Debug)]
 pub struct Coupling {
     kind: CouplingKind,
     conditioner: Mlp,
+    /// `ψ_k` of every set.
+    local: Vec<Mlp>,
     kept: (i64, i64),
     transformed: (i64, i64),
     kept_first: bool,
@@ -113,9 +141,20 @@ impl Coupling {
         } else {
             ((d - k, k), (0, d - k))
         };
+        let local = match config.local() {
+            Some(local) => (config.context_sets.iter().enumerate())
+                .map(|(k, set)| {
+                    let sizes =
+                        local_sizes(set, config.kept_dim(), config.conditioning_dim(), local);
+                    Mlp::new(&(path / "local" / k), &sizes, false)
+                })
+                .collect(),
+            None => Vec::new(),
+        };
         Self {
             kind: config.coupling.clone(),
             conditioner: Mlp::new(&(path / "conditioner"), &config.conditioner_sizes(), true),
+            local,
             kept,
             transformed,
             kept_first,
@@ -123,11 +162,26 @@ impl Coupling {
     }
 
     /// Applies the coupling (or its inverse); returns `(output, log|det|)` per row.
-    pub fn apply(&self, x: &Tensor, context: &Tensor, inverse: bool) -> (Tensor, Tensor) {
+    pub fn apply(&self, x: &Tensor, context: &CouplingContext, inverse: bool) -> (Tensor, Tensor) {
         let x_kept = x.narrow(1, self.kept.0, self.kept.1);
         let x_t = x.narrow(1, self.transformed.0, self.transformed.1);
-        let input = Tensor::cat(&[&x_kept, context], 1);
         let rows = x.size()[0];
+        let mut inputs = vec![x_kept.shallow_clone()];
+        for (psi, elements) in self.local.iter().zip(&context.elements) {
+            let count = elements.size()[1];
+            let each = |t: &Tensor| t.unsqueeze(1).expand([rows, count, -1], false);
+            let input = Tensor::cat(
+                &[
+                    each(&x_kept),
+                    elements.shallow_clone(),
+                    each(&context.encoded),
+                ],
+                2,
+            );
+            inputs.push(psi.forward(&input).mean_dim(1, false, Kind::Double));
+        }
+        inputs.push(context.encoded.shallow_clone());
+        let input = Tensor::cat(&inputs, 1);
         let params = self
             .conditioner
             .forward(&input)

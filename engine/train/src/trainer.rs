@@ -22,6 +22,7 @@ use std::path::Path;
 use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
 use ciflow_engine::flow::{
     CheckpointConfig, ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind,
+    SetEncoderConfig,
 };
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor, nn};
@@ -50,10 +51,13 @@ pub struct TrainConfig {
     pub min_rate: f64,
     /// `target(c) = c[indices]` for go-to tasks whose target is in the context.
     pub goal_context_indices: Option<Vec<usize>>,
-    /// Unordered sets in the context (e.g. obstacle centres) that the conditioners see in
-    /// canonical order ([`ciflow_engine::flow::context_set`]).
+    /// Unordered sets in the context (e.g. obstacle centres) that the conditioners see
+    /// through permutation-invariant encoders ([`ciflow_engine::flow::context_set`]).
     #[serde(default)]
     pub context_sets: Vec<ContextSet>,
+    /// The encoders' architecture (used when there are sets).
+    #[serde(default)]
+    pub set_encoder: SetEncoderConfig,
     /// Radial contractions about context points (e.g. obstacle centres) in front of the
     /// network ([`ciflow_engine::flow::radial`]).
     #[serde(default)]
@@ -96,6 +100,7 @@ impl TrainConfig {
             min_rate: 0.1,
             goal_context_indices: None,
             context_sets: Vec::new(),
+            set_encoder: SetEncoderConfig::default(),
             contractions: None,
             horizon: 1,
             arrival: 0.0,
@@ -207,15 +212,12 @@ pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<Fl
         hidden: train.hidden.clone(),
         goal_context_indices: train.goal_context_indices.clone(),
         context_sets: train.context_sets.clone(),
+        set_encoder: (!train.context_sets.is_empty()).then(|| train.set_encoder.clone()),
         contractions: train.contractions,
-        normalisation: data.normalisation(),
+        normalisation: data.normalisation(&train.context_sets),
         bounds: data.bounds(),
     };
     config.validate()?;
-    let config = FlowConfig {
-        normalisation: data.canonicalised(&config.context_sets).normalisation(),
-        ..config
-    };
     Ok(config)
 }
 
