@@ -127,9 +127,10 @@ fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targe
     }
 }
 
-#[test]
-fn train_refuses_a_dataset_of_another_task() {
-    let scratch = Scratch::new("train-cli-task");
+/// `ciflow train --demos D --out P ARGS` on a one-episode limit-cycle dataset `D`: it
+/// fails, writes no checkpoint, and returns what it printed on stderr.
+fn refused_training(name: &str, args: &[&str]) -> String {
+    let scratch = Scratch::new(name);
     let (demos, policy) = (scratch.arg("demos"), scratch.arg("policy"));
     succeed(&[
         "demos",
@@ -140,55 +141,39 @@ fn train_refuses_a_dataset_of_another_task() {
         "--out",
         &demos,
     ]);
-    let output = ciflow(&[
-        "train",
-        "--task",
-        "obstacle-avoidance",
-        "--demos",
-        &demos,
-        "--out",
-        &policy,
-        "--epochs",
-        "1",
-    ]);
+    let mut command = vec!["train", "--demos", &demos, "--out", &policy];
+    command.extend_from_slice(args);
+    let output = ciflow(&command);
     assert!(!output.status.success());
-    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!Path::new(&policy).exists(), "no checkpoint may be written");
+    String::from_utf8_lossy(&output.stderr).into_owned()
+}
+
+#[test]
+fn train_refuses_a_dataset_of_another_task() {
+    let stderr = refused_training(
+        "train-cli-task",
+        &["--task", "obstacle-avoidance", "--epochs", "1"],
+    );
     assert!(
         stderr.contains("ciflow/LimitCycle-v0") && stderr.contains("obstacle-avoidance"),
         "{stderr}"
     );
-    assert!(!Path::new(&policy).exists(), "no checkpoint may be written");
 }
 
 /// Spline settings for an affine coupling are refused, not silently ignored.
 #[test]
 fn train_refuses_spline_flags_for_an_affine_coupling() {
-    let scratch = Scratch::new("train-cli-spline");
-    let (demos, policy) = (scratch.arg("demos"), scratch.arg("policy"));
-    succeed(&[
-        "demos",
-        "--task",
-        "limit-cycle",
-        "--episodes",
-        "1",
-        "--out",
-        &demos,
-    ]);
-    let output = ciflow(&[
-        "train",
-        "--task",
-        "limit-cycle",
-        "--demos",
-        &demos,
-        "--out",
-        &policy,
-        "--coupling",
-        "affine",
-        "--spline-bins",
-        "12",
-    ]);
-    assert!(!output.status.success());
-    let stderr = String::from_utf8_lossy(&output.stderr);
+    let stderr = refused_training(
+        "train-cli-spline",
+        &[
+            "--task",
+            "limit-cycle",
+            "--coupling",
+            "affine",
+            "--spline-bins",
+            "12",
+        ],
+    );
     assert!(stderr.contains("--spline-bins"), "{stderr}");
-    assert!(!Path::new(&policy).exists(), "no checkpoint may be written");
 }

@@ -52,11 +52,7 @@ impl<S: Scalar> ConditionerScratch<S> {
             input: vec![S::constant(0.0); conditioner.leading_dim()],
             feature: vec![S::constant(0.0); conditioner.local_width],
             mlp: MlpScratch::new(&conditioner.mlp),
-            local: conditioner
-                .local
-                .iter()
-                .map(|(_, m)| MlpScratch::new(m))
-                .collect(),
+            local: conditioner.local_scratches(),
         }
     }
 }
@@ -78,11 +74,7 @@ impl ConditionerTangentScratch {
             input_tangent: vec![0.0; conditioner.leading_dim()],
             feature_tangent: vec![0.0; conditioner.local_width],
             mlp: MlpScratch::new(&conditioner.mlp),
-            local: conditioner
-                .local
-                .iter()
-                .map(|(_, m)| MlpScratch::new(m))
-                .collect(),
+            local: conditioner.local_scratches(),
         }
     }
 }
@@ -124,6 +116,11 @@ impl Conditioner {
             kept,
             local_width,
         })
+    }
+
+    /// One activation buffer per `ψ_k`.
+    fn local_scratches<S: Scalar>(&self) -> Vec<MlpScratch<S>> {
+        self.local.iter().map(|(_, m)| MlpScratch::new(m)).collect()
     }
 
     /// `|x_k| + K W_ψ`, the inputs that vary from point to point.
