@@ -46,6 +46,7 @@ impl FlowModel {
     /// Creates the variables under `path` (names as in the engine) — in a `VarStore`
     /// whose kind is f64 ([`crate::trainer::double_var_store`]).
     pub fn new(path: &nn::Path, config: &FlowConfig, init: LatentInit) -> Self {
+        let rest = rest_indices(&config.context_sets, config.context_dim);
         let blocks = (0..config.layers)
             .map(|i| {
                 let p = path / "layers" / i;
@@ -64,17 +65,11 @@ impl FlowModel {
             state_std: row(&norm.state_std),
             context_mean: row(&norm.context_mean),
             context_std: row(&norm.context_std),
-            goal_index: config.goal_context_indices.as_ref().map(|indices| {
-                Tensor::from_slice(&indices.iter().map(|&i| i as i64).collect::<Vec<_>>())
-                    .to_device(Device::Cpu)
-            }),
-            rest: config.set_encoder.as_ref().map(|_| {
-                let rest = rest_indices(&config.context_sets, config.context_dim);
-                Tensor::from_slice(&rest.iter().map(|&i| i as i64).collect::<Vec<_>>())
-            }),
+            goal_index: config.goal_context_indices.as_deref().map(index_tensor),
+            rest: config.set_encoder.as_ref().map(|_| index_tensor(&rest)),
             set_encoders: match &config.set_encoder {
                 Some(encoder) => {
-                    let rest = rest_indices(&config.context_sets, config.context_dim).len();
+                    let rest = rest.len();
                     config
                         .context_sets
                         .iter()
@@ -314,4 +309,10 @@ impl FlowModel {
         let (z, _) = self.inverse(y, context);
         self.forward(&self.latent.mean_step(&z), context).0
     }
+}
+
+/// Context indices as an `i64` tensor for `index_select`.
+fn index_tensor(indices: &[usize]) -> Tensor {
+    Tensor::from_slice(&indices.iter().map(|&i| i as i64).collect::<Vec<_>>())
+        .to_device(Device::Cpu)
 }
