@@ -264,7 +264,8 @@ def plan(out: pathlib.Path) -> list[Job]:
             pouring, "--episodes", EVALUATION_EPISODES, "--seed", TEST_SEED, "--trajectories",
             4, "--out", exp / "pouring" / f"{mode}.json", *extra)],
             after=["pouring-record-train"]))
-    jobs.append(stability("pouring-flow", pouring, "pouring-record-train", "--robot-loop"))
+    jobs.append(stability("pouring-flow", pouring, "pouring-record-train", "--robot-loop",
+                          "--negative-control"))
     for fraction in POURING_FRACTIONS:
         count = round(fraction * POURING_DEMOS)
         for seed in SEEDS:
@@ -297,7 +298,8 @@ def plan(out: pathlib.Path) -> list[Job]:
             evaluate(policy, "--kwarg", f"obstacles={k}", "--field", results / "field.json",
                      "--field-demos", dataset),
         ], after=[f"record-obstacles-{k}"]))
-        jobs.append(stability(f"obstacles-{k}-flow", policy, f"obstacles-{k}"))
+        jobs.append(stability(f"obstacles-{k}-flow", policy, f"obstacles-{k}",
+                              "--negative-control"))
     k = max(OBSTACLE_COUNTS)
     policy, results = policies / f"obstacles-{OBSTACLE_GENERIC}", exp / "obstacles" / OBSTACLE_GENERIC
     results.mkdir(parents=True, exist_ok=True)
@@ -332,7 +334,7 @@ def plan(out: pathlib.Path) -> list[Job]:
     jobs.append(Job("limit-cycle-field", [evaluate(
         best_lc, "--field", exp / "limit_cycle" / "field.json", "--field-contexts", "0;0.5;1",
         "--field-demos", lc_train)], after=[best_lc_job]))
-    jobs.append(stability("limit-cycle-flow", best_lc, best_lc_job))
+    jobs.append(stability("limit-cycle-flow", best_lc, best_lc_job, "--negative-control"))
 
     return jobs
 

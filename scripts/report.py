@@ -22,6 +22,7 @@ Layout of EXPERIMENTS_DIR (every file optional: a missing one gives a "not run" 
                                       pouring-baseline: every trained policy and the baseline)
 """
 
+import argparse
 import json
 import math
 import pathlib
@@ -121,10 +122,16 @@ def plot_field(report, field, name, title, obstacles=False):
         if np.hypot(u, v).max() > 0:
             top.streamplot(x, y, u, v, color="0.7", linewidth=0.6, density=1.2, arrowsize=0.6)
         context = np.array(f["context"], float)
+        demonstrated = False
         for demo in field.get("demonstrations", []):
             if np.allclose(demo["context"], context, atol=1e-6):
+                demonstrated = True
                 p = np.array(demo["points"], float)
-                top.plot(p[:, 0], p[:, 1], "--", color="0.3", lw=1)
+                top.plot(p[:, 0], p[:, 1], ":", color="0.3", lw=1)
+        if f.get("reference"):
+            p = np.array(f["reference"], float)
+            top.plot(p[:, 0], p[:, 1], "--", color="k", lw=1.4, label="true outline", zorder=5)
+            top.legend(loc="lower right", fontsize=7)
         for path in f["rollouts"]:
             p = np.array(path, float)
             top.plot(p[:, 0], p[:, 1], color="tab:blue", lw=1.2)
@@ -133,7 +140,10 @@ def plot_field(report, field, name, title, obstacles=False):
             p = np.array(line, float)
             bottom.plot(p[:, 0], p[:, 1], color="tab:purple", lw=0.7)
         label = ", ".join(f"{c:.2f}" for c in context)
-        top.set_title(f"c = ({label})" if len(context) < 4 else f"layout {col + 1}")
+        panel = f"c = ({label})" if len(context) < 4 else f"layout {col + 1}"
+        if field.get("demonstrations"):
+            panel += " — trained" if demonstrated else " — held out"
+        top.set_title(panel)
         bottom.set_title("f(latent grid, c)")
         for ax in (top, bottom):
             if obstacles:
@@ -267,7 +277,13 @@ def limit_cycle(report, root):
         report.not_run("vector fields and rollouts", folder / "field.json")
     else:
         plot_field(report, field, "limit_cycle_field.png",
-                   "Limit cycle: learned field, rollouts (blue), demonstrations (dashed)")
+                   "Limit cycle (10 phases fitted): learned field, rollouts (blue), "
+                   "demonstrations (dotted), true outline (dashed)")
+    report.add("Learning curve: the n-trajectory model fits n distinct phases spread evenly "
+               "over the ten training phases, 0 and 1 included (2 → {0, 1}); none is held out "
+               "of the fit and the last epoch is kept, so *train* is the log-likelihood of "
+               "exactly the demonstrations fitted and *test* that of the held-out phases "
+               "{0.25, 0.5, 0.75}.", "")
     learning_curve(report, folder / "nll", "training trajectories", "training trajectories",
                    "limit_cycle_nll.png", "Limit cycle: log-likelihood per transition")
 
@@ -414,8 +430,13 @@ def stability(report, root):
     if not runs:
         report.not_run("stability", folder)
         return
-    report.add("", "| policy | converged | rollouts | non-finite | through the robot loop |",
-               "|---|---|---|---|---|")
+    report.add("A flow converges for any weights, so its check runs on a negative control of "
+               "the same class too: the same flow with its latent run backwards in time "
+               "(`ciflow stability --negative-control`), of which the check must flag at "
+               "least 99% (the command fails otherwise).",
+               "", "| policy | converged | rollouts | non-finite | negative control flagged "
+               "| through the robot loop |",
+               "|---|---|---|---|---|---|")
     names, fractions = [], []
     for path in runs:
         measured = load(path)
@@ -423,8 +444,10 @@ def stability(report, root):
         names.append(path.stem)
         fractions.append(s["fraction"])
         through = "not run" if loop is None else f"{percent(loop['fraction'])} of {loop['rollouts']}"
+        control = measured.get("negative_control")
+        flagged = "—" if control is None else percent(1 - control["fraction"])
         report.add(f"| {path.stem} | {percent(s['fraction'])} | {s['rollouts']} | "
-                   f"{s.get('diverged_to_non_finite', 0)} | {through} |")
+                   f"{s.get('diverged_to_non_finite', 0)} | {flagged} | {through} |")
     fig, ax = plt.subplots(figsize=(max(4, 1.2 * len(names)), 3.5))
     colors = ["tab:red" if "baseline" in n else "tab:blue" for n in names]
     ax.bar(names, [100 * f for f in fractions], color=colors)
@@ -450,9 +473,15 @@ def build(root, output):
 
 
 def main(argv):
-    root = argv[1] if len(argv) > 1 else "out/experiments"
-    output = argv[2] if len(argv) > 2 else "out/report.md"
-    print(f"wrote {build(root, output)}")
+    parser = argparse.ArgumentParser(description="Write the report of `make demo`'s results.")
+    parser.add_argument("root", nargs="?", default="out/experiments",
+                        help="the experiments folder (default: out/experiments)")
+    parser.add_argument("output", nargs="?", default="out/report.md",
+                        help="the report to write; figures go beside it in figures/")
+    args = parser.parse_args(argv[1:])
+    if not pathlib.Path(args.root).is_dir():
+        parser.error(f"{args.root} is not a folder of experiment results")
+    print(f"wrote {build(args.root, args.output)}")
 
 
 if __name__ == "__main__":

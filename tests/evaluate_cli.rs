@@ -178,6 +178,8 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
         6
     );
     assert_eq!(report["demonstrations"].as_array().unwrap().len(), 6);
+    // A go-to task has no curve to trace.
+    assert!(report["fields"][0].get("reference").is_none());
 
     // A checkpoint of one obstacle cannot act among two.
     let mismatch = ciflow(&[

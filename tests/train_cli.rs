@@ -62,6 +62,7 @@ fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targe
             "obstacle-avoidance",
             "--starts",
             "50",
+            "--negative-control",
             "--robot-loop",
             "--robot-starts",
             "10",
@@ -79,6 +80,12 @@ fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targe
     assert_eq!(
         observation_space["converged"].as_u64(),
         Some(50),
+        "{report}"
+    );
+    // The same flow with its latent run backwards: the check flags it.
+    assert_eq!(
+        report["negative_control"]["converged"].as_u64(),
+        Some(0),
         "{report}"
     );
     // Through the point mass's computed-torque loop, from starts up to 100x outside.

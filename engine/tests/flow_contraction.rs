@@ -13,12 +13,14 @@ const BODY_RADIUS: f64 = 0.1;
 const TARGET: [f64; 2] = [0.8, 0.0];
 
 /// `f(z, c) = P_c⁻¹(z + a(c))` about one centre at the origin (context
-/// `[o₁, o₂, g]`, the second centre far away), each contraction with `strength`.
+/// `[o₁, o₂, g]`, the second centre far away), each of six layers with `strength`: a
+/// layer pulls by at most `α / K` about each of the `K = 2` centres.
 fn policy(strength: Option<f64>) -> Policy {
     let mut config = contracted(AFFINE);
     let contraction = config.contractions.as_mut().unwrap();
     contraction.radius = 0.16;
     contraction.exponent = 2;
+    contraction.layers = 6;
     if strength.is_none() {
         config.contractions = None;
     }

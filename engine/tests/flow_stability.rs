@@ -1,5 +1,6 @@
-//! Measured stability: 100% for random (untrained) flows of every variant, below 100% for
-//! the unconstrained behaviour-cloning baseline — so the check can fail.
+//! Measured stability: 100% for random (untrained) flows of every variant; and the check
+//! can fail: it flags the same flows with their latent run backwards in time (a negative
+//! control of the same class) and the unconstrained behaviour-cloning baseline.
 
 mod flow_common;
 
@@ -23,6 +24,15 @@ fn random_flows_converge_from_starts_100x_outside_the_data() {
             let report = measure(&policy, &check(), |_| {}).unwrap();
             assert_eq!(report.fraction, 1.0, "variant {k} seed {seed}: {report:?}");
         }
+    }
+}
+
+#[test]
+fn the_check_flags_every_rollout_of_the_time_reversed_flows() {
+    for (k, config) in variants().iter().enumerate() {
+        let policy = random_policy(config, 1000 * k as u64).time_reversed();
+        let report = measure(&policy, &check(), |_| {}).unwrap();
+        assert_eq!(report.converged, 0, "variant {k}: {report:?}");
     }
 }
 

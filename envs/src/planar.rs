@@ -51,7 +51,9 @@ pub trait PlanarTask: Send + 'static {
     fn context_space(&self) -> &BoxSpace;
     /// Applies task-specific reset options (`ResetOptions::extra`); unknown keys are errors.
     fn configure(&mut self, extra: &BTreeMap<String, f64>) -> Result<(), EnvError>;
-    fn sample_context(&self, rng: &mut ChaCha8Rng) -> Vec<f64>;
+    /// The context of an episode reset with `seed` (`None`: an unseeded reset), drawn
+    /// from `rng`, or scheduled by episode where the task demonstrates a fixed set.
+    fn sample_context(&mut self, seed: Option<u64>, rng: &mut ChaCha8Rng) -> Vec<f64>;
     /// Checks a context beyond its space (e.g. obstacles that overlap the target).
     fn check_context(&self, _context: &[f64]) -> Result<(), EnvError> {
         Ok(())
@@ -189,7 +191,7 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         let rng = self.rng.reseed(seed);
         let context = match &options.context {
             Some(context) => context.clone(),
-            None => self.task.sample_context(rng),
+            None => self.task.sample_context(seed, rng),
         };
         self.check_context(&context)?;
         self.task.set_context(&context);

@@ -8,6 +8,9 @@ use crate::tasks::{lasa, limit_cycle, obstacle_avoidance, pouring};
 /// Construction arguments, as `gymnasium.make(id, **kwargs)` takes them (numbers only).
 pub type Kwargs = BTreeMap<String, f64>;
 
+/// Points along the curve a task's motion should trace, for a context.
+pub type ReferenceCurve = fn(&[f64]) -> Vec<[f64; 2]>;
+
 /// A registered task: its Gymnasium id and how to build it.
 pub struct TaskEntry {
     /// Gymnasium id, e.g. `ciflow/Pouring-v0`.
@@ -23,6 +26,9 @@ pub struct TaskEntry {
     /// Arguments and options whose values may be given by name: `(key, names)`, where a
     /// name stands for its index in `names` (e.g. LASA's `shape`).
     pub named_values: &'static [(&'static str, &'static [&'static str])],
+    /// The closed curve a 2-D task's motion should trace for a context (the limit
+    /// cycle's outline), drawn beside learned fields; `None` for go-to tasks.
+    pub reference_curve: Option<ReferenceCurve>,
 }
 
 impl TaskEntry {
@@ -104,6 +110,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             make: || with_defaults(limit_cycle_with),
             make_with: limit_cycle_with,
             named_values: &[],
+            reference_curve: Some(limit_cycle::outline_curve),
         },
         TaskEntry {
             id: obstacle_avoidance::ID,
@@ -112,6 +119,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             make: || with_defaults(obstacle_avoidance_with),
             make_with: obstacle_avoidance_with,
             named_values: &[],
+            reference_curve: None,
         },
         TaskEntry {
             id: pouring::ID,
@@ -120,6 +128,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             make: || with_defaults(pouring_with),
             make_with: pouring_with,
             named_values: &[],
+            reference_curve: None,
         },
         TaskEntry {
             id: lasa::ID,
@@ -128,6 +137,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             make: || with_defaults(lasa_with),
             make_with: lasa_with,
             named_values: &[(lasa::SHAPE_OPTION, &lasa::SHAPES)],
+            reference_curve: None,
         },
     ]
 }

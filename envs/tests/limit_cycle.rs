@@ -1,8 +1,9 @@
 //! `ciflow/LimitCycle-v0`: seeding, the expert, options and rendering.
 
+use ciflow_envs::planar::PlanarEnv;
 use ciflow_envs::rollout::expert_episode;
 use ciflow_envs::tasks::limit_cycle::{
-    self, HELD_OUT_CONTEXTS, SUCCESS_DISTANCE, TRAINING_CONTEXTS,
+    self, HELD_OUT_CONTEXTS, LimitCycle, SUCCESS_DISTANCE, TRAINING_CONTEXTS,
 };
 use ciflow_envs::{Env, EnvError, ResetOptions};
 
@@ -36,6 +37,61 @@ fn default_contexts_are_the_training_phases_and_held_out_ones_differ() {
             .reset(Some(seed), &options_with("context_set", 1.0))
             .unwrap();
         assert!(HELD_OUT_CONTEXTS.contains(&obs[4]));
+    }
+}
+
+#[test]
+fn consecutive_seeds_demonstrate_every_phase_once_and_unseeded_resets_continue() {
+    let mut env = limit_cycle::make().unwrap();
+    let phase = |env: &mut PlanarEnv<LimitCycle>, seed, set: f64| {
+        env.reset(seed, &options_with("context_set", set))
+            .unwrap()
+            .0[4]
+    };
+    for (set, phases) in [(0.0, &TRAINING_CONTEXTS[..]), (1.0, &HELD_OUT_CONTEXTS[..])] {
+        let n = phases.len() as u64;
+        for first in [0, 7, 1_000_003] {
+            let seen: Vec<f64> = (first..first + n)
+                .map(|seed| phase(&mut env, Some(seed), set))
+                .collect();
+            let mut sorted = seen.clone();
+            sorted.sort_by(f64::total_cmp);
+            assert_eq!(sorted, phases, "seeds {first}..: {seen:?}");
+            // A seeded reset followed by unseeded ones walks the same schedule.
+            let walked: Vec<f64> = std::iter::once(phase(&mut env, Some(first), set))
+                .chain((1..n).map(|_| phase(&mut env, None, set)))
+                .collect();
+            assert_eq!(walked, seen);
+        }
+    }
+}
+
+#[test]
+fn the_registered_reference_curve_is_the_closed_outline_of_the_phase() {
+    let curve = ciflow_envs::registry::entry("limit-cycle")
+        .unwrap()
+        .reference_curve
+        .expect("the limit cycle has an outline");
+    for phase in [0.0, 0.5, 1.0] {
+        let points = curve(&[phase]);
+        assert!(points.len() > 100);
+        assert_eq!(points.first(), points.last());
+        let outline = ciflow_envs::vitruvian::Outline::new(phase);
+        for p in &points {
+            let error = outline.radial_error(&nalgebra::Vector2::new(p[0], p[1]));
+            assert!(error.abs() < 1e-12, "{phase}: {p:?} is {error} off");
+        }
+        // Another phase's outline is another curve.
+        let other = ciflow_envs::vitruvian::Outline::new(1.0 - phase);
+        let farthest = points
+            .iter()
+            .map(|p| {
+                other
+                    .radial_error(&nalgebra::Vector2::new(p[0], p[1]))
+                    .abs()
+            })
+            .fold(0.0, f64::max);
+        assert!(phase == 0.5 || farthest > 0.05, "{phase}: {farthest}");
     }
 }
 

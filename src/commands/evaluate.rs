@@ -25,7 +25,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 use super::demos::{parse_key_value, task_values};
-use super::train::random_subset;
+use super::train::subset;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum PerturbArg {
@@ -243,7 +243,8 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
         let (_, mut episodes) = dataset::read(dataset_dir)
             .with_context(|| format!("reading {}", dataset_dir.display()))?;
         if let Some(count) = args.nll_subset {
-            episodes = random_subset(episodes, count, args.seed).context("--nll-subset")?;
+            episodes =
+                subset(episodes, count, args.seed, |e| &e.contexts[0]).context("--nll-subset")?;
         }
         let nll = log_likelihood(flow(&model)?, &episodes)?;
         println!(
@@ -292,7 +293,12 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
             rollout_steps: args.field_steps,
             latent_lines: args.field_lines,
         };
-        let report = field(flow(&model)?, &config, &demonstrations)?;
+        let mut report = field(flow(&model)?, &config, &demonstrations)?;
+        if let Some(curve) = registry::entry(model.task())?.reference_curve {
+            for f in &mut report.fields {
+                f.reference = Some(curve(&f.context));
+            }
+        }
         write_json(out, &report)?;
         println!(
             "wrote {}: {} contexts, window {:?}",

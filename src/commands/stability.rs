@@ -2,6 +2,10 @@
 //! its attractor from random starts far outside the demonstrations (observation space,
 //! random contexts). Flows must print 100%; the behaviour-cloning baseline need not.
 //!
+//! With `--negative-control` the check also runs on the same flow with its latent run
+//! backwards in time (`Policy::time_reversed`), a model of the same class whose attractor
+//! repels: the check must flag at least 99% of its rollouts, or the command fails.
+//!
 //! With `--robot-loop` a flow is also run through the computed-torque simulator of its
 //! robot (`flow::robot_loop`): the Panda with its real torque and rate limits for 7-D
 //! policies, from starts uniform inside the joint limits; a point mass for 2-D ones, from
@@ -41,6 +45,10 @@ pub struct StabilityArgs {
     pub max_steps: usize,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Also check the flow with its latent run backwards in time, which must fail the
+    /// check (flows only).
+    #[arg(long)]
+    pub negative_control: bool,
     /// Also drive the robot through the computed-torque layer (flows only).
     #[arg(long)]
     pub robot_loop: bool,
@@ -59,6 +67,8 @@ pub struct StabilityArgs {
 #[derive(Serialize)]
 struct Report {
     observation_space: StabilityReport,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    negative_control: Option<StabilityReport>,
     #[serde(skip_serializing_if = "Option::is_none")]
     robot_loop: Option<RobotLoopReport>,
 }
@@ -123,6 +133,20 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
         Model::Baseline(baseline) => measure(baseline.as_ref(), &config, tick)?,
     };
     bar.finish_and_clear();
+    let negative_control = match (args.negative_control, &model) {
+        (false, _) => None,
+        (true, Model::Baseline(_)) => {
+            anyhow::bail!("--negative-control needs a flow checkpoint")
+        }
+        (true, Model::Flow(policy)) => {
+            let bar = rollout_bar(args.starts, "negative control");
+            let report = measure(&policy.time_reversed(), &config, |done| {
+                bar.set_position(done as u64)
+            })?;
+            bar.finish_and_clear();
+            Some(report)
+        }
+    };
     let robot_loop = match (args.robot_loop, &model) {
         (false, _) => None,
         (true, Model::Baseline(_)) => anyhow::bail!(
@@ -148,10 +172,11 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
     if args.json {
         let report = Report {
             observation_space,
+            negative_control: negative_control.clone(),
             robot_loop: robot_loop.map(|(report, _)| report),
         };
         println!("{}", serde_json::to_string_pretty(&report)?);
-        return Ok(());
+        return check_negative_control(negative_control.as_ref());
     }
     let report = &observation_space;
     println!(
@@ -165,6 +190,15 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
         args.max_steps,
         report.diverged_to_non_finite,
     );
+    if let Some(report) = &negative_control {
+        println!(
+            "negative control (the same flow, its latent run backwards): {:.1}% flagged \
+             ({} of {} did not converge)",
+            100.0 * (1.0 - report.fraction),
+            report.rollouts - report.converged,
+            report.rollouts,
+        );
+    }
     if let Some((report, config)) = robot_loop {
         println!(
             "robot loop: {:.1}% ({}/{} computed-torque rollouts converged within {:.3e} in {} s; \
@@ -178,5 +212,21 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
             report.hit_end_stops,
         );
     }
-    Ok(())
+    check_negative_control(negative_control.as_ref())
+}
+
+/// The share of the negative control's rollouts the check must flag.
+const NEGATIVE_CONTROL_FLAGGED: f64 = 0.99;
+
+/// Fails unless the check flagged the negative control's rollouts.
+fn check_negative_control(report: Option<&StabilityReport>) -> anyhow::Result<()> {
+    match report {
+        Some(report) if 1.0 - report.fraction < NEGATIVE_CONTROL_FLAGGED => anyhow::bail!(
+            "the stability check missed its negative control: {} of {} rollouts of the \
+             time-reversed flow counted as converged",
+            report.converged,
+            report.rollouts
+        ),
+        _ => Ok(()),
+    }
 }

@@ -135,6 +135,8 @@ pub struct LatentDynamics {
     /// The saturated go-to's `Ω` and `e^{Ω dt}` (`d × d`; empty for the other kinds).
     rotation: DMatrix<f64>,
     turn: DMatrix<f64>,
+    /// `+1`, or `−1` for the dynamics run backwards in time ([`Self::time_reversed`]).
+    direction: f64,
 }
 
 /// `A = -(F Fᵀ + ε I) + (W_l - W_lᵀ)`.
@@ -222,7 +224,27 @@ impl LatentDynamics {
             saturation,
             rotation,
             turn,
+            direction: 1.0,
         })
+    }
+
+    /// The same dynamics run backwards in time, `t → −t`: the attractor repels and every
+    /// mode that converged diverges (the linear part's eigenvalues flip sign, the cycle
+    /// and the saturated radius are left at the rates they were approached; inside the
+    /// cycle the radius shrinks to the origin, where the field is singular). A flow with
+    /// this latent is a trained model of the same class with its stability removed: the
+    /// stability check's negative control. Nothing trains or saves it.
+    pub fn time_reversed(&self) -> Self {
+        let exp = |generator: &DMatrix<f64>| match generator.is_empty() {
+            true => DMatrix::zeros(0, 0),
+            false => (generator * -self.dt).exp(),
+        };
+        Self {
+            transition: exp(&self.rate_matrix),
+            turn: exp(&self.rotation),
+            direction: -self.direction,
+            ..self.clone()
+        }
     }
 
     pub fn kind(&self) -> LatentKind {
@@ -259,7 +281,13 @@ impl LatentDynamics {
 
     /// Noise-free step `out = μ(z)`, with the matrices precomputed for `dt`.
     pub fn mean_step(&self, z: &[f64], out: &mut [f64]) {
-        self.flow(z, self.dt, &self.transition, &self.turn, out);
+        self.flow(
+            z,
+            self.direction * self.dt,
+            &self.transition,
+            &self.turn,
+            out,
+        );
     }
 
     /// The exact noise-free `k`-step map `out = μ^k(z)`.
@@ -273,6 +301,7 @@ impl LatentDynamics {
     /// The exact noise-free flow over `seconds` (any duration, not only whole steps):
     /// `μ^k = ` this at `k dt`. Allocates the matrix exponentials it needs.
     pub fn mean_after(&self, z: &[f64], seconds: f64, out: &mut [f64]) {
+        let seconds = self.direction * seconds;
         let exp = |generator: &DMatrix<f64>| match generator.is_empty() {
             true => DMatrix::zeros(0, 0),
             false => (generator * seconds).exp(),
@@ -330,7 +359,7 @@ impl LatentDynamics {
                 for (j, &v) in z.iter().enumerate() {
                     turning += v * self.rotation[(i, j)];
                 }
-                *o = turning - z[i] * gain;
+                *o = (turning - z[i] * gain) * self.direction;
             }
             return;
         }
@@ -339,8 +368,8 @@ impl LatentDynamics {
             let rho = (z[0] * z[0] + z[1] * z[1]).sqrt();
             let psi = z[1].atan2(z[0]);
             let rho_dot = (rho + (-cycle.radius)) * cycle.rate;
-            out[0] = rho_dot * psi.cos() - z[1] * cycle.omega;
-            out[1] = rho_dot * psi.sin() + z[0] * cycle.omega;
+            out[0] = (rho_dot * psi.cos() - z[1] * cycle.omega) * self.direction;
+            out[1] = (rho_dot * psi.sin() + z[0] * cycle.omega) * self.direction;
         }
         let r = self.rate_matrix.nrows();
         for i in 0..r {
@@ -348,7 +377,7 @@ impl LatentDynamics {
             for j in 0..r {
                 acc += z[s + j] * self.rate_matrix[(i, j)];
             }
-            out[s + i] = acc;
+            out[s + i] = acc * self.direction;
         }
     }
 

@@ -75,6 +75,16 @@ impl Policy {
         self.flow.config()
     }
 
+    /// This flow with its latent run backwards in time
+    /// ([`LatentDynamics::time_reversed`]): the stability check's negative control, of
+    /// the same class as the policy it checks.
+    pub fn time_reversed(&self) -> Self {
+        Self {
+            flow: self.flow.clone(),
+            latent: self.latent.time_reversed(),
+        }
+    }
+
     pub fn network(&self) -> &ConditionalFlow {
         &self.flow
     }

@@ -1,42 +1,43 @@
-//! Radial contractions about points of the context (obstacle centres), applied to the
-//! observation before the network: `f(z, c) = P_c⁻¹(f₀(z, c))`.
+//! Radial contractions about the points of a context set (obstacle centres), applied to
+//! the observation before the network: `f(z, c) = P_c⁻¹(f₀(z, c))`.
 //!
-//! For a centre `o`, strength `α ∈ (0, 1)` and width `w > 0`, one contraction is
+//! One layer contracts about all `K` centres `o_i` at once, with strength `α ∈ (0, 1)`
+//! shared by the centres and width `w > 0`:
 //!
-//! `P(y) = o + s(q) (y − o)`, `q = ‖y − o‖²`, `s(q) = 1 − α / (1 + t)`, `t = (q / w²)^m`.
+//! `P(y) = y − Σ_i (1 − s(q_i)) (y − o_i)`, `q_i = ‖y − o_i‖²`,
+//! `s(q) = 1 − (α / K) / (1 + t)`, `t = (q / w²)^m`.
 //!
-//! It pulls the space within about `w` of `o` towards `o` (`s(0) = 1 − α`) and leaves the
-//! rest alone (`s → 1`). Distances from `o` map by `k(r) = r s(r²)`, whose slope
+//! About an isolated centre it pulls the space within about `w` towards the centre
+//! (distances shrink by up to `1 − α / K`) and leaves the rest alone (`s → 1`).
 //!
-//! `k'(r) = s + 2q s'(q) = 1 − α (1 − (2m − 1) t) / (1 + t)²`
+//! **A diffeomorphism for every context.** `P = ∇Φ` with `Φ(y) = ‖y‖²/2 − Σ_i G(q_i)`,
+//! `G' = (1 − s) / 2`, and its Jacobian, the Hessian of `Φ`,
 //!
-//! never falls below `1 − α > 0`; `s` is a polynomial in `q` over one, so `P` is a smooth
-//! bijection of ℝᵈ with a smooth inverse for every weight value, with
+//! `J = ∂P/∂y = I − Σ_i D_i`, `D_i = (1 − s_i) I − 2 s'(q_i) v_i v_iᵀ`, `v_i = y − o_i`,
 //!
-//! `log|det ∂P/∂y| = log k'(r) + (d − 1) log s`, `∂P/∂y = s I + 2 s'(q) (y − o)(y − o)ᵀ`.
+//! is symmetric. `D_i` has the eigenvalue `1 − s_i = (α/K) / (1 + t_i)` across `v_i` and
+//! `1 − k'(r_i) = (α/K) (1 − (2m − 1) t_i) / (1 + t_i)²` along it (`k(r) = r s(r²)`, the
+//! radial profile); both are at most `α / K`, so `J ⪰ (1 − α) I` wherever the centres
+//! are, even all in one point. `Φ` is then strongly convex and `P`, its gradient, a
+//! smooth bijection of ℝᵈ with a smooth inverse, with `log|det ∂P/∂y| = log det J`.
+//! A stack of such layers is one too, so `f(·, c)` stays a diffeomorphism for every
+//! context and the latent system's stability carries over untouched.
 //!
-//! **Why.** `P_c` is the composition over `layers` of one contraction per centre of the
-//! context set, so `f(·, c)` stays a diffeomorphism for every context and the latent
-//! system's stability carries over untouched. A latent path that passes a contracted
-//! centre at distance `ρ` passes the obstacle itself at `k⁻¹(ρ) ≫ ρ`: straight latent
-//! paths bend around obstacles the way the demonstrations do, wherever the context puts
-//! them, and only the thin bundle within `k(R)` of a centre comes closer than `R`. The
-//! conditioners would otherwise have to learn from the context alone a deformation that
-//! is local around each obstacle; a coupling layer deforms whole lines of its input.
-//! `α` and `w` (in units of the configured `radius`) are learned per layer, shared by the
-//! centres, which are interchangeable.
+//! **Invariant and continuous.** The centres enter through a sum: `P` does not depend on
+//! their order, and it is smooth in every centre (no sorting, no order of application).
 //!
-//! **Order.** Each layer composes its centres' contractions in the order the context gives
-//! them: continuous in every centre (no re-sorting, so no jump where two centres' keys
-//! cross), but not invariant to the order of the centres, since contractions about
-//! different points do not commute. Contractions about well-separated centres nearly
-//! do; the set encoder and the couplings' local features ([`super::conditioner`]) are
-//! exactly invariant.
+//! **Why.** A latent path that passes a contracted centre at distance `ρ` passes the
+//! obstacle itself at `k⁻¹(ρ) ≫ ρ`: straight latent paths bend around obstacles the way
+//! the demonstrations do, wherever the context puts them. The conditioners would
+//! otherwise have to learn from the context alone a deformation that is local around
+//! each obstacle; a coupling layer deforms whole lines of its input. `α` and `w` (in
+//! units of the configured `radius`) are learned per layer.
 //!
-//! `P⁻¹` has no closed form: `q` solves `q s(q)² = ‖u − o‖²` (increasing in `q`, root
-//! bracketed by `[ρ², ρ² / (1 − α)²]`), found by safeguarded Newton in `f64` and then
-//! refined by two Newton steps in the caller's scalar type, which makes first and second
-//! derivatives through the root exact (each step squares the error's order).
+//! `P⁻¹(u)` has no closed form: it minimises the strongly convex `Φ(y) − u·y`, found by
+//! Newton's method on `P(y) − u` (its direction `−J⁻¹ r` always decreases `‖r‖`), with
+//! backtracking, in `f64`, then refined by two Newton steps in the caller's scalar type,
+//! which makes first and second derivatives through the root exact (each step squares
+//! the error's order).
 
 use serde::{Deserialize, Serialize};
 
@@ -45,12 +46,16 @@ use super::error::{FlowResult, invalid};
 use super::scalar::Scalar;
 use super::weights::Weights;
 
+/// The largest point dimension `d` contracted about: `J` is factored in a `d × d` array on
+/// the stack (obstacles are planar or spatial).
+pub const MAX_CENTRE_DIM: usize = 3;
+
 /// Which context points the observation is contracted about, and how.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ContractionConfig {
     /// The centres: `count` points of `size = d` entries (raw units) in the context.
     pub centres: ContextSet,
-    /// Contractions per centre, each with its own `α` and `w`.
+    /// Layers, each contracting about every centre with its own `α` and `w`.
     pub layers: usize,
     /// `m` of the profile `t = (q / w²)^m`: the larger, the sharper its edge.
     pub exponent: u32,
@@ -67,6 +72,13 @@ impl ContractionConfig {
                  inside the {context_dim}-D context"
             )));
         }
+        if set.size > MAX_CENTRE_DIM {
+            return Err(invalid(format!(
+                "contractions work on points of at most {MAX_CENTRE_DIM} dimensions, \
+                 not {}",
+                set.size
+            )));
+        }
         if self.layers == 0 || self.exponent == 0 {
             return Err(invalid("contractions need layers and exponent >= 1".into()));
         }
@@ -79,78 +91,116 @@ impl ContractionConfig {
     /// Parameter names and shapes of layer `l`: `α = sigmoid(strength)`,
     /// `w = radius · exp(width)`.
     pub fn parameter_names(l: usize) -> [String; 2] {
-        [
-            format!("contraction.{l}.strength"),
-            format!("contraction.{l}.width"),
-        ]
+        [format!("radial.{l}.strength"), format!("radial.{l}.width")]
     }
 }
 
-/// One profile `s(q) = 1 − α / (1 + (q / w²)^m)`.
+/// One layer's profile `s(q) = 1 − β / (1 + (q / w²)^m)`, `β = α / K` per centre.
 #[derive(Clone, Copy, Debug)]
 struct Profile {
-    alpha: f64,
+    beta: f64,
     inverse_width_sq: f64,
     exponent: u32,
 }
 
-/// `s`, `k'` and `s'(q)` at one `q`.
-struct Slopes<S> {
-    scale: S,
-    radial: S,
-    scale_derivative: S,
-}
-
 impl Profile {
-    fn slopes<S: Scalar>(&self, q: S) -> Slopes<S> {
+    /// `(1 − s(q), s'(q))`.
+    fn pull<S: Scalar>(&self, q: S) -> (S, S) {
         let x = q * self.inverse_width_sq;
         // `x^{m-1}` by repeated products: `m` is a small integer and `x` may be 0.
         let power_below = (1..self.exponent).fold(S::constant(1.0), |p, _| p * x);
-        let t = power_below * x;
-        let denominator = t + 1.0;
+        let denominator = power_below * x + 1.0;
         let m = f64::from(self.exponent);
-        Slopes {
-            scale: S::constant(1.0) - S::constant(self.alpha) / denominator,
-            radial: S::constant(1.0)
-                - (S::constant(1.0) - t * (2.0 * m - 1.0)) * self.alpha
-                    / (denominator * denominator),
-            scale_derivative: power_below * (self.alpha * m * self.inverse_width_sq)
-                / (denominator * denominator),
+        (
+            S::constant(self.beta) / denominator,
+            power_below * (self.beta * m * self.inverse_width_sq) / (denominator * denominator),
+        )
+    }
+}
+
+/// A symmetric `d × d` matrix factored as `L D Lᵀ` in place (`d ≤ MAX_CENTRE_DIM`).
+struct Symmetric<S> {
+    d: usize,
+    a: [[S; MAX_CENTRE_DIM]; MAX_CENTRE_DIM],
+}
+
+impl<S: Scalar> Symmetric<S> {
+    /// Factors `A = L D Lᵀ` (unit lower `L` below the diagonal, `D` on it); returns
+    /// `log det A`. `A` is positive definite here (`J ⪰ (1 − α) I`), so no pivoting.
+    fn factor(&mut self) -> S {
+        let d = self.d;
+        let mut log_det = S::constant(0.0);
+        for j in 0..d {
+            for k in 0..j {
+                let ljk_dk = self.a[j][k] * self.a[k][k];
+                for i in j..d {
+                    self.a[i][j] = self.a[i][j] - self.a[i][k] * ljk_dk;
+                }
+            }
+            let pivot = self.a[j][j];
+            for i in j + 1..d {
+                self.a[i][j] = self.a[i][j] / pivot;
+            }
+            log_det += pivot.ln();
         }
+        log_det
     }
 
-    /// `q s(q)² − ρ²` and its derivative `s k'` in `q`.
-    fn residual<S: Scalar>(&self, q: S, rho_sq: S) -> (S, S) {
-        let Slopes { scale, radial, .. } = self.slopes(q);
-        (q * scale * scale - rho_sq, scale * radial)
+    /// `b ← A⁻¹ b` after [`factor`](Self::factor).
+    fn solve(&self, b: &mut [S]) {
+        let d = self.d;
+        for i in 0..d {
+            for k in 0..i {
+                b[i] = b[i] - b[k] * self.a[i][k];
+            }
+        }
+        for (i, bi) in b.iter_mut().enumerate().take(d) {
+            *bi = *bi / self.a[i][i];
+        }
+        for i in (0..d).rev() {
+            for k in i + 1..d {
+                b[i] = b[i] - b[k] * self.a[k][i];
+            }
+        }
     }
+}
 
-    /// The `q` with `q s(q)² = ρ²`.
-    fn solve(&self, rho_sq: f64) -> f64 {
-        if rho_sq == 0.0 {
-            return 0.0;
+/// Newton steps of the inverse in `f64` (each at least halves `‖P(y) − u‖` once Newton's
+/// quadratic phase begins; backtracking keeps every step a decrease).
+const INVERSE_STEPS: usize = 100;
+
+/// `P(y)` of one layer about `centres` (the points back to back) into `out`, and its
+/// Jacobian `J`.
+fn layer<S: Scalar>(profile: &Profile, centres: &[f64], y: &[S], out: &mut [S]) -> Symmetric<S> {
+    let d = y.len();
+    let mut jacobian = Symmetric {
+        d,
+        a: [[S::constant(0.0); MAX_CENTRE_DIM]; MAX_CENTRE_DIM],
+    };
+    out.copy_from_slice(y);
+    let mut diagonal = S::constant(1.0);
+    for centre in centres.chunks_exact(d) {
+        let mut v = [S::constant(0.0); MAX_CENTRE_DIM];
+        for (vi, (&yi, &o)) in v.iter_mut().zip(y.iter().zip(centre)) {
+            *vi = yi + (-o);
         }
-        let (mut low, mut high) = (rho_sq, rho_sq / ((1.0 - self.alpha) * (1.0 - self.alpha)));
-        let mut q = low;
-        for _ in 0..200 {
-            let (h, slope) = self.residual(q, rho_sq);
-            if h.abs() <= 4.0 * f64::EPSILON * rho_sq {
-                break;
+        let q = v[..d]
+            .iter()
+            .fold(S::constant(0.0), |acc, &vi| acc + vi * vi);
+        let (pull, slope) = profile.pull(q);
+        diagonal = diagonal - pull;
+        let twice_slope = slope * 2.0;
+        for i in 0..d {
+            out[i] = out[i] - pull * v[i];
+            for k in 0..d {
+                jacobian.a[i][k] += twice_slope * v[i] * v[k];
             }
-            if h < 0.0 {
-                low = q;
-            } else {
-                high = q;
-            }
-            let newton = q - h / slope;
-            q = if newton > low && newton < high {
-                newton
-            } else {
-                0.5 * (low + high)
-            };
         }
-        q
     }
+    for i in 0..d {
+        jacobian.a[i][i] += diagonal;
+    }
+    jacobian
 }
 
 /// `P_c` of a trained flow (see the module docs).
@@ -160,11 +210,12 @@ pub struct RadialContractions {
     profiles: Vec<Profile>,
 }
 
-/// The offsets `y − o` each contraction of an [`apply_recorded`](RadialContractions::
-/// apply_recorded) pass met, in order: what `∂P/∂y` needs.
+/// The centres and the input `y` of every layer of an [`apply_recorded`](
+/// RadialContractions::apply_recorded) pass, in order: what `∂P/∂y` needs.
 #[derive(Clone, Debug, Default)]
 pub struct ContractionTape {
-    offsets: Vec<f64>,
+    centres: Vec<f64>,
+    inputs: Vec<f64>,
 }
 
 impl RadialContractions {
@@ -175,15 +226,16 @@ impl RadialContractions {
                 let strength = weights.take(&strength, &[1])?[0];
                 let width = config.radius * weights.take(&width, &[1])?[0].exp();
                 Ok(Profile {
-                    alpha: 1.0 / (1.0 + (-strength).exp()),
+                    beta: 1.0 / (1.0 + (-strength).exp()) / config.centres.count as f64,
                     inverse_width_sq: 1.0 / (width * width),
                     exponent: config.exponent,
                 })
             })
             .collect::<FlowResult<Vec<_>>>()?;
+        let count = config.centres.count as f64;
         if profiles
             .iter()
-            .any(|p| !(p.alpha < 1.0 && p.inverse_width_sq.is_finite()))
+            .any(|p| !(p.beta * count < 1.0 && p.inverse_width_sq.is_finite()))
         {
             return Err(invalid(
                 "contraction strength or width out of range (α must stay below 1)".into(),
@@ -199,92 +251,125 @@ impl RadialContractions {
         &self.config
     }
 
-    /// The contractions in order of application, each with its centre from `centres`
-    /// (the points back to back).
-    fn applications<'a>(
-        &'a self,
-        centres: &'a [f64],
-    ) -> impl DoubleEndedIterator<Item = (&'a Profile, &'a [f64])> + 'a {
-        let d = self.config.centres.size;
-        self.profiles
-            .iter()
-            .flat_map(move |p| centres.chunks_exact(d).map(move |o| (p, o)))
-    }
-
     /// `y ← P(y)`; returns `log|det ∂P/∂y|`.
     pub fn apply<S: Scalar>(&self, centres: &[f64], y: &mut [S]) -> S {
         let mut log_det = S::constant(0.0);
-        for (profile, centre) in self.applications(centres) {
-            log_det += contract(profile, centre, y);
+        let mut out = [S::constant(0.0); MAX_CENTRE_DIM];
+        let out = &mut out[..y.len()];
+        for profile in &self.profiles {
+            log_det += layer(profile, centres, y, out).factor();
+            y.copy_from_slice(out);
         }
         log_det
     }
 
-    /// `y ← P(y)`, recording the offsets into `tape`.
+    /// `y ← P(y)`, recording every layer's input into `tape`.
     pub fn apply_recorded(&self, centres: &[f64], y: &mut [f64], tape: &mut ContractionTape) {
-        tape.offsets.clear();
-        for (profile, centre) in self.applications(centres) {
-            tape.offsets
-                .extend(y.iter().zip(centre).map(|(yi, o)| yi - o));
-            contract(profile, centre, y);
+        tape.centres.clear();
+        tape.centres.extend_from_slice(centres);
+        tape.inputs.clear();
+        let mut out = [0.0; MAX_CENTRE_DIM];
+        let out = &mut out[..y.len()];
+        for profile in &self.profiles {
+            tape.inputs.extend_from_slice(y);
+            layer(profile, centres, y, out);
+            y.copy_from_slice(out);
         }
     }
 
     /// `u ← P⁻¹(u)`; returns `log|det ∂P⁻¹/∂u|`.
     pub fn invert<S: Scalar>(&self, centres: &[f64], u: &mut [S]) -> S {
+        let d = u.len();
         let mut log_det = S::constant(0.0);
-        let d = u.len() as f64;
-        for (profile, centre) in self.applications(centres).rev() {
-            let rho_sq = distance_sq(u, centre);
-            let mut q = S::constant(profile.solve(rho_sq.value()));
+        let mut image = [S::constant(0.0); MAX_CENTRE_DIM];
+        let image = &mut image[..d];
+        for profile in self.profiles.iter().rev() {
+            let mut target = [0.0; MAX_CENTRE_DIM];
+            for (t, x) in target.iter_mut().zip(u.iter()) {
+                *t = x.value();
+            }
+            let mut y = [S::constant(0.0); MAX_CENTRE_DIM];
+            let y = &mut y[..d];
+            for (yi, x) in y
+                .iter_mut()
+                .zip(solve_layer(profile, centres, &target[..d]))
+            {
+                *yi = S::constant(x);
+            }
             for _ in 0..2 {
-                let (h, slope) = profile.residual(q, rho_sq);
-                q = q - h / slope;
+                let mut jacobian = layer(profile, centres, y, image);
+                jacobian.factor();
+                for (r, &x) in image.iter_mut().zip(u.iter()) {
+                    *r = *r - x;
+                }
+                jacobian.solve(image);
+                for (yi, &step) in y.iter_mut().zip(image.iter()) {
+                    *yi = *yi - step;
+                }
             }
-            let Slopes { scale, radial, .. } = profile.slopes(q);
-            for (ui, &o) in u.iter_mut().zip(centre) {
-                *ui = (*ui + (-o)) / scale + o;
-            }
-            log_det = log_det - radial.ln() - scale.ln() * (d - 1.0);
+            log_det = log_det - layer(profile, centres, y, image).factor();
+            u.copy_from_slice(y);
         }
         log_det
     }
 
-    /// `du ← (∂P/∂y)⁻¹ du` at the recorded `y`: through each contraction in reverse
-    /// order, `(s I + β v vᵀ)⁻¹ = (I − β v vᵀ / k') / s` with `v = y − o`, `β = 2 s'(q)`.
+    /// `du ← (∂P/∂y)⁻¹ du` at the recorded `y`: through each layer in reverse order,
+    /// `J⁻¹ du` with `J` at that layer's input.
     pub fn tangent(&self, tape: &ContractionTape, du: &mut [f64]) {
         let d = du.len();
-        for (a, v) in tape.offsets.chunks_exact(d).enumerate().rev() {
-            let profile = &self.profiles[a / self.config.centres.count];
-            let q: f64 = v.iter().map(|x| x * x).sum();
-            let slopes = profile.slopes(q);
-            let v_dot_du: f64 = v.iter().zip(&*du).map(|(a, b)| a * b).sum();
-            let along = 2.0 * slopes.scale_derivative * v_dot_du / slopes.radial;
-            for (x, vi) in du.iter_mut().zip(v) {
-                *x = (*x - along * vi) / slopes.scale;
-            }
+        let mut image = [0.0; MAX_CENTRE_DIM];
+        let image = &mut image[..d];
+        let layers = self.profiles.iter().zip(tape.inputs.chunks_exact(d));
+        for (profile, y) in layers.rev() {
+            let mut jacobian = layer(profile, &tape.centres, y, image);
+            jacobian.factor();
+            jacobian.solve(du);
         }
     }
 }
 
-/// `‖x − o‖²`.
-fn distance_sq<S: Scalar>(x: &[S], centre: &[f64]) -> S {
-    x.iter()
-        .zip(centre)
-        .fold(S::constant(0.0), |acc, (&xi, &o)| {
-            let v = xi + (-o);
-            acc + v * v
-        })
-}
-
-/// One contraction about `centre`, in place; returns `log|det ∂P/∂y|`.
-fn contract<S: Scalar>(profile: &Profile, centre: &[f64], y: &mut [S]) -> S {
-    let q = distance_sq(y, centre);
-    let Slopes { scale, radial, .. } = profile.slopes(q);
-    for (yi, &o) in y.iter_mut().zip(centre) {
-        *yi = (*yi + (-o)) * scale + o;
+/// The `y` with `P(y) = u` for one layer, in `f64` (see the module docs).
+fn solve_layer(profile: &Profile, centres: &[f64], u: &[f64]) -> [f64; MAX_CENTRE_DIM] {
+    let d = u.len();
+    let residual = |y: &[f64], image: &mut [f64]| -> (Symmetric<f64>, f64) {
+        let jacobian = layer(profile, centres, y, image);
+        let mut norm = 0.0;
+        for (p, &x) in image.iter_mut().zip(u) {
+            *p -= x;
+            norm += *p * *p;
+        }
+        (jacobian, norm)
+    };
+    let scale: f64 = u.iter().map(|x| x * x).sum::<f64>() + 1.0;
+    let mut y = [0.0; MAX_CENTRE_DIM];
+    y[..d].copy_from_slice(u);
+    let mut r = [0.0; MAX_CENTRE_DIM];
+    let (mut jacobian, mut norm) = residual(&y[..d], &mut r[..d]);
+    for _ in 0..INVERSE_STEPS {
+        if norm <= (4.0 * f64::EPSILON).powi(2) * scale {
+            break;
+        }
+        jacobian.factor();
+        let mut step = r;
+        jacobian.solve(&mut step[..d]);
+        let mut length = 1.0;
+        loop {
+            let mut trial = y;
+            for (t, s) in trial[..d].iter_mut().zip(&step[..d]) {
+                *t -= length * s;
+            }
+            let mut trial_r = [0.0; MAX_CENTRE_DIM];
+            let (trial_jacobian, trial_norm) = residual(&trial[..d], &mut trial_r[..d]);
+            // Newton's direction decreases ‖r‖² at the rate 2‖r‖²: accept any decrease,
+            // halving until there is one (or the step no longer moves `y`).
+            if trial_norm < norm || length < 1e-12 {
+                (y, r, jacobian, norm) = (trial, trial_r, trial_jacobian, trial_norm);
+                break;
+            }
+            length *= 0.5;
+        }
     }
-    radial.ln() + scale.ln() * (y.len() as f64 - 1.0)
+    y
 }
 
 #[cfg(test)]
@@ -292,8 +377,9 @@ mod tests {
     use super::*;
     use crate::flow::scalar::Dual;
 
-    /// Two layers about two centres in the plane; the first strongly contracting.
-    fn contractions() -> (RadialContractions, Vec<f64>) {
+    /// Two layers about two centres in the plane, the first strongly contracting; the
+    /// centres `far` apart.
+    fn contractions(far: f64) -> (RadialContractions, Vec<f64>) {
         let config = ContractionConfig {
             centres: ContextSet {
                 start: 0,
@@ -306,28 +392,25 @@ mod tests {
         };
         let mut weights = Weights::default();
         for (l, (strength, width)) in [(5.0, 0.3), (-1.0, -0.5)].into_iter().enumerate() {
-            let [s, w] = ContractionConfig::parameter_names(l);
-            weights.insert(
-                s,
-                crate::flow::Tensor {
-                    shape: vec![1],
-                    data: vec![strength],
-                },
-            );
-            weights.insert(
-                w,
-                crate::flow::Tensor {
-                    shape: vec![1],
-                    data: vec![width],
-                },
-            );
+            for (name, value) in ContractionConfig::parameter_names(l)
+                .into_iter()
+                .zip([strength, width])
+            {
+                weights.insert(
+                    name,
+                    crate::flow::Tensor {
+                        shape: vec![1],
+                        data: vec![value],
+                    },
+                );
+            }
         }
         let contractions = RadialContractions::from_weights(&config, &mut weights).unwrap();
         weights.finish().unwrap();
-        (contractions, vec![0.1, -0.2, 0.45, 0.1])
+        (contractions, vec![0.1, -0.2, 0.1 + far, 0.1])
     }
 
-    /// Points near, on and far from the centres.
+    /// Points near, on and far from the first centre.
     fn points() -> Vec<[f64; 2]> {
         let mut points = vec![[0.1, -0.2], [0.1 + 1e-7, -0.2], [0.45, 0.1], [3.0, -4.0]];
         for i in 0..40 {
@@ -345,44 +428,69 @@ mod tests {
     }
 
     #[test]
-    fn the_strong_layer_contracts_the_disc_about_its_centre() {
-        let (p, centres) = contractions();
-        let alpha = p.profiles[0].alpha;
-        assert!(alpha > 0.99, "{alpha}");
+    fn a_strong_layer_contracts_the_disc_about_an_isolated_centre() {
+        let (p, centres) = contractions(50.0);
+        let centre = [centres[0], centres[1]];
         let profile = p.profiles[0];
-        let distance = |r: f64| r * profile.slopes(r * r).scale;
-        // Within the width the layer shrinks distances to the centre many times.
-        assert!(distance(0.1) < 0.1 * 0.1, "{}", distance(0.1));
-        // Far away it is nearly the identity.
+        let mut out = [0.0; 2];
+        let mut distance = |r: f64| {
+            layer(&profile, &centres, &[centre[0] + r, centre[1]], &mut out);
+            (out[0] - centre[0]).hypot(out[1] - centre[1])
+        };
+        // Within the width distances to the centre shrink by up to `1 − α / K`, `K = 2`.
+        let ratio = distance(0.01) / 0.01;
+        assert!((ratio - (1.0 - profile.beta)).abs() < 1e-6, "{ratio}");
+        assert!(profile.beta > 0.49, "{}", profile.beta);
+        // Far from both centres it is nearly the identity.
         assert!((distance(2.0) - 2.0).abs() < 1e-3);
-        // A contraction fixes its own centre.
-        let mut centre = [centres[0], centres[1]];
-        contract(&profile, &centres[..2], &mut centre);
-        assert_eq!(centre, [centres[0], centres[1]]);
     }
 
     #[test]
-    fn invert_undoes_apply() {
-        let (p, centres) = contractions();
+    fn invert_undoes_apply_even_with_the_centres_on_top_of_each_other() {
+        for far in [0.35, 1e-9, 0.0] {
+            let (p, centres) = contractions(far);
+            for y in points() {
+                let mut back = apply(&p, &centres, y);
+                let log_det_inverse = p.invert(&centres, &mut back);
+                let mut u = y;
+                let log_det = p.apply(&centres, &mut u);
+                assert!(log_det.is_finite(), "{far} {y:?}");
+                assert!(
+                    (back[0] - y[0]).abs() < 1e-12 && (back[1] - y[1]).abs() < 1e-12,
+                    "{far}: {y:?} -> {back:?}"
+                );
+                assert!(
+                    (log_det + log_det_inverse).abs() < 1e-9,
+                    "{log_det} {log_det_inverse}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_order_of_the_centres_does_not_matter() {
+        let (p, centres) = contractions(0.3);
+        let swapped = [centres[2], centres[3], centres[0], centres[1]];
         for y in points() {
-            let mut back = apply(&p, &centres, y);
-            let log_det_inverse = p.invert(&centres, &mut back);
-            let mut u = y;
-            let log_det = p.apply(&centres, &mut u);
-            assert!(
-                (back[0] - y[0]).abs() < 1e-12 && (back[1] - y[1]).abs() < 1e-12,
-                "{y:?} -> {back:?}"
-            );
-            assert!(
-                (log_det + log_det_inverse).abs() < 1e-9,
-                "{log_det} {log_det_inverse}"
-            );
+            let (mut a, mut b) = (y, y);
+            let (log_a, log_b) = (p.apply(&centres, &mut a), p.apply(&swapped, &mut b));
+            assert!((a[0] - b[0]).abs() < 1e-15 && (a[1] - b[1]).abs() < 1e-15);
+            assert!((log_a - log_b).abs() < 1e-13);
+            // Not because the second centre is ignored.
+            let mut alone = y;
+            p.apply(&[centres[0], centres[1], 40.0, 40.0], &mut alone);
+            if (y[0] - 0.4).hypot(y[1] - 0.1) < 0.3 {
+                assert!(
+                    (alone[0] - a[0]).abs() + (alone[1] - a[1]).abs() > 1e-4,
+                    "{y:?}"
+                );
+            }
         }
     }
 
     #[test]
     fn log_determinant_and_inverse_tangent_match_finite_differences() {
-        let (p, centres) = contractions();
+        let (p, centres) = contractions(0.3);
         let h = 1e-6;
         for y in points().into_iter().skip(1) {
             let mut jacobian = nalgebra::Matrix2::zeros();
@@ -412,14 +520,12 @@ mod tests {
             p.tangent(&tape, &mut dy);
             let expected = jacobian.try_inverse().unwrap() * nalgebra::Vector2::from(du);
             let scale = 1.0 + expected.norm();
-            assert!(
-                (dy[0] - expected[0]).abs() < 1e-5 * scale,
-                "{dy:?} {expected:?}"
-            );
-            assert!(
-                (dy[1] - expected[1]).abs() < 1e-5 * scale,
-                "{dy:?} {expected:?}"
-            );
+            for i in 0..2 {
+                assert!(
+                    (dy[i] - expected[i]).abs() < 1e-5 * scale,
+                    "{dy:?} {expected:?}"
+                );
+            }
 
             // The inverse in dual numbers carries the same derivative.
             let mut dual = [Dual::new(u[0], du[0]), Dual::new(u[1], du[1])];
@@ -431,24 +537,21 @@ mod tests {
 
     #[test]
     fn a_strength_that_rounds_to_one_is_refused() {
-        let (p, _) = contractions();
+        let (p, _) = contractions(0.3);
         let mut weights = Weights::default();
         for l in 0..2 {
-            let [s, w] = ContractionConfig::parameter_names(l);
-            weights.insert(
-                s,
-                crate::flow::Tensor {
-                    shape: vec![1],
-                    data: vec![40.0],
-                },
-            );
-            weights.insert(
-                w,
-                crate::flow::Tensor {
-                    shape: vec![1],
-                    data: vec![0.0],
-                },
-            );
+            for (name, value) in ContractionConfig::parameter_names(l)
+                .into_iter()
+                .zip([40.0, 0.0])
+            {
+                weights.insert(
+                    name,
+                    crate::flow::Tensor {
+                        shape: vec![1],
+                        data: vec![value],
+                    },
+                );
+            }
         }
         assert!(RadialContractions::from_weights(p.config(), &mut weights).is_err());
     }

@@ -10,13 +10,13 @@
 //! unconstrained behaviour-cloning MLP used as the stability check's negative control.
 
 pub mod baseline;
-pub mod contraction;
 pub mod data;
 pub mod error;
 pub mod latent;
 pub mod model;
 pub mod nets;
 pub mod optimise;
+pub mod radial;
 pub mod synthetic;
 pub mod trainer;
 

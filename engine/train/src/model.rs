@@ -8,10 +8,10 @@ use ciflow_engine::flow::{ContextSet, FlowConfig};
 use tch::nn;
 use tch::{Device, Kind, Tensor};
 
-use crate::contraction::Contractions;
 use crate::data::Pairs;
 use crate::latent::{LatentInit, LatentModel};
 use crate::nets::{Coupling, CouplingContext, LuMixing, Mlp};
+use crate::radial::Contractions;
 
 #[derive(Debug)]
 pub struct FlowModel {

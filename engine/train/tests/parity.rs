@@ -223,63 +223,67 @@ fn log_determinant_equals_the_autograd_jacobian() {
     }
 }
 
-/// Permuting the set's elements changes neither model, while moving one element does
-/// (the invariance is not the conditioners ignoring the set).
+/// Permuting the set's elements changes neither model (with or without the radial
+/// contractions), while moving one element does (the invariance is not the conditioners
+/// ignoring the set).
 #[test]
 fn context_sets_make_both_models_invariant_to_permutations_of_the_set() {
     let dir = std::env::temp_dir().join(format!("ciflow-sets-{}", std::process::id()));
-    let config = with_obstacle_set(
+    let plain = with_obstacle_set(
         CouplingKind::Spline {
             bins: 6,
             tail_bound: 2.5,
         },
         vec![0, 0],
     );
-    let vs = double_var_store();
-    let model = FlowModel::new(
-        &vs.root(),
-        &config,
-        LatentInit {
-            sigma: 0.1,
-            omega: 1.0,
-            speed: 1.0,
-        },
-    );
-    randomise(&vs, 7);
-    save_checkpoint(&dir, &CheckpointConfig::Flow(config.clone()), &vs).unwrap();
-    let policy = Policy::load(&dir, Some("parity")).unwrap();
-    let mut ws = policy.workspace();
-    let y = [0.4, -0.7];
-    let base = [0.3, 0.9, -0.4, 0.2, 1.1, -1.3, 0.5];
-    let permuted = [0.3, 0.2, 1.1, -1.3, 0.5, 0.9, -0.4];
-    let moved = [0.3, 0.9, -0.4, 0.2, 1.1, -1.3, 0.5 + 0.4];
-    let latent = |c: &[f64; 7]| {
-        let (z, _) = model.inverse(
-            &Tensor::from_slice(&y).reshape([1, 2]),
-            &Tensor::from_slice(c).reshape([1, 7]),
+    // The radial contractions sum over the centres: invariant too.
+    for config in [plain.clone(), contracted(plain)] {
+        let vs = double_var_store();
+        let model = FlowModel::new(
+            &vs.root(),
+            &config,
+            LatentInit {
+                sigma: 0.1,
+                omega: 1.0,
+                speed: 1.0,
+            },
         );
-        let tch = rows(&z).remove(0);
-        let mut rust = vec![0.0; 2];
+        randomise(&vs, 7);
+        save_checkpoint(&dir, &CheckpointConfig::Flow(config.clone()), &vs).unwrap();
+        let policy = Policy::load(&dir, Some("parity")).unwrap();
         let mut ws = policy.workspace();
-        policy.latent_state(&y, c, &mut ws, &mut rust).unwrap();
-        (tch, rust)
-    };
-    let ((tch, rust), (tch_permuted, rust_permuted)) = (latent(&base), latent(&permuted));
-    for j in 0..2 {
-        relative_close(tch[j], tch_permuted[j], "tch f⁻¹ under a permutation");
-        relative_close(rust[j], rust_permuted[j], "rust f⁻¹ under a permutation");
-        relative_close(tch[j], rust[j], "tch vs rust f⁻¹");
-    }
-    let (tch_moved, _) = latent(&moved);
-    assert!((tch_moved[0] - tch[0]).abs() + (tch_moved[1] - tch[1]).abs() > 1e-6);
-    let mut next = vec![0.0; 2];
-    policy.mean_next(&y, &permuted, &mut ws, &mut next).unwrap();
-    let mut next_base = vec![0.0; 2];
-    policy
-        .mean_next(&y, &base, &mut ws, &mut next_base)
-        .unwrap();
-    for j in 0..2 {
-        relative_close(next[j], next_base[j], "mean next state under a permutation");
+        let y = [0.4, -0.7];
+        let base = [0.3, 0.9, -0.4, 0.2, 1.1, -1.3, 0.5];
+        let permuted = [0.3, 0.2, 1.1, -1.3, 0.5, 0.9, -0.4];
+        let moved = [0.3, 0.9, -0.4, 0.2, 1.1, -1.3, 0.5 + 0.4];
+        let latent = |c: &[f64; 7]| {
+            let (z, _) = model.inverse(
+                &Tensor::from_slice(&y).reshape([1, 2]),
+                &Tensor::from_slice(c).reshape([1, 7]),
+            );
+            let tch = rows(&z).remove(0);
+            let mut rust = vec![0.0; 2];
+            let mut ws = policy.workspace();
+            policy.latent_state(&y, c, &mut ws, &mut rust).unwrap();
+            (tch, rust)
+        };
+        let ((tch, rust), (tch_permuted, rust_permuted)) = (latent(&base), latent(&permuted));
+        for j in 0..2 {
+            relative_close(tch[j], tch_permuted[j], "tch f⁻¹ under a permutation");
+            relative_close(rust[j], rust_permuted[j], "rust f⁻¹ under a permutation");
+            relative_close(tch[j], rust[j], "tch vs rust f⁻¹");
+        }
+        let (tch_moved, _) = latent(&moved);
+        assert!((tch_moved[0] - tch[0]).abs() + (tch_moved[1] - tch[1]).abs() > 1e-6);
+        let mut next = vec![0.0; 2];
+        policy.mean_next(&y, &permuted, &mut ws, &mut next).unwrap();
+        let mut next_base = vec![0.0; 2];
+        policy
+            .mean_next(&y, &base, &mut ws, &mut next_base)
+            .unwrap();
+        for j in 0..2 {
+            relative_close(next[j], next_base[j], "mean next state under a permutation");
+        }
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }

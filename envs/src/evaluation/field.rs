@@ -43,6 +43,10 @@ pub struct ContextField {
     pub rollouts: Vec<Vec<[f64; 2]>>,
     /// Images of the latent grid lines (first the lines of constant `z₀`, then of `z₁`).
     pub latent_grid: Vec<Vec<[f64; 2]>>,
+    /// The curve the task's motion should trace for this context, if it has one
+    /// (`TaskEntry::reference_curve`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference: Option<Vec<[f64; 2]>>,
 }
 
 /// A demonstration's positions, with its first context.
@@ -188,6 +192,7 @@ pub fn field(
             velocity_y,
             rollouts,
             latent_grid,
+            reference: None,
         });
     }
     let demonstrations = demonstrations

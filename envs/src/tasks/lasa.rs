@@ -297,7 +297,7 @@ impl PlanarTask for Lasa {
         Ok(())
     }
 
-    fn sample_context(&self, _rng: &mut ChaCha8Rng) -> Vec<f64> {
+    fn sample_context(&mut self, _seed: Option<u64>, _rng: &mut ChaCha8Rng) -> Vec<f64> {
         vec![0.0, 0.0]
     }
 

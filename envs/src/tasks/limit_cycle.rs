@@ -14,9 +14,13 @@
 //! `[x, y, ẋ, ẏ, c]`: position (m), velocity (m/s), the phase `c` (unitless, `[0, 1]`).
 //!
 //! ## Context distribution
-//! Option `context_set`: `0` (default) uniform over the ten training phases
-//! [`TRAINING_CONTEXTS`] `= {0, 1/9, …, 1}`; `1` uniform over the held-out phases
-//! [`HELD_OUT_CONTEXTS`]; `2` uniform on `[0, 1]`. `options.context` sets it directly.
+//! Option `context_set`: `0` (default) the ten training phases [`TRAINING_CONTEXTS`]
+//! `= {0, 0.1, 0.2, 0.3, 0.4, 0.6, 0.7, 0.8, 0.9, 1}`; `1` the held-out phases
+//! [`HELD_OUT_CONTEXTS`] `= {0.25, 0.5, 0.75}`; `2` uniform on `[0, 1]`. The two finite
+//! sets are scheduled, not drawn: a reset with seed `s` takes phase `s mod n` of its set
+//! and each unseeded reset the next one, so the episodes of seeds `s, s + 1, …` (how
+//! `ciflow demos` and `python -m ciflow.record` seed them) demonstrate every phase once
+//! before any repeats. `options.context` sets it directly.
 //!
 //! ## Expert
 //! [`LimitCycleField`] (converge radially, circulate counter-clockwise at 0.8 m/s)
@@ -54,19 +58,9 @@ use crate::space::{BoxSpace, Dtype};
 use crate::vitruvian::Outline;
 
 pub const ID: &str = "ciflow/LimitCycle-v0";
-/// The ten phases demonstrated for training, as in the paper.
-pub const TRAINING_CONTEXTS: [f64; 10] = [
-    0.0,
-    1.0 / 9.0,
-    2.0 / 9.0,
-    3.0 / 9.0,
-    4.0 / 9.0,
-    5.0 / 9.0,
-    6.0 / 9.0,
-    7.0 / 9.0,
-    8.0 / 9.0,
-    1.0,
-];
+/// The ten phases demonstrated for training, as in the paper: `0.5`, the phase the
+/// paper's figure shows as unseen, is left out.
+pub const TRAINING_CONTEXTS: [f64; 10] = [0.0, 0.1, 0.2, 0.3, 0.4, 0.6, 0.7, 0.8, 0.9, 1.0];
 /// Phases between the training ones, for generalisation tests (the paper shows 0.5).
 pub const HELD_OUT_CONTEXTS: [f64; 3] = [0.25, 0.5, 0.75];
 /// Radial distance below which the mass counts as on the outline, m.
@@ -87,6 +81,8 @@ pub struct LimitCycle {
     setup: PlanarSetup,
     context_space: BoxSpace,
     context_set: ContextSet,
+    /// Where the next unseeded reset is in its set's schedule.
+    next_in_schedule: usize,
     field: LimitCycleField,
 }
 
@@ -106,12 +102,27 @@ impl Default for LimitCycle {
             },
             context_space: BoxSpace::new(vec![0.0], vec![1.0], Dtype::Float64),
             context_set: ContextSet::Training,
+            next_in_schedule: 0,
             field: LimitCycleField {
                 outline: Outline::new(0.0),
             },
         }
     }
 }
+
+/// Points along the outline of phase `context[0]`, closed (the first point repeated).
+pub fn outline_curve(context: &[f64]) -> Vec<[f64; 2]> {
+    let mut points: Vec<[f64; 2]> = Outline::new(context[0])
+        .polyline(OUTLINE_POINTS)
+        .iter()
+        .map(|p| [p.x, p.y])
+        .collect();
+    points.push(points[0]);
+    points
+}
+
+/// Points of [`outline_curve`].
+const OUTLINE_POINTS: usize = 400;
 
 /// The environment.
 pub fn make() -> Result<PlanarEnv<LimitCycle>, EnvError> {
@@ -150,13 +161,20 @@ impl PlanarTask for LimitCycle {
         Ok(())
     }
 
-    fn sample_context(&self, rng: &mut ChaCha8Rng) -> Vec<f64> {
-        let c = match self.context_set {
-            ContextSet::Training => TRAINING_CONTEXTS[rng.random_range(0..TRAINING_CONTEXTS.len())],
-            ContextSet::HeldOut => HELD_OUT_CONTEXTS[rng.random_range(0..HELD_OUT_CONTEXTS.len())],
-            ContextSet::Uniform => rng.random_range(0.0..=1.0),
+    fn sample_context(&mut self, seed: Option<u64>, rng: &mut ChaCha8Rng) -> Vec<f64> {
+        let schedule: &[f64] = match self.context_set {
+            ContextSet::Training => &TRAINING_CONTEXTS,
+            ContextSet::HeldOut => &HELD_OUT_CONTEXTS,
+            ContextSet::Uniform => return vec![rng.random_range(0.0..=1.0)],
         };
-        vec![c]
+        let n = schedule.len();
+        let index = match seed {
+            // `u64 % n` fits `usize`: `n` does.
+            Some(seed) => (seed % n as u64) as usize,
+            None => self.next_in_schedule % n,
+        };
+        self.next_in_schedule = (index + 1) % n;
+        vec![schedule[index]]
     }
 
     fn set_context(&mut self, context: &[f64]) {

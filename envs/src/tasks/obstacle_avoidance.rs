@@ -205,7 +205,7 @@ impl PlanarTask for ObstacleAvoidance {
         }
     }
 
-    fn sample_context(&self, rng: &mut ChaCha8Rng) -> Vec<f64> {
+    fn sample_context(&mut self, _seed: Option<u64>, rng: &mut ChaCha8Rng) -> Vec<f64> {
         let target = uniform(rng, TARGET_REGION);
         let mut centres: Vec<Vector2<f64>> = Vec::with_capacity(self.obstacles);
         while centres.len() < self.obstacles {
