@@ -433,10 +433,16 @@ def stability(report, root):
     report.add("A flow converges for any weights, so its check runs on a negative control of "
                "the same class too: the same flow with its latent run backwards in time "
                "(`ciflow stability --negative-control`), of which the check must flag at "
-               "least 99% (the command fails otherwise).",
-               "", "| policy | converged | rollouts | non-finite | negative control flagged "
+               "least 99% (the command fails otherwise). No figure hangs on one threshold: "
+               "*converged* is within the tolerance (1e-3 of the state box's diagonal), the "
+               "next column the share ending within 10, 100 and 1000 times that. A rollout "
+               "*stalls away* when its step stays below 1e-7 of the diagonal for 200 steps "
+               "in a row farther than the tolerance from the attractor: the end point of a "
+               "spurious attractor.",
+               "", "| policy | converged | within 10× / 100× / 1000× the tolerance | rollouts "
+               "| non-finite | stalled away (spurious attractors) | negative control flagged "
                "| through the robot loop |",
-               "|---|---|---|---|---|---|")
+               "|---|---|---|---|---|---|---|---|")
     names, fractions = [], []
     for path in runs:
         measured = load(path)
@@ -446,8 +452,10 @@ def stability(report, root):
         through = "not run" if loop is None else f"{percent(loop['fraction'])} of {loop['rollouts']}"
         control = measured.get("negative_control")
         flagged = "—" if control is None else percent(1 - control["fraction"])
-        report.add(f"| {path.stem} | {percent(s['fraction'])} | {s['rollouts']} | "
-                   f"{s.get('diverged_to_non_finite', 0)} | {flagged} | {through} |")
+        looser = " / ".join(percent(w["fraction"]) for w in s.get("within", [])[1:]) or "—"
+        report.add(f"| {path.stem} | {percent(s['fraction'])} | {looser} | {s['rollouts']} | "
+                   f"{s.get('diverged_to_non_finite', 0)} | {s.get('stalled_away', '—')} | "
+                   f"{flagged} | {through} |")
     fig, ax = plt.subplots(figsize=(max(4, 1.2 * len(names)), 3.5))
     colors = ["tab:red" if "baseline" in n else "tab:blue" for n in names]
     ax.bar(names, [100 * f for f in fractions], color=colors)

@@ -1,11 +1,15 @@
 //! Measured stability: 100% for random (untrained) flows of every variant; and the check
 //! can fail: it flags the same flows with their latent run backwards in time (a negative
-//! control of the same class) and the unconstrained behaviour-cloning baseline.
+//! control of the same class) and the unconstrained behaviour-cloning baseline; and it
+//! counts the rollouts that stall at a spurious attractor.
 
 mod flow_common;
 
-use ciflow_engine::flow::stability::{StabilityConfig, measure};
-use ciflow_engine::flow::{BaselineConfig, BehaviourCloning, Goal, Normalisation, Weights};
+use ciflow_engine::flow::stability::{MeanDynamics, StabilityConfig, TOLERANCE_FACTORS, measure};
+use ciflow_engine::flow::{
+    BaselineConfig, BehaviourCloning, Bounds, FlowResult, Goal, Normalisation, Weights,
+};
+use ciflow_engine::math::distance;
 use flow_common::*;
 
 fn check() -> StabilityConfig {
@@ -23,6 +27,7 @@ fn random_flows_converge_from_starts_100x_outside_the_data() {
             let policy = random_policy(config, 1000 * k as u64 + seed);
             let report = measure(&policy, &check(), |_| {}).unwrap();
             assert_eq!(report.fraction, 1.0, "variant {k} seed {seed}: {report:?}");
+            assert_eq!(report.stalled_away, 0);
         }
     }
 }
@@ -55,4 +60,77 @@ fn random_behaviour_cloning_does_not_converge_everywhere() {
     let baseline = BehaviourCloning::new(&config, weights).unwrap();
     let report = measure(&baseline, &check(), |_| {}).unwrap();
     assert!(report.fraction < 1.0, "{report:?}");
+    // Looser tolerances can only admit more rollouts.
+    assert_eq!(report.within[0].fraction, report.fraction);
+    assert!(
+        report
+            .within
+            .windows(2)
+            .all(|w| w[0].fraction <= w[1].fraction)
+    );
+}
+
+/// `y ← y − 0.1 (y − a)` towards the nearer of the attractor at the origin and a spurious
+/// fixed point `SPURIOUS`.
+struct TwoFixedPoints {
+    bounds: Bounds,
+}
+
+const SPURIOUS: [f64; 2] = [60.0, 0.0];
+
+impl MeanDynamics for TwoFixedPoints {
+    type Workspace = ();
+    fn workspace(&self) {}
+    fn bounds(&self) -> &Bounds {
+        &self.bounds
+    }
+    fn mean_next(&self, y: &[f64], _: &[f64], _: &mut (), out: &mut [f64]) -> FlowResult<()> {
+        let target = match distance(y, &SPURIOUS) < distance(y, &[0.0, 0.0]) {
+            true => SPURIOUS,
+            false => [0.0, 0.0],
+        };
+        for ((o, yi), t) in out.iter_mut().zip(y).zip(target) {
+            *o = yi - 0.1 * (yi - t);
+        }
+        Ok(())
+    }
+    fn attractor_distance(
+        &self,
+        y: &[f64],
+        _: &[f64],
+        _: &mut (),
+        _: &mut [f64],
+    ) -> FlowResult<f64> {
+        Ok(distance(y, &[0.0, 0.0]))
+    }
+}
+
+#[test]
+fn rollouts_stalled_at_a_spurious_attractor_are_counted_and_end_there() {
+    let model = TwoFixedPoints {
+        bounds: Bounds {
+            state_min: vec![-1.0, -1.0],
+            state_max: vec![1.0, 1.0],
+            context_min: vec![],
+            context_max: vec![],
+        },
+    };
+    // Starts up to 100x outside: those with x > 30 are nearer the spurious point.
+    let report = measure(&model, &check(), |_| {}).unwrap();
+    assert!(report.stalled_away > 0, "{report:?}");
+    assert_eq!(
+        report.converged + report.stalled_away,
+        report.rollouts,
+        "{report:?}"
+    );
+    // They stop where they stalled (60 from the attractor), long before the step budget.
+    assert!(
+        (report.worst_final_distance - 60.0).abs() < 1e-3,
+        "{report:?}"
+    );
+    // 60 is beyond every tolerance factor's reach (1000 x 2.8e-3): the shares agree.
+    assert_eq!(report.within.len(), TOLERANCE_FACTORS.len());
+    for share in &report.within {
+        assert_eq!(share.fraction, report.fraction, "{report:?}");
+    }
 }

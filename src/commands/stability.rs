@@ -181,7 +181,7 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
     let report = &observation_space;
     println!(
         "stability: {:.1}% ({}/{} rollouts from up to {}x outside the demonstrations converged \
-         within {:.3e} in {} steps; {} non-finite)",
+         within {:.3e} in {} steps; {} non-finite, {} stalled away from the attractor)",
         100.0 * report.fraction,
         report.converged,
         report.rollouts,
@@ -189,7 +189,14 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
         report.tolerance,
         args.max_steps,
         report.diverged_to_non_finite,
+        report.stalled_away,
     );
+    let shares: Vec<String> = report
+        .within
+        .iter()
+        .map(|share| format!("{:.1}% within {}x", 100.0 * share.fraction, share.factor))
+        .collect();
+    println!("ending near the attractor: {}", shares.join(", "));
     if let Some(report) = &negative_control {
         println!(
             "negative control (the same flow, its latent run backwards): {:.1}% flagged \

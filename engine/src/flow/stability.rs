@@ -9,6 +9,13 @@
 //! demonstrations' goal for the behaviour-cloning baseline — falls below
 //! `tolerance · diag(state box)` within `max_steps` steps. A non-finite state counts as
 //! diverged.
+//!
+//! Two figures keep the verdict from hanging on one threshold: the share of rollouts that
+//! end within each of [`TOLERANCE_FACTORS`] times the tolerance (a converged rollout ends
+//! where it first came within the tolerance, the others after `max_steps` or where they
+//! stalled); and the rollouts that *stalled* away from the attractor — their step
+//! `‖y_{k+1} − y_k‖` stayed below `stall_speed · diag` for `stall_steps` consecutive
+//! steps farther than the tolerance from it: end points of spurious attractors.
 
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -113,7 +120,21 @@ pub struct StabilityConfig {
     pub max_steps: usize,
     /// The distance to the attractor is checked every this many steps.
     pub check_every: usize,
+    /// A step shorter than this fraction of the state box's diagonal is stalled…
+    pub stall_speed: f64,
+    /// …and this many stalled steps in a row end the rollout as stalled.
+    pub stall_steps: usize,
     pub seed: u64,
+}
+
+/// The multiples of the tolerance at which [`StabilityReport::within`] is reported.
+pub const TOLERANCE_FACTORS: [f64; 4] = [1.0, 10.0, 100.0, 1000.0];
+
+/// The share of rollouts ending within `factor` times the tolerance.
+#[derive(Clone, Debug, Serialize)]
+pub struct ShareWithin {
+    pub factor: f64,
+    pub fraction: f64,
 }
 
 impl Default for StabilityConfig {
@@ -124,6 +145,10 @@ impl Default for StabilityConfig {
             tolerance: 1e-3,
             max_steps: 20_000,
             check_every: 10,
+            // A go-to flow at its slowest guaranteed rate (0.1 /s, 100 Hz) still moves
+            // 1e-6 of the diagonal per step at the tolerance of 1e-3: ten times this.
+            stall_speed: 1e-7,
+            stall_steps: 200,
             seed: 0,
         }
     }
@@ -143,6 +168,10 @@ pub struct StabilityReport {
     /// Largest final distance to the attractor among non-converged finite rollouts.
     pub worst_final_distance: f64,
     pub diverged_to_non_finite: usize,
+    /// Rollouts that stalled farther than the tolerance from the attractor.
+    pub stalled_away: usize,
+    /// The share ending within each of [`TOLERANCE_FACTORS`] times the tolerance.
+    pub within: Vec<ShareWithin>,
 }
 
 /// Runs the stability check; `progress` is called after each rollout.
@@ -175,7 +204,11 @@ pub fn measure<M: MeanDynamics>(
         max_steps_to_converge: 0,
         worst_final_distance: 0.0,
         diverged_to_non_finite: 0,
+        stalled_away: 0,
+        within: Vec::new(),
     };
+    let stall = config.stall_speed * bounds.state_diagonal().max(f64::MIN_POSITIVE);
+    let mut final_distances = Vec::with_capacity(config.starts);
     for trial in 0..config.starts {
         sample_box(
             &bounds.state_min,
@@ -191,33 +224,53 @@ pub fn measure<M: MeanDynamics>(
             &mut rng,
             &mut context,
         );
-        let mut outcome = None;
+        // A rollout that turns non-finite ends infinitely far away.
+        let (mut final_distance, mut stalled) = (f64::INFINITY, 0);
         for step in 1..=config.max_steps {
             model.mean_next(&y, &context, &mut ws, &mut next)?;
+            stalled = if distance(&y, &next) < stall {
+                stalled + 1
+            } else {
+                0
+            };
             std::mem::swap(&mut y, &mut next);
             if y.iter().any(|v| !v.is_finite()) {
                 report.diverged_to_non_finite += 1;
-                outcome = Some(false);
+                final_distance = f64::INFINITY;
                 break;
             }
-            if step % config.check_every == 0 || step == config.max_steps {
-                let distance = model.attractor_distance(&y, &context, &mut ws, &mut scratch)?;
-                if distance <= tolerance {
+            let stalls = stalled >= config.stall_steps;
+            if stalls || step % config.check_every == 0 || step == config.max_steps {
+                final_distance = model.attractor_distance(&y, &context, &mut ws, &mut scratch)?;
+                if final_distance <= tolerance {
                     report.max_steps_to_converge = report.max_steps_to_converge.max(step);
-                    outcome = Some(true);
+                    report.converged += 1;
                     break;
                 }
-                if step == config.max_steps {
-                    report.worst_final_distance = report.worst_final_distance.max(distance);
+                if stalls {
+                    report.stalled_away += 1;
+                }
+                if stalls || step == config.max_steps {
+                    report.worst_final_distance = report.worst_final_distance.max(final_distance);
+                    break;
                 }
             }
         }
-        if outcome == Some(true) {
-            report.converged += 1;
-        }
+        final_distances.push(final_distance);
         progress(trial + 1);
     }
     report.fraction = report.converged as f64 / report.rollouts as f64;
+    report.within = TOLERANCE_FACTORS
+        .iter()
+        .map(|&factor| ShareWithin {
+            factor,
+            fraction: final_distances
+                .iter()
+                .filter(|&&d| d <= factor * tolerance)
+                .count() as f64
+                / report.rollouts as f64,
+        })
+        .collect();
     Ok(report)
 }
 
