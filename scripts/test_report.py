@@ -84,12 +84,17 @@ def experiments(tmp_path):
     }
     write(root / "pouring" / "push.json",
           evaluation(0.8, 10, {"mode": "push", "start": 0.05, "duration": 0.05}, push=push))
+    def within(*fractions):
+        return [{"factor": f, "fraction": x} for f, x in zip((1, 10, 100, 1000), fractions)]
     write(root / "stability" / "pouring-flow.json", {
-        "observation_space": {"fraction": 1.0, "rollouts": 50, "diverged_to_non_finite": 0},
+        "observation_space": {"fraction": 1.0, "rollouts": 50, "diverged_to_non_finite": 0,
+                              "stalled_away": 0, "within": within(1.0, 1.0, 1.0, 1.0)},
+        "negative_control": {"fraction": 0.0, "rollouts": 50},
         "robot_loop": {"fraction": 0.95, "rollouts": 20},
     })
     write(root / "stability" / "pouring-baseline.json", {
-        "observation_space": {"fraction": 0.4, "rollouts": 50, "diverged_to_non_finite": 3},
+        "observation_space": {"fraction": 0.4, "rollouts": 50, "diverged_to_non_finite": 3,
+                              "stalled_away": 5, "within": within(0.4, 0.5, 0.6, 0.7)},
     })
     samples = [{"time": 0.01 * k, "state": [0.1 * k] * 7, "command": [1.0] * 7,
                 "reward": -0.5 + 0.005 * k, "running": True, "episode_done": k == 99}
@@ -116,8 +121,9 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert "90.0% | ≥ 80% of pushes | **pass** |" in text
     assert "2 obstacle(s): not run" in text
     assert "pot moved mid-motion: not run" in text
-    assert "| pouring-flow | 100.0% | 50 | 0 | 95.0% of 20 |" in text
-    assert "| pouring-baseline | 40.0% | 50 | 3 | not run |" in text
+    assert ("| pouring-flow | 100.0% | 100.0% / 100.0% / 100.0% | 50 | 0 | 0 | 100.0% | "
+            "95.0% of 20 |") in text
+    assert "| pouring-baseline | 40.0% | 50.0% / 60.0% / 70.0% | 50 | 3 | 5 | — | not run |" in text
     assert ("session ran 0.99 simulated s (100 telemetry samples) and ended with the spout "
             "0.5 cm from the pour point") in text
     figures = tmp_path / "out" / "figures"

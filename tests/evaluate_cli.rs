@@ -45,11 +45,12 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
         "--hidden",
         "16,16",
     ]);
-    // By default the policy contracts about the obstacle centre (`flow::radial`).
+    // By default the policy contracts about the obstacle centre (`flow::radial`) with
+    // the task's 8 layers.
     let config = json(&format!("{policy}/config.json"));
     let contractions = &config["contractions"];
     assert_eq!(contractions["centres"]["count"], 1, "{config}");
-    assert_eq!(contractions["layers"], 2, "{config}");
+    assert_eq!(contractions["layers"], 8, "{config}");
 
     let episodes = scratch.arg("experiments/obstacles/1/eval.json");
     succeed(

@@ -114,7 +114,9 @@ impl Contractions {
             };
             let squared_norm = |r: &Tensor| r.square().sum_dim_intlist(1, true, Kind::Double);
             let root = tch::no_grad(|| {
-                let mut y = target.detach();
+                // A copy: the steps below update `y` in place, and a detached tensor
+                // shares its storage with `target`.
+                let mut y = target.detach().copy();
                 for _ in 0..INVERSE_STEPS {
                     let step = newton(&y);
                     let norm = squared_norm(&residual(&y).0);
