@@ -430,7 +430,11 @@ def stability(report, root):
     if not runs:
         report.not_run("stability", folder)
         return
-    report.add("A flow converges for any weights, so its check runs on a negative control of "
+    report.add("Each policy's check runs rollouts from starts up to 100 times outside the "
+               "demonstrations' box, with contexts from the training box and as many again with "
+               "contexts up to 10 times its half-width outside it in the position-like "
+               "coordinates (angles and the limit cycle's phase stay in their range). A flow "
+               "converges for any weights, so its check runs on a negative control of "
                "the same class too: the same flow with its latent run backwards in time "
                "(`ciflow stability --negative-control`), of which the check must flag at "
                "least 99% (the command fails otherwise). No figure hangs on one threshold: "
@@ -439,28 +443,44 @@ def stability(report, root):
                "*stalls away* when its step stays below 1e-7 of the diagonal for 200 steps "
                "in a row farther than the tolerance from the attractor: the end point of a "
                "spurious attractor.",
-               "", "| policy | converged | within 10× / 100× / 1000× the tolerance | rollouts "
-               "| non-finite | stalled away (spurious attractors) | negative control flagged "
-               "| through the robot loop |",
-               "|---|---|---|---|---|---|---|---|")
-    names, fractions = [], []
+               "", "| policy | contexts | converged | within 10× / 100× / 1000× the tolerance "
+               "| rollouts | non-finite | stalled away (spurious attractors) | negative control "
+               "flagged | through the robot loop |",
+               "|---|---|---|---|---|---|---|---|---|")
+    names, fractions = [], {"training": [], "far": []}
     for path in runs:
         measured = load(path)
-        s, loop = measured["observation_space"], measured.get("robot_loop")
+        loop = measured.get("robot_loop")
         names.append(path.stem)
-        fractions.append(s["fraction"])
         through = "not run" if loop is None else f"{percent(loop['fraction'])} of {loop['rollouts']}"
         control = measured.get("negative_control")
-        flagged = "—" if control is None else percent(1 - control["fraction"])
-        looser = " / ".join(percent(w["fraction"]) for w in s.get("within", [])[1:]) or "—"
-        report.add(f"| {path.stem} | {percent(s['fraction'])} | {looser} | {s['rollouts']} | "
-                   f"{s.get('diverged_to_non_finite', 0)} | {s.get('stalled_away', '—')} | "
-                   f"{flagged} | {through} |")
-    fig, ax = plt.subplots(figsize=(max(4, 1.2 * len(names)), 3.5))
-    colors = ["tab:red" if "baseline" in n else "tab:blue" for n in names]
-    ax.bar(names, [100 * f for f in fractions], color=colors)
+        flagged = "—" if control is None else (
+            f"{percent(1 - control['fraction'])} of {control['rollouts']}")
+        for key, regime in (("observation_space", "training"), ("far_contexts", "far")):
+            s = measured.get(key)
+            if s is None:
+                fractions[regime].append(float("nan"))
+                continue
+            fractions[regime].append(s["fraction"])
+            contexts = ("training box" if regime == "training"
+                        else f"up to {s.get('context_scale', '?')}× outside")
+            looser = " / ".join(percent(w["fraction"]) for w in s.get("within", [])[1:]) or "—"
+            report.add(f"| {path.stem} | {contexts} | {percent(s['fraction'])} | {looser} | "
+                       f"{s['rollouts']} | {s.get('diverged_to_non_finite', 0)} | "
+                       f"{s.get('stalled_away', '—')} | "
+                       f"{flagged if regime == 'training' else ''} | "
+                       f"{through if regime == 'training' else ''} |")
+    fig, ax = plt.subplots(figsize=(max(4, 1.4 * len(names)), 3.5))
+    x = np.arange(len(names))
+    for offset, (regime, label, color) in ((-0.2, ("training", "training contexts", "tab:blue")),
+                                           (0.2, ("far", "contexts ≤10× outside", "tab:cyan"))):
+        ax.bar(x + offset, [100 * f for f in fractions[regime]], width=0.4, label=label,
+               color=color, edgecolor=["tab:red" if "baseline" in n else color for n in names],
+               linewidth=2)
+    ax.set_xticks(x, names)
     ax.set_ylabel("converged rollouts (%)")
     ax.set_ylim(0, 105)
+    ax.legend(fontsize=8, loc="lower left")
     ax.tick_params(axis="x", rotation=30)
     report.figure(fig, "stability.png", "Rollouts converging from far outside the demonstrations")
 

@@ -88,8 +88,12 @@ def experiments(tmp_path):
         return [{"factor": f, "fraction": x} for f, x in zip((1, 10, 100, 1000), fractions)]
     write(root / "stability" / "pouring-flow.json", {
         "observation_space": {"fraction": 1.0, "rollouts": 50, "diverged_to_non_finite": 0,
-                              "stalled_away": 0, "within": within(1.0, 1.0, 1.0, 1.0)},
-        "negative_control": {"fraction": 0.0, "rollouts": 50},
+                              "stalled_away": 0, "within": within(1.0, 1.0, 1.0, 1.0),
+                              "context_scale": 1.0},
+        "far_contexts": {"fraction": 0.98, "rollouts": 50, "diverged_to_non_finite": 1,
+                         "stalled_away": 0, "within": within(0.98, 0.98, 0.98, 0.98),
+                         "context_scale": 10.0},
+        "negative_control": {"fraction": 0.0, "rollouts": 40},
         "robot_loop": {"fraction": 0.95, "rollouts": 20},
     })
     write(root / "stability" / "pouring-baseline.json", {
@@ -121,9 +125,12 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert "90.0% | ≥ 80% of pushes | **pass** |" in text
     assert "2 obstacle(s): not run" in text
     assert "pot moved mid-motion: not run" in text
-    assert ("| pouring-flow | 100.0% | 100.0% / 100.0% / 100.0% | 50 | 0 | 0 | 100.0% | "
-            "95.0% of 20 |") in text
-    assert "| pouring-baseline | 40.0% | 50.0% / 60.0% / 70.0% | 50 | 3 | 5 | — | not run |" in text
+    assert ("| pouring-flow | training box | 100.0% | 100.0% / 100.0% / 100.0% | 50 | 0 | 0 | "
+            "100.0% of 40 | 95.0% of 20 |") in text
+    assert ("| pouring-flow | up to 10.0× outside | 98.0% | 98.0% / 98.0% / 98.0% | 50 | 1 | 0 "
+            "|  |  |") in text
+    assert ("| pouring-baseline | training box | 40.0% | 50.0% / 60.0% / 70.0% | 50 | 3 | 5 | "
+            "— | not run |") in text
     assert ("session ran 0.99 simulated s (100 telemetry samples) and ended with the spout "
             "0.5 cm from the pour point") in text
     figures = tmp_path / "out" / "figures"

@@ -211,20 +211,23 @@ fn demonstrations_over_a_router_train_a_stable_policy_the_engine_runs_through_pu
     assert_eq!(served.task, "ciflow/Obstacle-v0");
     assert!(served.epoch.is_some_and(|e| e >= 1), "{served:?}");
 
-    // Stable by construction: every rollout converges, far outside the data too, and
-    // through the point mass's computed-torque loop.
+    // Stable by construction: every rollout converges, far outside the data and for
+    // contexts far outside the training box too, and through the point mass's
+    // computed-torque loop.
     let report: Value = serde_json::from_slice(
         &succeed(&[
             "stability",
             "--checkpoint",
             &policy,
+            "--starts",
+            "200",
             "--robot-loop",
             "--json",
         ])
         .stdout,
     )
     .unwrap();
-    for part in ["observation_space", "robot_loop"] {
+    for part in ["observation_space", "far_contexts", "robot_loop"] {
         let fraction = report[part]["fraction"].as_f64().expect(part);
         assert_eq!(fraction, 1.0, "{part}: {report}");
     }

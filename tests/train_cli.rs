@@ -63,6 +63,8 @@ fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targe
             "--starts",
             "50",
             "--negative-control",
+            "--negative-control-starts",
+            "40",
             "--robot-loop",
             "--robot-starts",
             "10",
@@ -82,6 +84,11 @@ fn demos_train_and_stability_compose_into_a_stable_policy_that_reaches_the_targe
         Some(50),
         "{report}"
     );
+    // Obstacles and target up to 10x outside the training box: still every rollout.
+    let far = &report["far_contexts"];
+    assert_eq!(far["fraction"].as_f64(), Some(1.0), "{report}");
+    assert_eq!(far["context_scale"].as_f64(), Some(10.0), "{report}");
+    assert_eq!(far["rollouts"].as_u64(), Some(50), "{report}");
     // The same flow with its latent run backwards: the check flags it.
     assert_eq!(
         report["negative_control"]["converged"].as_u64(),
@@ -183,4 +190,79 @@ fn train_refuses_spline_flags_for_an_affine_coupling() {
         ],
     );
     assert!(stderr.contains("--spline-bins"), "{stderr}");
+}
+
+/// What `ciflow train` prints about the data it leaves out (its first stdout lines).
+fn screening_line(stdout: &[u8]) -> String {
+    String::from_utf8_lossy(stdout)
+        .lines()
+        .find(|l| l.contains("failed their task"))
+        .unwrap_or_default()
+        .to_owned()
+}
+
+/// Pushed pouring demonstrations: the pushed steps reach the trainer flagged and stay out
+/// of the likelihood; an episode that failed is dropped unless --keep-failed.
+#[test]
+fn train_leaves_out_pushed_steps_and_failed_episodes() {
+    let scratch = Scratch::new("train-cli-screening");
+    let (demos, failing, policy) = (
+        scratch.arg("demos"),
+        scratch.arg("failing"),
+        scratch.arg("policy"),
+    );
+    succeed(&[
+        "demos",
+        "--task",
+        "pouring",
+        "--episodes",
+        "3",
+        "--option",
+        "push_force=40",
+        "--out",
+        &demos,
+    ]);
+    let (spec, mut episodes) = ciflow_envs::dataset::read(Path::new(&demos)).unwrap();
+    let pushed: usize = episodes
+        .iter()
+        .map(|e| (0..e.len()).filter(|&t| e.perturbed(t)).count())
+        .sum();
+    let steps: usize = episodes.iter().map(|e| e.len()).sum();
+    assert!(pushed > 0 && pushed < steps / 2, "{pushed} of {steps}");
+    let train = |dataset: &str, extra: &[&str]| {
+        let mut command = vec![
+            "train", "--task", "pouring", "--demos", dataset, "--out", &policy, "--epochs", "1",
+            "--layers", "2", "--hidden", "16",
+        ];
+        command.extend_from_slice(extra);
+        screening_line(&succeed(&command).stdout)
+    };
+    let line = train(&demos, &[]);
+    assert!(
+        line.contains("0 of 3 episodes failed their task;")
+            && line.contains(&format!("{pushed} of {steps} transitions moved")),
+        "{line}"
+    );
+    // The first episode, marked as failed at its end, is dropped; kept on request.
+    let success = episodes[0].infos.get_mut("is_success").unwrap();
+    *success.last_mut().unwrap() = 0.0;
+    let kept_pushed: usize = (0..episodes[0].len())
+        .filter(|&t| episodes[0].perturbed(t))
+        .count();
+    ciflow_envs::dataset::write(Path::new(&failing), &spec, &episodes, false).unwrap();
+    let line = train(&failing, &[]);
+    assert!(
+        line.contains("1 of 3 episodes failed their task and are dropped")
+            && line.contains(&format!(
+                "{} of {} transitions",
+                pushed - kept_pushed,
+                steps - episodes[0].len()
+            )),
+        "{line}"
+    );
+    let line = train(&failing, &["--keep-failed"]);
+    assert!(
+        line.contains("1 of 3 episodes failed their task, kept"),
+        "{line}"
+    );
 }

@@ -134,3 +134,97 @@ fn rollouts_stalled_at_a_spurious_attractor_are_counted_and_end_there() {
         assert_eq!(share.fraction, report.fraction, "{report:?}");
     }
 }
+
+/// `y ← 0.5 y` while the context's first coordinate lies in the box `[−1, 1]`, `y ← y`
+/// (stuck) beyond it, and `y ← 2 y` (repelled) when its second coordinate leaves the box.
+struct ContextGate {
+    bounds: Bounds,
+}
+
+impl ContextGate {
+    fn new() -> Self {
+        Self {
+            bounds: Bounds {
+                state_min: vec![-1.0, -1.0],
+                state_max: vec![1.0, 1.0],
+                context_min: vec![-1.0, -1.0],
+                context_max: vec![1.0, 1.0],
+            },
+        }
+    }
+}
+
+impl MeanDynamics for ContextGate {
+    type Workspace = ();
+    fn workspace(&self) {}
+    fn bounds(&self) -> &Bounds {
+        &self.bounds
+    }
+    fn mean_next(&self, y: &[f64], c: &[f64], _: &mut (), out: &mut [f64]) -> FlowResult<()> {
+        let gain = match (c[0].abs() <= 1.0, c[1].abs() <= 1.0) {
+            (_, false) => 2.0,
+            (true, true) => 0.5,
+            (false, true) => 1.0,
+        };
+        for (o, yi) in out.iter_mut().zip(y) {
+            *o = gain * yi;
+        }
+        Ok(())
+    }
+    fn attractor_distance(
+        &self,
+        y: &[f64],
+        _: &[f64],
+        _: &mut (),
+        _: &mut [f64],
+    ) -> FlowResult<f64> {
+        Ok(distance(y, &[0.0, 0.0]))
+    }
+}
+
+#[test]
+fn contexts_reach_outside_the_box_except_the_bounded_coordinates() {
+    let model = ContextGate::new();
+    let inside = measure(&model, &check(), |_| {}).unwrap();
+    assert_eq!(inside.fraction, 1.0, "{inside:?}");
+    let config = StabilityConfig {
+        starts: 400,
+        context_scale: 10.0,
+        bounded_context: vec![1],
+        ..check()
+    };
+    let far = measure(&model, &config, |_| {}).unwrap();
+    // c₀ ~ U(−10, 10) lies in [−1, 1] one time in ten; c₁ never leaves the box.
+    assert!((0.05..0.15).contains(&far.fraction), "{far:?}");
+    assert_eq!(far.diverged_to_non_finite, 0, "{far:?}");
+    assert_eq!(far.stalled_away, far.rollouts - far.converged, "{far:?}");
+    let unbounded = measure(
+        &model,
+        &StabilityConfig {
+            bounded_context: vec![],
+            ..config
+        },
+        |_| {},
+    )
+    .unwrap();
+    assert!(
+        unbounded.diverged_to_non_finite > unbounded.rollouts / 2,
+        "{unbounded:?}"
+    );
+}
+
+#[test]
+fn the_report_does_not_depend_on_the_number_of_threads() {
+    let policy = random_policy(&variants()[0], 5);
+    let report = |threads| {
+        let config = StabilityConfig {
+            threads,
+            starts: 20,
+            max_steps: 1_000,
+            ..check()
+        };
+        serde_json::to_string(&measure(&policy.time_reversed(), &config, |_| {}).unwrap()).unwrap()
+            + &serde_json::to_string(&measure(&policy, &config, |_| {}).unwrap()).unwrap()
+    };
+    assert_eq!(report(1), report(3));
+}

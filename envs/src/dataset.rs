@@ -30,6 +30,7 @@ use arrow_array::{
 use arrow_schema::{DataType, Field, Fields, Schema};
 use serde_json::{Value, json};
 
+use crate::env::{PERTURBED_INFO, SUCCESS_INFO};
 use crate::space::{BoxSpace, Dtype};
 
 /// The Minari release whose layout this module writes.
@@ -103,6 +104,22 @@ impl Episode {
 
     pub fn is_empty(&self) -> bool {
         self.actions.is_empty()
+    }
+
+    /// Whether step `t` (`observations[t] → observations[t + 1]`) was moved by an external
+    /// force: the [`PERTURBED_INFO`] recorded after it (false when the dataset has none).
+    pub fn perturbed(&self, t: usize) -> bool {
+        self.infos
+            .get(PERTURBED_INFO)
+            .and_then(|flags| flags.get(t + 1))
+            .is_some_and(|&flag| flag == 1.0)
+    }
+
+    /// Whether the episode ended achieving its task: its last [`SUCCESS_INFO`], or `None`
+    /// when the dataset does not record one.
+    pub fn succeeded(&self) -> Option<bool> {
+        let last = self.infos.get(SUCCESS_INFO)?.last()?;
+        Some(*last == 1.0)
     }
 
     fn validate(&self, index: usize, spec: &DatasetSpec) -> Result<()> {

@@ -29,6 +29,10 @@ pub struct TaskEntry {
     /// The closed curve a 2-D task's motion should trace for a context (the limit
     /// cycle's outline), drawn beside learned fields; `None` for go-to tasks.
     pub reference_curve: Option<ReferenceCurve>,
+    /// Context coordinates with a physical range that the training contexts already span
+    /// (angles, the limit cycle's phase): checks that extrapolate the context keep these
+    /// inside the training box and scale the others (positions).
+    pub bounded_context: &'static [usize],
 }
 
 impl TaskEntry {
@@ -111,6 +115,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             make_with: limit_cycle_with,
             named_values: &[],
             reference_curve: Some(limit_cycle::outline_curve),
+            bounded_context: &[0],
         },
         TaskEntry {
             id: obstacle_avoidance::ID,
@@ -120,6 +125,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             make_with: obstacle_avoidance_with,
             named_values: &[],
             reference_curve: None,
+            bounded_context: &[],
         },
         TaskEntry {
             id: pouring::ID,
@@ -129,6 +135,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             make_with: pouring_with,
             named_values: &[],
             reference_curve: None,
+            bounded_context: &[3, 4, 5],
         },
         TaskEntry {
             id: lasa::ID,
@@ -138,6 +145,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             make_with: lasa_with,
             named_values: &[(lasa::SHAPE_OPTION, &lasa::SHAPES)],
             reference_curve: None,
+            bounded_context: &[],
         },
     ]
 }

@@ -1,8 +1,10 @@
 //! `ciflow/Pouring-v0`: the expert pours without spilling, continuity, perturbations.
 
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
+use ciflow_envs::env::PERTURBED_INFO;
+use ciflow_envs::expert::pouring::PUSH_SETTLING;
 use ciflow_envs::rollout::expert_episode;
-use ciflow_envs::tasks::pouring::Pouring;
+use ciflow_envs::tasks::pouring::{DEMO_PUSH_DURATION, PUSH_FORCE_OPTION, Pouring};
 use ciflow_envs::{Env, EnvError, ResetOptions};
 
 #[test]
@@ -36,6 +38,43 @@ fn expert_pours_into_the_pot_and_never_spills() {
         successes * 100 >= 99 * episodes as usize,
         "{successes}/{episodes}"
     );
+}
+
+/// A pushed demonstration flags one block of steps: it begins at the first step whose state
+/// differs from the same seed's unpushed episode, and lasts the push plus the settling
+/// window.
+#[test]
+fn pushed_demonstrations_flag_the_push_and_its_settling_window() {
+    let mut env = Pouring::new().unwrap();
+    let pushed = ResetOptions {
+        extra: [(PUSH_FORCE_OPTION.to_string(), 40.0)].into(),
+        ..ResetOptions::default()
+    };
+    for seed in 0..5 {
+        let free = expert_episode(&mut env, Some(seed), &ResetOptions::default()).unwrap();
+        let episode = expert_episode(&mut env, Some(seed), &pushed).unwrap();
+        assert!(free.infos[PERTURBED_INFO].iter().all(|&f| f == 0.0));
+        let flags = &episode.infos[PERTURBED_INFO];
+        let first = flags
+            .iter()
+            .position(|&f| f == 1.0)
+            .expect("a flagged step");
+        let last = flags.iter().rposition(|&f| f == 1.0).unwrap();
+        assert!(
+            flags[first..=last].iter().all(|&f| f == 1.0),
+            "seed {seed}: one block"
+        );
+        let diverged = (0..flags.len())
+            .position(|t| episode.observations[t] != free.observations[t])
+            .expect("the push moved the arm");
+        assert_eq!(first, diverged, "seed {seed}");
+        let seconds = (last - first + 1) as f64 * env.spec().control_dt;
+        let expected = DEMO_PUSH_DURATION + PUSH_SETTLING;
+        assert!(
+            (seconds - expected).abs() <= env.spec().control_dt + 1e-9,
+            "seed {seed}: flagged {seconds} s, push and settling {expected} s"
+        );
+    }
 }
 
 #[test]

@@ -4,6 +4,7 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::Context;
+use ciflow_envs::env::SUCCESS_INFO;
 use ciflow_envs::registry::TaskEntry;
 use ciflow_envs::rollout::{Recording, record_expert_dataset};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -89,7 +90,7 @@ pub fn run(args: DemosArgs) -> anyhow::Result<()> {
         successes += usize::from(
             episode
                 .infos
-                .get("is_success")
+                .get(SUCCESS_INFO)
                 .and_then(|s| s.last())
                 .is_some_and(|&s| s == 1.0),
         );

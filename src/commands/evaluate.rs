@@ -95,7 +95,9 @@ pub struct EvaluateArgs {
     /// JSON file to write (episodes or --nll); the summary is printed either way.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Instead of episodes: the flow's log-likelihood per transition on this dataset.
+    /// Instead of episodes: the flow's log-likelihood per transition on this dataset, over
+    /// what `ciflow train` fits by default: the episodes that achieved their task, without
+    /// the steps an external force moved.
     #[arg(long, conflicts_with = "field")]
     pub nll: Option<PathBuf>,
     /// With --nll: score only the N episodes that `ciflow train --subset N --seed S` drew
@@ -242,6 +244,15 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
     if let Some(dataset_dir) = &args.nll {
         let (_, mut episodes) = dataset::read(dataset_dir)
             .with_context(|| format!("reading {}", dataset_dir.display()))?;
+        let recorded = episodes.len();
+        episodes.retain(|e| e.succeeded() != Some(false));
+        if episodes.len() < recorded {
+            println!(
+                "{}: {} of {recorded} episodes failed their task and are not scored",
+                dataset_dir.display(),
+                recorded - episodes.len()
+            );
+        }
         if let Some(count) = args.nll_subset {
             episodes =
                 subset(episodes, count, args.seed, |e| &e.contexts[0]).context("--nll-subset")?;

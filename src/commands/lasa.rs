@@ -122,9 +122,9 @@ fn demonstrations(shape: &Shape) -> Demonstrations {
         episodes: shape
             .demos
             .iter()
-            .map(|demo| Episode {
-                states: demo.positions.iter().map(|p| p.to_vec()).collect(),
-                contexts: Contexts::PerEpisode(GOAL.to_vec()),
+            .map(|demo| {
+                let states = demo.positions.iter().map(|p| p.to_vec()).collect();
+                Episode::new(states, Contexts::PerEpisode(GOAL.to_vec()))
             })
             .collect(),
         dt: shape.dt,

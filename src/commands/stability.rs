@@ -1,6 +1,8 @@
 //! `ciflow stability`: measure how often noise-free rollouts of a checkpoint converge to
-//! its attractor from random starts far outside the demonstrations (observation space,
-//! random contexts). Flows must print 100%; the behaviour-cloning baseline need not.
+//! its attractor from random starts far outside the demonstrations (observation space),
+//! for random contexts from the training box and, as many again, from the box scaled by
+//! `--context-scale` in its position-like coordinates. Flows must print 100%; the
+//! behaviour-cloning baseline need not.
 //!
 //! With `--negative-control` the check also runs on the same flow with its latent run
 //! backwards in time (`Policy::time_reversed`), a model of the same class whose attractor
@@ -20,6 +22,7 @@ use ciflow_engine::flow::stability::{StabilityConfig, StabilityReport, measure};
 use ciflow_engine::robot::{JointLimits, PointMass2d, Robot, panda};
 use ciflow_engine::sim::{SimConfig, Simulator};
 use ciflow_envs::actor::Model;
+use ciflow_envs::registry;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
@@ -31,12 +34,17 @@ pub struct StabilityArgs {
     /// Expected task name; loading a checkpoint of another task fails.
     #[arg(long)]
     pub task: Option<String>,
-    /// Number of rollouts.
-    #[arg(long, default_value_t = 200)]
+    /// Rollouts per context regime: with contexts from the training box, and as many with
+    /// contexts from the box scaled by --context-scale.
+    #[arg(long, default_value_t = 5_000)]
     pub starts: usize,
     /// Starts are drawn from the demonstrations' bounding box scaled by this factor.
     #[arg(long, default_value_t = 100.0)]
     pub scale: f64,
+    /// The far contexts come from the training contexts' box scaled by this factor about
+    /// its centre, in the position-like coordinates (angles and phases stay in the box).
+    #[arg(long, default_value_t = 10.0)]
+    pub context_scale: f64,
     /// Convergence radius as a fraction of the bounding box diagonal.
     #[arg(long, default_value_t = 1e-3)]
     pub tolerance: f64,
@@ -49,6 +57,12 @@ pub struct StabilityArgs {
     /// check (flows only).
     #[arg(long)]
     pub negative_control: bool,
+    /// Rollouts of the negative control (training contexts).
+    #[arg(long, default_value_t = 500)]
+    pub negative_control_starts: usize,
+    /// Threads for the rollouts [default: the machine's cores].
+    #[arg(long)]
+    pub threads: Option<usize>,
     /// Also drive the robot through the computed-torque layer (flows only).
     #[arg(long)]
     pub robot_loop: bool,
@@ -66,7 +80,10 @@ pub struct StabilityArgs {
 /// Everything `--json` prints.
 #[derive(Serialize)]
 struct Report {
+    /// Contexts from the training box.
     observation_space: StabilityReport,
+    /// Contexts from the box scaled by `--context-scale`.
+    far_contexts: StabilityReport,
     #[serde(skip_serializing_if = "Option::is_none")]
     negative_control: Option<StabilityReport>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -115,44 +132,65 @@ fn robot_simulator(policy: &Policy, scale: f64) -> anyhow::Result<Simulator> {
 }
 
 pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
-    let config = StabilityConfig {
-        starts: args.starts,
-        scale: args.scale,
-        tolerance: args.tolerance,
-        max_steps: args.max_steps,
-        seed: args.seed,
-        ..StabilityConfig::default()
-    };
     let dir = &args.checkpoint;
     let model = Model::load(dir, args.task.as_deref())
         .with_context(|| format!("loading the checkpoint {}", dir.display()))?;
-    let bar = rollout_bar(args.starts, "rollouts");
-    let tick = |done: usize| bar.set_position(done as u64);
-    let observation_space = match &model {
-        Model::Flow(policy) => measure(policy.as_ref(), &config, tick)?,
-        Model::Baseline(baseline) => measure(baseline.as_ref(), &config, tick)?,
+    if let (Model::Baseline(_), true) = (&model, args.negative_control || args.robot_loop) {
+        anyhow::bail!(
+            "--negative-control and --robot-loop need a flow checkpoint: the baseline has no \
+             latent to reverse and no desired acceleration"
+        );
+    }
+    let threads = match args.threads {
+        Some(threads) => threads,
+        None => std::thread::available_parallelism().map_or(1, usize::from),
     };
-    bar.finish_and_clear();
-    let negative_control = match (args.negative_control, &model) {
-        (false, _) => None,
-        (true, Model::Baseline(_)) => {
-            anyhow::bail!("--negative-control needs a flow checkpoint")
-        }
-        (true, Model::Flow(policy)) => {
-            let bar = rollout_bar(args.starts, "negative control");
+    let config = StabilityConfig {
+        starts: args.starts,
+        scale: args.scale,
+        bounded_context: registry::entry(model.task())?.bounded_context.to_vec(),
+        tolerance: args.tolerance,
+        max_steps: args.max_steps,
+        seed: args.seed,
+        threads,
+        ..StabilityConfig::default()
+    };
+    let far = StabilityConfig {
+        context_scale: args.context_scale,
+        ..config.clone()
+    };
+    let check = |config: &StabilityConfig, what: &str| {
+        let bar = rollout_bar(config.starts, what);
+        let report = match &model {
+            Model::Flow(policy) => measure(policy.as_ref(), config, |done| {
+                bar.set_position(done as u64)
+            }),
+            Model::Baseline(baseline) => measure(baseline.as_ref(), config, |done| {
+                bar.set_position(done as u64)
+            }),
+        };
+        bar.finish_and_clear();
+        report.with_context(|| format!("the stability check ({what})"))
+    };
+    let observation_space = check(&config, "training contexts")?;
+    let far_contexts = check(&far, "far contexts")?;
+    let negative_control = match (&model, args.negative_control) {
+        (Model::Flow(policy), true) => {
+            let config = StabilityConfig {
+                starts: args.negative_control_starts,
+                ..config.clone()
+            };
+            let bar = rollout_bar(config.starts, "negative control");
             let report = measure(&policy.time_reversed(), &config, |done| {
                 bar.set_position(done as u64)
             })?;
             bar.finish_and_clear();
             Some(report)
         }
+        _ => None,
     };
-    let robot_loop = match (args.robot_loop, &model) {
-        (false, _) => None,
-        (true, Model::Baseline(_)) => anyhow::bail!(
-            "--robot-loop needs a flow checkpoint: the baseline has no desired acceleration"
-        ),
-        (true, Model::Flow(policy)) => {
+    let robot_loop = match (&model, args.robot_loop) {
+        (Model::Flow(policy), true) => {
             let loop_config = RobotLoopConfig {
                 starts: args.robot_starts,
                 duration: args.robot_duration,
@@ -168,35 +206,45 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
             bar.finish_and_clear();
             Some((report, loop_config))
         }
+        _ => None,
     };
     if args.json {
         let report = Report {
             observation_space,
+            far_contexts,
             negative_control: negative_control.clone(),
             robot_loop: robot_loop.map(|(report, _)| report),
         };
         println!("{}", serde_json::to_string_pretty(&report)?);
         return check_negative_control(negative_control.as_ref());
     }
-    let report = &observation_space;
-    println!(
-        "stability: {:.1}% ({}/{} rollouts from up to {}x outside the demonstrations converged \
-         within {:.3e} in {} steps; {} non-finite, {} stalled away from the attractor)",
-        100.0 * report.fraction,
-        report.converged,
-        report.rollouts,
-        args.scale,
-        report.tolerance,
-        args.max_steps,
-        report.diverged_to_non_finite,
-        report.stalled_away,
-    );
-    let shares: Vec<String> = report
-        .within
-        .iter()
-        .map(|share| format!("{:.1}% within {}x", 100.0 * share.fraction, share.factor))
-        .collect();
-    println!("ending near the attractor: {}", shares.join(", "));
+    for (report, contexts) in [
+        (&observation_space, "training contexts".to_string()),
+        (
+            &far_contexts,
+            format!("contexts up to {}x outside", args.context_scale),
+        ),
+    ] {
+        println!(
+            "stability, {contexts}: {:.1}% ({}/{} rollouts from up to {}x outside the \
+             demonstrations converged within {:.3e} in {} steps; {} non-finite, {} stalled away \
+             from the attractor)",
+            100.0 * report.fraction,
+            report.converged,
+            report.rollouts,
+            args.scale,
+            report.tolerance,
+            args.max_steps,
+            report.diverged_to_non_finite,
+            report.stalled_away,
+        );
+        let shares: Vec<String> = report
+            .within
+            .iter()
+            .map(|share| format!("{:.1}% within {}x", 100.0 * share.fraction, share.factor))
+            .collect();
+        println!("  ending near the attractor: {}", shares.join(", "));
+    }
     if let Some(report) = &negative_control {
         println!(
             "negative control (the same flow, its latent run backwards): {:.1}% flagged \

@@ -241,8 +241,8 @@ pub struct TrainArgs {
     /// obstacle-avoidance, none otherwise].
     #[arg(long, value_delimiter = ',', value_parser = parse_context_set)]
     pub context_sets: Option<Vec<Option<ContextSet>>>,
-    /// Radial contraction layers about each obstacle centre in front of the network (0:
-    /// none) [default: the task's: 2 for obstacle-avoidance; other tasks have no
+    /// Radial contraction layers about the obstacle centres in front of the network (0:
+    /// none) [default: the task's: 8 for obstacle-avoidance; other tasks have no
     /// centres to contract about].
     #[arg(long)]
     pub contraction_layers: Option<usize>,
@@ -253,6 +253,10 @@ pub struct TrainArgs {
     pub local_features: Option<usize>,
     #[command(flatten)]
     pub model: ModelArgs,
+    /// Also train on demonstrations that failed their task (their last step is not a
+    /// success: spilled, collided, never arrived); by default they are dropped.
+    #[arg(long)]
+    pub keep_failed: bool,
     /// Also train the behaviour-cloning baseline into `<out>/baseline`.
     #[arg(long)]
     pub baseline: bool,
@@ -388,23 +392,37 @@ pub fn task_recipe(task: &TaskEntry, context_dim: usize) -> anyhow::Result<Train
     })
 }
 
-/// Reads a `ciflow demos` dataset of `task` as the policy's demonstrations: positions
-/// `q` of each observation `[q, q̇, c]`, the per-step contexts, `dt = control_dt`.
+/// Reads a `ciflow demos` dataset of `task` as the policy's demonstrations (see
+/// [`to_demonstrations`]).
 pub fn read_demonstrations(
     dir: &Path,
     task: &TaskEntry,
+    failed: FailedEpisodes,
 ) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
     let (spec, episodes) =
         dataset::read(dir).with_context(|| format!("reading the dataset {}", dir.display()))?;
-    to_demonstrations(spec, episodes, task, &dir.display().to_string())
+    to_demonstrations(spec, episodes, task, &dir.display().to_string(), failed)
 }
 
-/// The policy's demonstrations of `task` in dataset episodes (from `source`, for errors).
+/// What becomes of demonstrations that failed their task (spilled, collided, never
+/// arrived): they show what not to do, so by default they are not imitated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FailedEpisodes {
+    Drop,
+    Keep,
+}
+
+/// The policy's demonstrations of `task` in dataset episodes (from `source`, for errors):
+/// positions `q` of each observation `[q, q̇, c]`, the per-step contexts,
+/// `dt = control_dt`; the steps an external force moved are excluded from the likelihood,
+/// and episodes whose last step is not a success are dropped unless `failed` keeps them.
+/// Prints what was left out.
 pub fn to_demonstrations(
     spec: DatasetSpec,
     episodes: Vec<dataset::Episode>,
     task: &TaskEntry,
     source: &str,
+    failed: FailedEpisodes,
 ) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
     anyhow::ensure!(
         spec.env_id == task.id,
@@ -423,9 +441,16 @@ pub fn to_demonstrations(
         source
     );
     let position_dim = velocity_and_position / 2;
-    let episodes = episodes
+    let recorded = episodes.len();
+    let failures = episodes
+        .iter()
+        .filter(|e| e.succeeded() == Some(false))
+        .count();
+    let episodes: Vec<Episode> = episodes
         .into_iter()
+        .filter(|e| failed == FailedEpisodes::Keep || e.succeeded() != Some(false))
         .map(|episode| Episode {
+            excluded: (0..episode.len()).map(|t| episode.perturbed(t)).collect(),
             states: episode
                 .observations
                 .iter()
@@ -434,6 +459,25 @@ pub fn to_demonstrations(
             contexts: Contexts::PerStep(episode.contexts),
         })
         .collect();
+    anyhow::ensure!(
+        !episodes.is_empty(),
+        "{source}: all {recorded} episodes failed their task; --keep-failed trains on them"
+    );
+    let excluded: usize = episodes
+        .iter()
+        .flat_map(|e| &e.excluded)
+        .filter(|&&x| x)
+        .count();
+    let transitions: usize = episodes.iter().map(|e| e.excluded.len()).sum();
+    println!(
+        "{source}: {failures} of {recorded} episodes failed their task{}; {excluded} of \
+         {transitions} transitions moved by an external force, left out of the likelihood",
+        match failed {
+            FailedEpisodes::Drop if failures > 0 => " and are dropped (--keep-failed keeps them)",
+            FailedEpisodes::Drop => "",
+            FailedEpisodes::Keep => ", kept (--keep-failed)",
+        }
+    );
     let data = Demonstrations {
         episodes,
         dt: spec.control_dt,
@@ -567,7 +611,12 @@ fn keep_checkpoint(
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let task = registry::entry(&args.task)?;
-    let (spec, mut data) = episodes::demonstrations(task, args.demos.as_deref(), &args.zenoh)?;
+    let failed = match args.keep_failed {
+        true => FailedEpisodes::Keep,
+        false => FailedEpisodes::Drop,
+    };
+    let (spec, mut data) =
+        episodes::demonstrations(task, args.demos.as_deref(), &args.zenoh, failed)?;
     if let Some(count) = args.subset {
         data.episodes =
             subset(data.episodes, count, args.model.seed, |e| e.context(0)).context("--subset")?;

@@ -4,11 +4,13 @@
 //!
 //! Starts are drawn uniformly from the demonstrations' state bounding box scaled by
 //! `scale` about its centre (`scale = 100`: up to 100× outside), contexts uniformly from
-//! the context bounding box. A rollout converges when its distance to the attractor —
-//! the fixed point for go-to, the orbit point of the same phase for limit cycles, the
-//! demonstrations' goal for the behaviour-cloning baseline — falls below
+//! the context bounding box scaled by `context_scale` (angles and phases, listed in
+//! `bounded_context`, stay in the box). A rollout converges when its distance to the
+//! attractor — the fixed point for go-to, the orbit point of the same phase for limit
+//! cycles, the demonstrations' goal for the behaviour-cloning baseline — falls below
 //! `tolerance · diag(state box)` within `max_steps` steps. A non-finite state counts as
-//! diverged.
+//! diverged. (No escape radius ends diverging rollouts early: stable flows pass through
+//! states far beyond any such radius on their way in.)
 //!
 //! Two figures keep the verdict from hanging on one threshold: the share of rollouts that
 //! end within each of [`TOLERANCE_FACTORS`] times the tolerance (a converged rollout ends
@@ -16,6 +18,8 @@
 //! stalled); and the rollouts that *stalled* away from the attractor — their step
 //! `‖y_{k+1} − y_k‖` stayed below `stall_speed · diag` for `stall_steps` consecutive
 //! steps farther than the tolerance from it: end points of spurious attractors.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -114,6 +118,12 @@ pub struct StabilityConfig {
     pub starts: usize,
     /// Starts are drawn from the state box scaled by this factor about its centre.
     pub scale: f64,
+    /// Contexts are drawn from the context box scaled by this factor about its centre
+    /// (1: the training contexts' box)…
+    pub context_scale: f64,
+    /// …except these coordinates, which keep to the box: angles and phases, whose
+    /// physical range the box already spans.
+    pub bounded_context: Vec<usize>,
     /// Convergence radius, as a fraction of the state box's diagonal.
     pub tolerance: f64,
     /// Step budget per rollout.
@@ -125,6 +135,8 @@ pub struct StabilityConfig {
     /// …and this many stalled steps in a row end the rollout as stalled.
     pub stall_steps: usize,
     pub seed: u64,
+    /// Rollouts run on this many threads (the report does not depend on it).
+    pub threads: usize,
 }
 
 /// The multiples of the tolerance at which [`StabilityReport::within`] is reported.
@@ -142,6 +154,8 @@ impl Default for StabilityConfig {
         Self {
             starts: 200,
             scale: 100.0,
+            context_scale: 1.0,
+            bounded_context: Vec::new(),
             tolerance: 1e-3,
             max_steps: 20_000,
             check_every: 10,
@@ -150,6 +164,7 @@ impl Default for StabilityConfig {
             stall_speed: 1e-7,
             stall_steps: 200,
             seed: 0,
+            threads: 1,
         }
     }
 }
@@ -163,6 +178,8 @@ pub struct StabilityReport {
     pub fraction: f64,
     /// The convergence radius in observation units.
     pub tolerance: f64,
+    /// The context box's scale the contexts were drawn from (1: the training box).
+    pub context_scale: f64,
     /// Largest number of steps a converged rollout needed.
     pub max_steps_to_converge: usize,
     /// Largest final distance to the attractor among non-converged finite rollouts.
@@ -174,104 +191,218 @@ pub struct StabilityReport {
     pub within: Vec<ShareWithin>,
 }
 
-/// Runs the stability check; `progress` is called after each rollout.
-pub fn measure<M: MeanDynamics>(
+/// How one rollout ended.
+#[derive(Clone, Copy, Debug)]
+enum Ending {
+    Converged { steps: usize },
+    NonFinite,
+    Stalled { distance: f64 },
+    OutOfSteps { distance: f64 },
+}
+
+impl Ending {
+    /// Distance to the attractor where the rollout ended (infinite when it left).
+    fn distance(self, tolerance: f64) -> f64 {
+        match self {
+            Ending::Converged { .. } => tolerance,
+            Ending::NonFinite => f64::INFINITY,
+            Ending::Stalled { distance } | Ending::OutOfSteps { distance } => distance,
+        }
+    }
+}
+
+/// Runs the stability check; `progress` is called with the number of finished rollouts.
+/// Rollout `i` draws its start and context from its own stream of the seed, so the report
+/// is the same for any number of threads.
+pub fn measure<M: MeanDynamics + Sync>(
     model: &M,
     config: &StabilityConfig,
     mut progress: impl FnMut(usize),
 ) -> FlowResult<StabilityReport> {
+    let context_dim = model.bounds().context_min.len();
     if config.starts == 0
         || config.check_every == 0
-        || !(config.scale > 0.0 && config.tolerance > 0.0)
+        || config.threads == 0
+        || !(config.scale > 0.0 && config.context_scale > 0.0 && config.tolerance > 0.0)
     {
         return Err(FlowError::InvalidConfig(
-            "stability check needs starts, check_every >= 1 and positive scale and tolerance"
+            "stability check needs starts, threads, check_every >= 1 and positive scales \
+             and tolerance"
                 .into(),
         ));
     }
-    let bounds = model.bounds();
-    let d = bounds.state_min.len();
-    let tolerance = config.tolerance * bounds.state_diagonal().max(f64::MIN_POSITIVE);
-    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-    let mut ws = model.workspace();
-    let (mut y, mut next, mut scratch) = (vec![0.0; d], vec![0.0; d], vec![0.0; d]);
-    let mut context = vec![0.0; bounds.context_min.len()];
+    if let Some(i) = config.bounded_context.iter().find(|&&i| i >= context_dim) {
+        return Err(FlowError::InvalidConfig(format!(
+            "bounded context coordinate {i} of a {context_dim}-D context"
+        )));
+    }
+    let diagonal = model.bounds().state_diagonal().max(f64::MIN_POSITIVE);
+    let tolerance = config.tolerance * diagonal;
+    let next_trial = AtomicUsize::new(0);
+    let finished = AtomicUsize::new(0);
+    let endings = std::thread::scope(|scope| {
+        let workers: Vec<_> = (0..config.threads.min(config.starts))
+            .map(|_| {
+                scope.spawn(|| {
+                    let mut endings = Vec::new();
+                    let mut rollout = Rollout::new(model, config, tolerance, diagonal);
+                    loop {
+                        let trial = next_trial.fetch_add(1, Ordering::Relaxed);
+                        if trial >= config.starts {
+                            return FlowResult::Ok(endings);
+                        }
+                        endings.push((trial, rollout.run(trial)?));
+                        finished.fetch_add(1, Ordering::Relaxed);
+                    }
+                })
+            })
+            .collect();
+        let mut reported = 0;
+        while workers.iter().any(|w| !w.is_finished()) {
+            let done = finished.load(Ordering::Relaxed);
+            if done != reported {
+                progress(done);
+                reported = done;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        let mut endings = Vec::with_capacity(config.starts);
+        for worker in workers {
+            // A worker's panic is a bug: it goes on unwinding here, message intact.
+            let worker = worker
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+            endings.extend(worker?);
+        }
+        progress(config.starts);
+        FlowResult::Ok(endings)
+    })?;
     let mut report = StabilityReport {
         rollouts: config.starts,
         converged: 0,
         fraction: 0.0,
         tolerance,
+        context_scale: config.context_scale,
         max_steps_to_converge: 0,
         worst_final_distance: 0.0,
         diverged_to_non_finite: 0,
         stalled_away: 0,
         within: Vec::new(),
     };
-    let stall = config.stall_speed * bounds.state_diagonal().max(f64::MIN_POSITIVE);
-    let mut final_distances = Vec::with_capacity(config.starts);
-    for trial in 0..config.starts {
-        sample_box(
-            &bounds.state_min,
-            &bounds.state_max,
-            config.scale,
-            &mut rng,
-            &mut y,
-        );
-        sample_box(
-            &bounds.context_min,
-            &bounds.context_max,
-            1.0,
-            &mut rng,
-            &mut context,
-        );
-        // A rollout that turns non-finite ends infinitely far away.
-        let (mut final_distance, mut stalled) = (f64::INFINITY, 0);
-        for step in 1..=config.max_steps {
-            model.mean_next(&y, &context, &mut ws, &mut next)?;
-            stalled = if distance(&y, &next) < stall {
-                stalled + 1
-            } else {
-                0
-            };
-            std::mem::swap(&mut y, &mut next);
-            if y.iter().any(|v| !v.is_finite()) {
-                report.diverged_to_non_finite += 1;
-                final_distance = f64::INFINITY;
-                break;
+    for (_, ending) in &endings {
+        match *ending {
+            Ending::Converged { steps } => {
+                report.converged += 1;
+                report.max_steps_to_converge = report.max_steps_to_converge.max(steps);
             }
-            let stalls = stalled >= config.stall_steps;
-            if stalls || step % config.check_every == 0 || step == config.max_steps {
-                final_distance = model.attractor_distance(&y, &context, &mut ws, &mut scratch)?;
-                if final_distance <= tolerance {
-                    report.max_steps_to_converge = report.max_steps_to_converge.max(step);
-                    report.converged += 1;
-                    break;
-                }
-                if stalls {
-                    report.stalled_away += 1;
-                }
-                if stalls || step == config.max_steps {
-                    report.worst_final_distance = report.worst_final_distance.max(final_distance);
-                    break;
-                }
+            Ending::NonFinite => report.diverged_to_non_finite += 1,
+            Ending::Stalled { distance } | Ending::OutOfSteps { distance } => {
+                report.stalled_away += usize::from(matches!(ending, Ending::Stalled { .. }));
+                report.worst_final_distance = report.worst_final_distance.max(distance);
             }
         }
-        final_distances.push(final_distance);
-        progress(trial + 1);
     }
     report.fraction = report.converged as f64 / report.rollouts as f64;
     report.within = TOLERANCE_FACTORS
         .iter()
         .map(|&factor| ShareWithin {
             factor,
-            fraction: final_distances
+            fraction: endings
                 .iter()
-                .filter(|&&d| d <= factor * tolerance)
+                .filter(|(_, e)| e.distance(tolerance) <= factor * tolerance)
                 .count() as f64
                 / report.rollouts as f64,
         })
         .collect();
     Ok(report)
+}
+
+/// One worker's model workspace and buffers.
+struct Rollout<'a, M: MeanDynamics> {
+    model: &'a M,
+    config: &'a StabilityConfig,
+    ws: M::Workspace,
+    y: Vec<f64>,
+    next: Vec<f64>,
+    scratch: Vec<f64>,
+    context: Vec<f64>,
+    /// Radii in observation units: converged and stalled step.
+    tolerance: f64,
+    stall: f64,
+}
+
+impl<'a, M: MeanDynamics> Rollout<'a, M> {
+    fn new(model: &'a M, config: &'a StabilityConfig, tolerance: f64, diagonal: f64) -> Self {
+        let bounds = model.bounds();
+        let d = bounds.state_min.len();
+        Self {
+            model,
+            config,
+            ws: model.workspace(),
+            y: vec![0.0; d],
+            next: vec![0.0; d],
+            scratch: vec![0.0; d],
+            context: vec![0.0; bounds.context_min.len()],
+            tolerance,
+            stall: config.stall_speed * diagonal,
+        }
+    }
+
+    /// Rollout `trial`: its start and context, then steps until it ends.
+    fn run(&mut self, trial: usize) -> FlowResult<Ending> {
+        let (config, bounds) = (self.config, self.model.bounds());
+        let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+        rng.set_stream(trial as u64);
+        sample_box(
+            &bounds.state_min,
+            &bounds.state_max,
+            config.scale,
+            &mut rng,
+            &mut self.y,
+        );
+        sample_box(
+            &bounds.context_min,
+            &bounds.context_max,
+            config.context_scale,
+            &mut rng,
+            &mut self.context,
+        );
+        for &i in &config.bounded_context {
+            self.context[i] = rng.random_range(bounds.context_min[i]..=bounds.context_max[i]);
+        }
+        let (mut step, mut stalled) = (0, 0);
+        loop {
+            step += 1;
+            self.model
+                .mean_next(&self.y, &self.context, &mut self.ws, &mut self.next)?;
+            stalled = match distance(&self.y, &self.next) < self.stall {
+                true => stalled + 1,
+                false => 0,
+            };
+            std::mem::swap(&mut self.y, &mut self.next);
+            if self.y.iter().any(|v| !v.is_finite()) {
+                return Ok(Ending::NonFinite);
+            }
+            let (stalls, last) = (stalled >= config.stall_steps, step >= config.max_steps);
+            if stalls || last || step % config.check_every == 0 {
+                let distance = self.model.attractor_distance(
+                    &self.y,
+                    &self.context,
+                    &mut self.ws,
+                    &mut self.scratch,
+                )?;
+                if distance <= self.tolerance {
+                    return Ok(Ending::Converged { steps: step });
+                }
+                if stalls {
+                    return Ok(Ending::Stalled { distance });
+                }
+                if last {
+                    return Ok(Ending::OutOfSteps { distance });
+                }
+            }
+        }
+    }
 }
 
 /// Uniform sample from the box `[lo, hi]` scaled by `scale` about its centre.

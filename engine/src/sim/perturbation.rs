@@ -30,4 +30,9 @@ impl Perturbation {
     pub fn is_active(&self, time: Real) -> bool {
         self.start <= time && time < self.start + self.duration
     }
+
+    /// Whether the disturbance acts at some time of `[from, to)`.
+    pub fn overlaps(&self, from: Real, to: Real) -> bool {
+        self.start < to && from < self.start + self.duration
+    }
 }

@@ -145,6 +145,15 @@ impl Simulator {
         &self.perturbations
     }
 
+    /// Whether an external force acted during the last control period or during the
+    /// `settling` seconds before it: the period's motion still carries the disturbance
+    /// while the controller that reacts to it has not yet damped it out.
+    pub fn perturbed_within(&self, settling: Real) -> bool {
+        let now = self.time();
+        let from = now - self.config.control_dt - settling;
+        self.perturbations.iter().any(|p| p.overlaps(from, now))
+    }
+
     pub fn clear_perturbations(&mut self) {
         self.perturbations.clear();
     }

@@ -19,14 +19,45 @@ pub enum Contexts {
 pub struct Episode {
     pub states: Vec<Vec<f64>>,
     pub contexts: Contexts,
+    /// Transitions `y_t → y_{t+1}` left out of the likelihood, e.g. those an external force
+    /// moved: `T − 1` flags, or none when every transition counts. No modelled span crosses
+    /// an excluded transition; the states themselves still start the spans after it.
+    pub excluded: Vec<bool>,
 }
 
 impl Episode {
+    /// An episode whose every transition counts.
+    pub fn new(states: Vec<Vec<f64>>, contexts: Contexts) -> Self {
+        Self {
+            states,
+            contexts,
+            excluded: Vec::new(),
+        }
+    }
+
     pub fn context(&self, t: usize) -> &[f64] {
         match &self.contexts {
             Contexts::PerStep(c) => &c[t],
             Contexts::PerEpisode(c) => c,
         }
+    }
+
+    /// Whether transition `y_t → y_{t+1}` enters the likelihood.
+    pub fn counts(&self, t: usize) -> bool {
+        !self.excluded.get(t).copied().unwrap_or(false)
+    }
+
+    /// For each transition `t`, how many transitions from `t` on count without a break
+    /// (0 for an excluded one): the longest span that may start at `y_t`.
+    fn counted_runs(&self) -> Vec<i64> {
+        let steps = self.states.len().saturating_sub(1);
+        let mut runs = vec![0; steps];
+        for t in (0..steps).rev() {
+            if self.counts(t) {
+                runs[t] = 1 + runs.get(t + 1).copied().unwrap_or(0);
+            }
+        }
+        runs
     }
 }
 
@@ -53,9 +84,17 @@ impl Demonstrations {
             return invalid("episode 0 is empty".into());
         };
         let (d, m) = (state.len(), first.context(0).len());
+        let counted = |e: &Episode| (0..e.states.len() - 1).filter(|&t| e.counts(t)).count();
         for (e, episode) in self.episodes.iter().enumerate() {
             if episode.states.len() < 2 {
                 return invalid(format!("episode {e} has fewer than 2 states"));
+            }
+            if !episode.excluded.is_empty() && episode.excluded.len() != episode.states.len() - 1 {
+                return invalid(format!(
+                    "episode {e}: {} exclusion flags for {} transitions",
+                    episode.excluded.len(),
+                    episode.states.len() - 1
+                ));
             }
             if let Contexts::PerStep(c) = &episode.contexts
                 && c.len() != episode.states.len()
@@ -77,6 +116,9 @@ impl Demonstrations {
                     return invalid(format!("episode {e}, step {t}: non-finite value"));
                 }
             }
+        }
+        if self.episodes.iter().map(counted).sum::<usize>() == 0 {
+            return invalid("every transition is excluded".into());
         }
         Ok((d, m))
     }
@@ -187,8 +229,9 @@ pub struct Pairs {
 /// start a transition, and each episode's first state.
 ///
 /// Transition row `i` starts at state `starts[i] = t` and may span `k ∈ 1..=room[i]`
-/// steps (to `y_{t+k}`, within its episode); [`draw`](Self::draw) gathers a batch of rows
-/// with random spans.
+/// steps (to `y_{t+k}`, within its episode and short of its next excluded transition);
+/// [`draw`](Self::draw) gathers a batch of rows with random spans. Excluded transitions
+/// start no row.
 #[derive(Debug)]
 pub struct Transitions {
     states: Tensor,
@@ -219,14 +262,16 @@ impl Transitions {
         let (mut states, mut contexts) = (Vec::new(), Vec::new());
         let (mut starts, mut room) = (Vec::new(), Vec::new());
         for e in episodes {
-            let (offset, steps) = (states.len() as i64, e.states.len() as i64 - 1);
+            let offset = states.len() as i64;
             for t in 0..e.states.len() {
                 states.push(e.states[t].as_slice());
                 contexts.push(e.context(t));
             }
-            for t in 0..steps {
-                starts.push(offset + t);
-                room.push(steps - t);
+            for (t, run) in e.counted_runs().into_iter().enumerate() {
+                if run > 0 {
+                    starts.push(offset + t as i64);
+                    room.push(run);
+                }
             }
         }
         let initial: Vec<&[f64]> = episodes.iter().map(|e| e.states[0].as_slice()).collect();
@@ -265,7 +310,8 @@ impl Transitions {
     }
 
     /// The transitions of `rows`: with probability `arrival` a row spans every step left
-    /// in its episode (`y_t → y_T`, where and when the motion ends), otherwise
+    /// in its episode (`y_t → y_T`, where and when the motion ends; or up to the next
+    /// excluded transition), otherwise
     /// `k ~ U{1, …, min(max_steps, room)}` steps, `room` the steps left. Drawn within the
     /// room rather than clamped to it: clamping would pile the late rows' spans onto each
     /// episode's last state.
@@ -296,5 +342,73 @@ impl Transitions {
             context: self.contexts.index_select(0, start),
             steps,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One episode of 1-D states `y_t = t`, so a pair's states name its indices.
+    fn counting_episode(steps: usize, excluded: &[usize]) -> Episode {
+        Episode {
+            states: (0..=steps).map(|t| vec![t as f64]).collect(),
+            contexts: Contexts::PerEpisode(vec![]),
+            excluded: (0..steps).map(|t| excluded.contains(&t)).collect(),
+        }
+    }
+
+    fn indices(tensor: &Tensor) -> Vec<i64> {
+        Vec::<f64>::try_from(tensor.flatten(0, -1))
+            .unwrap()
+            .into_iter()
+            .map(|v| v as i64)
+            .collect()
+    }
+
+    #[test]
+    fn no_modelled_span_crosses_an_excluded_transition() {
+        let (steps, excluded) = (30, [4, 5, 17]);
+        let episode = counting_episode(steps, &excluded);
+        let transitions = Transitions::new(&[&episode], 1, 0);
+        assert_eq!(transitions.len(), steps - excluded.len());
+        let one_step = transitions.one_step();
+        let starts = indices(&one_step.prev);
+        assert!(
+            excluded.iter().all(|&t| !starts.contains(&(t as i64))),
+            "{starts:?}"
+        );
+        tch::manual_seed(3);
+        let rows = Tensor::arange(transitions.len() as i64, tch::kind::INT64_CPU).repeat([200]);
+        let pairs = transitions.draw(&rows, steps, 0.3);
+        let (prev, next) = (indices(&pairs.prev), indices(&pairs.next));
+        let longest = prev.iter().zip(&next).map(|(p, n)| n - p).max().unwrap();
+        assert!(longest > 5, "long spans were drawn ({longest})");
+        for (p, n) in prev.iter().zip(&next) {
+            assert!(
+                excluded.iter().all(|&x| !(*p..*n).contains(&(x as i64))),
+                "{p} → {n} crosses an excluded transition"
+            );
+        }
+    }
+
+    #[test]
+    fn exclusion_flags_must_match_the_transitions_and_leave_some() {
+        let data = |episode: Episode| Demonstrations {
+            episodes: vec![episode],
+            dt: 0.1,
+        };
+        let mut short = counting_episode(5, &[]);
+        short.excluded.pop();
+        assert!(matches!(
+            data(short).validate(),
+            Err(TrainError::InvalidData(_))
+        ));
+        let all = counting_episode(5, &[0, 1, 2, 3, 4]);
+        assert!(matches!(
+            data(all).validate(),
+            Err(TrainError::InvalidData(_))
+        ));
+        assert!(data(counting_episode(5, &[2])).validate().is_ok());
     }
 }

@@ -84,10 +84,7 @@ impl Spiral {
                     ];
                     states.push(self.observe(x));
                 }
-                Episode {
-                    states,
-                    contexts: Contexts::PerEpisode(Vec::new()),
-                }
+                Episode::new(states, Contexts::PerEpisode(Vec::new()))
             })
             .collect();
         Demonstrations {

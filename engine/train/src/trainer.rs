@@ -236,7 +236,12 @@ fn latent_init(data: &Demonstrations, config: &FlowConfig) -> (f64, LatentInit) 
             false => [0.0, 0.0],
         };
         let psi = |y: &[f64]| (normalised(y, 1) - centre[1]).atan2(normalised(y, 0) - centre[0]);
-        for w in e.states.windows(2) {
+        let counted = e
+            .states
+            .windows(2)
+            .enumerate()
+            .filter(|(t, _)| e.counts(*t));
+        for (_, w) in counted {
             for i in 0..config.state_dim {
                 squares += (normalised(&w[1], i) - normalised(&w[0], i)).powi(2);
             }

@@ -3,6 +3,8 @@
 //!
 //! `ℓ = (1/N) Σ_i Σ_{t≥1} log p(y_tⁱ | y_{t−1}ⁱ, c_{t−1}ⁱ)`, `N` the number of transitions,
 //!
+//! over the transitions the trainer fits: those an external force moved
+//! ([`Episode::perturbed`]) show the push, not the policy, and are left out.
 //! in the data's own units ([`Policy::log_transition`] includes the normalisation
 //! Jacobian), with the policy's state `y = q`, the position part of each observation
 //! `[q, q̇, c]`, and the per-step context `c`. The initial-state term
@@ -43,7 +45,7 @@ pub fn log_likelihood(policy: &Policy, episodes: &[Episode]) -> EvaluationResult
             )));
         }
         initial += policy.log_initial(&observations[0][..d], &contexts[0], &mut ws)?;
-        for t in 1..observations.len() {
+        for t in (1..observations.len()).filter(|&t| !episode.perturbed(t - 1)) {
             sum += policy.log_transition(
                 &observations[t - 1][..d],
                 &observations[t][..d],
@@ -55,7 +57,7 @@ pub fn log_likelihood(policy: &Policy, episodes: &[Episode]) -> EvaluationResult
     }
     if transitions == 0 {
         return Err(EvaluationError::InvalidConfig(
-            "the dataset has no transitions".into(),
+            "the dataset has no unperturbed transitions".into(),
         ));
     }
     Ok(LogLikelihood {

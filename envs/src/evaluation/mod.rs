@@ -26,7 +26,7 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use crate::actor::{Actor, ActorError, Model};
-use crate::env::{Env, EnvError, Info, ResetOptions};
+use crate::env::{Env, EnvError, Info, ResetOptions, SUCCESS_INFO};
 pub use push::{PushConfig, PushOutcome, PushSummary};
 
 /// `info` keys holding the distance to the task's goal, in order of preference: obstacle
@@ -394,7 +394,7 @@ pub fn evaluate(
         results.push(EpisodeResult {
             seed,
             context: run.trace.context[0].clone(),
-            success: run.last_info.get("is_success").is_some_and(|&s| s == 1.0),
+            success: run.last_info.get(SUCCESS_INFO).is_some_and(|&s| s == 1.0),
             collision: has("collision").then_some(run.collision),
             spill: has("spill").then_some(run.spill),
             final_distance: key.map(|k| run.last_info[*k]),

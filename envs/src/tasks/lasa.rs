@@ -68,7 +68,7 @@ use nalgebra::Vector2;
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
-use crate::env::{EnvError, Info};
+use crate::env::{EnvError, Info, SUCCESS_INFO};
 use crate::expert::demo_field::{DemoField, Sample};
 use crate::expert::tracking::VelocityField;
 use crate::planar::{
@@ -334,7 +334,7 @@ impl PlanarTask for Lasa {
             terminated: success,
             info: Info::from([
                 ("distance_to_goal".into(), distance),
-                ("is_success".into(), f64::from(u8::from(success))),
+                (SUCCESS_INFO.into(), f64::from(u8::from(success))),
                 ("shape".into(), self.shape as f64),
             ]),
         }

@@ -49,7 +49,7 @@ use nalgebra::Vector2;
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
-use crate::env::{EnvError, Info};
+use crate::env::{EnvError, Info, SUCCESS_INFO};
 use crate::expert::limit_cycle::LimitCycleField;
 use crate::expert::tracking::VelocityField;
 use crate::planar::{Outcome, PlanarEnv, PlanarSetup, PlanarTask, reject_unknown_options};
@@ -210,7 +210,7 @@ impl PlanarTask for LimitCycle {
             info: Info::from([
                 ("outline_error".into(), error),
                 (
-                    "is_success".into(),
+                    SUCCESS_INFO.into(),
                     f64::from(u8::from(error < SUCCESS_DISTANCE)),
                 ),
             ]),

@@ -52,7 +52,7 @@ use nalgebra::Vector2;
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
-use crate::env::{EnvError, Info};
+use crate::env::{EnvError, Info, SUCCESS_INFO};
 use crate::expert::modulation::{Disc, ModulatedField};
 use crate::expert::tracking::VelocityField;
 use crate::planar::{Outcome, PlanarEnv, PlanarSetup, PlanarTask, reject_unknown_options};
@@ -303,7 +303,7 @@ impl PlanarTask for ObstacleAvoidance {
             info: Info::from([
                 ("distance_to_target".into(), distance),
                 ("collision".into(), flag(collision)),
-                ("is_success".into(), flag(success)),
+                (SUCCESS_INFO.into(), flag(success)),
             ]),
         }
     }

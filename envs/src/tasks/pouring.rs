@@ -31,7 +31,9 @@
 //! ## Rewards
 //! `−‖spout − p*‖` (m) per step, `−100` on a spill. `info`: `spout_x/y/z` (m), `tilt`
 //! (rad), `pour_distance` (m), `over_pot` (0/1), `spill` (0/1), `is_success` (1 while
-//! pouring: tilt ≥ [`POURING_TILT`] with the spout over the pot's opening), `time` (s).
+//! pouring: tilt ≥ [`POURING_TILT`] with the spout over the pot's opening), `perturbed`
+//! (1 when a push acted during the step or ended less than [`PUSH_SETTLING`] s before
+//! it), `time` (s).
 //!
 //! ## Starting state
 //! `q = PANDA_HOME + U(−s, s)⁷` with the spread `s = 0.05` rad, `q̇ = 0`; the cup is
@@ -64,8 +66,8 @@ use ciflow_engine::sim::{Perturbation, PerturbationKind, SimConfig, Simulator};
 use nalgebra::{Rotation3, Translation3, UnitQuaternion, Vector2};
 use rand::RngExt;
 
-use crate::env::{Env, EnvError, EnvSpec, Info, ResetOptions, Step};
-use crate::expert::pouring::{CupPose, PourTarget, expert_acceleration};
+use crate::env::{Env, EnvError, EnvSpec, Info, PERTURBED_INFO, ResetOptions, SUCCESS_INFO, Step};
+use crate::expert::pouring::{CupPose, PUSH_SETTLING, PourTarget, expert_acceleration};
 use crate::planar::reject_unknown_options;
 use crate::raster::{BLACK, BLUE, Canvas, GREY, ORANGE, RED, View};
 use crate::seeding::EpisodeRng;
@@ -274,7 +276,11 @@ impl Pouring {
             ("pour_distance".into(), distance),
             ("over_pot".into(), flag(over)),
             ("spill".into(), flag(spill)),
-            ("is_success".into(), flag(success)),
+            (SUCCESS_INFO.into(), flag(success)),
+            (
+                PERTURBED_INFO.into(),
+                flag(self.simulator.perturbed_within(PUSH_SETTLING)),
+            ),
             ("time".into(), self.simulator.time()),
         ]);
         let reward = if spill { SPILL_REWARD } else { -distance };

@@ -11,7 +11,7 @@ use ciflow_envs::registry::TaskEntry;
 use ciflow_train::Demonstrations;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::{read_demonstrations, to_demonstrations};
+use super::{FailedEpisodes, read_demonstrations, to_demonstrations};
 use crate::commands::network::NetworkArgs;
 
 /// Where the demonstrations come from besides `--demos`.
@@ -38,10 +38,11 @@ pub fn demonstrations(
     task: &TaskEntry,
     demos: Option<&Path>,
     source: &ZenohSource,
+    failed: FailedEpisodes,
 ) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
     let Some(count) = source.from_zenoh else {
         let demos = demos.context("give the dataset with --demos, or --from-zenoh <N>")?;
-        return read_demonstrations(demos, task);
+        return read_demonstrations(demos, task, failed);
     };
     let timeout = Duration::try_from_secs_f64(source.episode_timeout)
         .ok()
@@ -86,5 +87,11 @@ pub fn demonstrations(
             spec.dataset_id
         );
     }
-    to_demonstrations(spec, episodes, task, "the episodes collected from Zenoh")
+    to_demonstrations(
+        spec,
+        episodes,
+        task,
+        "the episodes collected from Zenoh",
+        failed,
+    )
 }
