@@ -62,6 +62,10 @@ POURING_DEMO_OPTIONS = ["--option", "push_force=40"]
 # held-out score comes from the separate test recording.
 POURING_CURVE_MODEL = [*POURING_MODEL, "--validation-fraction", "0", "--keep", "last"]
 LIMIT_CYCLE_MODEL = ["--epochs", "40"]
+# The limit-cycle families: (name, training and held-out context sets of the task's
+# `context_set` option, the field figure's contexts).
+LIMIT_CYCLE_FAMILIES = (("limit-cycle", 0, 1, "0;0.5;1"),
+                        ("limit-cycle-curled", 3, 4, "1;1.5;2"))
 # 1000 demonstrations, two epochs, the last kept: as good as 8+ CPU-minutes of longer
 # training on fewer (README "Obstacle avoidance"), in about 2.5 CPU-minutes.
 OBSTACLE_MODEL = ["--epochs", "2", "--keep", "last"]
@@ -213,7 +217,7 @@ def wait_for_line(path: pathlib.Path, text: str, process: subprocess.Popen, time
 def plan(out: pathlib.Path) -> list[Job]:
     """The experiments as jobs; out/experiments has the layout scripts/report.py reads."""
     data, policies, exp = out / "data", out / "policies", out / "experiments"
-    for d in (data, policies, exp / "limit_cycle" / "nll", exp / "pouring" / "nll",
+    for d in (data, policies, exp / "pouring" / "nll",
               exp / "stability", out / "figures"):
         d.mkdir(parents=True, exist_ok=True)
 
@@ -271,15 +275,19 @@ def plan(out: pathlib.Path) -> list[Job]:
     jobs.append(stability("pouring-flow", pouring, "pouring-record-train", "--robot-loop",
                           "--negative-control"))
     for fraction in POURING_FRACTIONS:
-        count = round(fraction * POURING_DEMOS)
+        # The whole dataset at 1.0: every demonstration that did not fail (the trainer
+        # drops the others, so a count of 220 would be more than it has).
+        count = [] if fraction == 1.0 else [round(fraction * POURING_DEMOS)]
         for seed in SEEDS:
             policy = policies / "pouring-curve" / f"{fraction}_seed{seed}"
             nll = exp / "pouring" / "nll"
             jobs.append(Job(f"pouring-{fraction}-seed{seed}", [
-                [CIFLOW, "train", "--task", "pouring", "--demos", pouring_data, "--subset",
-                 count, "--seed", seed, "--out", policy, *POURING_CURVE_MODEL],
-                evaluate(policy, "--nll", pouring_data, "--nll-subset", count, "--seed", seed,
-                         "--out", nll / f"{fraction}_seed{seed}_train.json"),
+                [CIFLOW, "train", "--task", "pouring", "--demos", pouring_data,
+                 *(["--subset", *count] if count else []), "--seed", seed, "--out", policy,
+                 *POURING_CURVE_MODEL],
+                evaluate(policy, "--nll", pouring_data,
+                         *(["--nll-subset", *count] if count else []),
+                         "--seed", seed, "--out", nll / f"{fraction}_seed{seed}_train.json"),
                 evaluate(policy, "--nll", pouring_test,
                          "--out", nll / f"{fraction}_seed{seed}_test.json"),
             ], after=["pouring-record-train", "record-pouring-test"]))
@@ -318,27 +326,32 @@ def plan(out: pathlib.Path) -> list[Job]:
     jobs.append(stability(f"obstacles-{k}-baseline", policies / f"obstacles-{k}" / "baseline",
                           f"obstacles-{k}"))
 
-    # Limit cycle: learning curve over the number of trajectories, held-out phases.
-    lc_train, lc_test = data / "limit-cycle", data / "limit-cycle-heldout"
-    jobs += [record("record-limit-cycle", "limit-cycle", 10, 0, lc_train),
-             record("record-limit-cycle-heldout", "limit-cycle", 10, TEST_SEED, lc_test,
-                    "--option", "context_set=1")]
-    for n in LIMIT_CYCLE_TRAJECTORIES:
-        for seed in SEEDS:
-            policy, nll = policies / "limit-cycle" / f"{n}_seed{seed}", exp / "limit_cycle" / "nll"
-            jobs.append(Job(f"limit-cycle-{n}-seed{seed}", [
-                [CIFLOW, "train", "--task", "limit-cycle", "--demos", lc_train, "--subset", n,
-                 "--seed", seed, "--out", policy, *LIMIT_CYCLE_MODEL],
-                evaluate(policy, "--nll", lc_train, "--nll-subset", n, "--seed", seed,
-                         "--out", nll / f"{n}_seed{seed}_train.json"),
-                evaluate(policy, "--nll", lc_test, "--out", nll / f"{n}_seed{seed}_test.json"),
-            ], after=["record-limit-cycle", "record-limit-cycle-heldout"]))
-    best_lc = policies / "limit-cycle" / f"{max(LIMIT_CYCLE_TRAJECTORIES)}_seed0"
-    best_lc_job = f"limit-cycle-{max(LIMIT_CYCLE_TRAJECTORIES)}-seed0"
-    jobs.append(Job("limit-cycle-field", [evaluate(
-        best_lc, "--field", exp / "limit_cycle" / "field.json", "--field-contexts", "0;0.5;1",
-        "--field-demos", lc_train)], after=[best_lc_job]))
-    jobs.append(stability("limit-cycle-flow", best_lc, best_lc_job, "--negative-control"))
+    # Limit cycle: learning curves over the number of trajectories, held-out contexts, for
+    # the paper's star-shaped phases and for the curled outlines (no longer star-shaped).
+    for family, train_set, test_set, field_contexts in LIMIT_CYCLE_FAMILIES:
+        lc_train, lc_test = data / family, data / f"{family}-heldout"
+        results = exp / family.replace("-", "_")
+        (results / "nll").mkdir(parents=True, exist_ok=True)
+        jobs += [record(f"record-{family}", "limit-cycle", 10, 0, lc_train,
+                        "--option", f"context_set={train_set}"),
+                 record(f"record-{family}-heldout", "limit-cycle", 10, TEST_SEED, lc_test,
+                        "--option", f"context_set={test_set}")]
+        for n in LIMIT_CYCLE_TRAJECTORIES:
+            for seed in SEEDS:
+                policy, nll = policies / family / f"{n}_seed{seed}", results / "nll"
+                jobs.append(Job(f"{family}-{n}-seed{seed}", [
+                    [CIFLOW, "train", "--task", "limit-cycle", "--demos", lc_train, "--subset",
+                     n, "--seed", seed, "--out", policy, *LIMIT_CYCLE_MODEL],
+                    evaluate(policy, "--nll", lc_train, "--nll-subset", n, "--seed", seed,
+                             "--out", nll / f"{n}_seed{seed}_train.json"),
+                    evaluate(policy, "--nll", lc_test, "--out", nll / f"{n}_seed{seed}_test.json"),
+                ], after=[f"record-{family}", f"record-{family}-heldout"]))
+        best = policies / family / f"{max(LIMIT_CYCLE_TRAJECTORIES)}_seed0"
+        best_job = f"{family}-{max(LIMIT_CYCLE_TRAJECTORIES)}-seed0"
+        jobs.append(Job(f"{family}-field", [evaluate(
+            best, "--field", results / "field.json", "--field-contexts", field_contexts,
+            "--field-demos", lc_train)], after=[best_job]))
+        jobs.append(stability(f"{family}-flow", best, best_job, "--negative-control"))
 
     return jobs
 

@@ -8,6 +8,7 @@ Layout of EXPERIMENTS_DIR (every file optional: a missing one gives a "not run" 
     limit_cycle/field.json            ciflow evaluate --field (contexts 0;0.5;1, --field-demos)
     limit_cycle/nll/<N>_seed<S>_train.json, <N>_seed<S>_test.json
                                       ciflow evaluate --nll DATASET --out (N trajectories)
+    limit_cycle_curled/...            the same for the curled outlines (contexts 1;1.5;2)
     obstacles/<K>/eval.json           ciflow evaluate --kwarg obstacles=K --episodes 100+
                                       --trajectories 8 (K = 1, 2, 3)
     obstacles/<K>/field.json          ciflow evaluate --field (optional latent-grid figure)
@@ -271,21 +272,35 @@ def plot_disturbed(report, evaluation, name, title):
 
 def limit_cycle(report, root):
     report.add("## Limit cycle", "")
-    folder = root / "limit_cycle"
-    field = load(folder / "field.json")
-    if field is None:
-        report.not_run("vector fields and rollouts", folder / "field.json")
-    else:
-        plot_field(report, field, "limit_cycle_field.png",
-                   "Limit cycle (10 phases fitted): learned field, rollouts (blue), "
-                   "demonstrations (dotted), true outline (dashed)")
-    report.add("Learning curve: the n-trajectory model fits n distinct phases spread evenly "
-               "over the ten training phases, 0 and 1 included (2 → {0, 1}); none is held out "
-               "of the fit and the last epoch is kept, so *train* is the log-likelihood of "
-               "exactly the demonstrations fitted and *test* that of the held-out phases "
-               "{0.25, 0.5, 0.75}.", "")
-    learning_curve(report, folder / "nll", "training trajectories", "training trajectories",
-                   "limit_cycle_nll.png", "Limit cycle: log-likelihood per transition")
+    families = (
+        ("limit_cycle", "", "phases", "the ten training phases, 0 and 1 included (2 → {0, 1})",
+         "{0.25, 0.5, 0.75}", "Limit cycle (10 phases fitted)"),
+        ("limit_cycle_curled", "_curled", "curled contexts",
+         "the ten curled training contexts, 1 and 2 included (2 → {1, 2})",
+         "{1.25, 1.5, 1.75}", "Curled outlines (10 contexts fitted)"))
+    for folder_name, suffix, what, fitted, held_out, title in families:
+        folder = root / folder_name
+        if suffix:
+            report.add("### Curled outlines", "",
+                       "For contexts c ∈ [1, 2] the raised figure curls its limbs into hooks: "
+                       "the outlines are no longer star-shaped about the centre (a ray from it "
+                       "crosses the outline three times from c ≈ 1.15, five from c ≈ 1.8), so no "
+                       "polar radius describes them, and success is measured by the Euclidean "
+                       "distance to the curve.", "")
+        field = load(folder / "field.json")
+        if field is None:
+            report.not_run(f"{what}: vector fields and rollouts", folder / "field.json")
+        else:
+            plot_field(report, field, f"limit_cycle{suffix}_field.png",
+                       f"{title}: learned field, rollouts (blue), demonstrations (dotted), "
+                       "true outline (dashed)")
+        report.add(f"Learning curve: the n-trajectory model fits n distinct {what} spread evenly "
+                   f"over {fitted}; none is held out of the fit and the last epoch is kept, so "
+                   "*train* is the log-likelihood of exactly the demonstrations fitted and *test* "
+                   f"that of the held-out contexts {held_out}.", "")
+        learning_curve(report, folder / "nll", "training trajectories", "training trajectories",
+                       f"limit_cycle{suffix}_nll.png",
+                       f"{title.split(' (')[0]}: log-likelihood per transition")
 
 
 def obstacles(report, root):

@@ -72,6 +72,11 @@ def experiments(tmp_path):
     for seed, value in enumerate((1.0, 2.0, 3.0)):
         write(root / "limit_cycle" / "nll" / f"5_seed{seed}_train.json", {"per_transition": value})
         write(root / "limit_cycle" / "nll" / f"5_seed{seed}_test.json", {"per_transition": value - 1})
+    # The curled family: its curve only, and no field (a "not run" line).
+    for seed, value in enumerate((4.0, 5.0, 6.0)):
+        for split, offset in (("train", 0), ("test", 2)):
+            write(root / "limit_cycle_curled" / "nll" / f"10_seed{seed}_{split}.json",
+                  {"per_transition": value - offset})
     write(root / "obstacles" / "3" / "eval.json", evaluation(0.96, 100, {"mode": "none"}))
     write(root / "obstacles" / "3-generic" / "eval.json", evaluation(0.7, 100, {"mode": "none"}))
     write(root / "obstacles" / "3-generic" / "field.json", field_json([[0.0, 0.3, 0.8, -0.1]]))
@@ -116,6 +121,8 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     text = output.read_text()
     # Mean ± population std over the three seeds: train 2 ± 0.816, test 1 ± 0.816.
     assert "| 5 | 2.000 ± 0.816 | 1.000 ± 0.816 | 3 |" in text
+    assert "| 10 | 5.000 ± 0.816 | 3.000 ± 0.816 | 3 |" in text
+    assert "curled contexts: vector fields and rollouts: not run" in text
     assert "| goal reached, 3 obstacles | 96.0% (collisions 0.0%) | ≥ 95% | **pass** |" in text
     assert ("| goal reached, 3 obstacles, generic INN | 70.0% (collisions 0.0%) | ≥ 95% | "
             "**FAIL** |") in text
@@ -134,7 +141,8 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert ("session ran 0.99 simulated s (100 telemetry samples) and ended with the spout "
             "0.5 cm from the pour point") in text
     figures = tmp_path / "out" / "figures"
-    for name in ("limit_cycle_field.png", "limit_cycle_nll.png", "obstacles_rollouts.png",
+    for name in ("limit_cycle_field.png", "limit_cycle_nll.png", "limit_cycle_curled_nll.png",
+                 "obstacles_rollouts.png",
                  "obstacles_generic_rollouts.png", "obstacles_3_generic_field.png",
                  "pouring_push.png", "pouring_script_run.png", "stability.png"):
         assert (figures / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name

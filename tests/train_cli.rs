@@ -202,7 +202,8 @@ fn screening_line(stdout: &[u8]) -> String {
 }
 
 /// Pushed pouring demonstrations: the pushed steps reach the trainer flagged and stay out
-/// of the likelihood; an episode that failed is dropped unless --keep-failed.
+/// of the likelihood (with a settling window on request); an episode that failed is
+/// dropped unless --keep-failed.
 #[test]
 fn train_leaves_out_pushed_steps_and_failed_episodes() {
     let scratch = Scratch::new("train-cli-screening");
@@ -223,12 +224,11 @@ fn train_leaves_out_pushed_steps_and_failed_episodes() {
         &demos,
     ]);
     let (spec, mut episodes) = ciflow_envs::dataset::read(Path::new(&demos)).unwrap();
-    let pushed: usize = episodes
-        .iter()
-        .map(|e| (0..e.len()).filter(|&t| e.perturbed(t)).count())
-        .sum();
+    let pushed_in =
+        |e: &ciflow_envs::dataset::Episode| (0..e.len()).filter(|&t| e.perturbed(t)).count();
+    let pushed: usize = episodes.iter().map(pushed_in).sum();
     let steps: usize = episodes.iter().map(|e| e.len()).sum();
-    assert!(pushed > 0 && pushed < steps / 2, "{pushed} of {steps}");
+    assert!(pushed > 0 && pushed < steps / 10, "{pushed} of {steps}");
     let train = |dataset: &str, extra: &[&str]| {
         let mut command = vec![
             "train", "--task", "pouring", "--demos", dataset, "--out", &policy, "--epochs", "1",
@@ -240,29 +240,41 @@ fn train_leaves_out_pushed_steps_and_failed_episodes() {
     let line = train(&demos, &[]);
     assert!(
         line.contains("0 of 3 episodes failed their task;")
-            && line.contains(&format!("{pushed} of {steps} transitions moved")),
+            && line.contains(&format!(
+                "{pushed} of {steps} transitions moved by an external force; {pushed} left out"
+            )),
+        "{line}"
+    );
+    // A settling window of 0.1 s leaves out 10 more steps after each episode's push.
+    let line = train(&demos, &["--push-settling", "0.1"]);
+    assert!(
+        line.contains(&format!(
+            "(+ 10 settling steps after each); {} left out",
+            pushed + 30
+        )),
         "{line}"
     );
     // The first episode, marked as failed at its end, is dropped; kept on request.
     let success = episodes[0].infos.get_mut("is_success").unwrap();
     *success.last_mut().unwrap() = 0.0;
-    let kept_pushed: usize = (0..episodes[0].len())
-        .filter(|&t| episodes[0].perturbed(t))
-        .count();
     ciflow_envs::dataset::write(Path::new(&failing), &spec, &episodes, false).unwrap();
+    let rest = pushed - pushed_in(&episodes[0]);
     let line = train(&failing, &[]);
     assert!(
         line.contains("1 of 3 episodes failed their task and are dropped")
             && line.contains(&format!(
-                "{} of {} transitions",
-                pushed - kept_pushed,
-                steps - episodes[0].len()
+                "{rest} of {} transitions moved by an external force; {rest} left out",
+                steps - episodes[0].len(),
             )),
         "{line}"
     );
-    let line = train(&failing, &["--keep-failed"]);
+    let line = train(&failing, &["--keep-failed", "--keep-perturbed"]);
     assert!(
-        line.contains("1 of 3 episodes failed their task, kept"),
+        line.contains("1 of 3 episodes failed their task, kept")
+            && line.contains(&format!(
+                "{pushed} of {steps} transitions moved by an external force, kept \
+                 (--keep-perturbed); 0 left out"
+            )),
         "{line}"
     );
 }

@@ -14,9 +14,9 @@ pub type Info = BTreeMap<String, f64>;
 /// Info key, 0/1: the task is achieved (Gymnasium's convention; each task documents when).
 pub const SUCCESS_INFO: &str = "is_success";
 
-/// Info key, 0/1: an external force moved the robot during the step, or ended so recently
-/// that the motion still carries it (each task states its settling window). Such a step
-/// shows the disturbance, not the controller: trainers leave it out of the likelihood.
+/// Info key, 0/1: an external force moved the robot during the step. Such a step shows the
+/// disturbance, not the controller: trainers leave it (and optionally a settling window
+/// after it) out of the likelihood.
 pub const PERTURBED_INFO: &str = "perturbed";
 
 /// What a task is: its id, spaces and timing. Everything a client needs before `reset`.

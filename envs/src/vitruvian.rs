@@ -1,13 +1,24 @@
 //! The "Vitruvian man" outlines of the limit-cycle task.
 //!
-//! Each outline is a star-shaped closed curve in polar form around the origin,
+//! For phases `c ∈ [0, 1]` each outline is a star-shaped closed curve in polar form
+//! around the origin,
 //!
 //! `r(θ, c) = r₀ + Σₖ hₖ exp(κₖ (cos(θ − θₖ(c)) − 1))`,
 //!
 //! a circle (the torso) with von Mises bumps for the head, the two arms and the two legs.
 //! Since `r > 0` everywhere the curve is simple and closed, so a stable limit cycle can
-//! trace it. The phase context `c ∈ [0, 1]` moves the limbs smoothly: the arms rise from
-//! slightly below horizontal (`c = 0`) to raised (`c = 1`), the legs spread apart.
+//! trace it. The phase moves the limbs smoothly: the arms rise from slightly below
+//! horizontal (`c = 0`) to raised (`c = 1`), the legs spread apart.
+//!
+//! For `c ∈ [1, 2]` the figure of phase 1 *curls*: its points are turned about the centre
+//! by an angle growing with the square of their distance,
+//!
+//! `T(x) = R(κ |x|²) x`,  `κ = CURL · (c − 1)`,
+//!
+//! so the limbs bend into hooks. `T` is a diffeomorphism of the plane (it keeps `|x|` and
+//! shifts the polar angle smoothly), so the curled outline is still a simple closed curve;
+//! from `c ≈ 1.15` on it is no longer star-shaped about the centre (some ray from it
+//! crosses the outline three times, from `c ≈ 1.8` five), so no polar radius describes it.
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
@@ -15,6 +26,13 @@ use nalgebra::Vector2;
 
 /// Torso radius `r₀` in metres.
 pub const TORSO_RADIUS: f64 = 0.3;
+/// Curl rate at `c = 2`, rad/m²: the arm tips (0.85 m out) turn 2.2 rad, the shoulders
+/// (0.3 m) 0.27 rad.
+pub const CURL: f64 = 3.0;
+/// Points of the polyline [`Outline::distance`] measures against…
+const DISTANCE_POINTS: usize = 2000;
+/// …in runs of this many segments, each bounded by a disc so that most are skipped.
+const RUN: usize = 40;
 
 /// One limb: a von Mises bump `h exp(κ (cos(θ − θₖ) − 1))` on the torso circle.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -37,18 +55,25 @@ impl Bump {
     }
 }
 
-/// The outline for one phase context `c`.
+/// The outline for one context `c` (module docs).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Outline {
     bumps: [Bump; 5],
+    /// `κ` of the curl `T`, rad/m² (0 for the star-shaped phases).
+    curl: f64,
+    /// Dense points of the curve, for distances to it.
+    points: Vec<Vector2<f64>>,
+    /// Per run of `RUN` segments: a disc `(centre, radius)` holding them.
+    runs: Vec<(Vector2<f64>, f64)>,
 }
 
 impl Outline {
-    /// The outline at phase `c`; `c` outside `[0, 1]` extrapolates the same formulas.
+    /// The outline at `c`; `c` outside `[0, 2]` extrapolates the same formulas.
     pub fn new(c: f64) -> Self {
+        let phase = c.min(1.0);
         // Arm elevation above horizontal and leg spread from vertical, rad.
-        let arm = -0.1 + 0.7 * c;
-        let leg = 0.25 + 0.35 * c;
+        let arm = -0.1 + 0.7 * phase;
+        let leg = 0.25 + 0.35 * phase;
         let arm_bump = |angle| Bump {
             angle,
             height: 0.55,
@@ -59,7 +84,7 @@ impl Outline {
             height: 0.6,
             concentration: 30.0,
         };
-        Self {
+        let mut outline = Self {
             bumps: [
                 Bump {
                     angle: FRAC_PI_2,
@@ -71,10 +96,28 @@ impl Outline {
                 leg_bump(-FRAC_PI_2 - leg),
                 leg_bump(-FRAC_PI_2 + leg),
             ],
-        }
+            curl: CURL * (c - 1.0).max(0.0),
+            points: Vec::new(),
+            runs: Vec::new(),
+        };
+        outline.points = outline.polyline(DISTANCE_POINTS);
+        outline.runs = (0..DISTANCE_POINTS / RUN)
+            .map(|k| {
+                let ends = outline.run_points(k);
+                let centre = ends.clone().sum::<Vector2<f64>>() / (RUN + 1) as f64;
+                let radius = ends.map(|p| (p - centre).norm()).fold(0.0, f64::max);
+                (centre, radius)
+            })
+            .collect();
+        outline
     }
 
-    /// `r(θ)`, m.
+    /// The `RUN + 1` polyline points of run `k` (its segments' ends, closing the curve).
+    fn run_points(&self, k: usize) -> impl Iterator<Item = Vector2<f64>> + Clone + '_ {
+        (k * RUN..=(k + 1) * RUN).map(|i| self.points[i % self.points.len()])
+    }
+
+    /// The star-shaped figure's radius `r(θ)` before the curl, m.
     pub fn radius(&self, theta: f64) -> f64 {
         TORSO_RADIUS + self.bumps.iter().map(|b| b.value(theta)).sum::<f64>()
     }
@@ -84,22 +127,77 @@ impl Outline {
         self.bumps.iter().map(|b| b.derivative(theta)).sum()
     }
 
-    /// The point of the outline at polar angle `θ`.
-    pub fn point(&self, theta: f64) -> Vector2<f64> {
-        self.radius(theta) * Vector2::new(theta.cos(), theta.sin())
+    /// `κ` of the curl, rad/m².
+    pub fn curl(&self) -> f64 {
+        self.curl
     }
 
-    /// `n` points evenly spaced in `θ`, counter-clockwise from `θ = 0`.
+    /// `T(x)`: `x` turned by `κ |x|²`.
+    pub fn curled(&self, x: &Vector2<f64>) -> Vector2<f64> {
+        rotate(x, self.curl * x.norm_squared())
+    }
+
+    /// `T⁻¹(x)`: `T` keeps `|x|`, so the inverse turns back by the same angle.
+    pub fn uncurled(&self, x: &Vector2<f64>) -> Vector2<f64> {
+        rotate(x, -self.curl * x.norm_squared())
+    }
+
+    /// `∂T/∂x · v` at `x`: `R(φ) (v + 2κ (x·v) J x)`, `φ = κ|x|²`, `J` the quarter turn.
+    pub fn curl_tangent(&self, x: &Vector2<f64>, v: &Vector2<f64>) -> Vector2<f64> {
+        let quarter_turn = Vector2::new(-x.y, x.x);
+        let turned = v + 2.0 * self.curl * x.dot(v) * quarter_turn;
+        rotate(&turned, self.curl * x.norm_squared())
+    }
+
+    /// The point of the outline whose star-shaped preimage is at polar angle `θ`.
+    pub fn point(&self, theta: f64) -> Vector2<f64> {
+        self.curled(&(self.radius(theta) * Vector2::new(theta.cos(), theta.sin())))
+    }
+
+    /// `n` points evenly spaced in the preimage's `θ`, counter-clockwise from `θ = 0`.
     pub fn polyline(&self, n: usize) -> Vec<Vector2<f64>> {
         (0..n)
             .map(|i| self.point(2.0 * PI * i as f64 / n as f64))
             .collect()
     }
 
-    /// Signed radial distance `ρ − r(θ)` of `x` from the outline (positive outside).
-    pub fn radial_error(&self, x: &Vector2<f64>) -> f64 {
-        x.norm() - self.radius(x.y.atan2(x.x))
+    /// Euclidean distance from `x` to the outline, m (to a polyline of
+    /// `DISTANCE_POINTS` points whose chords stray from the curve by under 0.1 mm). Exact
+    /// for that polyline: a run is skipped only when its disc is farther than the nearest
+    /// segment found so far, starting from the run whose disc is nearest.
+    pub fn distance(&self, x: &Vector2<f64>) -> f64 {
+        let bound = |k: usize| (x - self.runs[k].0).norm() - self.runs[k].1;
+        let run_distance = |k: usize| {
+            let ends = self.run_points(k);
+            ends.clone()
+                .zip(ends.skip(1))
+                .map(|(a, b)| segment_distance(x, &a, &b))
+                .fold(f64::INFINITY, f64::min)
+        };
+        let nearest = (0..self.runs.len())
+            .min_by(|&a, &b| bound(a).total_cmp(&bound(b)))
+            .expect("an outline has runs");
+        let mut best = run_distance(nearest);
+        for k in (0..self.runs.len()).filter(|&k| k != nearest) {
+            if bound(k) < best {
+                best = best.min(run_distance(k));
+            }
+        }
+        best
     }
+}
+
+/// `x` turned counter-clockwise by `angle`.
+fn rotate(x: &Vector2<f64>, angle: f64) -> Vector2<f64> {
+    let (sin, cos) = angle.sin_cos();
+    Vector2::new(cos * x.x - sin * x.y, sin * x.x + cos * x.y)
+}
+
+/// Distance from `x` to the segment `[a, b]`.
+fn segment_distance(x: &Vector2<f64>, a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
+    let chord = b - a;
+    let along = ((x - a).dot(&chord) / chord.norm_squared().max(f64::MIN_POSITIVE)).clamp(0.0, 1.0);
+    (x - (a + along * chord)).norm()
 }
 
 #[cfg(test)]
@@ -118,15 +216,94 @@ mod tests {
     }
 
     #[test]
-    fn outlines_are_star_shaped_and_vary_continuously_with_phase() {
-        for i in 0..=20 {
+    fn outlines_vary_continuously_with_the_context() {
+        for i in 0..=40 {
             let c = i as f64 / 20.0;
             let (a, b) = (Outline::new(c), Outline::new(c + 1e-4));
             for j in 0..360 {
                 let theta = (j as f64).to_radians();
                 assert!(a.radius(theta) >= TORSO_RADIUS);
-                assert!((a.radius(theta) - b.radius(theta)).abs() < 1e-3);
+                assert!((a.point(theta) - b.point(theta)).norm() < 1e-3, "c = {c}");
             }
+        }
+    }
+
+    /// The most points in which one ray from the centre crosses the outline of `c`
+    /// (rays at angles off the polyline's vertices, so no crossing is counted twice).
+    fn most_ray_crossings(c: f64) -> usize {
+        let points = Outline::new(c).polyline(4000);
+        (0..997)
+            .map(|k| {
+                let angle = 2.0 * PI * (k as f64 + 0.37) / 997.0;
+                let direction = Vector2::new(angle.cos(), angle.sin());
+                let next = points.iter().cycle().skip(1);
+                points
+                    .iter()
+                    .zip(next)
+                    .filter(|(a, b)| {
+                        let side = |p: &Vector2<f64>| direction.perp(p);
+                        side(a).signum() != side(b).signum()
+                            && a.dot(&direction) > 0.0
+                            && b.dot(&direction) > 0.0
+                    })
+                    .count()
+            })
+            .max()
+            .unwrap()
+    }
+
+    #[test]
+    fn phases_are_star_shaped_and_curled_outlines_are_not() {
+        for c in [0.0, 0.5, 1.0, 1.1] {
+            assert_eq!(most_ray_crossings(c), 1, "c = {c}");
+        }
+        for c in [1.2, 1.5] {
+            assert_eq!(most_ray_crossings(c), 3, "c = {c}");
+        }
+        assert_eq!(most_ray_crossings(2.0), 5);
+    }
+
+    #[test]
+    fn the_curl_is_inverted_and_differentiated_correctly() {
+        let outline = Outline::new(1.8);
+        let h = 1e-6;
+        for i in 0..50 {
+            let x = Vector2::new(-1.0 + 0.04 * i as f64, 0.7 - 0.03 * i as f64);
+            assert!((outline.uncurled(&outline.curled(&x)) - x).norm() < 1e-14);
+            let v = Vector2::new(0.3, -0.8);
+            let numeric = (outline.curled(&(x + h * v)) - outline.curled(&(x - h * v))) / (2.0 * h);
+            assert!((numeric - outline.curl_tangent(&x, &v)).norm() < 1e-7);
+        }
+    }
+
+    #[test]
+    fn distance_equals_the_nearest_of_all_segments() {
+        for c in [0.3, 1.9] {
+            let outline = Outline::new(c);
+            let n = outline.points.len();
+            for i in 0..400 {
+                let x = Vector2::new(-1.3 + 0.0065 * i as f64, 1.1 - 0.0057 * i as f64);
+                let brute = (0..n)
+                    .map(|j| segment_distance(&x, &outline.points[j], &outline.points[(j + 1) % n]))
+                    .fold(f64::INFINITY, f64::min);
+                assert_eq!(outline.distance(&x), brute, "c = {c}, {x:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn distance_is_zero_on_the_curve_and_the_offset_off_it() {
+        let outline = Outline::new(2.0);
+        for i in 0..90 {
+            let theta = (4.0 * i as f64 + 0.5).to_radians();
+            let p = outline.point(theta);
+            assert!(outline.distance(&p) < 1e-4, "{theta}");
+            // Along the normal, a small offset is the distance.
+            let h = 1e-6;
+            let tangent = (outline.point(theta + h) - outline.point(theta - h)).normalize();
+            let normal = Vector2::new(tangent.y, -tangent.x);
+            let off = outline.distance(&(p + 0.01 * normal));
+            assert!((off - 0.01).abs() < 2e-4, "{theta}: {off}");
         }
     }
 

@@ -3,7 +3,8 @@
 use ciflow_envs::planar::PlanarEnv;
 use ciflow_envs::rollout::expert_episode;
 use ciflow_envs::tasks::limit_cycle::{
-    self, HELD_OUT_CONTEXTS, LimitCycle, SUCCESS_DISTANCE, TRAINING_CONTEXTS,
+    self, CURLED_HELD_OUT_CONTEXTS, CURLED_TRAINING_CONTEXTS, HELD_OUT_CONTEXTS, LimitCycle,
+    SUCCESS_DISTANCE, TRAINING_CONTEXTS,
 };
 use ciflow_envs::{Env, EnvError, ResetOptions};
 
@@ -48,7 +49,12 @@ fn consecutive_seeds_demonstrate_every_phase_once_and_unseeded_resets_continue()
             .unwrap()
             .0[4]
     };
-    for (set, phases) in [(0.0, &TRAINING_CONTEXTS[..]), (1.0, &HELD_OUT_CONTEXTS[..])] {
+    for (set, phases) in [
+        (0.0, &TRAINING_CONTEXTS[..]),
+        (1.0, &HELD_OUT_CONTEXTS[..]),
+        (3.0, &CURLED_TRAINING_CONTEXTS[..]),
+        (4.0, &CURLED_HELD_OUT_CONTEXTS[..]),
+    ] {
         let n = phases.len() as u64;
         for first in [0, 7, 1_000_003] {
             let seen: Vec<f64> = (first..first + n)
@@ -72,26 +78,22 @@ fn the_registered_reference_curve_is_the_closed_outline_of_the_phase() {
         .unwrap()
         .reference_curve
         .expect("the limit cycle has an outline");
-    for phase in [0.0, 0.5, 1.0] {
+    for phase in [0.0, 0.5, 1.0, 1.5, 2.0] {
         let points = curve(&[phase]);
         assert!(points.len() > 100);
         assert_eq!(points.first(), points.last());
         let outline = ciflow_envs::vitruvian::Outline::new(phase);
         for p in &points {
-            let error = outline.radial_error(&nalgebra::Vector2::new(p[0], p[1]));
-            assert!(error.abs() < 1e-12, "{phase}: {p:?} is {error} off");
+            let error = outline.distance(&nalgebra::Vector2::new(p[0], p[1]));
+            assert!(error < 1e-12, "{phase}: {p:?} is {error} off");
         }
         // Another phase's outline is another curve.
-        let other = ciflow_envs::vitruvian::Outline::new(1.0 - phase);
+        let other = ciflow_envs::vitruvian::Outline::new(2.0 - phase);
         let farthest = points
             .iter()
-            .map(|p| {
-                other
-                    .radial_error(&nalgebra::Vector2::new(p[0], p[1]))
-                    .abs()
-            })
+            .map(|p| other.distance(&nalgebra::Vector2::new(p[0], p[1])))
             .fold(0.0, f64::max);
-        assert!(phase == 0.5 || farthest > 0.05, "{phase}: {farthest}");
+        assert!(phase == 1.0 || farthest > 0.05, "{phase}: {farthest}");
     }
 }
 
@@ -115,6 +117,31 @@ fn expert_converges_onto_the_outline_for_99_percent_of_uniform_phases() {
         successes * 100 >= 99 * episodes as usize,
         "{successes}/{episodes}"
     );
+}
+
+/// The curled outlines, which no polar radius describes: the expert still ends every
+/// episode on the curve, by the Euclidean distance to it.
+#[test]
+fn expert_converges_onto_every_curled_outline() {
+    let mut env = limit_cycle::make().unwrap();
+    for (set, contexts) in [
+        (3.0, &CURLED_TRAINING_CONTEXTS[..]),
+        (4.0, &CURLED_HELD_OUT_CONTEXTS[..]),
+    ] {
+        for seed in 0..contexts.len() as u64 {
+            let episode =
+                expert_episode(&mut env, Some(seed), &options_with("context_set", set)).unwrap();
+            let errors = &episode.infos["outline_error"];
+            let worst = errors[errors.len() - 200..]
+                .iter()
+                .fold(0.0, |a: f64, &e| a.max(e));
+            assert!(
+                worst < SUCCESS_DISTANCE,
+                "context {}: {worst} m",
+                episode.contexts[0][0]
+            );
+        }
+    }
 }
 
 #[test]
@@ -174,7 +201,7 @@ fn invalid_options_are_typed_errors() {
         ..ResetOptions::default()
     };
     assert!(matches!(
-        err(context(vec![1.5])),
+        err(context(vec![2.5])),
         EnvError::OutOfBounds { .. }
     ));
     assert!(matches!(

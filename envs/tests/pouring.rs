@@ -2,7 +2,6 @@
 
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use ciflow_envs::env::PERTURBED_INFO;
-use ciflow_envs::expert::pouring::PUSH_SETTLING;
 use ciflow_envs::rollout::expert_episode;
 use ciflow_envs::tasks::pouring::{DEMO_PUSH_DURATION, PUSH_FORCE_OPTION, Pouring};
 use ciflow_envs::{Env, EnvError, ResetOptions};
@@ -41,10 +40,9 @@ fn expert_pours_into_the_pot_and_never_spills() {
 }
 
 /// A pushed demonstration flags one block of steps: it begins at the first step whose state
-/// differs from the same seed's unpushed episode, and lasts the push plus the settling
-/// window.
+/// differs from the same seed's unpushed episode, and lasts as long as the push.
 #[test]
-fn pushed_demonstrations_flag_the_push_and_its_settling_window() {
+fn pushed_demonstrations_flag_the_steps_the_push_acted_in() {
     let mut env = Pouring::new().unwrap();
     let pushed = ResetOptions {
         extra: [(PUSH_FORCE_OPTION.to_string(), 40.0)].into(),
@@ -69,10 +67,9 @@ fn pushed_demonstrations_flag_the_push_and_its_settling_window() {
             .expect("the push moved the arm");
         assert_eq!(first, diverged, "seed {seed}");
         let seconds = (last - first + 1) as f64 * env.spec().control_dt;
-        let expected = DEMO_PUSH_DURATION + PUSH_SETTLING;
         assert!(
-            (seconds - expected).abs() <= env.spec().control_dt + 1e-9,
-            "seed {seed}: flagged {seconds} s, push and settling {expected} s"
+            (seconds - DEMO_PUSH_DURATION).abs() <= env.spec().control_dt + 1e-9,
+            "seed {seed}: flagged {seconds} s, pushed {DEMO_PUSH_DURATION} s"
         );
     }
 }

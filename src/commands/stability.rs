@@ -18,7 +18,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use ciflow_engine::flow::Policy;
 use ciflow_engine::flow::robot_loop::{RobotLoopConfig, RobotLoopReport, measure_robot_loop};
-use ciflow_engine::flow::stability::{StabilityConfig, StabilityReport, measure};
+use ciflow_engine::flow::stability::{MeanDynamics, StabilityConfig, StabilityReport, measure};
 use ciflow_engine::robot::{JointLimits, PointMass2d, Robot, panda};
 use ciflow_engine::sim::{SimConfig, Simulator};
 use ciflow_envs::actor::Model;
@@ -102,6 +102,18 @@ fn rollout_bar(len: usize, what: &str) -> ProgressBar {
     bar
 }
 
+/// [`measure`] behind a progress bar labelled `what`.
+fn measured<M: MeanDynamics + Sync>(
+    model: &M,
+    config: &StabilityConfig,
+    what: &str,
+) -> anyhow::Result<StabilityReport> {
+    let bar = rollout_bar(config.starts, what);
+    let report = measure(model, config, |done| bar.set_position(done as u64));
+    bar.finish_and_clear();
+    report.with_context(|| format!("the stability check ({what})"))
+}
+
 /// The robot a `d`-dimensional policy drives: the Panda (real limits) for 7 joints, a 1 kg
 /// point mass confined to `bounds` scaled by `scale` about their centre for 2-D states.
 fn robot_simulator(policy: &Policy, scale: f64) -> anyhow::Result<Simulator> {
@@ -159,18 +171,9 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
         context_scale: args.context_scale,
         ..config.clone()
     };
-    let check = |config: &StabilityConfig, what: &str| {
-        let bar = rollout_bar(config.starts, what);
-        let report = match &model {
-            Model::Flow(policy) => measure(policy.as_ref(), config, |done| {
-                bar.set_position(done as u64)
-            }),
-            Model::Baseline(baseline) => measure(baseline.as_ref(), config, |done| {
-                bar.set_position(done as u64)
-            }),
-        };
-        bar.finish_and_clear();
-        report.with_context(|| format!("the stability check ({what})"))
+    let check = |config: &StabilityConfig, what: &str| match &model {
+        Model::Flow(policy) => measured(policy.as_ref(), config, what),
+        Model::Baseline(baseline) => measured(baseline.as_ref(), config, what),
     };
     let observation_space = check(&config, "training contexts")?;
     let far_contexts = check(&far, "far contexts")?;
@@ -180,12 +183,11 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
                 starts: args.negative_control_starts,
                 ..config.clone()
             };
-            let bar = rollout_bar(config.starts, "negative control");
-            let report = measure(&policy.time_reversed(), &config, |done| {
-                bar.set_position(done as u64)
-            })?;
-            bar.finish_and_clear();
-            Some(report)
+            Some(measured(
+                &policy.time_reversed(),
+                &config,
+                "negative control",
+            )?)
         }
         _ => None,
     };

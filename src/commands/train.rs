@@ -257,6 +257,18 @@ pub struct TrainArgs {
     /// success: spilled, collided, never arrived); by default they are dropped.
     #[arg(long)]
     pub keep_failed: bool,
+    /// Also fit the steps an external force moved (flagged `perturbed` in the data); by
+    /// default they are left out of the likelihood, so the policy does not learn the push
+    /// as its own motion.
+    #[arg(long)]
+    pub keep_perturbed: bool,
+    /// Also leave out this many seconds after each pushed step, while the velocity the
+    /// push left decays (the pouring expert's twist loop, 12 /s, takes 0.38 s to 1 %).
+    /// Those steps are the expert's response to the pushed state, what pushed
+    /// demonstrations are recorded to teach: leaving them out cost the pouring policy
+    /// most of its recovery from pushes (README "Pouring").
+    #[arg(long, default_value_t = 0.0, value_name = "SECONDS")]
+    pub push_settling: f64,
     /// Also train the behaviour-cloning baseline into `<out>/baseline`.
     #[arg(long)]
     pub baseline: bool,
@@ -397,32 +409,37 @@ pub fn task_recipe(task: &TaskEntry, context_dim: usize) -> anyhow::Result<Train
 pub fn read_demonstrations(
     dir: &Path,
     task: &TaskEntry,
-    failed: FailedEpisodes,
+    screening: Screening,
 ) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
     let (spec, episodes) =
         dataset::read(dir).with_context(|| format!("reading the dataset {}", dir.display()))?;
-    to_demonstrations(spec, episodes, task, &dir.display().to_string(), failed)
+    to_demonstrations(spec, episodes, task, &dir.display().to_string(), screening)
 }
 
-/// What becomes of demonstrations that failed their task (spilled, collided, never
-/// arrived): they show what not to do, so by default they are not imitated.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum FailedEpisodes {
-    Drop,
-    Keep,
+/// What of a dataset the trainer leaves out by default, and what the flags keep.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Screening {
+    /// Demonstrations that failed their task (spilled, collided, never arrived) show
+    /// what not to do: dropped unless kept.
+    pub keep_failed: bool,
+    /// Steps an external force moved show the push, not the expert: left out of the
+    /// likelihood unless kept…
+    pub keep_perturbed: bool,
+    /// …and so are the steps this long after each, s.
+    pub push_settling: f64,
 }
 
 /// The policy's demonstrations of `task` in dataset episodes (from `source`, for errors):
 /// positions `q` of each observation `[q, q̇, c]`, the per-step contexts,
-/// `dt = control_dt`; the steps an external force moved are excluded from the likelihood,
-/// and episodes whose last step is not a success are dropped unless `failed` keeps them.
-/// Prints what was left out.
+/// `dt = control_dt`; the steps an external force moved are excluded from the likelihood
+/// and episodes whose last step is not a success are dropped, unless `screening` keeps
+/// them. Prints what was left out.
 pub fn to_demonstrations(
     spec: DatasetSpec,
     episodes: Vec<dataset::Episode>,
     task: &TaskEntry,
     source: &str,
-    failed: FailedEpisodes,
+    screening: Screening,
 ) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
     anyhow::ensure!(
         spec.env_id == task.id,
@@ -446,11 +463,30 @@ pub fn to_demonstrations(
         .iter()
         .filter(|e| e.succeeded() == Some(false))
         .count();
-    let episodes: Vec<Episode> = episodes
+    let kept: Vec<dataset::Episode> = episodes
         .into_iter()
-        .filter(|e| failed == FailedEpisodes::Keep || e.succeeded() != Some(false))
+        .filter(|e| screening.keep_failed || e.succeeded() != Some(false))
+        .collect();
+    anyhow::ensure!(
+        !kept.is_empty(),
+        "{source}: all {recorded} episodes failed their task; --keep-failed trains on them"
+    );
+    let transitions: usize = kept.iter().map(dataset::Episode::len).sum();
+    let perturbed: usize = kept
+        .iter()
+        .map(|e| (0..e.len()).filter(|&t| e.perturbed(t)).count())
+        .sum();
+    // A step is excluded when it or one of the `settling` steps before it was pushed.
+    let settling = (screening.push_settling / spec.control_dt).round() as usize;
+    let episodes: Vec<Episode> = kept
+        .into_iter()
         .map(|episode| Episode {
-            excluded: (0..episode.len()).map(|t| episode.perturbed(t)).collect(),
+            excluded: (0..episode.len())
+                .map(|t| {
+                    !screening.keep_perturbed
+                        && (t.saturating_sub(settling)..=t).any(|s| episode.perturbed(s))
+                })
+                .collect(),
             states: episode
                 .observations
                 .iter()
@@ -459,23 +495,23 @@ pub fn to_demonstrations(
             contexts: Contexts::PerStep(episode.contexts),
         })
         .collect();
-    anyhow::ensure!(
-        !episodes.is_empty(),
-        "{source}: all {recorded} episodes failed their task; --keep-failed trains on them"
-    );
     let excluded: usize = episodes
         .iter()
-        .flat_map(|e| &e.excluded)
-        .filter(|&&x| x)
-        .count();
-    let transitions: usize = episodes.iter().map(|e| e.excluded.len()).sum();
+        .map(|e| e.excluded.iter().filter(|&&x| x).count())
+        .sum();
     println!(
-        "{source}: {failures} of {recorded} episodes failed their task{}; {excluded} of \
-         {transitions} transitions moved by an external force, left out of the likelihood",
-        match failed {
-            FailedEpisodes::Drop if failures > 0 => " and are dropped (--keep-failed keeps them)",
-            FailedEpisodes::Drop => "",
-            FailedEpisodes::Keep => ", kept (--keep-failed)",
+        "{source}: {failures} of {recorded} episodes failed their task{}; {perturbed} of \
+         {transitions} transitions moved by an external force{}; {excluded} left out of the \
+         likelihood",
+        match (screening.keep_failed, failures) {
+            (false, 0) => "",
+            (false, _) => " and are dropped (--keep-failed keeps them)",
+            (true, _) => ", kept (--keep-failed)",
+        },
+        match (screening.keep_perturbed, settling) {
+            (true, _) => ", kept (--keep-perturbed)".to_string(),
+            (false, 0) => String::new(),
+            (false, steps) => format!(" (+ {steps} settling steps after each)"),
         }
     );
     let data = Demonstrations {
@@ -611,12 +647,18 @@ fn keep_checkpoint(
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let task = registry::entry(&args.task)?;
-    let failed = match args.keep_failed {
-        true => FailedEpisodes::Keep,
-        false => FailedEpisodes::Drop,
+    anyhow::ensure!(
+        args.push_settling.is_finite() && args.push_settling >= 0.0,
+        "--push-settling must be a finite number of seconds >= 0, not {}",
+        args.push_settling
+    );
+    let screening = Screening {
+        keep_failed: args.keep_failed,
+        keep_perturbed: args.keep_perturbed,
+        push_settling: args.push_settling,
     };
     let (spec, mut data) =
-        episodes::demonstrations(task, args.demos.as_deref(), &args.zenoh, failed)?;
+        episodes::demonstrations(task, args.demos.as_deref(), &args.zenoh, screening)?;
     if let Some(count) = args.subset {
         data.episodes =
             subset(data.episodes, count, args.model.seed, |e| e.context(0)).context("--subset")?;

@@ -296,7 +296,10 @@ impl RadialContractions {
             {
                 *yi = S::constant(x);
             }
-            for _ in 0..2 {
+            // The f64 solve has converged; each Newton step in `S` from there makes one more
+            // order of the derivatives carried by `S` exact (a dual level per step, none for
+            // plain `f64`, whose lanes are 2^levels).
+            for _ in 0..S::LANES.trailing_zeros() {
                 let mut jacobian = layer(profile, centres, y, image);
                 jacobian.factor();
                 for (r, &x) in image.iter_mut().zip(u.iter()) {

@@ -41,14 +41,6 @@ const MAX_SPEED: f64 = 0.15;
 const ORIENTATION_GAIN: f64 = 3.0;
 const MAX_ANGULAR_SPEED: f64 = 1.5;
 const VELOCITY_GAIN: f64 = 12.0;
-/// How long the arm's motion still carries a push after the force ends, s. The expert
-/// servoes the hand's twist to its desired twist with gain `VELOCITY_GAIN` = 12 /s, so the
-/// velocity a push leaves decays as `e^{−12 t}`: below 1 % after `ln 100 / 12` = 0.38 s.
-/// Past that the motion is the expert's own response to the displaced state, which is what
-/// pushed demonstrations are recorded to teach. (The null-space posture loop, poles at
-/// `−3 ± i`, is slower, but a second-order loop has no velocity-free response to wait
-/// for, and its motion does not move the hand.)
-pub const PUSH_SETTLING: f64 = 0.4;
 const POSTURE_GAIN: f64 = 10.0;
 const POSTURE_DAMPING: f64 = 6.0;
 const DAMPING: f64 = 0.02;
@@ -185,11 +177,6 @@ pub fn expert_acceleration(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_push_settling_window_outlasts_the_twist_loop_to_one_percent() {
-        assert!(PUSH_SETTLING >= 100f64.ln() / VELOCITY_GAIN);
-    }
 
     #[test]
     fn the_upright_hand_orientation_is_the_home_one_for_forward_pouring() {

@@ -2,8 +2,11 @@
 //!
 //! ## Description
 //! A 1 kg point mass in the plane should circulate along the outline of a human figure
-//! whose arms and legs move with a phase context `c ∈ [0, 1]` ([`Outline`]): arms from
-//! slightly below horizontal (`c = 0`) to raised (`c = 1`), legs spreading apart. Each
+//! whose arms and legs move with a context `c ∈ [0, 2]` ([`Outline`]): on `[0, 1]` (the
+//! paper's phases) arms from slightly below horizontal (`c = 0`) to raised (`c = 1`), legs
+//! spreading apart; on `[1, 2]` the raised figure curls its limbs into hooks, outlines no
+//! longer star-shaped about the centre from `c ≈ 1.15` on (a ray from it crosses the
+//! outline three times, from `c ≈ 1.8` five). Each
 //! outline is a simple closed curve, the stable limit cycle of the expert.
 //!
 //! ## Action space
@@ -11,23 +14,26 @@
 //! computed-torque layer; out-of-range actions are refused with `OutOfBounds`.
 //!
 //! ## Observation space
-//! `[x, y, ẋ, ẏ, c]`: position (m), velocity (m/s), the phase `c` (unitless, `[0, 1]`).
+//! `[x, y, ẋ, ẏ, c]`: position (m), velocity (m/s), the context `c` (unitless, `[0, 2]`).
 //!
 //! ## Context distribution
 //! Option `context_set`: `0` (default) the ten training phases [`TRAINING_CONTEXTS`]
 //! `= {0, 0.1, 0.2, 0.3, 0.4, 0.6, 0.7, 0.8, 0.9, 1}`; `1` the held-out phases
-//! [`HELD_OUT_CONTEXTS`] `= {0.25, 0.5, 0.75}`; `2` uniform on `[0, 1]`. The two finite
-//! sets are scheduled, not drawn: a reset with seed `s` takes phase `s mod n` of its set
+//! [`HELD_OUT_CONTEXTS`] `= {0.25, 0.5, 0.75}`; `2` uniform on `[0, 1]`; `3` and `4` the
+//! curled outlines of the same sets shifted by one ([`CURLED_TRAINING_CONTEXTS`]
+//! `= {1, 1.1, …, 1.4, 1.6, …, 2}`, [`CURLED_HELD_OUT_CONTEXTS`] `= {1.25, 1.5, 1.75}`).
+//! The finite sets are scheduled, not drawn: a reset with seed `s` takes phase `s mod n` of its set
 //! and each unseeded reset the next one, so the episodes of seeds `s, s + 1, …` (how
 //! `ciflow demos` and `python -m ciflow.record` seed them) demonstrate every phase once
 //! before any repeats. `options.context` sets it directly.
 //!
 //! ## Expert
-//! [`LimitCycleField`] (converge radially, circulate counter-clockwise at 0.8 m/s)
+//! [`LimitCycleField`] (converge onto the outline, circulate counter-clockwise at 0.8 m/s
+//! along the star-shaped figures, that field carried through the curl for curled ones)
 //! tracked with `k_v = 25 /s`, clipped to the action space.
 //!
 //! ## Rewards
-//! `−|ρ − r(θ, c)|`, the radial distance to the outline (m). `info`: `outline_error`
+//! `−d(x, outline)`, the Euclidean distance to the outline (m). `info`: `outline_error`
 //! (that distance), `is_success` (1 when it is below 3 cm), `time` (s).
 //!
 //! ## Starting state
@@ -63,7 +69,10 @@ pub const ID: &str = "ciflow/LimitCycle-v0";
 pub const TRAINING_CONTEXTS: [f64; 10] = [0.0, 0.1, 0.2, 0.3, 0.4, 0.6, 0.7, 0.8, 0.9, 1.0];
 /// Phases between the training ones, for generalisation tests (the paper shows 0.5).
 pub const HELD_OUT_CONTEXTS: [f64; 3] = [0.25, 0.5, 0.75];
-/// Radial distance below which the mass counts as on the outline, m.
+/// The curled outlines' contexts: the same schedule one further.
+pub const CURLED_TRAINING_CONTEXTS: [f64; 10] = [1.0, 1.1, 1.2, 1.3, 1.4, 1.6, 1.7, 1.8, 1.9, 2.0];
+pub const CURLED_HELD_OUT_CONTEXTS: [f64; 3] = [1.25, 1.5, 1.75];
+/// Distance to the outline below which the mass counts as on it, m.
 pub const SUCCESS_DISTANCE: f64 = 0.03;
 const CONTEXT_SET_OPTION: &str = "context_set";
 const MIN_START_RADIUS: f64 = 0.2;
@@ -74,6 +83,8 @@ pub enum ContextSet {
     Training,
     HeldOut,
     Uniform,
+    CurledTraining,
+    CurledHeldOut,
 }
 
 /// The limit-cycle task (see the module docs).
@@ -100,7 +111,7 @@ impl Default for LimitCycle {
                 physics_dt: 0.001,
                 max_episode_steps: 1000,
             },
-            context_space: BoxSpace::new(vec![0.0], vec![1.0], Dtype::Float64),
+            context_space: BoxSpace::new(vec![0.0], vec![2.0], Dtype::Float64),
             context_set: ContextSet::Training,
             next_in_schedule: 0,
             field: LimitCycleField {
@@ -110,7 +121,7 @@ impl Default for LimitCycle {
     }
 }
 
-/// Points along the outline of phase `context[0]`, closed (the first point repeated).
+/// Points along the outline of context `context[0]`, closed (the first point repeated).
 pub fn outline_curve(context: &[f64]) -> Vec<[f64; 2]> {
     let mut points: Vec<[f64; 2]> = Outline::new(context[0])
         .polyline(OUTLINE_POINTS)
@@ -151,10 +162,15 @@ impl PlanarTask for LimitCycle {
             Some(0.0) => ContextSet::Training,
             Some(1.0) => ContextSet::HeldOut,
             Some(2.0) => ContextSet::Uniform,
+            Some(3.0) => ContextSet::CurledTraining,
+            Some(4.0) => ContextSet::CurledHeldOut,
             Some(v) => {
                 return Err(EnvError::InvalidOption {
                     name: CONTEXT_SET_OPTION.into(),
-                    detail: format!("{v} is not 0 (training), 1 (held out) or 2 (uniform)"),
+                    detail: format!(
+                        "{v} is not 0 (training), 1 (held out), 2 (uniform), 3 (curled \
+                         training) or 4 (curled held out)"
+                    ),
                 });
             }
         };
@@ -165,6 +181,8 @@ impl PlanarTask for LimitCycle {
         let schedule: &[f64] = match self.context_set {
             ContextSet::Training => &TRAINING_CONTEXTS,
             ContextSet::HeldOut => &HELD_OUT_CONTEXTS,
+            ContextSet::CurledTraining => &CURLED_TRAINING_CONTEXTS,
+            ContextSet::CurledHeldOut => &CURLED_HELD_OUT_CONTEXTS,
             ContextSet::Uniform => return vec![rng.random_range(0.0..=1.0)],
         };
         let n = schedule.len();
@@ -203,7 +221,7 @@ impl PlanarTask for LimitCycle {
     }
 
     fn evaluate(&self, x: &Vector2<f64>, _xd: &Vector2<f64>) -> Outcome {
-        let error = self.field.outline.radial_error(x).abs();
+        let error = self.field.outline.distance(x);
         Outcome {
             reward: -error,
             terminated: false,

@@ -32,8 +32,8 @@
 //! `−‖spout − p*‖` (m) per step, `−100` on a spill. `info`: `spout_x/y/z` (m), `tilt`
 //! (rad), `pour_distance` (m), `over_pot` (0/1), `spill` (0/1), `is_success` (1 while
 //! pouring: tilt ≥ [`POURING_TILT`] with the spout over the pot's opening), `perturbed`
-//! (1 when a push acted during the step or ended less than [`PUSH_SETTLING`] s before
-//! it), `time` (s).
+//! (1 when a push acted during the step: from the next step on, the arm moves under the
+//! expert's command alone, from wherever the push left it), `time` (s).
 //!
 //! ## Starting state
 //! `q = PANDA_HOME + U(−s, s)⁷` with the spread `s = 0.05` rad, `q̇ = 0`; the cup is
@@ -67,7 +67,7 @@ use nalgebra::{Rotation3, Translation3, UnitQuaternion, Vector2};
 use rand::RngExt;
 
 use crate::env::{Env, EnvError, EnvSpec, Info, PERTURBED_INFO, ResetOptions, SUCCESS_INFO, Step};
-use crate::expert::pouring::{CupPose, PUSH_SETTLING, PourTarget, expert_acceleration};
+use crate::expert::pouring::{CupPose, PourTarget, expert_acceleration};
 use crate::planar::reject_unknown_options;
 use crate::raster::{BLACK, BLUE, Canvas, GREY, ORANGE, RED, View};
 use crate::seeding::EpisodeRng;
@@ -279,7 +279,7 @@ impl Pouring {
             (SUCCESS_INFO.into(), flag(success)),
             (
                 PERTURBED_INFO.into(),
-                flag(self.simulator.perturbed_within(PUSH_SETTLING)),
+                flag(self.simulator.perturbed_within(0.0)),
             ),
             ("time".into(), self.simulator.time()),
         ]);

@@ -11,7 +11,7 @@ use ciflow_envs::registry::TaskEntry;
 use ciflow_train::Demonstrations;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::{FailedEpisodes, read_demonstrations, to_demonstrations};
+use super::{Screening, read_demonstrations, to_demonstrations};
 use crate::commands::network::NetworkArgs;
 
 /// Where the demonstrations come from besides `--demos`.
@@ -38,11 +38,11 @@ pub fn demonstrations(
     task: &TaskEntry,
     demos: Option<&Path>,
     source: &ZenohSource,
-    failed: FailedEpisodes,
+    screening: Screening,
 ) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
     let Some(count) = source.from_zenoh else {
         let demos = demos.context("give the dataset with --demos, or --from-zenoh <N>")?;
-        return read_demonstrations(demos, task, failed);
+        return read_demonstrations(demos, task, screening);
     };
     let timeout = Duration::try_from_secs_f64(source.episode_timeout)
         .ok()
@@ -92,6 +92,6 @@ pub fn demonstrations(
         episodes,
         task,
         "the episodes collected from Zenoh",
-        failed,
+        screening,
     )
 }
