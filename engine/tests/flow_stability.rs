@@ -70,28 +70,36 @@ fn random_behaviour_cloning_does_not_converge_everywhere() {
     );
 }
 
-/// `y ← y − 0.1 (y − a)` towards the nearer of the attractor at the origin and a spurious
-/// fixed point `SPURIOUS`.
-struct TwoFixedPoints {
+/// A hand-made map `y_{k+1} = step(y_k, c)` on the unit state box with its attractor at
+/// the origin: what the check must tell apart from a stable flow.
+struct Toy {
     bounds: Bounds,
+    step: fn(&[f64], &[f64], &mut [f64]),
 }
 
-const SPURIOUS: [f64; 2] = [60.0, 0.0];
+impl Toy {
+    /// `context_dim` context coordinates, each with the training box `[−1, 1]`.
+    fn new(context_dim: usize, step: fn(&[f64], &[f64], &mut [f64])) -> Self {
+        Self {
+            bounds: Bounds {
+                state_min: vec![-1.0, -1.0],
+                state_max: vec![1.0, 1.0],
+                context_min: vec![-1.0; context_dim],
+                context_max: vec![1.0; context_dim],
+            },
+            step,
+        }
+    }
+}
 
-impl MeanDynamics for TwoFixedPoints {
+impl MeanDynamics for Toy {
     type Workspace = ();
     fn workspace(&self) {}
     fn bounds(&self) -> &Bounds {
         &self.bounds
     }
-    fn mean_next(&self, y: &[f64], _: &[f64], _: &mut (), out: &mut [f64]) -> FlowResult<()> {
-        let target = match distance(y, &SPURIOUS) < distance(y, &[0.0, 0.0]) {
-            true => SPURIOUS,
-            false => [0.0, 0.0],
-        };
-        for ((o, yi), t) in out.iter_mut().zip(y).zip(target) {
-            *o = yi - 0.1 * (yi - t);
-        }
+    fn mean_next(&self, y: &[f64], c: &[f64], _: &mut (), out: &mut [f64]) -> FlowResult<()> {
+        (self.step)(y, c, out);
         Ok(())
     }
     fn attractor_distance(
@@ -105,16 +113,23 @@ impl MeanDynamics for TwoFixedPoints {
     }
 }
 
+const SPURIOUS: [f64; 2] = [60.0, 0.0];
+
+/// `y ← y − 0.1 (y − a)` towards the nearer of the attractor at the origin and a spurious
+/// fixed point `SPURIOUS`.
+fn two_fixed_points(y: &[f64], _: &[f64], out: &mut [f64]) {
+    let target = match distance(y, &SPURIOUS) < distance(y, &[0.0, 0.0]) {
+        true => SPURIOUS,
+        false => [0.0, 0.0],
+    };
+    for ((o, yi), t) in out.iter_mut().zip(y).zip(target) {
+        *o = yi - 0.1 * (yi - t);
+    }
+}
+
 #[test]
 fn rollouts_stalled_at_a_spurious_attractor_are_counted_and_end_there() {
-    let model = TwoFixedPoints {
-        bounds: Bounds {
-            state_min: vec![-1.0, -1.0],
-            state_max: vec![1.0, 1.0],
-            context_min: vec![],
-            context_max: vec![],
-        },
-    };
+    let model = Toy::new(0, two_fixed_points);
     // Starts up to 100x outside: those with x > 30 are nearer the spurious point.
     let report = measure(&model, &check(), |_| {}).unwrap();
     assert!(report.stalled_away > 0, "{report:?}");
@@ -137,54 +152,20 @@ fn rollouts_stalled_at_a_spurious_attractor_are_counted_and_end_there() {
 
 /// `y ← 0.5 y` while the context's first coordinate lies in the box `[−1, 1]`, `y ← y`
 /// (stuck) beyond it, and `y ← 2 y` (repelled) when its second coordinate leaves the box.
-struct ContextGate {
-    bounds: Bounds,
-}
-
-impl ContextGate {
-    fn new() -> Self {
-        Self {
-            bounds: Bounds {
-                state_min: vec![-1.0, -1.0],
-                state_max: vec![1.0, 1.0],
-                context_min: vec![-1.0, -1.0],
-                context_max: vec![1.0, 1.0],
-            },
-        }
-    }
-}
-
-impl MeanDynamics for ContextGate {
-    type Workspace = ();
-    fn workspace(&self) {}
-    fn bounds(&self) -> &Bounds {
-        &self.bounds
-    }
-    fn mean_next(&self, y: &[f64], c: &[f64], _: &mut (), out: &mut [f64]) -> FlowResult<()> {
-        let gain = match (c[0].abs() <= 1.0, c[1].abs() <= 1.0) {
-            (_, false) => 2.0,
-            (true, true) => 0.5,
-            (false, true) => 1.0,
-        };
-        for (o, yi) in out.iter_mut().zip(y) {
-            *o = gain * yi;
-        }
-        Ok(())
-    }
-    fn attractor_distance(
-        &self,
-        y: &[f64],
-        _: &[f64],
-        _: &mut (),
-        _: &mut [f64],
-    ) -> FlowResult<f64> {
-        Ok(distance(y, &[0.0, 0.0]))
+fn context_gate(y: &[f64], c: &[f64], out: &mut [f64]) {
+    let gain = match (c[0].abs() <= 1.0, c[1].abs() <= 1.0) {
+        (_, false) => 2.0,
+        (true, true) => 0.5,
+        (false, true) => 1.0,
+    };
+    for (o, yi) in out.iter_mut().zip(y) {
+        *o = gain * yi;
     }
 }
 
 #[test]
 fn contexts_reach_outside_the_box_except_the_bounded_coordinates() {
-    let model = ContextGate::new();
+    let model = Toy::new(2, context_gate);
     let inside = measure(&model, &check(), |_| {}).unwrap();
     assert_eq!(inside.fraction, 1.0, "{inside:?}");
     let config = StabilityConfig {
