@@ -3,12 +3,12 @@
 //!
 //! `ℓ = (1/N) Σ_i Σ_{t≥1} log p(y_tⁱ | y_{t−1}ⁱ, c_{t−1}ⁱ)`, `N` the number of transitions,
 //!
-//! over the transitions the trainer fits: those an external force moved
-//! ([`Episode::perturbed`]) show the push, not the policy, and are left out.
 //! in the data's own units ([`Policy::log_transition`] includes the normalisation
 //! Jacobian), with the policy's state `y = q`, the position part of each observation
-//! `[q, q̇, c]`, and the per-step context `c`. The initial-state term
-//! `log p(y₀ | c₀)` is reported separately, per episode.
+//! `[q, q̇, c]`, and the per-step context `c`. The sum runs over the transitions the
+//! trainer fits by default: those an external force moved ([`Episode::perturbed`]) show
+//! the push, not the policy, and are left out. The initial-state term `log p(y₀ | c₀)` is
+//! reported separately, per episode.
 
 use ciflow_engine::flow::Policy;
 use serde::Serialize;
