@@ -268,10 +268,14 @@ def plan(out: pathlib.Path) -> list[Job]:
         out / "figures" / "pouring_perturb_script.png"]], after=["pouring-record-train"]))
     for mode, extra in (("eval", []), ("push", ["--perturb", "push"]),
                         ("context", ["--perturb", "context"])):
+        episodes = ["--episodes", EVALUATION_EPISODES, "--seed", TEST_SEED, *extra]
         jobs.append(Job(f"pouring-{mode}", [evaluate(
-            pouring, "--episodes", EVALUATION_EPISODES, "--seed", TEST_SEED, "--trajectories",
-            4, "--out", exp / "pouring" / f"{mode}.json", *extra)],
-            after=["pouring-record-train"]))
+            pouring, *episodes, "--trajectories", 4, "--out",
+            exp / "pouring" / f"{mode}.json")], after=["pouring-record-train"]))
+        # The demonstrator in the same episodes: the reference beside the policy's figures.
+        jobs.append(Job(f"pouring-expert-{mode}", [[
+            CIFLOW, "evaluate", "--expert", "--task", "pouring", *episodes, "--out",
+            exp / "pouring" / f"expert-{mode}.json"]]))
     jobs.append(stability("pouring-flow", pouring, "pouring-record-train", "--robot-loop",
                           "--negative-control"))
     for fraction in POURING_FRACTIONS:

@@ -36,10 +36,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-# Targets of issue 6.
+# Targets of issues 6 and 15.
 OBSTACLE_GOAL_TARGET = 0.95
-POURING_SUCCESS_TARGET = 0.90
-PUSH_SUCCESS_TARGET = 0.80
+# Pouring: success without and under pushes, recovery within the deadline, success with
+# the pot moved mid-motion (issue 15 raised the push figures from 80 %).
+POURING_TARGET = 0.90
 PUSH_DISPLACEMENT_TARGET = 0.05  # m
 RECOVERY_DEADLINE = 2.0  # s
 # The obstacle-avoidance task's obstacle body radius (m), drawn in the figures.
@@ -363,31 +364,48 @@ def pouring(report, root):
                    "fraction of the demonstrations", "pouring_nll.png",
                    "Pouring: log-likelihood per transition")
     free, push, context = (load(folder / f"{n}.json") for n in ("eval", "push", "context"))
-    report.add("", "| target | measured | required | |", "|---|---|---|---|")
+    # The demonstrator through the same episodes, disturbances and measures: what
+    # imitating it can be expected to reach.
+    expert = {n: load(folder / f"expert-{n}.json") for n in ("eval", "push", "context")}
+
+    def with_expert(mode, measured, value):
+        reference = expert[mode] and value(expert[mode])
+        return measured if reference is None else f"{measured} (expert {percent(reference)})"
+
+    def success(result):
+        return result["success_rate"]
+
+    def recovered(result):
+        return (result.get("push") or {}).get("recovered_within_deadline_fraction")
+
+    report.add("", "| target | measured (the expert, same episodes) | required | |",
+               "|---|---|---|---|")
     if free is None:
-        report.add("| success, no perturbation | not run | ≥ 90% | — |")
+        report.add(f"| success, no perturbation | not run | ≥ {POURING_TARGET:.0%} | — |")
     else:
         report.target(f"success, no perturbation ({free['episodes']} contexts)",
-                      percent(free["success_rate"]), f"≥ {POURING_SUCCESS_TARGET:.0%}",
-                      free["success_rate"] >= POURING_SUCCESS_TARGET)
+                      with_expert("eval", percent(free["success_rate"]), success),
+                      f"≥ {POURING_TARGET:.0%}", free["success_rate"] >= POURING_TARGET)
     if push is None or not push.get("push"):
-        report.add("| success under pushes | not run | ≥ 80% | — |")
+        report.add(f"| success under pushes | not run | ≥ {POURING_TARGET:.0%} | — |")
     else:
         summary = push["push"]
         low = summary["displacement"]["min"]
         report.target("push displacement (min over episodes)", f"{100 * low:.1f} cm",
                       f"≥ {100 * PUSH_DISPLACEMENT_TARGET:.0f} cm", low >= PUSH_DISPLACEMENT_TARGET)
         report.target(f"success under pushes ({push['episodes']} episodes)",
-                      percent(push["success_rate"]), f"≥ {PUSH_SUCCESS_TARGET:.0%}",
-                      push["success_rate"] >= PUSH_SUCCESS_TARGET)
+                      with_expert("push", percent(push["success_rate"]), success),
+                      f"≥ {POURING_TARGET:.0%}", push["success_rate"] >= POURING_TARGET)
         within = summary["recovered_within_deadline_fraction"]
         report.target(
             f"back within {100 * summary['recovery_tolerance']:.1f} cm of the unpushed path "
-            f"≤ {RECOVERY_DEADLINE:g} s after the push", percent(within),
-            f"≥ {PUSH_SUCCESS_TARGET:.0%} of pushes", within >= PUSH_SUCCESS_TARGET)
+            f"≤ {RECOVERY_DEADLINE:g} s after the push",
+            with_expert("push", percent(within), recovered),
+            f"≥ {POURING_TARGET:.0%} of pushes", within >= POURING_TARGET)
     if context is not None:
-        report.add(f"| success, pot moved at t = {context['disturbance']['time']} s | "
-                   f"{percent(context['success_rate'])} | (no target) | — |")
+        report.target(f"success, pot moved at t = {context['disturbance']['time']} s",
+                      with_expert("context", percent(context["success_rate"]), success),
+                      f"≥ {POURING_TARGET:.0%}", context["success_rate"] >= POURING_TARGET)
     report.add("")
     if free is not None and free.get("spill_rate") is not None:
         report.add(f"Spill rate without perturbation: {percent(free['spill_rate'])}.", "")

@@ -1,6 +1,7 @@
 //! `ciflow demos` → `ciflow train` → `ciflow evaluate` as separate processes: every mode of
-//! `evaluate` (episodes, pushes, context changes, log-likelihood, field data) writes JSON
-//! that agrees with itself and with the dataset, and bad input fails with a message.
+//! `evaluate` (episodes, the expert's episodes, pushes, context changes, log-likelihood,
+//! field data) writes JSON that agrees with itself and with the dataset, and bad input
+//! fails with a message.
 
 mod common;
 
@@ -84,6 +85,37 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
     assert_eq!(rate(&report["success_rate"]), successes as f64 / 3.0);
     rate(&report["collision_rate"]);
     assert_eq!(report["disturbance"]["mode"], "none");
+
+    // The expert, the reference, in the same episodes (same seeds: same contexts).
+    let expert = scratch.arg("expert.json");
+    succeed(
+        &[
+            &[
+                "evaluate",
+                "--expert",
+                "--task",
+                "obstacle-avoidance",
+                "--episodes",
+                "3",
+            ][..],
+            &kwargs,
+            &["--out", &expert],
+        ]
+        .concat(),
+    );
+    let reference = json(&expert);
+    assert_eq!(reference["model"], "expert");
+    for (ours, theirs) in report["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(reference["results"].as_array().unwrap())
+    {
+        assert_eq!(ours["context"], theirs["context"]);
+    }
+    let no_task = ciflow(&["evaluate", "--expert", "--episodes", "1"]);
+    assert!(!no_task.status.success());
+    assert!(String::from_utf8_lossy(&no_task.stderr).contains("--task"));
 
     let pushes = scratch.arg("push.json");
     succeed(

@@ -115,11 +115,13 @@ impl Episode {
             .is_some_and(|&flag| flag == 1.0)
     }
 
-    /// Whether the episode ended achieving its task: its last [`SUCCESS_INFO`], or `None`
-    /// when the dataset does not record one.
-    pub fn succeeded(&self) -> Option<bool> {
-        let last = self.infos.get(SUCCESS_INFO)?.last()?;
-        Some(*last == 1.0)
+    /// Whether the episode records that it ended without achieving its task: its last
+    /// [`SUCCESS_INFO`] is not 1 (a dataset without that info records no failure).
+    pub fn failed(&self) -> bool {
+        self.infos
+            .get(SUCCESS_INFO)
+            .and_then(|flags| flags.last())
+            .is_some_and(|&last| last != 1.0)
     }
 
     fn validate(&self, index: usize, spec: &DatasetSpec) -> Result<()> {

@@ -12,7 +12,7 @@ use ciflow_envs::dataset::Episode;
 use ciflow_envs::evaluation::field::{FieldConfig, field};
 use ciflow_envs::evaluation::likelihood::log_likelihood;
 use ciflow_envs::evaluation::{
-    ContextSwitch, Disturbance, EvaluationConfig, EvaluationError, PushConfig, evaluate,
+    Acting, ContextSwitch, Disturbance, EvaluationConfig, EvaluationError, PushConfig, evaluate,
 };
 use ciflow_envs::tasks::obstacle_avoidance::{self, SUCCESS_DISTANCE};
 use ciflow_envs::{Env, ResetOptions};
@@ -29,15 +29,18 @@ fn config(episodes: usize, disturbance: Disturbance) -> EvaluationConfig {
     }
 }
 
-/// Positions of one episode of `model` from `reset(seed)`, under `perturbation`, and the
-/// last step's info.
+/// Positions of one episode of `acting` from `reset(seed)`, under `perturbation`, and the
+/// last step's info, stepped by hand.
 fn replay(
-    model: &Model,
+    acting: Acting,
     seed: u64,
     perturbation: Option<Perturbation>,
 ) -> (Vec<[f64; 2]>, ciflow_envs::Info) {
     let mut env = obstacle_avoidance::make(1).unwrap();
-    let mut actor = Actor::new(model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
+    let mut actor = match acting {
+        Acting::Model(model) => Some(Actor::new(model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap()),
+        Acting::Expert => None,
+    };
     let (mut observation, _) = env.reset(Some(seed), &ResetOptions::default()).unwrap();
     if let Some(p) = perturbation {
         env.perturb(p).unwrap();
@@ -45,7 +48,10 @@ fn replay(
     let mut positions = vec![[observation[0], observation[1]]];
     let mut action = [0.0; 2];
     loop {
-        actor.act(&observation, &mut action).unwrap();
+        match &mut actor {
+            Some(actor) => actor.act(&observation, &mut action).unwrap(),
+            None => action.copy_from_slice(&env.expert_action().unwrap()),
+        }
         let step = env.step(&action).unwrap();
         observation = step.observation;
         positions.push([observation[0], observation[1]]);
@@ -59,7 +65,13 @@ fn replay(
 fn episodes_and_rates_are_those_of_the_closed_loop() {
     let model = Model::from(obstacle_flow(1));
     let mut env = obstacle_avoidance::make(1).unwrap();
-    let report = evaluate(&mut env, &model, &config(8, Disturbance::None), |_| {}).unwrap();
+    let report = evaluate(
+        &mut env,
+        Acting::Model(&model),
+        &config(8, Disturbance::None),
+        |_| {},
+    )
+    .unwrap();
     assert_eq!(report.episodes, 8);
     assert_eq!(report.distance_key.as_deref(), Some("distance_to_target"));
     assert_eq!(report.spill_rate, None, "Obstacle-v0 reports no spills");
@@ -74,7 +86,7 @@ fn episodes_and_rates_are_those_of_the_closed_loop() {
     // A stable flow onto the target reaches it unless an obstacle is in the way.
     assert!(successes >= 5, "{successes} of 8 reached the target");
     for (i, result) in report.results.iter().enumerate() {
-        let (positions, info) = replay(&model, 40 + i as u64, None);
+        let (positions, info) = replay(Acting::Model(&model), 40 + i as u64, None);
         assert_eq!(result.seed, 40 + i as u64);
         assert_eq!(result.steps + 1, positions.len());
         assert_eq!(result.success, info["is_success"] == 1.0);
@@ -95,6 +107,68 @@ fn episodes_and_rates_are_those_of_the_closed_loop() {
     assert_eq!(&example.trace, &report.trajectories[0]);
 }
 
+/// The expert, the reference of every experiment, runs through the same loop and
+/// measures: its episodes are `expert_action` stepped by hand, pushes included.
+#[test]
+fn the_expert_is_evaluated_through_the_same_loop() {
+    let mut env = obstacle_avoidance::make(1).unwrap();
+    let push = PushConfig {
+        start: 0.5,
+        duration: 0.1,
+        displacement: 0.05,
+        initial_force: 2.0,
+        ..PushConfig::default()
+    };
+    let free = evaluate(
+        &mut env,
+        Acting::Expert,
+        &config(6, Disturbance::None),
+        |_| {},
+    )
+    .unwrap();
+    let pushed = evaluate(
+        &mut env,
+        Acting::Expert,
+        &config(6, Disturbance::Push(push.clone())),
+        |_| {},
+    )
+    .unwrap();
+    assert_eq!(
+        (free.model.as_str(), free.task.as_str()),
+        ("expert", "obstacle-avoidance")
+    );
+    for (i, result) in free.results.iter().enumerate() {
+        let (positions, info) = replay(Acting::Expert, 40 + i as u64, None);
+        assert_eq!(result.steps + 1, positions.len());
+        assert_eq!(result.success, info["is_success"] == 1.0);
+        assert_eq!(result.final_distance, Some(info["distance_to_target"]));
+    }
+    let traced: Vec<[f64; 2]> = free.trajectories[0]
+        .q
+        .iter()
+        .map(|q| [q[0], q[1]])
+        .collect();
+    assert_eq!(traced, replay(Acting::Expert, 40, None).0);
+    assert_eq!(free.success_rate, 1.0, "the expert reaches every target");
+    let outcome = pushed.results[0].push.as_ref().unwrap();
+    let force = Perturbation {
+        kind: PerturbationKind::LinkWrench {
+            link: 0,
+            force: outcome.force,
+            torque: [0.0; 3],
+        },
+        start: push.start,
+        duration: push.duration,
+    };
+    let traced: Vec<[f64; 2]> = pushed.trajectories[0]
+        .q
+        .iter()
+        .map(|q| [q[0], q[1]])
+        .collect();
+    assert_eq!(traced, replay(Acting::Expert, 40, Some(force)).0);
+    assert!(outcome.displacement >= 0.05);
+}
+
 #[test]
 fn a_push_displaces_the_state_by_the_requested_distance() {
     let model = Model::from(obstacle_flow(2));
@@ -108,7 +182,7 @@ fn a_push_displaces_the_state_by_the_requested_distance() {
     };
     let report = evaluate(
         &mut env,
-        &model,
+        Acting::Model(&model),
         &config(3, Disturbance::Push(push.clone())),
         |_| {},
     )
@@ -123,7 +197,7 @@ fn a_push_displaces_the_state_by_the_requested_distance() {
             "2 N for 0.1 s cannot move 1 kg by 8 cm"
         );
         // Replayed by hand with the force found: the same displacement at equal times.
-        let (free, _) = replay(&model, result.seed, None);
+        let (free, _) = replay(Acting::Model(&model), result.seed, None);
         let pushed = Perturbation {
             kind: PerturbationKind::LinkWrench {
                 link: 0,
@@ -133,7 +207,7 @@ fn a_push_displaces_the_state_by_the_requested_distance() {
             start: push.start,
             duration: push.duration,
         };
-        let (moved, _) = replay(&model, result.seed, Some(pushed));
+        let (moved, _) = replay(Acting::Model(&model), result.seed, Some(pushed));
         let first = (push.start / 0.01).round() as usize;
         let displacement = (first..moved.len())
             .map(|k| {
@@ -161,7 +235,7 @@ fn a_context_switch_moves_only_the_target_and_holds() {
     };
     let report = evaluate(
         &mut env,
-        &model,
+        Acting::Model(&model),
         &config(4, Disturbance::Context(switch)),
         |_| {},
     )
@@ -193,7 +267,12 @@ fn a_context_switch_moves_only_the_target_and_holds() {
 fn bad_settings_are_typed_errors() {
     let model = Model::from(obstacle_flow(4));
     let mut env = obstacle_avoidance::make(1).unwrap();
-    let none = evaluate(&mut env, &model, &config(0, Disturbance::None), |_| {});
+    let none = evaluate(
+        &mut env,
+        Acting::Model(&model),
+        &config(0, Disturbance::None),
+        |_| {},
+    );
     assert!(matches!(none, Err(EvaluationError::InvalidConfig(_))));
     let push = PushConfig {
         displacement: f64::NAN,
@@ -201,13 +280,18 @@ fn bad_settings_are_typed_errors() {
     };
     let bad = evaluate(
         &mut env,
-        &model,
+        Acting::Model(&model),
         &config(1, Disturbance::Push(push)),
         |_| {},
     );
     assert!(matches!(bad, Err(EvaluationError::InvalidConfig(_))));
     let mut two = obstacle_avoidance::make(2).unwrap();
-    let mismatch = evaluate(&mut two, &model, &config(1, Disturbance::None), |_| {});
+    let mismatch = evaluate(
+        &mut two,
+        Acting::Model(&model),
+        &config(1, Disturbance::None),
+        |_| {},
+    );
     assert!(matches!(mismatch, Err(EvaluationError::Actor(_))));
 }
 

@@ -3,7 +3,8 @@
 //!
 //! - default: closed-loop episodes in the task's environment from random contexts and
 //!   starts, optionally pushed (`--perturb push`) or with the context moved mid-motion
-//!   (`--perturb context`): rates, distances, push displacement and recovery, traces;
+//!   (`--perturb context`): rates, distances, push displacement and recovery, traces —
+//!   of the checkpoint, or with `--expert --task T` of the task's expert, the reference;
 //! - `--nll DATASET`: the flow's log-likelihood per transition on a dataset;
 //! - `--field FILE`: for 2-D flows, the vector field, rollouts and latent-grid image.
 
@@ -16,7 +17,7 @@ use ciflow_envs::dataset;
 use ciflow_envs::evaluation::field::{FieldConfig, field};
 use ciflow_envs::evaluation::likelihood::log_likelihood;
 use ciflow_envs::evaluation::{
-    ContextSwitch, Disturbance, EvaluationConfig, EvaluationReport, PushConfig, evaluate,
+    Acting, ContextSwitch, Disturbance, EvaluationConfig, EvaluationReport, PushConfig, evaluate,
 };
 use ciflow_envs::registry::{self, TaskEntry};
 use ciflow_envs::tasks::{obstacle_avoidance, pouring};
@@ -39,8 +40,12 @@ pub enum PerturbArg {
 #[derive(clap::Args, Debug)]
 pub struct EvaluateArgs {
     /// Checkpoint directory (a flow or an MLP baseline).
-    #[arg(long)]
-    pub checkpoint: PathBuf,
+    #[arg(long, required_unless_present = "expert")]
+    pub checkpoint: Option<PathBuf>,
+    /// Instead of a checkpoint, the episodes of the task's expert (needs --task): the
+    /// demonstrator, as the reference for the same disturbances and measures.
+    #[arg(long, conflicts_with_all = ["checkpoint", "nll", "field"], requires = "task")]
+    pub expert: bool,
     /// Expected task name [default: the checkpoint's].
     #[arg(long)]
     pub task: Option<String>,
@@ -170,15 +175,15 @@ fn parse_contexts(text: &str) -> anyhow::Result<Vec<Vec<f64>>> {
         .collect()
 }
 
-fn disturbance(args: &EvaluateArgs, task: &TaskEntry, model: &Model) -> Disturbance {
+/// The disturbance the flags ask for in `task`, whose robot has `dof` joints (pouring's
+/// hand is its last movable link).
+fn disturbance(args: &EvaluateArgs, task: &TaskEntry, dof: usize) -> Disturbance {
     match args.perturb {
         PerturbArg::None => Disturbance::None,
         PerturbArg::Push => Disturbance::Push(PushConfig {
-            link: args.push_link.unwrap_or(if task.id == pouring::ID {
-                model.state_dim() - 1
-            } else {
-                0
-            }),
+            link: args
+                .push_link
+                .unwrap_or(if task.id == pouring::ID { dof - 1 } else { 0 }),
             start: args.push_start,
             duration: args.push_duration,
             displacement: args.push_displacement,
@@ -238,14 +243,17 @@ fn print_summary(report: &EvaluationReport) {
 }
 
 pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
-    let dir = &args.checkpoint;
+    let Some(dir) = &args.checkpoint else {
+        let task = registry::entry(args.task.as_deref().expect("clap requires --task"))?;
+        return episodes(&args, task, Acting::Expert);
+    };
     let model = Model::load(dir, args.task.as_deref())
         .with_context(|| format!("loading {}", dir.display()))?;
     if let Some(dataset_dir) = &args.nll {
         let (_, mut episodes) = dataset::read(dataset_dir)
             .with_context(|| format!("reading {}", dataset_dir.display()))?;
         let recorded = episodes.len();
-        episodes.retain(|e| e.succeeded() != Some(false));
+        episodes.retain(|e| !e.failed());
         if episodes.len() < recorded {
             println!(
                 "{}: {} of {recorded} episodes failed their task and are not scored",
@@ -319,7 +327,11 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
         );
         return Ok(());
     }
-    let task = registry::entry(model.task())?;
+    episodes(&args, registry::entry(model.task())?, Acting::Model(&model))
+}
+
+/// The closed-loop episodes of `acting` in `task` (the default mode).
+fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Result<()> {
     let kwargs = task_values(task, args.kwargs.clone())?;
     let mut env = (task.make_with)(&kwargs)
         .with_context(|| format!("building `{}` with {kwargs:?}", task.name))?;
@@ -328,11 +340,11 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
         seed: args.seed,
         velocity_gain: args.velocity_gain,
         reset_extra: task_values(task, args.options.clone())?,
-        disturbance: disturbance(&args, task, &model),
+        disturbance: disturbance(args, task, env.spec().action_space.dim()),
         trajectories: args.trajectories,
     };
     let progress = bar(args.episodes, "episodes");
-    let report = evaluate(env.as_mut(), &model, &config, |done| {
+    let report = evaluate(env.as_mut(), acting, &config, |done| {
         progress.set_position(done as u64)
     })
     .context("evaluating")?;

@@ -459,40 +459,38 @@ pub fn to_demonstrations(
     );
     let position_dim = velocity_and_position / 2;
     let recorded = episodes.len();
-    let failures = episodes
-        .iter()
-        .filter(|e| e.succeeded() == Some(false))
-        .count();
+    let failures = episodes.iter().filter(|e| e.failed()).count();
     let kept: Vec<dataset::Episode> = episodes
         .into_iter()
-        .filter(|e| screening.keep_failed || e.succeeded() != Some(false))
+        .filter(|e| screening.keep_failed || !e.failed())
         .collect();
     anyhow::ensure!(
         !kept.is_empty(),
         "{source}: all {recorded} episodes failed their task; --keep-failed trains on them"
     );
     let transitions: usize = kept.iter().map(dataset::Episode::len).sum();
-    let perturbed: usize = kept
-        .iter()
-        .map(|e| (0..e.len()).filter(|&t| e.perturbed(t)).count())
-        .sum();
+    let mut perturbed = 0;
     // A step is excluded when it or one of the `settling` steps before it was pushed.
     let settling = (screening.push_settling / spec.control_dt).round() as usize;
     let episodes: Vec<Episode> = kept
         .into_iter()
-        .map(|episode| Episode {
-            excluded: (0..episode.len())
-                .map(|t| {
-                    !screening.keep_perturbed
-                        && (t.saturating_sub(settling)..=t).any(|s| episode.perturbed(s))
-                })
-                .collect(),
-            states: episode
-                .observations
-                .iter()
-                .map(|o| o[..position_dim].to_vec())
-                .collect(),
-            contexts: Contexts::PerStep(episode.contexts),
+        .map(|episode| {
+            let pushed: Vec<bool> = (0..episode.len()).map(|t| episode.perturbed(t)).collect();
+            perturbed += pushed.iter().filter(|&&p| p).count();
+            Episode {
+                excluded: (0..pushed.len())
+                    .map(|t| {
+                        !screening.keep_perturbed
+                            && pushed[t.saturating_sub(settling)..=t].contains(&true)
+                    })
+                    .collect(),
+                states: episode
+                    .observations
+                    .iter()
+                    .map(|o| o[..position_dim].to_vec())
+                    .collect(),
+                contexts: Contexts::PerStep(episode.contexts),
+            }
         })
         .collect();
     let excluded: usize = episodes

@@ -145,12 +145,11 @@ impl Simulator {
         &self.perturbations
     }
 
-    /// Whether an external force acted during the last control period or during the
-    /// `settling` seconds before it: the period's motion still carries the disturbance
-    /// while the controller that reacts to it has not yet damped it out.
-    pub fn perturbed_within(&self, settling: Real) -> bool {
+    /// Whether an external force acted during the last control period: its motion then
+    /// shows the disturbance, not the controller's command alone.
+    pub fn perturbed(&self) -> bool {
         let now = self.time();
-        let from = now - self.config.control_dt - settling;
+        let from = now - self.config.control_dt;
         self.perturbations.iter().any(|p| p.overlaps(from, now))
     }
 

@@ -4,7 +4,9 @@
 //!
 //! Episode `i` is reset with seed `seed + i`, so its context and start are the task's own
 //! random draws and the same for every checkpoint and every disturbance mode. Every
-//! control step the [`Actor`] chooses `q̈_des` from the observation `[q, q̇, c]`.
+//! control step the [`Actor`] chooses `q̈_des` from the observation `[q, q̇, c]` — or, as
+//! the reference the policies imitate, the task's expert does ([`Acting::Expert`]), under
+//! the same disturbances and measures.
 //!
 //! **Outcome of an episode** (from the task's `info`, see each task's module docs):
 //! *success* when the last step reports `is_success = 1` (obstacle avoidance terminates on
@@ -27,6 +29,7 @@ use serde::Serialize;
 
 use crate::actor::{Actor, ActorError, Model};
 use crate::env::{Env, EnvError, Info, ResetOptions, SUCCESS_INFO};
+use crate::registry;
 pub use push::{PushConfig, PushOutcome, PushSummary};
 
 /// `info` keys holding the distance to the task's goal, in order of preference: obstacle
@@ -72,13 +75,44 @@ pub enum Disturbance {
     Context(ContextSwitch),
 }
 
+/// Who chooses the actions of the evaluated episodes.
+#[derive(Clone, Copy, Debug)]
+pub enum Acting<'a> {
+    /// A trained checkpoint, through an [`Actor`] with [`EvaluationConfig::velocity_gain`].
+    Model(&'a Model),
+    /// The task's expert ([`Env::expert_action`]), which made the demonstrations: what it
+    /// reaches under a disturbance is what imitating it can be expected to reach.
+    Expert,
+}
+
+/// [`Acting`] with its buffers.
+enum Driver {
+    Actor(Box<Actor>),
+    Expert,
+}
+
+impl Driver {
+    fn act(
+        &mut self,
+        env: &dyn Env,
+        observation: &[f64],
+        action: &mut [f64],
+    ) -> EvaluationResult<()> {
+        match self {
+            Self::Actor(actor) => actor.act(observation, action)?,
+            Self::Expert => action.copy_from_slice(&env.expert_action()?),
+        }
+        Ok(())
+    }
+}
+
 /// Settings of [`evaluate`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct EvaluationConfig {
     pub episodes: usize,
     /// Episode `i` is reset with `seed + i`.
     pub seed: u64,
-    /// `K_v` of the [`Actor`], 1/s.
+    /// `K_v` of the [`Actor`], 1/s (unused by the expert).
     pub velocity_gain: f64,
     /// Reset options for every episode (e.g. limit cycle's `context_set`).
     pub reset_extra: BTreeMap<String, f64>,
@@ -189,7 +223,7 @@ pub struct Example {
 pub struct EvaluationReport {
     pub env_id: String,
     pub task: String,
-    /// `flow` or `baseline`.
+    /// `flow`, `baseline` or `expert`.
     pub model: String,
     pub disturbance: Disturbance,
     pub seed: u64,
@@ -234,7 +268,7 @@ struct Run {
 /// Runs the policy from `reset(seed)` until the episode ends, applying `schedule`.
 fn run_episode(
     env: &mut dyn Env,
-    actor: &mut Actor,
+    driver: &mut Driver,
     state_dim: usize,
     seed: u64,
     options: &ResetOptions,
@@ -266,7 +300,7 @@ fn run_episode(
             let context_start = observation.len() - chosen.len();
             observation[context_start..].copy_from_slice(chosen);
         }
-        actor.act(&observation, &mut action)?;
+        driver.act(env, &observation, &mut action)?;
         let step = env.step(&action)?;
         trace.command.push(action.clone());
         observation = step.observation;
@@ -319,10 +353,11 @@ fn switch_candidates(
         .collect()
 }
 
-fn model_name(model: &Model) -> &'static str {
-    match model {
-        Model::Flow(_) => "flow",
-        Model::Baseline(_) => "baseline",
+fn model_name(acting: Acting) -> &'static str {
+    match acting {
+        Acting::Model(Model::Flow(_)) => "flow",
+        Acting::Model(Model::Baseline(_)) => "baseline",
+        Acting::Expert => "expert",
     }
 }
 
@@ -331,11 +366,11 @@ fn rate(flags: impl Iterator<Item = Option<bool>>) -> Option<f64> {
     (!flags.is_empty()).then(|| flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64)
 }
 
-/// Runs `config.episodes` closed-loop episodes of `model` in `env`; `progress` is called
+/// Runs `config.episodes` closed-loop episodes of `acting` in `env`; `progress` is called
 /// after each episode with the number done.
 pub fn evaluate(
     env: &mut dyn Env,
-    model: &Model,
+    acting: Acting,
     config: &EvaluationConfig,
     mut progress: impl FnMut(usize),
 ) -> EvaluationResult<EvaluationReport> {
@@ -348,8 +383,17 @@ pub fn evaluate(
         push.validate()?;
     }
     let spec = env.spec().clone();
-    let mut actor = Actor::new(model, &spec, config.velocity_gain)?;
-    let d = model.state_dim();
+    let (mut driver, task) = match acting {
+        Acting::Model(model) => (
+            Driver::Actor(Box::new(Actor::new(model, &spec, config.velocity_gain)?)),
+            model.task().to_owned(),
+        ),
+        Acting::Expert => (
+            Driver::Expert,
+            registry::entry(&spec.id).map_or_else(|_| spec.id.clone(), |e| e.name.to_owned()),
+        ),
+    };
+    let d = spec.action_space.dim();
     let options = ResetOptions {
         extra: config.reset_extra.clone(),
         ..ResetOptions::default()
@@ -362,7 +406,7 @@ pub fn evaluate(
         let seed = config.seed.wrapping_add(i as u64);
         let (run, reference, push) = match &config.disturbance {
             Disturbance::None => (
-                run_episode(env, &mut actor, d, seed, &options, &Schedule::Free)?,
+                run_episode(env, &mut driver, d, seed, &options, &Schedule::Free)?,
                 None,
                 None,
             ),
@@ -374,13 +418,13 @@ pub fn evaluate(
                     time: switch.time,
                     candidates,
                 };
-                let run = run_episode(env, &mut actor, d, seed, &options, &schedule)?;
+                let run = run_episode(env, &mut driver, d, seed, &options, &schedule)?;
                 (run, None, None)
             }
             Disturbance::Push(push) => {
-                let reference = run_episode(env, &mut actor, d, seed, &options, &Schedule::Free)?;
+                let reference = run_episode(env, &mut driver, d, seed, &options, &Schedule::Free)?;
                 let (run, outcome) = push::sized_push(push, seed, &reference.trace, |p| {
-                    run_episode(env, &mut actor, d, seed, &options, &Schedule::Push(p))
+                    run_episode(env, &mut driver, d, seed, &options, &Schedule::Push(p))
                         .map(|run| (run.trace.clone(), run))
                 })?;
                 (run, Some(reference.trace), Some(outcome))
@@ -424,8 +468,8 @@ pub fn evaluate(
     };
     Ok(EvaluationReport {
         env_id: spec.id.clone(),
-        task: model.task().to_owned(),
-        model: model_name(model).into(),
+        task,
+        model: model_name(acting).into(),
         disturbance: config.disturbance.clone(),
         seed: config.seed,
         episodes: results.len(),

@@ -277,10 +277,7 @@ impl Pouring {
             ("over_pot".into(), flag(over)),
             ("spill".into(), flag(spill)),
             (SUCCESS_INFO.into(), flag(success)),
-            (
-                PERTURBED_INFO.into(),
-                flag(self.simulator.perturbed_within(0.0)),
-            ),
+            (PERTURBED_INFO.into(), flag(self.simulator.perturbed())),
             ("time".into(), self.simulator.time()),
         ]);
         let reward = if spill { SPILL_REWARD } else { -distance };
