@@ -33,6 +33,12 @@ pub struct TaskEntry {
     /// (angles, the limit cycle's phase): checks that extrapolate the context keep these
     /// inside the training box and scale the others (positions).
     pub bounded_context: &'static [usize],
+    /// The movable link the evaluation pushes by default: the hand of an arm (its last
+    /// link), the body of a point mass.
+    pub pushed_link: usize,
+    /// The context entries a mid-motion change replaces by default: the last `n` (the
+    /// obstacle-avoidance target, while its obstacles stay), or all of them (`None`).
+    pub moved_context_tail: Option<usize>,
 }
 
 impl TaskEntry {
@@ -116,6 +122,8 @@ pub fn tasks() -> &'static [TaskEntry] {
             named_values: &[],
             reference_curve: Some(limit_cycle::outline_curve),
             bounded_context: &[0],
+            pushed_link: 0,
+            moved_context_tail: None,
         },
         TaskEntry {
             id: obstacle_avoidance::ID,
@@ -126,6 +134,8 @@ pub fn tasks() -> &'static [TaskEntry] {
             named_values: &[],
             reference_curve: None,
             bounded_context: &[],
+            pushed_link: 0,
+            moved_context_tail: Some(2),
         },
         TaskEntry {
             id: pouring::ID,
@@ -136,6 +146,8 @@ pub fn tasks() -> &'static [TaskEntry] {
             named_values: &[],
             reference_curve: None,
             bounded_context: &[3, 4, 5],
+            pushed_link: pouring::HAND_LINK,
+            moved_context_tail: None,
         },
         TaskEntry {
             id: lasa::ID,
@@ -146,6 +158,8 @@ pub fn tasks() -> &'static [TaskEntry] {
             named_values: &[(lasa::SHAPE_OPTION, &lasa::SHAPES)],
             reference_curve: None,
             bounded_context: &[],
+            pushed_link: 0,
+            moved_context_tail: None,
         },
     ]
 }

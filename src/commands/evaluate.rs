@@ -20,7 +20,6 @@ use ciflow_envs::evaluation::{
     Acting, ContextSwitch, Disturbance, EvaluationConfig, EvaluationReport, PushConfig, evaluate,
 };
 use ciflow_envs::registry::{self, TaskEntry};
-use ciflow_envs::tasks::{obstacle_avoidance, pouring};
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
@@ -78,7 +77,8 @@ pub struct EvaluateArgs {
     /// First push force tried (N).
     #[arg(long, default_value_t = 10.0)]
     pub push_force: f64,
-    /// Link pushed [default: the hand (last link) for pouring, the mass otherwise].
+    /// Link pushed [default: the task's: the hand (last link) for pouring, the mass
+    /// otherwise].
     #[arg(long)]
     pub push_link: Option<usize>,
     /// Distance to the unpushed path that counts as recovered (m).
@@ -90,7 +90,7 @@ pub struct EvaluateArgs {
     /// Time of the context change (simulated s).
     #[arg(long, default_value_t = 1.0)]
     pub switch_time: f64,
-    /// Change only the last N context entries [default: the target (2) for
+    /// Change only the last N context entries [default: the task's: the target (2) for
     /// obstacle-avoidance, the whole context otherwise].
     #[arg(long)]
     pub switch_tail: Option<usize>,
@@ -175,15 +175,12 @@ fn parse_contexts(text: &str) -> anyhow::Result<Vec<Vec<f64>>> {
         .collect()
 }
 
-/// The disturbance the flags ask for in `task`, whose robot has `dof` joints (pouring's
-/// hand is its last movable link).
-fn disturbance(args: &EvaluateArgs, task: &TaskEntry, dof: usize) -> Disturbance {
+/// The disturbance the flags ask for in `task` (its defaults where a flag is not given).
+fn disturbance(args: &EvaluateArgs, task: &TaskEntry) -> Disturbance {
     match args.perturb {
         PerturbArg::None => Disturbance::None,
         PerturbArg::Push => Disturbance::Push(PushConfig {
-            link: args
-                .push_link
-                .unwrap_or(if task.id == pouring::ID { dof - 1 } else { 0 }),
+            link: args.push_link.unwrap_or(task.pushed_link),
             start: args.push_start,
             duration: args.push_duration,
             displacement: args.push_displacement,
@@ -194,9 +191,7 @@ fn disturbance(args: &EvaluateArgs, task: &TaskEntry, dof: usize) -> Disturbance
         }),
         PerturbArg::Context => Disturbance::Context(ContextSwitch {
             time: args.switch_time,
-            tail: args
-                .switch_tail
-                .or((task.id == obstacle_avoidance::ID).then_some(2)),
+            tail: args.switch_tail.or(task.moved_context_tail),
         }),
     }
 }
@@ -340,7 +335,7 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
         seed: args.seed,
         velocity_gain: args.velocity_gain,
         reset_extra: task_values(task, args.options.clone())?,
-        disturbance: disturbance(args, task, env.spec().action_space.dim()),
+        disturbance: disturbance(args, task),
         trajectories: args.trajectories,
     };
     let progress = bar(args.episodes, "episodes");

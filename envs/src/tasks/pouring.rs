@@ -99,6 +99,9 @@ pub const DEMO_PUSH_WINDOW: (f64, f64) = (0.3, 3.0);
 const CONTEXT_LOW: [f64; 6] = [0.42, -0.25, 0.0, -0.1, -0.1, -0.6];
 const CONTEXT_HIGH: [f64; 6] = [0.6, 0.25, 0.1, 0.1, 0.1, 0.6];
 const DOF: usize = 7;
+/// The hand, the last of the Panda's movable links: where pushes act (the demonstrations'
+/// and the evaluation's).
+pub const HAND_LINK: usize = DOF - 1;
 
 /// The pot's pose from a context `(x, y, z, roll, pitch, yaw)`.
 pub fn pot_pose(context: &[f64]) -> Isometry3 {
@@ -374,7 +377,7 @@ impl Env for Pouring {
             let angle = rng.random_range(0.0..std::f64::consts::TAU);
             Perturbation {
                 kind: PerturbationKind::LinkWrench {
-                    link: DOF - 1,
+                    link: HAND_LINK,
                     force: [magnitude * angle.cos(), magnitude * angle.sin(), 0.0],
                     torque: [0.0; 3],
                 },

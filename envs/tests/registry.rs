@@ -1,0 +1,46 @@
+//! The registry's per-task defaults name real parts of each task: the pushed link is the
+//! last movable link its environment accepts a push on, and a mid-motion context change
+//! replaces no more entries than the context has.
+
+use ciflow_engine::sim::{Perturbation, PerturbationKind};
+use ciflow_envs::ResetOptions;
+use ciflow_envs::registry::tasks;
+
+fn push(link: usize) -> Perturbation {
+    Perturbation {
+        kind: PerturbationKind::LinkWrench {
+            link,
+            force: [1.0, 0.0, 0.0],
+            torque: [0.0; 3],
+        },
+        start: 0.0,
+        duration: 0.1,
+    }
+}
+
+#[test]
+fn every_task_is_pushed_on_its_last_movable_link() {
+    for task in tasks() {
+        let mut env = (task.make)();
+        env.reset(Some(0), &ResetOptions::default()).unwrap();
+        env.perturb(push(task.pushed_link))
+            .unwrap_or_else(|e| panic!("{}: link {}: {e}", task.name, task.pushed_link));
+        assert!(
+            env.perturb(push(task.pushed_link + 1)).is_err(),
+            "{}: link {} is not the last one",
+            task.name,
+            task.pushed_link
+        );
+    }
+}
+
+#[test]
+fn a_moved_context_tail_fits_the_context() {
+    for task in tasks() {
+        let env = (task.make)();
+        let dim = env.spec().context_space.dim();
+        if let Some(tail) = task.moved_context_tail {
+            assert!((1..=dim).contains(&tail), "{}: {tail} of {dim}", task.name);
+        }
+    }
+}
