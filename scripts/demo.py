@@ -49,18 +49,17 @@ POURING_FRACTIONS = (0.1, 0.3, 1.0)
 EVALUATION_EPISODES = 100
 # Held-out seeds: far from the training seeds (episode i is reset with seed + i).
 TEST_SEED = 100_000
-# The pouring policy: the model measured at 49/50 successes (README "Pouring").
-POURING_MODEL = ["--coupling", "affine", "--layers", "10", "--batch-size", "512",
-                 "--epochs", "6"]
 # Every pouring demonstration (train and test) is pushed once on the hand, U(0, 40) N for
 # 0.2 s in a random horizontal direction (the task's `push_force` option, DART-style noise
 # injection): the demonstrations then show the expert returning to its path, which the
 # flow needs to recover from the evaluation's pushes within 2 s (README "Pouring").
 POURING_DEMO_OPTIONS = ["--option", "push_force=40"]
-# The learning curve's models fit every episode of their subset (no early-stopping split
-# taken out of it, the last epoch kept): n on the curve is n episodes fitted, and the
-# held-out score comes from the separate test recording.
-POURING_CURVE_MODEL = [*POURING_MODEL, "--validation-fraction", "0", "--keep", "last"]
+# The pouring policy and its learning curve's models are the task's recipe (`ciflow
+# train`): every successful episode of their subset fitted, none held out for early
+# stopping, the last epoch kept, so n on the curve is n episodes fitted and the held-out
+# score comes from the separate test recording. The curve's three full-data models
+# (training seeds 0, 1, 2) are also run closed loop: the policy's figures over training
+# seeds.
 LIMIT_CYCLE_MODEL = ["--epochs", "40"]
 # The limit-cycle families: (name, training and held-out context sets of the task's
 # `context_set` option, the field figure's contexts).
@@ -217,7 +216,7 @@ def wait_for_line(path: pathlib.Path, text: str, process: subprocess.Popen, time
 def plan(out: pathlib.Path) -> list[Job]:
     """The experiments as jobs; out/experiments has the layout scripts/report.py reads."""
     data, policies, exp = out / "data", out / "policies", out / "experiments"
-    for d in (data, policies, exp / "pouring" / "nll",
+    for d in (data, policies, exp / "pouring" / "nll", exp / "pouring" / "seeds",
               exp / "stability", out / "figures"):
         d.mkdir(parents=True, exist_ok=True)
 
@@ -247,7 +246,7 @@ def plan(out: pathlib.Path) -> list[Job]:
         with open(trainer_log, "w") as tlog:
             trainer_command = [
                 CIFLOW, "train", "--task", "pouring", "--from-zenoh", POURING_DEMOS, "--demos",
-                pouring_data, "--out", pouring, "--publish", "pouring", *POURING_MODEL]
+                pouring_data, "--out", pouring, "--publish", "pouring"]
             trainer = runner.spawn(trainer_command, tlog)
             wait_for_line(trainer_log, "waiting for", trainer, timeout=60)
             recorder = [PYTHON, "-m", "ciflow.record", "--task", "pouring", "--episodes",
@@ -266,8 +265,10 @@ def plan(out: pathlib.Path) -> list[Job]:
         TEST_SEED, "--push", PERTURB_PUSH, "--context-step", PERTURB_CONTEXT, "--quiet",
         "--record", exp / "pouring" / "perturb.json", "--plot",
         out / "figures" / "pouring_perturb_script.png"]], after=["pouring-record-train"]))
-    for mode, extra in (("eval", []), ("push", ["--perturb", "push"]),
-                        ("context", ["--perturb", "context"])):
+    # The closed-loop figures: held-out contexts undisturbed, pushed, and with the pot moved.
+    pouring_modes = (("eval", []), ("push", ["--perturb", "push"]),
+                     ("context", ["--perturb", "context"]))
+    for mode, extra in pouring_modes:
         episodes = ["--episodes", EVALUATION_EPISODES, "--seed", TEST_SEED, *extra]
         jobs.append(Job(f"pouring-{mode}", [evaluate(
             pouring, *episodes, "--trajectories", 4, "--out",
@@ -287,14 +288,19 @@ def plan(out: pathlib.Path) -> list[Job]:
             nll = exp / "pouring" / "nll"
             jobs.append(Job(f"pouring-{fraction}-seed{seed}", [
                 [CIFLOW, "train", "--task", "pouring", "--demos", pouring_data,
-                 *(["--subset", *count] if count else []), "--seed", seed, "--out", policy,
-                 *POURING_CURVE_MODEL],
+                 *(["--subset", *count] if count else []), "--seed", seed, "--out", policy],
                 evaluate(policy, "--nll", pouring_data,
                          *(["--nll-subset", *count] if count else []),
                          "--seed", seed, "--out", nll / f"{fraction}_seed{seed}_train.json"),
                 evaluate(policy, "--nll", pouring_test,
                          "--out", nll / f"{fraction}_seed{seed}_test.json"),
             ], after=["pouring-record-train", "record-pouring-test"]))
+            if fraction == 1.0:
+                seeds = exp / "pouring" / "seeds"
+                jobs.append(Job(f"pouring-seed{seed}-closed-loop", [evaluate(
+                    policy, "--episodes", EVALUATION_EPISODES, "--seed", TEST_SEED, *extra,
+                    "--out", seeds / f"{mode}_seed{seed}.json")
+                    for mode, extra in pouring_modes], after=[f"pouring-1.0-seed{seed}"]))
     # Obstacle avoidance with 1, 2 and 3 obstacles (+ the unconstrained baseline for 3).
     for k in OBSTACLE_COUNTS:
         dataset, policy = data / f"obstacles-{k}", policies / f"obstacles-{k}"

@@ -357,6 +357,46 @@ def obstacles(report, root):
     report.add("")
 
 
+SEED_FILE = re.compile(r"^(?P<mode>eval|push|context)_seed(?P<seed>[0-9]+)\.json$")
+
+
+def pouring_seeds(report, folder):
+    """The closed-loop figures of the models trained on every demonstration with other
+    training seeds (the learning curve's full-data models): how much of a figure is the
+    seed. Rows are seeds, with the mean and range over them last."""
+    runs = {}
+    for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+        match = SEED_FILE.match(path.name)
+        if match:
+            runs.setdefault(int(match["seed"]), {})[match["mode"]] = load(path)
+    if not runs:
+        report.not_run("pouring over training seeds", folder)
+        return
+    columns = (("success", "eval", lambda r: r["success_rate"]),
+               ("under pushes", "push", lambda r: r["success_rate"]),
+               (f"back ≤ {RECOVERY_DEADLINE:g} s", "push",
+                lambda r: r["push"]["recovered_within_deadline_fraction"]),
+               ("pot moved", "context", lambda r: r["success_rate"]))
+    report.add("The same figures for the models that fit every demonstration with training "
+               "seeds 0, 1 and 2 (the learning curve's full-data models):", "",
+               "| training seed | " + " | ".join(c[0] for c in columns) + " |",
+               "|---" * (len(columns) + 1) + "|")
+    values = {name: [] for name, _, _ in columns}
+    for seed, modes in sorted(runs.items()):
+        cells = []
+        for name, mode, value in columns:
+            result = modes.get(mode)
+            if result is None:
+                cells.append("not run")
+            else:
+                values[name].append(value(result))
+                cells.append(percent(values[name][-1]))
+        report.add(f"| {seed} | " + " | ".join(cells) + " |")
+    summary = [f"{percent(np.mean(v))} ({percent(min(v))}–{percent(max(v))})" if v else "—"
+               for v in values.values()]
+    report.add("| mean (range) | " + " | ".join(summary) + " |", "")
+
+
 def pouring(report, root):
     report.add("## Pouring", "")
     folder = root / "pouring"
@@ -409,6 +449,7 @@ def pouring(report, root):
     report.add("")
     if free is not None and free.get("spill_rate") is not None:
         report.add(f"Spill rate without perturbation: {percent(free['spill_rate'])}.", "")
+    pouring_seeds(report, folder / "seeds")
     if push is None:
         report.not_run("push traces", folder / "push.json")
     else:

@@ -89,6 +89,15 @@ def experiments(tmp_path):
     }
     write(root / "pouring" / "push.json",
           evaluation(0.8, 10, {"mode": "push", "start": 0.05, "duration": 0.05}, push=push))
+    # Two training seeds' full-data models; seed 1 has no context run.
+    for seed, rate in ((0, 0.9), (1, 0.7)):
+        write(root / "pouring" / "seeds" / f"eval_seed{seed}.json",
+              evaluation(rate, 10, {"mode": "none"}))
+        write(root / "pouring" / "seeds" / f"push_seed{seed}.json",
+              evaluation(rate, 10, {"mode": "push", "start": 0.05, "duration": 0.05},
+                         push={**push, "recovered_within_deadline_fraction": rate - 0.1}))
+    write(root / "pouring" / "seeds" / "context_seed0.json",
+          evaluation(1.0, 10, {"mode": "context", "time": 1.0}))
     # The expert's run of the same pushes: shown beside the policy's figures.
     write(root / "pouring" / "expert-push.json",
           evaluation(1.0, 10, {"mode": "push", "start": 0.05, "duration": 0.05},
@@ -135,6 +144,10 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert ("| success under pushes (10 episodes) | 80.0% (expert 100.0%) | ≥ 90% | **FAIL** |"
             in text)
     assert "90.0% (expert 100.0%) | ≥ 90% of pushes | **pass** |" in text
+    assert "| 0 | 90.0% | 90.0% | 80.0% | 100.0% |" in text
+    assert "| 1 | 70.0% | 70.0% | 60.0% | not run |" in text
+    assert ("| mean (range) | 80.0% (70.0%–90.0%) | 80.0% (70.0%–90.0%) | 70.0% (60.0%–80.0%) | "
+            "100.0% (100.0%–100.0%) |") in text
     assert "2 obstacle(s): not run" in text
     assert "pot moved mid-motion: not run" in text
     assert ("| pouring-flow | training box | 100.0% | 100.0% / 100.0% / 100.0% | 50 | 0 | 0 | "

@@ -2,6 +2,8 @@
 
 use std::collections::BTreeMap;
 
+use ciflow_engine::robot::Robot;
+
 use crate::env::{Env, EnvError};
 use crate::tasks::{lasa, limit_cycle, obstacle_avoidance, pouring};
 
@@ -39,6 +41,9 @@ pub struct TaskEntry {
     /// The context entries a mid-motion change replaces by default: the last `n` (the
     /// obstacle-avoidance target, while its obstacles stay), or all of them (`None`).
     pub moved_context_tail: Option<usize>,
+    /// The arm the task drives, with its real limits (pouring: the Panda); `None` for
+    /// the planar tasks' point mass, whose workspace each check chooses.
+    pub robot: Option<fn() -> Box<dyn Robot>>,
 }
 
 impl TaskEntry {
@@ -124,6 +129,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             bounded_context: &[0],
             pushed_link: 0,
             moved_context_tail: None,
+            robot: None,
         },
         TaskEntry {
             id: obstacle_avoidance::ID,
@@ -136,6 +142,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             bounded_context: &[],
             pushed_link: 0,
             moved_context_tail: Some(2),
+            robot: None,
         },
         TaskEntry {
             id: pouring::ID,
@@ -148,6 +155,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             bounded_context: &[3, 4, 5],
             pushed_link: pouring::HAND_LINK,
             moved_context_tail: None,
+            robot: Some(pouring::robot),
         },
         TaskEntry {
             id: lasa::ID,
@@ -160,6 +168,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             bounded_context: &[],
             pushed_link: 0,
             moved_context_tail: None,
+            robot: None,
         },
     ]
 }

@@ -29,6 +29,30 @@ fn config(episodes: usize, disturbance: Disturbance) -> EvaluationConfig {
     }
 }
 
+/// A 0.1 s push on the mass at 0.5 s, sized from 2 N up to `displacement` (m).
+fn mass_push(displacement: f64) -> PushConfig {
+    PushConfig {
+        start: 0.5,
+        duration: 0.1,
+        displacement,
+        initial_force: 2.0,
+        ..PushConfig::default()
+    }
+}
+
+/// The perturbation of `push` with the `force` its sizing settled on.
+fn applied(push: &PushConfig, force: [f64; 3]) -> Perturbation {
+    Perturbation {
+        kind: PerturbationKind::LinkWrench {
+            link: push.link,
+            force,
+            torque: [0.0; 3],
+        },
+        start: push.start,
+        duration: push.duration,
+    }
+}
+
 /// Positions of one episode of `acting` from `reset(seed)`, under `perturbation`, and the
 /// last step's info, stepped by hand.
 fn replay(
@@ -112,13 +136,7 @@ fn episodes_and_rates_are_those_of_the_closed_loop() {
 #[test]
 fn the_expert_is_evaluated_through_the_same_loop() {
     let mut env = obstacle_avoidance::make(1).unwrap();
-    let push = PushConfig {
-        start: 0.5,
-        duration: 0.1,
-        displacement: 0.05,
-        initial_force: 2.0,
-        ..PushConfig::default()
-    };
+    let push = mass_push(0.05);
     let free = evaluate(
         &mut env,
         Acting::Expert,
@@ -151,15 +169,7 @@ fn the_expert_is_evaluated_through_the_same_loop() {
     assert_eq!(traced, replay(Acting::Expert, 40, None).0);
     assert_eq!(free.success_rate, 1.0, "the expert reaches every target");
     let outcome = pushed.results[0].push.as_ref().unwrap();
-    let force = Perturbation {
-        kind: PerturbationKind::LinkWrench {
-            link: 0,
-            force: outcome.force,
-            torque: [0.0; 3],
-        },
-        start: push.start,
-        duration: push.duration,
-    };
+    let force = applied(&push, outcome.force);
     let traced: Vec<[f64; 2]> = pushed.trajectories[0]
         .q
         .iter()
@@ -173,13 +183,7 @@ fn the_expert_is_evaluated_through_the_same_loop() {
 fn a_push_displaces_the_state_by_the_requested_distance() {
     let model = Model::from(obstacle_flow(2));
     let mut env = obstacle_avoidance::make(1).unwrap();
-    let push = PushConfig {
-        start: 0.5,
-        duration: 0.1,
-        displacement: 0.08,
-        initial_force: 2.0,
-        ..PushConfig::default()
-    };
+    let push = mass_push(0.08);
     let report = evaluate(
         &mut env,
         Acting::Model(&model),
@@ -198,15 +202,7 @@ fn a_push_displaces_the_state_by_the_requested_distance() {
         );
         // Replayed by hand with the force found: the same displacement at equal times.
         let (free, _) = replay(Acting::Model(&model), result.seed, None);
-        let pushed = Perturbation {
-            kind: PerturbationKind::LinkWrench {
-                link: 0,
-                force: outcome.force,
-                torque: [0.0; 3],
-            },
-            start: push.start,
-            duration: push.duration,
-        };
+        let pushed = applied(&push, outcome.force);
         let (moved, _) = replay(Acting::Model(&model), result.seed, Some(pushed));
         let first = (push.start / 0.01).round() as usize;
         let displacement = (first..moved.len())

@@ -1,6 +1,6 @@
 //! The registry's per-task defaults name real parts of each task: the pushed link is the
-//! last movable link its environment accepts a push on, and a mid-motion context change
-//! replaces no more entries than the context has.
+//! last movable link its environment accepts a push on, a mid-motion context change
+//! replaces no more entries than the context has, and a task's arm has a joint per action.
 
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use ciflow_envs::ResetOptions;
@@ -43,4 +43,22 @@ fn a_moved_context_tail_fits_the_context() {
             assert!((1..=dim).contains(&tail), "{}: {tail} of {dim}", task.name);
         }
     }
+}
+
+#[test]
+fn a_task_arm_has_a_joint_per_action() {
+    let mut arms = 0;
+    for task in tasks() {
+        if let Some(robot) = task.robot {
+            let env = (task.make)();
+            assert_eq!(
+                robot().dof(),
+                env.spec().action_space.dim(),
+                "{}",
+                task.name
+            );
+            arms += 1;
+        }
+    }
+    assert_eq!(arms, 1, "pouring drives the Panda");
 }

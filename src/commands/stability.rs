@@ -9,9 +9,9 @@
 //! repels: the check must flag at least 99% of its rollouts, or the command fails.
 //!
 //! With `--robot-loop` a flow is also run through the computed-torque simulator of its
-//! robot (`flow::robot_loop`): the Panda with its real torque and rate limits for 7-D
-//! policies, from starts uniform inside the joint limits; a point mass for 2-D ones, from
-//! starts in the demonstrations' box scaled by `--scale`.
+//! robot (`flow::robot_loop`): its task's arm with the real torque and rate limits
+//! (pouring: the Panda), from starts uniform inside the joint limits; for the planar
+//! tasks a point mass, from starts in the demonstrations' box scaled by `--scale`.
 
 use std::path::PathBuf;
 
@@ -19,7 +19,7 @@ use anyhow::Context;
 use ciflow_engine::flow::Policy;
 use ciflow_engine::flow::robot_loop::{RobotLoopConfig, RobotLoopReport, measure_robot_loop};
 use ciflow_engine::flow::stability::{MeanDynamics, StabilityConfig, StabilityReport, measure};
-use ciflow_engine::robot::{JointLimits, PointMass2d, Robot, panda};
+use ciflow_engine::robot::{JointLimits, PointMass2d, Robot};
 use ciflow_engine::sim::{SimConfig, Simulator};
 use ciflow_envs::actor::Model;
 use ciflow_envs::registry;
@@ -114,8 +114,8 @@ fn measured<M: MeanDynamics + Sync>(
     report.with_context(|| format!("the stability check ({what})"))
 }
 
-/// The robot a `d`-dimensional policy drives: the Panda (real limits) for 7 joints, a 1 kg
-/// point mass confined to `bounds` scaled by `scale` about their centre for 2-D states.
+/// The robot `policy` drives: its task's arm (real limits), or for the planar tasks a
+/// 1 kg point mass confined to the demonstrations' box scaled by `scale` about its centre.
 fn robot_simulator(policy: &Policy, scale: f64) -> anyhow::Result<Simulator> {
     let config = policy.config();
     let sim_config = SimConfig {
@@ -123,12 +123,14 @@ fn robot_simulator(policy: &Policy, scale: f64) -> anyhow::Result<Simulator> {
         control_dt: config.dt,
         ..SimConfig::default()
     };
-    let robot: Box<dyn Robot> = match config.state_dim {
-        7 => Box::new(panda()),
-        2 => {
+    let task = registry::entry(&config.task)?;
+    let robot: Box<dyn Robot> = match task.robot {
+        Some(arm) => arm(),
+        None => {
             let bounds = &config.bounds;
-            let mut limits = JointLimits::unlimited(2);
-            for i in 0..2 {
+            let d = config.state_dim;
+            let mut limits = JointLimits::unlimited(d);
+            for i in 0..d {
                 let (lo, hi) = (bounds.state_min[i], bounds.state_max[i]);
                 let (centre, half) = (0.5 * (lo + hi), 0.5 * scale * (hi - lo));
                 limits.q_min[i] = centre - half;
@@ -136,10 +138,14 @@ fn robot_simulator(policy: &Policy, scale: f64) -> anyhow::Result<Simulator> {
             }
             Box::new(PointMass2d::new(1.0)?.with_limits(limits)?)
         }
-        d => anyhow::bail!(
-            "no robot model for a {d}-D policy (the Panda has 7 joints, the planar tasks 2)"
-        ),
     };
+    anyhow::ensure!(
+        robot.dof() == config.state_dim,
+        "task `{}` drives a {}-joint robot, the checkpoint's state is {}-D",
+        task.name,
+        robot.dof(),
+        config.state_dim
+    );
     Ok(Simulator::new(robot, sim_config)?)
 }
 

@@ -19,7 +19,7 @@ use ciflow_engine::flow::{
 };
 use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::{self, TaskEntry};
-use ciflow_envs::tasks::{lasa, limit_cycle, obstacle_avoidance};
+use ciflow_envs::tasks::{lasa, limit_cycle, obstacle_avoidance, pouring};
 use ciflow_train::{
     BaselineTrainConfig, Contexts, Demonstrations, Episode, Keep, OptimConfig, Progress, Snapshot,
     TrainConfig, train_baseline, train_flow,
@@ -88,7 +88,7 @@ pub struct ModelArgs {
     /// for lasa, else go-to].
     #[arg(long, value_enum)]
     pub latent: Option<LatentArg>,
-    /// Coupling layers [default: the task's: affine for lasa, else spline].
+    /// Coupling layers [default: the task's: affine for lasa and pouring, else spline].
     #[arg(long, value_enum)]
     pub coupling: Option<CouplingArg>,
     /// Bins of each spline coupling [default: the task's spline's, else 8].
@@ -98,7 +98,8 @@ pub struct ModelArgs {
     /// outside) [default: the task's spline's, else 4].
     #[arg(long)]
     pub tail_bound: Option<f64>,
-    /// Number of (mixing, coupling) blocks [default: the task's: 10 for lasa, else 6].
+    /// Number of (mixing, coupling) blocks [default: the task's: 10 for lasa and pouring,
+    /// else 6].
     #[arg(long)]
     pub layers: Option<usize>,
     /// Hidden widths of each conditioner MLP, comma-separated [default: the task's: 32,32
@@ -128,21 +129,22 @@ pub struct ModelArgs {
     pub arrival: Option<f64>,
     /// Fraction of the demonstrations held out for early stopping (0: fit all of them,
     /// the training loss stands in for the validation score) [default: the task's: 0 for
-    /// lasa, else 0.2].
+    /// lasa, pouring and the limit cycle, else 0.2].
     #[arg(long)]
     pub validation_fraction: Option<f64>,
-    /// Epoch budget [default: the task's: 30 for lasa, else 200].
+    /// Epoch budget [default: the task's: 30 for lasa, 6 for pouring, else 200].
     #[arg(long)]
     pub epochs: Option<usize>,
-    #[arg(long, default_value_t = 256)]
-    pub batch_size: usize,
+    /// Training pairs per step [default: the task's: 512 for pouring, else 256].
+    #[arg(long)]
+    pub batch_size: Option<usize>,
     #[arg(long, default_value_t = 2e-3)]
     pub learning_rate: f64,
     /// Early-stopping patience in epochs.
     #[arg(long, default_value_t = 30)]
     pub patience: usize,
-    /// Which epoch's parameters to keep [default: the task's: last for lasa, else
-    /// best-validation].
+    /// Which epoch's parameters to keep [default: the task's: last for lasa, pouring and
+    /// the limit cycle, else best-validation].
     #[arg(long, value_enum)]
     pub keep: Option<KeepArg>,
     #[arg(long, default_value_t = 0)]
@@ -197,7 +199,7 @@ impl ModelArgs {
             threads: self.threads,
             optim: OptimConfig {
                 epochs: self.epochs.unwrap_or(recipe.optim.epochs),
-                batch_size: self.batch_size,
+                batch_size: self.batch_size.unwrap_or(recipe.optim.batch_size),
                 learning_rate: self.learning_rate,
                 patience: self.patience,
                 keep: self.keep.map_or(recipe.optim.keep, Keep::from),
@@ -348,6 +350,26 @@ fn lasa_recipe(recipe: TrainConfig) -> TrainConfig {
     }
 }
 
+/// Pouring's recipe: 10 affine blocks, 6 epochs of batches of 512 over every successful
+/// demonstration, the last epoch kept. None is held out: the held-out contexts are scored
+/// on a separate recording, and on the 216 demonstrations of `make demo` fitting all of
+/// them gave 95–99 % success over three training seeds where early stopping on a 20 %
+/// hold-out gave 94–96 % (README "Pouring").
+fn pouring_recipe(recipe: TrainConfig) -> TrainConfig {
+    TrainConfig {
+        coupling: CouplingKind::Affine { scale_bound: 2.0 },
+        layers: 10,
+        validation_fraction: 0.0,
+        optim: OptimConfig {
+            epochs: 6,
+            batch_size: 512,
+            keep: Keep::Last,
+            ..recipe.optim
+        },
+        ..recipe
+    }
+}
+
 /// How `task`'s policy is shaped and trained unless the command line says otherwise, for
 /// a context of dimension `context_dim`: a limit cycle for the limit-cycle task; go-to
 /// elsewhere, with the target read from the context where the task puts it there
@@ -400,6 +422,7 @@ pub fn task_recipe(task: &TaskEntry, context_dim: usize) -> anyhow::Result<Train
             }
         }
         lasa::ID => lasa_recipe(go_to(planar_target()?)),
+        pouring::ID => pouring_recipe(go_to(None)),
         _ => go_to(None),
     })
 }
@@ -794,7 +817,53 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::subset;
+    use super::{ModelArgs, subset, task_recipe};
+    use ciflow_engine::flow::CouplingKind;
+    use ciflow_envs::registry;
+    use ciflow_train::Keep;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Flags {
+        #[command(flatten)]
+        model: ModelArgs,
+    }
+
+    /// The training configuration of `task` under command-line `flags`.
+    fn configured(task: &str, flags: &[&str]) -> ciflow_train::TrainConfig {
+        let flags = Flags::try_parse_from([&["train"][..], flags].concat()).unwrap();
+        let recipe = task_recipe(registry::entry(task).unwrap(), 6).unwrap();
+        flags.model.flow(recipe).unwrap()
+    }
+
+    #[test]
+    fn the_pouring_recipe_is_the_default_and_every_flag_overrides_it() {
+        let default = configured("pouring", &[]);
+        assert!(matches!(default.coupling, CouplingKind::Affine { .. }));
+        assert_eq!(default.layers, 10);
+        assert_eq!(default.validation_fraction, 0.0);
+        assert_eq!(default.optim.keep, Keep::Last);
+        assert_eq!((default.optim.epochs, default.optim.batch_size), (6, 512));
+        let flagged = configured(
+            "pouring",
+            &[
+                "--batch-size",
+                "64",
+                "--epochs",
+                "2",
+                "--validation-fraction",
+                "0.1",
+            ],
+        );
+        assert_eq!((flagged.optim.batch_size, flagged.optim.epochs), (64, 2));
+        assert_eq!(flagged.validation_fraction, 0.1);
+        // Another go-to task keeps the generic defaults.
+        let generic = configured("obstacle-avoidance", &[]);
+        assert_eq!(
+            (generic.optim.batch_size, generic.validation_fraction),
+            (256, 0.2)
+        );
+    }
 
     /// The ten limit-cycle training phases, in the order a dataset might hold them.
     fn phases() -> Vec<Vec<f64>> {

@@ -148,17 +148,22 @@ pub struct Pouring {
     spout_trail: Vec<Vector3>,
 }
 
+/// The arm this task drives: the Panda with its rotor inertia and real limits.
+pub fn robot() -> Box<dyn Robot> {
+    Box::new(panda())
+}
+
 impl Pouring {
     pub fn new() -> Result<Self, EnvError> {
-        let robot = panda();
+        let robot = robot();
         let limits = robot.limits().clone();
         let config = SimConfig {
             physics_dt: 0.001,
             control_dt: 0.01,
             ..SimConfig::default()
         };
-        let simulator = Simulator::new(Box::new(robot), config)
-            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        let simulator =
+            Simulator::new(robot, config).map_err(|e| EnvError::Simulation(e.to_string()))?;
         let context_space =
             BoxSpace::new(CONTEXT_LOW.to_vec(), CONTEXT_HIGH.to_vec(), Dtype::Float64);
         let observation_space = BoxSpace::new(
