@@ -45,7 +45,8 @@ pub struct EvaluateArgs {
     /// demonstrator, as the reference for the same disturbances and measures.
     #[arg(long, conflicts_with_all = ["checkpoint", "nll", "field"], requires = "task")]
     pub expert: bool,
-    /// Expected task name [default: the checkpoint's].
+    /// Expected task name [default: the checkpoint's]; with --expert, the task whose
+    /// expert acts.
     #[arg(long)]
     pub task: Option<String>,
     /// Construction argument of the task, NAME=VALUE (e.g. obstacles=3); repeatable.

@@ -265,7 +265,7 @@ struct Run {
     switched_context: Option<Vec<f64>>,
 }
 
-/// Runs the policy from `reset(seed)` until the episode ends, applying `schedule`.
+/// Runs `driver` from `reset(seed)` until the episode ends, applying `schedule`.
 fn run_episode(
     env: &mut dyn Env,
     driver: &mut Driver,
