@@ -54,12 +54,6 @@ TEST_SEED = 100_000
 # injection): the demonstrations then show the expert returning to its path, which the
 # flow needs to recover from the evaluation's pushes within 2 s (README "Pouring").
 POURING_DEMO_OPTIONS = ["--option", "push_force=40"]
-# The pouring policy and its learning curve's models are the task's recipe (`ciflow
-# train`): every successful episode of their subset fitted, none held out for early
-# stopping, the last epoch kept, so n on the curve is n episodes fitted and the held-out
-# score comes from the separate test recording. The curve's three full-data models
-# (training seeds 0, 1, 2) are also run closed loop: the policy's figures over training
-# seeds.
 LIMIT_CYCLE_MODEL = ["--epochs", "40"]
 # The limit-cycle families: (name, training and held-out context sets of the task's
 # `context_set` option, the field figure's contexts).
@@ -268,8 +262,9 @@ def plan(out: pathlib.Path) -> list[Job]:
     # The closed-loop figures: held-out contexts undisturbed, pushed, and with the pot moved.
     pouring_modes = (("eval", []), ("push", ["--perturb", "push"]),
                      ("context", ["--perturb", "context"]))
+    held_out = ["--episodes", EVALUATION_EPISODES, "--seed", TEST_SEED]
     for mode, extra in pouring_modes:
-        episodes = ["--episodes", EVALUATION_EPISODES, "--seed", TEST_SEED, *extra]
+        episodes = [*held_out, *extra]
         jobs.append(Job(f"pouring-{mode}", [evaluate(
             pouring, *episodes, "--trajectories", 4, "--out",
             exp / "pouring" / f"{mode}.json")], after=["pouring-record-train"]))
@@ -279,6 +274,12 @@ def plan(out: pathlib.Path) -> list[Job]:
             exp / "pouring" / f"expert-{mode}.json"]]))
     jobs.append(stability("pouring-flow", pouring, "pouring-record-train", "--robot-loop",
                           "--negative-control"))
+    # The pouring policy and the learning curve's models are the task's recipe (`ciflow
+    # train`): every successful episode of their subset fitted, none held out for early
+    # stopping, the last epoch kept, so n on the curve is n episodes fitted and the
+    # held-out score comes from the separate test recording. The curve's three full-data
+    # models (training seeds 0, 1, 2) are also run closed loop: the policy's figures over
+    # training seeds.
     for fraction in POURING_FRACTIONS:
         # The whole dataset at 1.0: every demonstration that did not fail (the trainer
         # drops the others, so a count of 220 would be more than it has).
@@ -298,8 +299,7 @@ def plan(out: pathlib.Path) -> list[Job]:
             if fraction == 1.0:
                 seeds = exp / "pouring" / "seeds"
                 jobs.append(Job(f"pouring-seed{seed}-closed-loop", [evaluate(
-                    policy, "--episodes", EVALUATION_EPISODES, "--seed", TEST_SEED, *extra,
-                    "--out", seeds / f"{mode}_seed{seed}.json")
+                    policy, *held_out, *extra, "--out", seeds / f"{mode}_seed{seed}.json")
                     for mode, extra in pouring_modes], after=[f"pouring-1.0-seed{seed}"]))
     # Obstacle avoidance with 1, 2 and 3 obstacles (+ the unconstrained baseline for 3).
     for k in OBSTACLE_COUNTS:
