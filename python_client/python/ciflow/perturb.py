@@ -119,7 +119,10 @@ class ContextSchedule:
 
 
 def plot(samples: list[dict], events: list[dict], path: str) -> None:
-    import matplotlib
+    try:
+        import matplotlib
+    except ImportError as error:
+        raise SystemExit("--plot needs matplotlib: pip install 'ciflow[plot]'") from error
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
