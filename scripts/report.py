@@ -400,7 +400,7 @@ def pouring_seeds(report, folder):
 def pouring(report, root):
     report.add("## Pouring", "")
     folder = root / "pouring"
-    learning_curve(report, folder / "nll", "fraction of the 220 demonstrations",
+    learning_curve(report, folder / "nll", "fraction of the recorded demonstrations",
                    "fraction of the demonstrations", "pouring_nll.png",
                    "Pouring: log-likelihood per transition")
     free, push, context = (load(folder / f"{n}.json") for n in ("eval", "push", "context"))

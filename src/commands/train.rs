@@ -352,9 +352,9 @@ fn lasa_recipe(recipe: TrainConfig) -> TrainConfig {
 
 /// Pouring's recipe: 10 affine blocks, 6 epochs of batches of 512 over every successful
 /// demonstration, the last epoch kept. None is held out: the held-out contexts are scored
-/// on a separate recording, and on the 216 demonstrations of `make demo` fitting all of
-/// them gave 95–99 % success over three training seeds where early stopping on a 20 %
-/// hold-out gave 94–96 % (README "Pouring").
+/// on a separate recording, and on 216 pushed demonstrations fitting all of them gave
+/// 95–99 % success over three training seeds where early stopping on a 20 % hold-out gave
+/// 94–96 % (README "Pouring").
 fn pouring_recipe(recipe: TrainConfig) -> TrainConfig {
     TrainConfig {
         coupling: CouplingKind::Affine { scale_bound: 2.0 },
