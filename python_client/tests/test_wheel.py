@@ -14,6 +14,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 # Runs in the fresh environment: one episode step of a task served by an embedded engine.
 SCRIPT = """
+import importlib.metadata
 import gymnasium, ciflow
 env = gymnasium.make("ciflow/LimitCycle-v0")
 observation, _ = env.reset(seed=0)
@@ -21,6 +22,7 @@ env.step(env.action_space.sample())
 env.close()
 ciflow.shutdown_embedded_engine()
 print("stepped", observation.shape)
+print("extras", importlib.metadata.metadata("ciflow").get_all("Provides-Extra"))
 """
 
 
@@ -69,3 +71,4 @@ def test_the_wheel_installs_and_runs_in_an_empty_environment(tmp_path, private_d
                          cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     assert "stepped (" in run.stdout, run.stdout
+    assert "extras ['plot']" in run.stdout, run.stdout
