@@ -179,7 +179,7 @@ impl ModelArgs {
                     );
                 }
                 match self.coupling {
-                    Some(_) => CouplingKind::Affine { scale_bound: 2.0 },
+                    Some(_) => AFFINE_COUPLING,
                     None => recipe.coupling,
                 }
             }
@@ -320,6 +320,23 @@ const OBSTACLE_CONTRACTION_LAYERS: usize = 8;
 const OBSTACLE_CONTRACTION_EXPONENT: u32 = 2;
 /// LASA's guaranteed latent rate (1/s): its strokes last 2–6 s.
 const LASA_MIN_RATE: f64 = 0.2;
+/// The affine coupling of `--coupling affine` and of the recipes that use one.
+const AFFINE_COUPLING: CouplingKind = CouplingKind::Affine { scale_bound: 2.0 };
+
+/// `recipe` fitted to every demonstration it is given, none held out for early stopping,
+/// with the last epoch's parameters kept (the training loss stands in for the validation
+/// score): for tasks whose held-out contexts are scored elsewhere, or whose every
+/// demonstration is a context of its own.
+fn fitting_every_demonstration(recipe: TrainConfig) -> TrainConfig {
+    TrainConfig {
+        validation_fraction: 0.0,
+        optim: OptimConfig {
+            keep: Keep::Last,
+            ..recipe.optim
+        },
+        ..recipe
+    }
+}
 
 /// LASA's recipe: what made the stable flow as accurate as the unconstrained baseline
 /// and ImitationFlow on the handwriting shapes (`ciflow lasa --ablation` measures each
@@ -331,23 +348,21 @@ const LASA_MIN_RATE: f64 = 0.2;
 /// recorded (no jitter); all seven demonstrations fitted for a fixed budget of 30 epochs;
 /// 10 affine blocks with 32-32 conditioners (as deep as ImitationFlow's).
 fn lasa_recipe(recipe: TrainConfig) -> TrainConfig {
-    TrainConfig {
+    fitting_every_demonstration(TrainConfig {
         latent: LatentKind::SaturatedGoTo,
         min_rate: LASA_MIN_RATE,
-        coupling: CouplingKind::Affine { scale_bound: 2.0 },
+        coupling: AFFINE_COUPLING,
         layers: 10,
         hidden: vec![32, 32],
         horizon: 40,
         arrival: 0.25,
         state_noise: 0.0,
-        validation_fraction: 0.0,
         optim: OptimConfig {
             epochs: 30,
-            keep: Keep::Last,
             ..recipe.optim
         },
         ..recipe
-    }
+    })
 }
 
 /// Pouring's recipe: 10 affine blocks, 6 epochs of batches of 512 over every successful
@@ -356,18 +371,16 @@ fn lasa_recipe(recipe: TrainConfig) -> TrainConfig {
 /// 95–99 % success over three training seeds where early stopping on a 20 % hold-out gave
 /// 94–96 % (README "Pouring").
 fn pouring_recipe(recipe: TrainConfig) -> TrainConfig {
-    TrainConfig {
-        coupling: CouplingKind::Affine { scale_bound: 2.0 },
+    fitting_every_demonstration(TrainConfig {
+        coupling: AFFINE_COUPLING,
         layers: 10,
-        validation_fraction: 0.0,
         optim: OptimConfig {
             epochs: 6,
             batch_size: 512,
-            keep: Keep::Last,
             ..recipe.optim
         },
         ..recipe
-    }
+    })
 }
 
 /// How `task`'s policy is shaped and trained unless the command line says otherwise, for
@@ -391,19 +404,11 @@ pub fn task_recipe(task: &TaskEntry, context_dim: usize) -> anyhow::Result<Train
     };
     Ok(match task.id {
         // Every demonstration is a phase of its own: none is held out of the fit (a
-        // learning curve's n counts the phases fitted), and the last epoch is kept.
-        limit_cycle::ID => {
-            let recipe = TrainConfig::new(task.name, LatentKind::LimitCycle);
-            TrainConfig {
-                min_rate: LIMIT_CYCLE_MIN_RATE,
-                validation_fraction: 0.0,
-                optim: OptimConfig {
-                    keep: Keep::Last,
-                    ..recipe.optim
-                },
-                ..recipe
-            }
-        }
+        // learning curve's n counts the phases fitted).
+        limit_cycle::ID => fitting_every_demonstration(TrainConfig {
+            min_rate: LIMIT_CYCLE_MIN_RATE,
+            ..TrainConfig::new(task.name, LatentKind::LimitCycle)
+        }),
         obstacle_avoidance::ID => {
             let obstacles = ContextSet {
                 start: 0,
@@ -837,7 +842,7 @@ mod tests {
     }
 
     #[test]
-    fn the_pouring_recipe_is_the_default_and_every_flag_overrides_it() {
+    fn the_task_recipes_are_the_defaults_and_every_flag_overrides_them() {
         let default = configured("pouring", &[]);
         assert!(matches!(default.coupling, CouplingKind::Affine { .. }));
         assert_eq!(default.layers, 10);
@@ -857,6 +862,13 @@ mod tests {
         );
         assert_eq!((flagged.optim.batch_size, flagged.optim.epochs), (64, 2));
         assert_eq!(flagged.validation_fraction, 0.1);
+        // The other recipes that fit every demonstration keep doing so.
+        for task in ["limit-cycle", "lasa"] {
+            let recipe = configured(task, &[]);
+            assert_eq!(recipe.validation_fraction, 0.0, "{task}");
+            assert_eq!(recipe.optim.keep, Keep::Last, "{task}");
+        }
+        assert_eq!(configured("lasa", &[]).optim.epochs, 30);
         // Another go-to task keeps the generic defaults.
         let generic = configured("obstacle-avoidance", &[]);
         assert_eq!(
