@@ -9,7 +9,22 @@ use ciflow_engine::flow::{
 use ciflow_train::latent::LatentInit;
 use ciflow_train::model::FlowModel;
 use ciflow_train::trainer::{double_var_store, save_checkpoint};
+use std::sync::Mutex;
+
 use tch::{Kind, Tensor};
+
+/// libtorch's generator is global and the tests run on parallel threads: whoever seeds it
+/// draws under this lock, so every test sees the draws its seeds promise.
+static GENERATOR: Mutex<()> = Mutex::new(());
+
+/// `draw` with libtorch's generator seeded with `seed`, alone.
+fn seeded<T>(seed: i64, draw: impl FnOnce() -> T) -> T {
+    let _alone = GENERATOR
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
+    tch::manual_seed(seed);
+    draw()
+}
 
 fn configs() -> Vec<FlowConfig> {
     let mut out = Vec::new();
@@ -90,14 +105,18 @@ fn contracted(mut config: FlowConfig) -> FlowConfig {
     config
 }
 
-/// Re-draws every variable `N(0, 0.7²)` so the maps are far from the identity init.
+/// Re-draws every variable `N(0, 0.7²)` so the maps are far from the identity init; in
+/// name order, so a seed gives the same model every run (the store's map has none).
 fn randomise(vs: &tch::nn::VarStore, seed: i64) {
-    tch::manual_seed(seed);
-    tch::no_grad(|| {
-        for (_, mut v) in vs.variables() {
-            let noise = Tensor::randn(v.size(), (Kind::Double, v.device())) * 0.7;
-            v.copy_(&noise);
-        }
+    let mut variables: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
+    variables.sort_by(|a, b| a.0.cmp(&b.0));
+    seeded(seed, || {
+        tch::no_grad(|| {
+            for (_, mut v) in variables {
+                let noise = Tensor::randn(v.size(), (Kind::Double, v.device())) * 0.7;
+                v.copy_(&noise);
+            }
+        })
     });
 }
 
@@ -135,10 +154,15 @@ fn saved_var_store_loads_in_the_pure_rust_policy_and_agrees() {
         let mut ws = policy.workspace();
 
         let (d, m, n) = (config.state_dim as i64, config.context_dim as i64, 16);
-        tch::manual_seed(100 + k as i64);
-        let y = Tensor::randn([n, d], (Kind::Double, tch::Device::Cpu)) * 2.0;
-        let y_next = &y + Tensor::randn([n, d], (Kind::Double, tch::Device::Cpu)) * 0.1;
-        let c = Tensor::randn([n, m], (Kind::Double, tch::Device::Cpu));
+        let (y, y_next, c) = seeded(100 + k as i64, || {
+            let y = Tensor::randn([n, d], (Kind::Double, tch::Device::Cpu)) * 2.0;
+            let y_next = &y + Tensor::randn([n, d], (Kind::Double, tch::Device::Cpu)) * 0.1;
+            (
+                y,
+                y_next,
+                Tensor::randn([n, m], (Kind::Double, tch::Device::Cpu)),
+            )
+        });
         let (z, _) = model.inverse(&y, &c);
         let mean_next = model.mean_next(&y, &c);
         let one = Tensor::ones([n], tch::kind::INT64_CPU);
@@ -203,10 +227,11 @@ fn log_determinant_equals_the_autograd_jacobian() {
         randomise(&vs, 50 + k as i64);
         let (d, m) = (config.state_dim as i64, config.context_dim as i64);
         for point in 0..5 {
-            tch::manual_seed(200 + point);
-            let z = (Tensor::randn([1, d], (Kind::Double, tch::Device::Cpu)) * 1.5)
-                .set_requires_grad(true);
-            let c = Tensor::randn([1, m], (Kind::Double, tch::Device::Cpu));
+            let (z, c) = seeded(200 + point, || {
+                let z = Tensor::randn([1, d], (Kind::Double, tch::Device::Cpu)) * 1.5;
+                (z, Tensor::randn([1, m], (Kind::Double, tch::Device::Cpu)))
+            });
+            let z = z.set_requires_grad(true);
             let (y, log_det) = model.forward(&z, &c);
             let jacobian = Tensor::stack(
                 &(0..d)
