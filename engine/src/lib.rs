@@ -8,7 +8,8 @@
 //! - [`control`]: the computed-torque layer `τ = C q̇ + g + M q̈_des`;
 //! - [`sim`]: fixed-step simulation with perturbations in simulated time;
 //! - [`flow`]: stable conditioned invertible-network policies (inference only; training
-//!   lives in the `ciflow-train` crate, the only libtorch user).
+//!   lives in the `ciflow-train` crate, the only libtorch user);
+//! - [`training`]: the settings of a training run, so tasks can carry their recipes.
 
 pub mod algorithm;
 pub mod control;
@@ -18,3 +19,4 @@ pub mod model;
 pub mod robot;
 pub mod sim;
 pub mod spatial;
+pub mod training;

@@ -3,8 +3,10 @@
 use std::collections::BTreeMap;
 
 use ciflow_engine::robot::Robot;
+use ciflow_engine::training::TrainConfig;
 
 use crate::env::{Env, EnvError};
+use crate::recipes::{self, ContextWithoutTarget};
 use crate::tasks::{lasa, limit_cycle, obstacle_avoidance, pouring};
 
 /// Construction arguments, as `gymnasium.make(id, **kwargs)` takes them (numbers only).
@@ -44,9 +46,17 @@ pub struct TaskEntry {
     /// The arm the task drives, with its real limits (pouring: the Panda); `None` for
     /// the planar tasks' point mass, whose workspace each check chooses.
     pub robot: Option<fn() -> Box<dyn Robot>>,
+    /// How the task's policy is trained unless told otherwise, for a context of the
+    /// given dimension ([`recipes`]); use [`TaskEntry::training_recipe`].
+    pub training: fn(&TaskEntry, usize) -> Result<TrainConfig, ContextWithoutTarget>,
 }
 
 impl TaskEntry {
+    /// The task's training recipe for a `context_dim`-D context.
+    pub fn training_recipe(&self, context_dim: usize) -> Result<TrainConfig, ContextWithoutTarget> {
+        (self.training)(self, context_dim)
+    }
+
     /// The number an argument or option `key` of this task takes for `text`: `text` as a
     /// number, or the index of a name listed in [`TaskEntry::named_values`].
     pub fn value(&self, key: &str, text: &str) -> Result<f64, EnvError> {
@@ -130,6 +140,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             pushed_link: 0,
             moved_context_tail: None,
             robot: None,
+            training: recipes::limit_cycle,
         },
         TaskEntry {
             id: obstacle_avoidance::ID,
@@ -143,6 +154,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             pushed_link: 0,
             moved_context_tail: Some(2),
             robot: None,
+            training: recipes::obstacle_avoidance,
         },
         TaskEntry {
             id: pouring::ID,
@@ -156,6 +168,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             pushed_link: pouring::HAND_LINK,
             moved_context_tail: None,
             robot: Some(pouring::robot),
+            training: recipes::pouring,
         },
         TaskEntry {
             id: lasa::ID,
@@ -169,6 +182,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             pushed_link: 0,
             moved_context_tail: None,
             robot: None,
+            training: recipes::lasa,
         },
     ]
 }

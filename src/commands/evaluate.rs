@@ -25,7 +25,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 use super::demos::{parse_key_value, task_values};
-use super::train::subset;
+use ciflow_envs::learning_curve::subset;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum PerturbArg {

@@ -28,7 +28,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use serde_json::json;
 
-use super::train::{ModelArgs, task_recipe};
+use super::train::ModelArgs;
 use metrics::{Point, dtw_distance, final_point_error, swept_error_area};
 
 pub mod ablation;
@@ -276,7 +276,7 @@ impl RunProgress {
 /// the goal as context) with the command line's settings.
 fn flow_config(args: &ModelArgs) -> anyhow::Result<TrainConfig> {
     let task = ciflow_envs::registry::entry(TASK)?;
-    args.flow(task_recipe(task, GOAL.len())?)
+    args.flow(task.training_recipe(GOAL.len())?)
 }
 
 fn train_shape_flow(

@@ -30,6 +30,10 @@ pub enum CouplingKind {
 }
 
 impl CouplingKind {
+    /// The affine coupling the recipes and `--coupling affine` use: log-scales bounded
+    /// by 2 (a factor of e² per layer at most).
+    pub const AFFINE: Self = Self::Affine { scale_bound: 2.0 };
+
     /// Conditioner outputs per transformed dimension.
     pub fn params_per_dim(&self) -> usize {
         match self {

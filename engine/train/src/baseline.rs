@@ -13,7 +13,7 @@ use crate::error::TrainResult;
 use crate::model::row;
 use crate::nets::Mlp;
 use crate::optimise::{OptimConfig, Progress, mean_value, optimise};
-use crate::trainer::{double_var_store, save_checkpoint, split};
+use crate::trainer::{TrainConfig, double_var_store, save_checkpoint, split};
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct BaselineTrainConfig {
@@ -37,6 +37,28 @@ impl BaselineTrainConfig {
             validation_fraction: 0.2,
             threads: 1,
             optim: OptimConfig::default(),
+        }
+    }
+
+    /// The baseline matched to a flow's training: its budget, widths and validation
+    /// split, with the rollouts' goal where the flow's target is (the context entries it
+    /// reads, or else the demonstrations' mean final state).
+    pub fn matching(flow: &TrainConfig, data: &Demonstrations) -> Self {
+        let goal = match &flow.goal_context_indices {
+            Some(indices) => Goal::ContextIndices {
+                indices: indices.clone(),
+            },
+            None => Goal::State {
+                value: data.mean_final_state(),
+            },
+        };
+        Self {
+            task: flow.task.clone(),
+            hidden: flow.hidden.clone(),
+            goal,
+            validation_fraction: flow.validation_fraction,
+            threads: flow.threads,
+            optim: flow.optim.clone(),
         }
     }
 }

@@ -71,6 +71,22 @@ pub struct Demonstrations {
 const MIN_STD: f64 = 1e-6;
 
 impl Demonstrations {
+    /// The mean of the episodes' final states: the go-to goal when the context does not
+    /// hold it.
+    pub fn mean_final_state(&self) -> Vec<f64> {
+        let n = self.episodes.len() as f64;
+        let d = self.episodes.first().map_or(0, |e| e.states[0].len());
+        let mut goal = vec![0.0; d];
+        for e in &self.episodes {
+            if let Some(last) = e.states.last() {
+                for (g, v) in goal.iter_mut().zip(last) {
+                    *g += v / n;
+                }
+            }
+        }
+        goal
+    }
+
     /// Checks shapes and values; returns `(d, m)`.
     pub fn validate(&self) -> TrainResult<(usize, usize)> {
         let invalid = |m: String| Err(TrainError::InvalidData(m));

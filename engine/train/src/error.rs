@@ -13,6 +13,8 @@ pub enum TrainError {
     #[error(transparent)]
     Flow(#[from] FlowError),
     #[error(transparent)]
+    Dataset(#[from] ciflow_envs::dataset::DatasetError),
+    #[error(transparent)]
     Torch(#[from] tch::TchError),
 }
 

@@ -8,9 +8,12 @@
 //! parameter for parameter and runs in f64; [`trainer::TrainedFlow::save`] writes a
 //! checkpoint directory the pure-Rust `Policy::load` reads. [`baseline`] trains the
 //! unconstrained behaviour-cloning MLP used as the stability check's negative control.
+//! [`dataset`] reads the demonstrations from a `ciflow demos` dataset; each task's
+//! default [`TrainConfig`] is its registry entry's recipe (`ciflow_envs::recipes`).
 
 pub mod baseline;
 pub mod data;
+pub mod dataset;
 pub mod error;
 pub mod latent;
 pub mod model;
@@ -22,6 +25,7 @@ pub mod trainer;
 
 pub use baseline::{BaselineTrainConfig, TrainedBaseline, train_baseline};
 pub use data::{Contexts, Demonstrations, Episode};
+pub use dataset::{Screened, Screening};
 pub use error::{TrainError, TrainResult};
 pub use optimise::{Keep, OptimConfig, Progress};
 pub use trainer::{DEFAULT_STATE_NOISE, Snapshot, TrainConfig, TrainedFlow, train_flow};

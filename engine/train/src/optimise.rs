@@ -7,63 +7,22 @@ use rand_chacha::ChaCha8Rng;
 use tch::nn::{self, OptimizerConfig};
 use tch::{Kind, Tensor};
 
+pub use ciflow_engine::training::{Keep, OptimConfig};
+
 use crate::error::{TrainError, TrainResult};
 
-/// Optimiser settings common to the flow and the baseline.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct OptimConfig {
-    pub epochs: usize,
-    pub batch_size: usize,
-    pub learning_rate: f64,
-    /// The cosine schedule decays to `learning_rate · final_lr_fraction`.
-    pub final_lr_fraction: f64,
-    /// Stop after this many epochs without a better validation score.
-    pub patience: usize,
-    /// Gradient-norm clip.
-    pub max_grad_norm: f64,
-    /// Which epoch's parameters training returns.
-    pub keep: Keep,
-    pub seed: u64,
-}
-
-/// Which parameters [`optimise`] returns.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Keep {
-    /// The epoch with the best validation score (early stopping).
-    #[default]
-    BestValidation,
-    /// The last epoch's: validation only reports, patience still ends training.
-    Last,
-}
-
-impl Default for OptimConfig {
-    fn default() -> Self {
-        Self {
-            epochs: 200,
-            batch_size: 256,
-            learning_rate: 2e-3,
-            final_lr_fraction: 0.05,
-            patience: 30,
-            max_grad_norm: 50.0,
-            keep: Keep::BestValidation,
-            seed: 0,
-        }
+/// Refuses settings the loop cannot run: no epoch, empty batches, a learning rate that
+/// is not a positive number.
+fn check(config: &OptimConfig) -> TrainResult<()> {
+    if config.epochs == 0
+        || config.batch_size == 0
+        || !(config.learning_rate > 0.0 && config.learning_rate.is_finite())
+    {
+        return Err(TrainError::InvalidConfig(
+            "epochs, batch_size and learning_rate must be positive".into(),
+        ));
     }
-}
-
-impl OptimConfig {
-    pub fn validate(&self) -> TrainResult<()> {
-        if self.epochs == 0
-            || self.batch_size == 0
-            || !(self.learning_rate > 0.0 && self.learning_rate.is_finite())
-        {
-            return Err(TrainError::InvalidConfig(
-                "epochs, batch_size and learning_rate must be positive".into(),
-            ));
-        }
-        Ok(())
-    }
+    Ok(())
 }
 
 /// One epoch's figures, handed to the progress callback.
@@ -94,7 +53,7 @@ pub fn optimise(
     mut validation: impl FnMut() -> Option<f64>,
     mut progress: impl FnMut(&Progress),
 ) -> TrainResult<(Vec<Progress>, usize)> {
-    config.validate()?;
+    check(config)?;
     let mut opt = nn::Adam::default().build(vs, config.learning_rate)?;
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     let mut order: Vec<i64> = (0..samples as i64).collect();

@@ -20,97 +20,18 @@
 use std::path::Path;
 
 use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
-use ciflow_engine::flow::{
-    CheckpointConfig, ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind,
-    SetEncoderConfig,
-};
-use serde::{Deserialize, Serialize};
+use ciflow_engine::flow::{CheckpointConfig, FlowConfig};
+pub use ciflow_engine::training::{DEFAULT_STATE_NOISE, TrainConfig};
 use tch::{Device, Kind, Tensor, nn};
 
 use crate::data::{Demonstrations, Episode, Transitions};
 use crate::error::{TrainError, TrainResult};
 use crate::latent::LatentInit;
 use crate::model::FlowModel;
-use crate::optimise::{OptimConfig, Progress, mean_value, optimise};
-
-/// Default [`TrainConfig::state_noise`].
-pub const DEFAULT_STATE_NOISE: f64 = 0.1;
+use crate::optimise::{Progress, mean_value, optimise};
 
 /// Initial states drawn per minibatch for the `log p(y₀ | c₀)` term.
 const INITIAL_ROWS_PER_BATCH: usize = 16;
-
-/// Architecture and optimisation settings of [`train_flow`].
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct TrainConfig {
-    pub task: String,
-    pub latent: LatentKind,
-    pub coupling: CouplingKind,
-    pub layers: usize,
-    pub hidden: Vec<usize>,
-    /// Guaranteed latent contraction rate `ε` (1/s).
-    pub min_rate: f64,
-    /// `target(c) = c[indices]` for go-to tasks whose target is in the context.
-    pub goal_context_indices: Option<Vec<usize>>,
-    /// Unordered sets in the context (e.g. obstacle centres) that the conditioners see
-    /// through permutation-invariant encoders ([`ciflow_engine::flow::context_set`]).
-    #[serde(default)]
-    pub context_sets: Vec<ContextSet>,
-    /// The encoders' architecture (used when there are sets).
-    #[serde(default)]
-    pub set_encoder: SetEncoderConfig,
-    /// Radial contractions about context points (e.g. obstacle centres) in front of the
-    /// network ([`ciflow_engine::flow::radial`]).
-    #[serde(default)]
-    pub contractions: Option<ContractionConfig>,
-    /// Longest modelled transition: each minibatch row spans `k ~ U{1, …, horizon}` steps
-    /// and enters the loss with the exact `k`-step density (1 = the paper's one-step
-    /// transitions).
-    pub horizon: usize,
-    /// Share of the minibatch rows whose span runs to the end of their episode
-    /// (`y_t → y_T`, however many steps), so the motion ends where and when the
-    /// demonstrations do; 0 leaves them out.
-    #[serde(default)]
-    pub arrival: f64,
-    /// Standard deviation of the Gaussian jitter added to every training state, as a
-    /// fraction of the demonstrations' RMS step (per normalised coordinate); 0 trains on
-    /// the states as recorded (exact maximum likelihood). Deterministic expert
-    /// demonstrations have an unbounded likelihood as the flow contracts onto them, and a
-    /// held-out likelihood watched for early stopping can collapse within a few epochs:
-    /// jitter gives them a density.
-    pub state_noise: f64,
-    /// Fraction of episodes held out for early stopping (at least one when there are two);
-    /// 0 fits every episode and reports the one-step likelihood of the fitted ones.
-    pub validation_fraction: f64,
-    /// libtorch intra-op threads (1 suits these small networks).
-    pub threads: i32,
-    pub optim: OptimConfig,
-}
-
-impl TrainConfig {
-    pub fn new(task: &str, latent: LatentKind) -> Self {
-        Self {
-            task: task.to_owned(),
-            latent,
-            coupling: CouplingKind::Spline {
-                bins: 8,
-                tail_bound: 4.0,
-            },
-            layers: 6,
-            hidden: vec![64, 64],
-            min_rate: 0.1,
-            goal_context_indices: None,
-            context_sets: Vec::new(),
-            set_encoder: SetEncoderConfig::default(),
-            contractions: None,
-            horizon: 1,
-            arrival: 0.0,
-            state_noise: DEFAULT_STATE_NOISE,
-            validation_fraction: 0.2,
-            threads: 1,
-            optim: OptimConfig::default(),
-        }
-    }
-}
 
 /// A trained flow: its engine configuration and parameters.
 #[derive(Debug)]

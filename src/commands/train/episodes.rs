@@ -9,9 +9,9 @@ use ciflow_bridge::episodes::collect;
 use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::TaskEntry;
 use ciflow_train::Demonstrations;
+use ciflow_train::dataset::{self as screening_dataset, Screened, Screening};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::{Screening, read_demonstrations, to_demonstrations};
 use crate::commands::network::NetworkArgs;
 
 /// Where the demonstrations come from besides `--demos`.
@@ -33,16 +33,20 @@ pub struct ZenohSource {
 }
 
 /// The demonstrations of `task`: read from `demos`, or collected from Zenoh (and then
-/// written to `demos` when given).
+/// written to `demos` when given); prints what the screening left out.
 pub fn demonstrations(
     task: &TaskEntry,
     demos: Option<&Path>,
     source: &ZenohSource,
     screening: Screening,
 ) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
+    let report = |source: &str, screened: Screened| println!("{source}: {screened}");
     let Some(count) = source.from_zenoh else {
         let demos = demos.context("give the dataset with --demos, or --from-zenoh <N>")?;
-        return read_demonstrations(demos, task, screening);
+        let (spec, data, screened) = screening_dataset::read(demos, task, screening)
+            .with_context(|| format!("reading the dataset {}", demos.display()))?;
+        report(&demos.display().to_string(), screened);
+        return Ok((spec, data));
     };
     let timeout = Duration::try_from_secs_f64(source.episode_timeout)
         .ok()
@@ -87,11 +91,9 @@ pub fn demonstrations(
             spec.dataset_id
         );
     }
-    to_demonstrations(
-        spec,
-        episodes,
-        task,
-        "the episodes collected from Zenoh",
-        screening,
-    )
+    let source = "the episodes collected from Zenoh";
+    let (data, screened) =
+        screening_dataset::demonstrations(&spec, episodes, task, source, screening)?;
+    report(source, screened);
+    Ok((spec, data))
 }
