@@ -9,7 +9,7 @@
 //! ([`Policy::acceleration`]), so the velocity error decays as `e^{−K_v t}` while the
 //! position follows the stable flow. The action is then clipped to the task's action
 //! space, as a real robot saturates its commands; far from the demonstrations, where the
-//! flow may ask for more, this is the saturated loop that `flow::robot_loop` measures. The behaviour-cloning baseline has no Jacobian; it
+//! flow may ask for more, this is the saturated loop that `ciflow_evaluation::robot_loop` measures. The behaviour-cloning baseline has no Jacobian; it
 //! tracks its finite-difference velocity `v = (ŷ_{k+1} − q) / dt` with the same gain.
 
 use std::path::Path;

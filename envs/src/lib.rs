@@ -12,7 +12,6 @@
 pub mod actor;
 pub mod dataset;
 pub mod env;
-pub mod evaluation;
 pub mod expert;
 pub mod lasa;
 pub mod learning_curve;

@@ -1,5 +1,5 @@
 //! `ciflow evaluate`: measure a checkpoint for the experiments' report (library:
-//! [`ciflow_envs::evaluation`]). Three modes, each writing JSON:
+//! [`ciflow_evaluation`]). Three modes, each writing JSON:
 //!
 //! - default: closed-loop episodes in the task's environment from random contexts and
 //!   starts, optionally pushed (`--perturb push`) or with the context moved mid-motion
@@ -14,12 +14,12 @@ use anyhow::Context;
 use ciflow_engine::flow::Policy;
 use ciflow_envs::actor::{DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::dataset;
-use ciflow_envs::evaluation::field::{FieldConfig, field};
-use ciflow_envs::evaluation::likelihood::log_likelihood;
-use ciflow_envs::evaluation::{
+use ciflow_envs::registry::{self, TaskEntry};
+use ciflow_evaluation::field::{FieldConfig, field};
+use ciflow_evaluation::likelihood::log_likelihood;
+use ciflow_evaluation::{
     Acting, ContextSwitch, Disturbance, EvaluationConfig, EvaluationReport, PushConfig, evaluate,
 };
-use ciflow_envs::registry::{self, TaskEntry};
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;

@@ -9,20 +9,21 @@
 //! repels: the check must flag at least 99% of its rollouts, or the command fails.
 //!
 //! With `--robot-loop` a flow is also run through the computed-torque simulator of its
-//! robot (`flow::robot_loop`): its task's arm with the real torque and rate limits
+//! robot (`ciflow_evaluation::robot_loop`): its task's arm with the real torque and rate limits
 //! (pouring: the Panda), from starts uniform inside the joint limits; for the planar
 //! tasks a point mass, from starts in the demonstrations' box scaled by `--scale`.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
+use ciflow_engine::flow::MeanDynamics;
 use ciflow_engine::flow::Policy;
-use ciflow_engine::flow::robot_loop::{RobotLoopConfig, RobotLoopReport, measure_robot_loop};
-use ciflow_engine::flow::stability::{MeanDynamics, StabilityConfig, StabilityReport, measure};
 use ciflow_engine::robot::{JointLimits, PointMass2d, Robot};
 use ciflow_engine::sim::{SimConfig, Simulator};
 use ciflow_envs::actor::Model;
 use ciflow_envs::registry;
+use ciflow_evaluation::robot_loop::{RobotLoopConfig, RobotLoopReport, measure_robot_loop};
+use ciflow_evaluation::stability::{StabilityConfig, StabilityReport, measure};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 

@@ -26,7 +26,7 @@
 //! `y ↦ f(μ(f⁻¹(y, c)), c)` is conjugate to the latent map `μ`, so every trajectory
 //! converges to `f(0, c)` (go-to; `= target(c)` when the target is part of the context)
 //! or to the orbit `f({ρ = ρ*}, c)` (limit cycle), for every weight value.
-//! [`stability`] measures it by rolling out in observation space.
+//! `ciflow_evaluation::stability` measures it by rolling out in observation space.
 //!
 //! # Closed loop with the computed-torque layer
 //!
@@ -65,15 +65,14 @@ pub mod context_set;
 pub mod coupling;
 pub mod error;
 pub mod latent;
+pub mod mean_dynamics;
 pub mod mixing;
 pub mod mlp;
 pub mod network;
 pub mod policy;
 pub mod radial;
-pub mod robot_loop;
 pub mod scalar;
 pub mod spline;
-pub mod stability;
 pub mod weights;
 
 pub use baseline::BehaviourCloning;
@@ -83,6 +82,7 @@ pub use config::{
 };
 pub use context_set::{ContextSet, LocalConfig, SetEncoderConfig};
 pub use error::{FlowError, FlowResult};
+pub use mean_dynamics::MeanDynamics;
 pub use policy::{Policy, PolicyWorkspace};
 pub use radial::ContractionConfig;
 pub use weights::{Tensor, Weights};

@@ -2,10 +2,10 @@
 //! untrained model fails), trained flows stay 100% stable far outside the data, and the
 //! unconstrained behaviour-cloning baseline trained on the same data does not.
 
-use ciflow_engine::flow::stability::{StabilityConfig, measure};
 use ciflow_engine::flow::{
     BehaviourCloning, CheckpointConfig, CouplingKind, Goal, LatentKind, Policy,
 };
+use ciflow_evaluation::stability::{StabilityConfig, measure};
 use ciflow_train::latent::LatentInit;
 use ciflow_train::model::FlowModel;
 use ciflow_train::synthetic::Spiral;

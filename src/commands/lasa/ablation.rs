@@ -13,10 +13,9 @@ use ciflow_engine::flow::{CouplingKind, LatentKind};
 use ciflow_envs::lasa;
 use ciflow_train::{DEFAULT_STATE_NOISE, Keep, OptimConfig, TrainConfig};
 
-use super::{
-    METRICS, RunProgress, Scores, cell, demonstrations, evaluate, mean, settings,
-    train_shape_baseline, train_shape_flow,
-};
+use ciflow_evaluation::lasa::{METRICS, Scores, cell, evaluate, mean};
+
+use super::{RunProgress, demonstrations, settings, train_shape_baseline, train_shape_flow};
 
 /// One change to the recipe: its label, what it sets, and the change.
 struct Variant {

@@ -27,7 +27,8 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use super::{EpisodeResult, EvaluationError, EvaluationResult, Summary, Trace};
+use crate::closed_loop::{EpisodeResult, Summary, Trace};
+use crate::{EvaluationError, EvaluationResult};
 
 /// Largest accepted displacement, as a multiple of the required one.
 pub const OVERSHOOT: f64 = 1.5;

@@ -4,18 +4,20 @@
 //! mean of `Policy::log_transition` with the earlier step's context, and the field data
 //! are the policy's velocity, rollouts and latent grid.
 
+// The envs tests' obstacle-avoidance flow, shared rather than copied.
+#[path = "../../envs/tests/common/mod.rs"]
 mod common;
 
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::dataset::Episode;
-use ciflow_envs::evaluation::field::{FieldConfig, field};
-use ciflow_envs::evaluation::likelihood::log_likelihood;
-use ciflow_envs::evaluation::{
-    Acting, ContextSwitch, Disturbance, EvaluationConfig, EvaluationError, PushConfig, evaluate,
-};
 use ciflow_envs::tasks::obstacle_avoidance::{self, SUCCESS_DISTANCE};
 use ciflow_envs::{Env, ResetOptions};
+use ciflow_evaluation::field::{FieldConfig, field};
+use ciflow_evaluation::likelihood::log_likelihood;
+use ciflow_evaluation::{
+    Acting, ContextSwitch, Disturbance, EvaluationConfig, EvaluationError, PushConfig, evaluate,
+};
 use common::obstacle_flow;
 
 fn config(episodes: usize, disturbance: Disturbance) -> EvaluationConfig {

@@ -13,8 +13,9 @@
 use ciflow_engine::flow::Policy;
 use serde::Serialize;
 
-use super::{EvaluationError, EvaluationResult};
-use crate::dataset::Episode;
+use ciflow_envs::dataset::Episode;
+
+use crate::{EvaluationError, EvaluationResult};
 
 /// Outcome of [`log_likelihood`].
 #[derive(Clone, Debug, PartialEq, Serialize)]

@@ -16,43 +16,24 @@
 //! distance key ([`DISTANCE_KEYS`]).
 //!
 //! Disturbances ([`Disturbance`]) are the pushes of [`push`] and the mid-motion context
-//! changes of [`Disturbance::Context`]. [`likelihood`] gives the log-likelihood per
-//! transition of a flow on a dataset, [`field`] the vector-field figures of 2-D flows.
-
-pub mod field;
-pub mod likelihood;
-pub mod push;
+//! changes of [`Disturbance::Context`].
 
 use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use crate::actor::{Actor, ActorError, Model};
-use crate::env::{Env, EnvError, Info, ResetOptions, SUCCESS_INFO};
-use crate::registry;
-pub use push::{PushConfig, PushOutcome, PushSummary};
+use ciflow_envs::actor::{Actor, Model};
+use ciflow_envs::env::{Env, Info, ResetOptions, SUCCESS_INFO};
+use ciflow_envs::registry;
+
+use crate::push::{self, PushConfig, PushOutcome, PushSummary};
+use crate::{EvaluationError, EvaluationResult};
 
 /// `info` keys holding the distance to the task's goal, in order of preference: obstacle
 /// avoidance and LASA, pouring, limit cycle.
 pub const DISTANCE_KEYS: [&str; 3] = ["distance_to_target", "pour_distance", "outline_error"];
 /// `info` keys of a tool point in the world, reported by pouring (the cup's spout).
 pub const TOOL_POINT_KEYS: [&str; 3] = ["spout_x", "spout_y", "spout_z"];
-
-#[derive(Debug, thiserror::Error)]
-pub enum EvaluationError {
-    #[error(transparent)]
-    Env(#[from] EnvError),
-    #[error(transparent)]
-    Actor(#[from] ActorError),
-    #[error(transparent)]
-    Flow(#[from] ciflow_engine::flow::FlowError),
-    #[error("invalid evaluation setting: {0}")]
-    InvalidConfig(String),
-    #[error("no valid new context found for the episode of seed {seed} in {tries} draws")]
-    NoValidContext { seed: u64, tries: usize },
-}
-
-pub type EvaluationResult<T> = Result<T, EvaluationError>;
 
 /// A context change in the middle of the motion.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -154,7 +135,7 @@ impl Trace {
     }
 
     /// The tracked point at time `t` (the last one after the trace ends).
-    fn point_at(&self, t: f64) -> &[f64] {
+    pub(crate) fn point_at(&self, t: f64) -> &[f64] {
         let k = self.time.partition_point(|&s| s < t - 1e-9);
         &self.point[k.min(self.point.len() - 1)]
     }

@@ -10,8 +10,10 @@
 use ciflow_engine::flow::Policy;
 use serde::Serialize;
 
-use super::{EvaluationError, EvaluationResult};
-use crate::dataset::Episode;
+use ciflow_envs::dataset::Episode;
+
+use crate::rollout::mean_rollout;
+use crate::{EvaluationError, EvaluationResult};
 
 /// Settings of [`field`].
 #[derive(Clone, Debug, PartialEq)]
@@ -156,16 +158,8 @@ pub fn field(
         }
         let mut rollouts = Vec::with_capacity(starts.len());
         for start in &starts {
-            let mut path = vec![*start];
-            let mut next = [0.0; 2];
-            for _ in 0..config.rollout_steps {
-                let last = *path.last().expect("starts with the start");
-                policy.mean_next(&last, context, &mut ws, &mut next)?;
-                if next.iter().any(|v| !v.is_finite()) {
-                    break;
-                }
-                path.push(next);
-            }
+            let mut path = mean_rollout(policy, *start, context, config.rollout_steps, &mut ws)?;
+            path.retain(|p| p.iter().all(|v| v.is_finite()));
             rollouts.push(path);
         }
         let mut latent_grid = Vec::new();

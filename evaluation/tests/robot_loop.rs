@@ -3,13 +3,15 @@
 //! 1 ms zero-order hold); with the Panda's real torque limits saturation is detected and
 //! reported.
 
+// The engine's flow test fixtures, shared rather than copied.
+#[path = "../../engine/tests/flow_common/mod.rs"]
 mod flow_common;
 
-use ciflow_engine::flow::robot_loop::{RobotLoopConfig, measure_robot_loop};
 use ciflow_engine::flow::{FlowConfig, LatentKind, Policy, Weights};
 use ciflow_engine::math::DVector;
 use ciflow_engine::robot::{JointLimits, PointMass2d, panda, panda_limits};
 use ciflow_engine::sim::{SimConfig, Simulator};
+use ciflow_evaluation::robot_loop::{RobotLoopConfig, measure_robot_loop};
 use flow_common::*;
 
 /// A goal-conditioned go-to flow whose targets (the context) lie inside `[lo, hi]` shrunk

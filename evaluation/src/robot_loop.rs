@@ -12,9 +12,8 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use super::error::FlowError;
-use super::policy::Policy;
-use crate::sim::{SimError, Simulator};
+use ciflow_engine::flow::{FlowError, Policy};
+use ciflow_engine::sim::{SimError, Simulator};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RobotLoopError {

@@ -3,13 +3,16 @@
 //! control of the same class) and the unconstrained behaviour-cloning baseline; and it
 //! counts the rollouts that stall at a spurious attractor.
 
+// The engine's flow test fixtures, shared rather than copied.
+#[path = "../../engine/tests/flow_common/mod.rs"]
 mod flow_common;
 
-use ciflow_engine::flow::stability::{MeanDynamics, StabilityConfig, TOLERANCE_FACTORS, measure};
+use ciflow_engine::flow::MeanDynamics;
 use ciflow_engine::flow::{
     BaselineConfig, BehaviourCloning, Bounds, FlowResult, Goal, Normalisation, Weights,
 };
 use ciflow_engine::math::distance;
+use ciflow_evaluation::stability::{StabilityConfig, TOLERANCE_FACTORS, measure};
 use flow_common::*;
 
 fn check() -> StabilityConfig {

@@ -1,0 +1,92 @@
+//! The noise-free map `y_{k+1} = F(y_k, c)` of a policy, behind one trait: what rollouts,
+//! vector fields and the stability check step, whatever the model.
+//!
+//! For a flow, `F(y, c) = f(μ(f⁻¹(y, c)), c)` with `μ` the latent's mean step
+//! ([`super::policy`]); for the behaviour-cloning baseline, `F(y, c) = y + dt · MLP(y, c)`
+//! ([`super::baseline`]).
+
+use crate::math::distance;
+
+use super::baseline::{BaselineWorkspace, BehaviourCloning};
+use super::config::Bounds;
+use super::error::FlowResult;
+use super::policy::{Policy, PolicyWorkspace};
+
+/// A noise-free closed-form dynamics `y_{k+1} = F(y_k, c)` with a known attractor.
+pub trait MeanDynamics {
+    type Workspace;
+    fn workspace(&self) -> Self::Workspace;
+    fn bounds(&self) -> &Bounds;
+    fn mean_next(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut Self::Workspace,
+        out: &mut [f64],
+    ) -> FlowResult<()>;
+    /// Distance from `y` to the attractor; `scratch` has the state dimension.
+    fn attractor_distance(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut Self::Workspace,
+        scratch: &mut [f64],
+    ) -> FlowResult<f64>;
+}
+
+impl MeanDynamics for Policy {
+    type Workspace = PolicyWorkspace;
+    fn workspace(&self) -> PolicyWorkspace {
+        Policy::workspace(self)
+    }
+    fn bounds(&self) -> &Bounds {
+        &self.config().bounds
+    }
+    fn mean_next(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
+        Policy::mean_next(self, y, context, ws, out)
+    }
+    fn attractor_distance(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        scratch: &mut [f64],
+    ) -> FlowResult<f64> {
+        Policy::attractor_distance(self, y, context, ws, scratch)
+    }
+}
+
+impl MeanDynamics for BehaviourCloning {
+    type Workspace = BaselineWorkspace;
+    fn workspace(&self) -> BaselineWorkspace {
+        BehaviourCloning::workspace(self)
+    }
+    fn bounds(&self) -> &Bounds {
+        &self.config().bounds
+    }
+    fn mean_next(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut BaselineWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
+        BehaviourCloning::mean_next(self, y, context, ws, out)
+    }
+    fn attractor_distance(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        _: &mut BaselineWorkspace,
+        scratch: &mut [f64],
+    ) -> FlowResult<f64> {
+        self.goal(context, scratch);
+        Ok(distance(y, scratch))
+    }
+}

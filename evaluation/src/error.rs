@@ -1,0 +1,21 @@
+//! Why an evaluation could not run.
+
+use ciflow_engine::flow::FlowError;
+use ciflow_envs::actor::ActorError;
+use ciflow_envs::env::EnvError;
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvaluationError {
+    #[error(transparent)]
+    Env(#[from] EnvError),
+    #[error(transparent)]
+    Actor(#[from] ActorError),
+    #[error(transparent)]
+    Flow(#[from] FlowError),
+    #[error("invalid evaluation setting: {0}")]
+    InvalidConfig(String),
+    #[error("no valid new context found for the episode of seed {seed} in {tries} draws")]
+    NoValidContext { seed: u64, tries: usize },
+}
+
+pub type EvaluationResult<T> = Result<T, EvaluationError>;
