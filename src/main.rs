@@ -4,9 +4,17 @@
 mod args;
 mod commands;
 
+use args::Command;
 use clap::Parser;
 
 fn main() -> anyhow::Result<()> {
-    let cli = args::Cli::parse();
-    commands::execute(cli.command)
+    match args::Cli::parse().command {
+        Command::Robot(args) => commands::robot::run(args),
+        Command::Demos(args) => commands::demos::run(args),
+        Command::Train(args) => commands::train::run(args),
+        Command::Stability(args) => commands::stability::run(args),
+        Command::Evaluate(args) => commands::evaluate::run(args),
+        Command::Lasa(args) => commands::lasa::run(args),
+        Command::Serve(args) => commands::serve::run(args),
+    }
 }

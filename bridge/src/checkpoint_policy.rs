@@ -12,7 +12,9 @@ use ciflow_envs::{EnvError, EnvSpec};
 use crate::policy::{Policy, PolicyError};
 use crate::protocol::keys;
 use crate::protocol::{CheckpointMsg, PolicyInfo};
-use crate::server::{Kwargs, TaskFactory};
+use ciflow_envs::registry::Kwargs;
+
+use crate::task_factory::TaskFactory;
 
 /// Why a checkpoint cannot be served.
 #[derive(Debug, thiserror::Error)]

@@ -22,8 +22,10 @@ pub mod policy;
 pub mod protocol;
 pub mod publisher;
 pub mod server;
+pub mod task_factory;
 
 pub use checkpoint_policy::{CheckpointPolicy, PolicyLoadError};
+pub use ciflow_envs::registry::Kwargs;
 pub use client::{
     BatchStep, Client, EngineInfo, RemoteEnv, StepResult, TelemetryStream, query_all,
 };
@@ -32,6 +34,7 @@ pub use episodes::{CollectError, EpisodePublisher, EpisodeSubscriber};
 pub use error::BridgeError;
 pub use policy::{Policy, PolicyError};
 pub use publisher::CheckpointPublisher;
-pub use server::{EngineServer, Kwargs, ServerOptions, TaskFactory};
+pub use server::{EngineServer, ServerOptions};
+pub use task_factory::TaskFactory;
 /// The Zenoh crate this bridge is built with, for callers that need its types.
 pub use zenoh;

@@ -2,7 +2,7 @@
 //! an observation in, the policy's desired acceleration out.
 
 use crate::protocol::PolicyInfo;
-use crate::server::Kwargs;
+use ciflow_envs::registry::Kwargs;
 
 /// Why a policy could not produce an action.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

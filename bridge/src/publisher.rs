@@ -12,7 +12,7 @@ use crate::config::{NetworkOptions, Role};
 use crate::error::BridgeError;
 use crate::protocol::keys;
 use crate::protocol::{ByteBuf, CheckpointMsg, PROTOCOL_VERSION, encode};
-use crate::server::Kwargs;
+use ciflow_envs::registry::Kwargs;
 
 /// Publishes the checkpoints of one policy name.
 pub struct CheckpointPublisher {

@@ -21,3 +21,8 @@ pub fn distance(a: &[Real], b: &[Real]) -> Real {
         .sum::<Real>()
         .sqrt()
 }
+
+/// The cross-product matrix `[x]×` with `[x]× y = x × y`.
+pub fn skew(x: &Vector3) -> Matrix3 {
+    Matrix3::new(0.0, -x.z, x.y, x.z, 0.0, -x.x, -x.y, x.x, 0.0)
+}

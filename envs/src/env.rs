@@ -7,6 +7,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::space::BoxSpace;
 
+pub use crate::error::EnvError;
+
 /// Extra per-step or per-reset values, as in Gymnasium's `info` dict. Numbers only, so
 /// that every wire format carries them.
 pub type Info = BTreeMap<String, f64>;
@@ -60,29 +62,6 @@ pub struct Step {
     pub terminated: bool,
     pub truncated: bool,
     pub info: Info,
-}
-
-/// Why an environment call was refused. Never a panic: every bad input has a variant.
-#[derive(Debug, thiserror::Error, Clone, PartialEq)]
-pub enum EnvError {
-    #[error("{what} has {got} elements, expected {expected}")]
-    WrongDimension {
-        what: &'static str,
-        expected: usize,
-        got: usize,
-    },
-    #[error("{what} contains a non-finite value (NaN or inf)")]
-    NotFinite { what: &'static str },
-    #[error("{what} is outside its space: {detail}")]
-    OutOfBounds { what: &'static str, detail: String },
-    #[error("invalid option `{name}`: {detail}")]
-    InvalidOption { name: String, detail: String },
-    #[error("`step` called before `reset` or after the episode ended")]
-    NeedsReset,
-    #[error("invalid perturbation: {0}")]
-    InvalidPerturbation(String),
-    #[error("simulation failed: {0}")]
-    Simulation(String),
 }
 
 /// A task with Gymnasium semantics.

@@ -12,6 +12,7 @@
 pub mod actor;
 pub mod dataset;
 pub mod env;
+pub mod error;
 pub mod expert;
 pub mod lasa;
 pub mod learning_curve;

@@ -1,5 +1,5 @@
 //! Each task's training recipe: how its policy is shaped and trained unless the command
-//! line says otherwise ([`crate::registry::TaskEntry::training`] points here).
+//! line says otherwise (each task's registry entry points here, `TaskEntry::training`).
 //!
 //! A limit cycle for the limit-cycle task; go-to elsewhere, with the target read from
 //! the context where the task puts it there (obstacle avoidance: its last two entries,
@@ -10,7 +10,6 @@
 use ciflow_engine::flow::{ContextSet, ContractionConfig, CouplingKind, LatentKind};
 use ciflow_engine::training::{OptimConfig, TrainConfig};
 
-use crate::registry::TaskEntry;
 use crate::tasks::obstacle_avoidance;
 
 /// Why a task has no recipe for a context.
@@ -42,34 +41,34 @@ const OBSTACLE_CONTRACTION_EXPONENT: u32 = 2;
 const LASA_MIN_RATE: f64 = 0.2;
 
 /// The generic go-to recipe, with the target at `goal_context_indices` of the context.
-fn go_to(task: &TaskEntry, goal_context_indices: Option<Vec<usize>>) -> TrainConfig {
+fn go_to(task: &'static str, goal_context_indices: Option<Vec<usize>>) -> TrainConfig {
     TrainConfig {
         goal_context_indices,
         min_rate: GO_TO_MIN_RATE,
-        ..TrainConfig::new(task.name, LatentKind::GoTo)
+        ..TrainConfig::new(task, LatentKind::GoTo)
     }
 }
 
 /// The indices of a 2-D target at the end of a `context_dim`-D context.
-fn planar_target(task: &TaskEntry, context_dim: usize) -> Result<Vec<usize>, ContextWithoutTarget> {
+fn planar_target(
+    task: &'static str,
+    context_dim: usize,
+) -> Result<Vec<usize>, ContextWithoutTarget> {
     match context_dim.checked_sub(2) {
         Some(x) => Ok(vec![x, x + 1]),
-        None => Err(ContextWithoutTarget {
-            task: task.name,
-            context_dim,
-        }),
+        None => Err(ContextWithoutTarget { task, context_dim }),
     }
 }
 
 /// Every demonstration is a phase of its own: none is held out of the fit (a learning
 /// curve's n counts the phases fitted).
 pub fn limit_cycle(
-    task: &TaskEntry,
+    task: &'static str,
     _context_dim: usize,
 ) -> Result<TrainConfig, ContextWithoutTarget> {
     Ok(TrainConfig {
         min_rate: LIMIT_CYCLE_MIN_RATE,
-        ..TrainConfig::new(task.name, LatentKind::LimitCycle)
+        ..TrainConfig::new(task, LatentKind::LimitCycle)
     }
     .fitting_every_demonstration())
 }
@@ -77,7 +76,7 @@ pub fn limit_cycle(
 /// Go-to the target `[g_x, g_y]` at the context's end, the obstacle centres before it an
 /// unordered set with radial contractions about each.
 pub fn obstacle_avoidance(
-    task: &TaskEntry,
+    task: &'static str,
     context_dim: usize,
 ) -> Result<TrainConfig, ContextWithoutTarget> {
     let target = planar_target(task, context_dim)?;
@@ -107,7 +106,7 @@ pub fn obstacle_avoidance(
 /// the motion arrives when the demonstrations do); the states as recorded (no jitter);
 /// all seven demonstrations fitted for a fixed budget of 30 epochs; 10 affine blocks with
 /// 32-32 conditioners (as deep as ImitationFlow's).
-pub fn lasa(task: &TaskEntry, context_dim: usize) -> Result<TrainConfig, ContextWithoutTarget> {
+pub fn lasa(task: &'static str, context_dim: usize) -> Result<TrainConfig, ContextWithoutTarget> {
     let recipe = go_to(task, Some(planar_target(task, context_dim)?));
     Ok(TrainConfig {
         latent: LatentKind::SaturatedGoTo,
@@ -132,7 +131,10 @@ pub fn lasa(task: &TaskEntry, context_dim: usize) -> Result<TrainConfig, Context
 /// recording, and on 216 pushed demonstrations fitting all of them gave 95–99 % success
 /// over three training seeds where early stopping on a 20 % hold-out gave 94–96 % (README
 /// "Pouring").
-pub fn pouring(task: &TaskEntry, _context_dim: usize) -> Result<TrainConfig, ContextWithoutTarget> {
+pub fn pouring(
+    task: &'static str,
+    _context_dim: usize,
+) -> Result<TrainConfig, ContextWithoutTarget> {
     let recipe = go_to(task, None);
     Ok(TrainConfig {
         coupling: CouplingKind::AFFINE,

@@ -48,13 +48,13 @@ pub struct TaskEntry {
     pub robot: Option<fn() -> Box<dyn Robot>>,
     /// How the task's policy is trained unless told otherwise, for a context of the
     /// given dimension ([`recipes`]); use [`TaskEntry::training_recipe`].
-    pub training: fn(&TaskEntry, usize) -> Result<TrainConfig, ContextWithoutTarget>,
+    pub training: fn(&'static str, usize) -> Result<TrainConfig, ContextWithoutTarget>,
 }
 
 impl TaskEntry {
     /// The task's training recipe for a `context_dim`-D context.
     pub fn training_recipe(&self, context_dim: usize) -> Result<TrainConfig, ContextWithoutTarget> {
-        (self.training)(self, context_dim)
+        (self.training)(self.name, context_dim)
     }
 
     /// The number an argument or option `key` of this task takes for `text`: `text` as a

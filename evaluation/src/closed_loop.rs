@@ -27,14 +27,13 @@ use ciflow_envs::env::{Env, Info, ResetOptions, SUCCESS_INFO};
 use ciflow_envs::registry;
 
 use crate::push::{self, PushConfig, PushOutcome, PushSummary};
+use crate::summary::Summary;
+use crate::trace::Trace;
 use crate::{EvaluationError, EvaluationResult};
 
 /// `info` keys holding the distance to the task's goal, in order of preference: obstacle
 /// avoidance and LASA, pouring, limit cycle.
 pub const DISTANCE_KEYS: [&str; 3] = ["distance_to_target", "pour_distance", "outline_error"];
-/// `info` keys of a tool point in the world, reported by pouring (the cup's spout).
-pub const TOOL_POINT_KEYS: [&str; 3] = ["spout_x", "spout_y", "spout_z"];
-
 /// A context change in the middle of the motion.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ContextSwitch {
@@ -102,45 +101,6 @@ pub struct EvaluationConfig {
     pub trajectories: usize,
 }
 
-/// One episode's per-step record: `T + 1` states (the reset one first), `T` commands.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct Trace {
-    /// Simulated time of each state, s.
-    pub time: Vec<f64>,
-    pub q: Vec<Vec<f64>>,
-    pub qd: Vec<Vec<f64>>,
-    /// `command[k]`: the clipped `q̈_des` applied from state `k`.
-    pub command: Vec<Vec<f64>>,
-    pub context: Vec<Vec<f64>>,
-    /// The tool point where the task reports one ([`TOOL_POINT_KEYS`]: pouring's spout,
-    /// m), else the position `q` itself: the point whose displacement and path pushes
-    /// measure.
-    pub point: Vec<Vec<f64>>,
-}
-
-impl Trace {
-    fn record(&mut self, observation: &[f64], state_dim: usize, info: &Info) {
-        let (q, rest) = observation.split_at(state_dim);
-        let (qd, context) = rest.split_at(state_dim);
-        self.time
-            .push(info.get("time").copied().unwrap_or(f64::NAN));
-        self.q.push(q.to_vec());
-        self.qd.push(qd.to_vec());
-        self.context.push(context.to_vec());
-        let tool: Option<Vec<f64>> = TOOL_POINT_KEYS
-            .iter()
-            .map(|k| info.get(*k).copied())
-            .collect();
-        self.point.push(tool.unwrap_or_else(|| q.to_vec()));
-    }
-
-    /// The tracked point at time `t` (the last one after the trace ends).
-    pub(crate) fn point_at(&self, t: f64) -> &[f64] {
-        let k = self.time.partition_point(|&s| s < t - 1e-9);
-        &self.point[k.min(self.point.len() - 1)]
-    }
-}
-
 /// What one episode did.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct EpisodeResult {
@@ -159,35 +119,6 @@ pub struct EpisodeResult {
     /// The context after a [`Disturbance::Context`] change.
     pub switched_context: Option<Vec<f64>>,
     pub push: Option<PushOutcome>,
-}
-
-/// Mean, standard deviation (population) and range of a sample.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Summary {
-    pub count: usize,
-    pub mean: f64,
-    pub std: f64,
-    pub min: f64,
-    pub max: f64,
-}
-
-impl Summary {
-    /// `None` for an empty sample.
-    pub fn of(values: &[f64]) -> Option<Self> {
-        if values.is_empty() {
-            return None;
-        }
-        let n = values.len() as f64;
-        let mean = values.iter().sum::<f64>() / n;
-        let variance = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
-        Some(Self {
-            count: values.len(),
-            mean,
-            std: variance.sqrt(),
-            min: values.iter().copied().fold(f64::INFINITY, f64::min),
-            max: values.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-        })
-    }
 }
 
 /// An example episode for figures: the disturbed run and, for pushes, its undisturbed
@@ -444,7 +375,13 @@ pub fn evaluate(
     let distances: Vec<f64> = results.iter().filter_map(|r| r.final_distance).collect();
     let steps: Vec<f64> = results.iter().map(|r| r.steps as f64).collect();
     let push = match &config.disturbance {
-        Disturbance::Push(push) => PushSummary::of(push, &results),
+        Disturbance::Push(push) => {
+            let pushes: Vec<(&PushOutcome, bool)> = results
+                .iter()
+                .filter_map(|r| r.push.as_ref().map(|p| (p, r.success)))
+                .collect();
+            PushSummary::of(push, &pushes)
+        }
         _ => None,
     };
     Ok(EvaluationReport {

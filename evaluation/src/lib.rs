@@ -23,7 +23,11 @@ pub mod push;
 pub mod robot_loop;
 pub mod rollout;
 pub mod stability;
+pub mod summary;
+pub mod trace;
 
 pub use closed_loop::*;
 pub use error::{EvaluationError, EvaluationResult};
 pub use push::{PushConfig, PushOutcome, PushSummary};
+pub use summary::Summary;
+pub use trace::{TOOL_POINT_KEYS, Trace};

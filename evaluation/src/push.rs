@@ -27,7 +27,8 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use crate::closed_loop::{EpisodeResult, Summary, Trace};
+use crate::summary::Summary;
+use crate::trace::Trace;
 use crate::{EvaluationError, EvaluationResult};
 
 /// Largest accepted displacement, as a multiple of the required one.
@@ -307,11 +308,9 @@ pub struct PushSummary {
 }
 
 impl PushSummary {
-    pub fn of(config: &PushConfig, results: &[EpisodeResult]) -> Option<Self> {
-        let pushes: Vec<(&PushOutcome, bool)> = results
-            .iter()
-            .filter_map(|r| r.push.as_ref().map(|p| (p, r.success)))
-            .collect();
+    /// The summary of the pushed episodes' outcomes, each with whether the episode
+    /// succeeded; `None` without any.
+    pub fn of(config: &PushConfig, pushes: &[(&PushOutcome, bool)]) -> Option<Self> {
         let n = pushes.len() as f64;
         let fraction = |f: &dyn Fn(&PushOutcome) -> bool| {
             pushes.iter().filter(|(p, _)| f(p)).count() as f64 / n

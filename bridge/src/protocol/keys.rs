@@ -180,6 +180,15 @@ pub fn all_episodes(task: &str) -> String {
     episodes(task, "*")
 }
 
+/// The policy of a checkpoint key; `None` outside `ciflow/v1/policies/<policy>/checkpoint`.
+/// The name is returned as published: whether it is a valid policy name is the loader's
+/// to say.
+pub fn parse_policy_checkpoint(key: &str) -> Option<&str> {
+    key.strip_prefix(ROOT)?
+        .strip_prefix("/policies/")?
+        .strip_suffix("/checkpoint")
+}
+
 /// `(task, recorder)` of an episode key; `None` outside `ciflow/v1/episodes/<task>/<recorder>`.
 pub fn parse_episodes(key: &str) -> Option<(&str, &str)> {
     let rest = key.strip_prefix(ROOT)?.strip_prefix("/episodes/")?;
@@ -194,6 +203,15 @@ pub fn parse_episodes(key: &str) -> Option<(&str, &str)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn checkpoint_keys_name_their_policy() {
+        assert_eq!(
+            parse_policy_checkpoint(&policy_checkpoint("p-1")),
+            Some("p-1")
+        );
+        assert_eq!(parse_policy_checkpoint("ciflow/v1/policies/p/act"), None);
+    }
 
     #[test]
     fn every_built_key_parses_back_to_its_route() {

@@ -9,6 +9,7 @@ pub mod error;
 pub mod f64le;
 pub mod keys;
 pub mod messages;
+pub mod wire;
 
 pub use checkpoint::{CheckpointMsg, RunRequest};
 pub use episodes::{EpisodeError, EpisodeMsg, decode_episode};
@@ -16,19 +17,10 @@ pub use error::{ErrorCode, ErrorReply};
 pub use f64le::F64s;
 pub use messages::*;
 pub use serde_bytes::ByteBuf;
+pub use wire::{MAX_REQUEST_BYTES, PROTOCOL_VERSION, TOKEN_BYTES};
 
 use serde::Serialize;
 use serde::de::DeserializeOwned;
-
-/// Bumped on every incompatible change; requests with another `v` get `version_mismatch`.
-pub const PROTOCOL_VERSION: u16 = 1;
-
-/// Largest request payload the engine decodes (64 MiB, e.g. a `step_batch` of 1M
-/// two-dimensional actions is 16 MiB).
-pub const MAX_REQUEST_BYTES: usize = 64 << 20;
-
-/// Length of a session's secret token.
-pub const TOKEN_BYTES: usize = 16;
 
 /// Encodes a message as a MessagePack map with named fields.
 pub fn encode<T: Serialize>(message: &T) -> Vec<u8> {

@@ -11,7 +11,7 @@
 use std::sync::{Mutex, Weak};
 use std::time::{Duration, Instant};
 
-use super::PolicyTable;
+use super::policy_table::PolicyTable;
 use super::session::{Run, Session};
 
 pub(crate) struct Driver {

@@ -8,17 +8,20 @@
 //! is caught, answered with `internal`, and closes only that session.
 
 mod driver;
+mod hot_load;
+mod policy_table;
 mod session;
 mod slot;
 mod telemetry;
 
-use std::collections::{BTreeMap, HashMap, HashSet};
+use std::collections::{HashMap, HashSet};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
 
-use ciflow_envs::{Env, EnvError};
+use ciflow_envs::EnvError;
+use ciflow_envs::registry::Kwargs;
 use zenoh::Wait;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Subscriber;
@@ -27,97 +30,28 @@ use zenoh::query::{Query, Queryable};
 use zenoh::sample::SampleKind;
 
 use self::driver::Driver;
+use self::hot_load::hot_load;
+pub(crate) use self::policy_table::PolicyTable;
 use self::session::Session;
 use self::slot::EnvSlot;
 use self::telemetry::TelemetryPublisher;
-use crate::checkpoint_policy::CheckpointPolicy;
 use crate::config::{NetworkOptions, Role};
 use crate::error::BridgeError;
 use crate::policy::Policy;
 use crate::protocol::keys::{self, Route, SessionOp};
 use crate::protocol::{
-    AckReply, ActRequest, ActionReply, BatchStepRequest, CheckpointMsg, ContextRequest, ErrorCode,
-    ErrorReply, F64s, MakeReply, MakeRequest, PROTOCOL_VERSION, PerturbRequest, PolicyInfo,
-    RenderReply, RenderRequest, ResetRequest, RunRequest, SessionRequest, StepRequest, TaskInfo,
-    TasksReply, TasksRequest, decode_request, encode,
+    AckReply, ActRequest, ActionReply, BatchStepRequest, ContextRequest, ErrorCode, ErrorReply,
+    F64s, MakeReply, MakeRequest, PROTOCOL_VERSION, PerturbRequest, RenderReply, RenderRequest,
+    ResetRequest, RunRequest, SessionRequest, StepRequest, TaskInfo, TasksReply, TasksRequest,
+    decode_request, encode,
 };
+use crate::task_factory::TaskFactory;
 
 /// Most environments one session may hold.
 pub const MAX_ENVS_PER_SESSION: u32 = 1 << 20;
 
 /// How long `make` waits for Zenoh to confirm a client's liveliness token.
 const LIVELINESS_TIMEOUT: Duration = Duration::from_secs(2);
-
-/// The policies an engine serves, by name. A hot-loaded checkpoint replaces its name's
-/// entry atomically; callers holding the old `Arc` finish with it.
-#[derive(Default)]
-pub(crate) struct PolicyTable(RwLock<BTreeMap<String, Arc<dyn Policy>>>);
-
-impl PolicyTable {
-    pub fn get(&self, name: &str) -> Option<Arc<dyn Policy>> {
-        self.0
-            .read()
-            .unwrap_or_else(|p| p.into_inner())
-            .get(name)
-            .cloned()
-    }
-
-    pub fn insert(&self, policy: Arc<dyn Policy>) {
-        let name = policy.info().name;
-        self.0
-            .write()
-            .unwrap_or_else(|p| p.into_inner())
-            .insert(name, policy);
-    }
-
-    pub fn names(&self) -> Vec<String> {
-        self.0
-            .read()
-            .unwrap_or_else(|p| p.into_inner())
-            .keys()
-            .cloned()
-            .collect()
-    }
-
-    pub fn infos(&self) -> Vec<PolicyInfo> {
-        self.0
-            .read()
-            .unwrap_or_else(|p| p.into_inner())
-            .values()
-            .map(|p| p.info())
-            .collect()
-    }
-}
-
-/// Construction arguments of a task, as `gymnasium.make(id, **kwargs)` passes them.
-pub type Kwargs = BTreeMap<String, f64>;
-
-/// Builds a task from construction arguments.
-pub type MakeFn = dyn Fn(&Kwargs) -> Result<Box<dyn Env>, EnvError> + Send + Sync;
-
-/// A task the engine can instantiate.
-#[derive(Clone)]
-pub struct TaskFactory {
-    /// Gymnasium id, e.g. `ciflow/Pouring-v0`.
-    pub id: String,
-    /// Short name, e.g. `pouring`.
-    pub name: String,
-    pub make: Arc<MakeFn>,
-}
-
-impl TaskFactory {
-    /// Every task of `ciflow_envs::tasks()`.
-    pub fn registry() -> Vec<TaskFactory> {
-        ciflow_envs::tasks()
-            .iter()
-            .map(|entry| TaskFactory {
-                id: entry.id.to_owned(),
-                name: entry.name.to_owned(),
-                make: Arc::new(entry.make_with),
-            })
-            .collect()
-    }
-}
 
 /// What an engine serves and how.
 #[derive(Clone)]
@@ -230,7 +164,12 @@ impl EngineServer {
                 .declare_subscriber(keys::ALL_POLICY_CHECKPOINTS)
                 .callback(move |sample| {
                     let key = sample.key_expr().as_str();
-                    match shared.hot_load(key, &sample.payload().to_bytes()) {
+                    match hot_load(
+                        &shared.policies,
+                        &shared.factories,
+                        key,
+                        &sample.payload().to_bytes(),
+                    ) {
                         Ok(info) => eprintln!(
                             "ciflow engine `{}`: serving policy `{}` for {} (epoch {}, \
                              validation NLL {:.4})",
@@ -659,36 +598,6 @@ impl Shared {
                 ),
             )
         })
-    }
-
-    /// Swaps in the checkpoint published on `key` if it fits a task this engine serves
-    /// and does not change the task of a policy already served under its name.
-    fn hot_load(&self, key: &str, payload: &[u8]) -> Result<PolicyInfo, String> {
-        let name = key
-            .strip_prefix(keys::ROOT)
-            .and_then(|rest| rest.strip_prefix("/policies/"))
-            .and_then(|rest| rest.strip_suffix("/checkpoint"))
-            .ok_or("not a checkpoint key")?;
-        let message: CheckpointMsg = decode_request(payload).map_err(|e| e.message)?;
-        let current = self.policies.get(name);
-        let kwargs = current
-            .as_ref()
-            .map(|p| p.task_kwargs())
-            .unwrap_or_default();
-        let policy = CheckpointPolicy::from_message(name, &message, &self.factories, &kwargs)
-            .map_err(|e| e.to_string())?;
-        let info = policy.info();
-        if let Some(current) = current
-            && current.info().task != info.task
-        {
-            return Err(format!(
-                "policy `{name}` acts in {}, the checkpoint in {}",
-                current.info().task,
-                info.task
-            ));
-        }
-        self.policies.insert(Arc::new(policy));
-        Ok(info)
     }
 
     fn act(&self, name: &str, request: ActRequest) -> Answer {

@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use super::{DynamicsError, Frame, JointLimits, Robot, copy_matrix, copy_vector};
+use super::{DynamicsError, Frame, JointLimits, Robot};
 use crate::algorithm;
 use crate::math::{DMatrix, DVector, Isometry3, Real, Vector3};
 use crate::model::{Data, Model, ModelError};
@@ -190,4 +190,26 @@ impl Robot for SerialChain {
     fn boxed_clone(&self) -> Box<dyn Robot> {
         Box::new(self.clone())
     }
+}
+
+/// Copies an algorithm result into a caller buffer of the same length.
+fn copy_vector(
+    quantity: &'static str,
+    from: &DVector,
+    to: &mut DVector,
+) -> Result<(), DynamicsError> {
+    crate::algorithm::check_len(quantity, to.len(), from.len())?;
+    to.copy_from(from);
+    Ok(())
+}
+
+/// Copies an algorithm result into a caller buffer of the same shape.
+fn copy_matrix(
+    quantity: &'static str,
+    from: &DMatrix,
+    to: &mut DMatrix,
+) -> Result<(), DynamicsError> {
+    crate::algorithm::check_matrix_shape(quantity, to, from.nrows(), from.ncols())?;
+    to.copy_from(from);
+    Ok(())
 }

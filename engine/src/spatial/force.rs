@@ -2,8 +2,7 @@
 
 use std::ops::{Add, AddAssign, Mul, Sub};
 
-use super::{Motion, skew};
-use crate::math::{Matrix6, Real, Vector3, Vector6};
+use crate::math::{Matrix6, Real, Vector3, Vector6, skew};
 
 /// A spatial force `f = (f, n)`: the force and the moment about the frame origin, both in
 /// the frame's axes.
@@ -20,11 +19,6 @@ impl Force {
 
     pub fn zero() -> Self {
         Self::default()
-    }
-
-    /// The power `mᵀ f = v · f + ω · n` of this wrench on a motion.
-    pub fn dot(&self, motion: &Motion) -> Real {
-        self.linear.dot(&motion.linear) + self.angular.dot(&motion.angular)
     }
 
     /// The matrix `(f ×̄*)` with `(f ×̄*) m = m ×* f`; it is skew-symmetric.

@@ -2,8 +2,8 @@
 
 use std::ops::{Add, AddAssign, Mul};
 
-use super::{Force, Motion, skew};
-use crate::math::{Matrix3, Matrix6, Real, Vector3};
+use super::{Force, Motion};
+use crate::math::{Matrix3, Matrix6, Real, Vector3, skew};
 
 /// A spatial inertia about the frame origin, stored as the mass `m`, the first moment of
 /// mass `h = m c` (`c` the centre of mass) and the rotational inertia about the origin

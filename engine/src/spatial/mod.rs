@@ -15,14 +15,8 @@ mod inertia;
 mod motion;
 mod se3;
 
+pub use crate::math::skew;
 pub use force::Force;
 pub use inertia::Inertia;
 pub use motion::Motion;
 pub use se3::Se3;
-
-use crate::math::{Matrix3, Vector3};
-
-/// The cross-product matrix `[x]×` with `[x]× y = x × y`.
-pub fn skew(x: &Vector3) -> Matrix3 {
-    Matrix3::new(0.0, -x.z, x.y, x.z, 0.0, -x.x, -x.y, x.x, 0.0)
-}

@@ -2,8 +2,8 @@
 
 use std::ops::{Add, AddAssign, Mul, Sub};
 
-use super::{Force, skew};
-use crate::math::{Matrix6, Real, Vector3, Vector6};
+use super::Force;
+use crate::math::{Matrix6, Real, Vector3, Vector6, skew};
 
 /// A spatial motion vector `m = (v, ω)`: the linear velocity `v` of the point at the frame
 /// origin and the angular velocity `ω`, both in the frame's axes.
@@ -66,6 +66,15 @@ impl Motion {
             self.angular.y,
             self.angular.z,
         )
+    }
+}
+
+/// The pairing of the two spaces lives here, beside the motion's action on forces, so
+/// that forces need nothing of motions.
+impl Force {
+    /// The power `mᵀ f = v · f + ω · n` of this wrench on a motion.
+    pub fn dot(&self, motion: &Motion) -> Real {
+        self.linear.dot(&motion.linear) + self.angular.dot(&motion.angular)
     }
 }
 

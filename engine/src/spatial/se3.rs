@@ -2,10 +2,10 @@
 
 use std::ops::Mul;
 
-use super::{Force, Inertia, Motion, skew};
+use super::{Force, Inertia, Motion};
 use nalgebra::Rotation3;
 
-use crate::math::{Isometry3, Matrix3, Real, UnitQuaternion, Vector3};
+use crate::math::{Isometry3, Matrix3, Real, UnitQuaternion, Vector3, skew};
 
 /// A rigid transform `ᵃMᵦ = (R, p)` taking coordinates in frame `b` to frame `a`:
 /// `xₐ = R x_b + p`. `act_*` maps a quantity from `b` to `a`, `act_inv_*` back.

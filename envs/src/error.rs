@@ -1,0 +1,24 @@
+//! The environments' error type.
+
+/// Why an environment call was refused. Never a panic: every bad input has a variant.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum EnvError {
+    #[error("{what} has {got} elements, expected {expected}")]
+    WrongDimension {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
+    #[error("{what} contains a non-finite value (NaN or inf)")]
+    NotFinite { what: &'static str },
+    #[error("{what} is outside its space: {detail}")]
+    OutOfBounds { what: &'static str, detail: String },
+    #[error("invalid option `{name}`: {detail}")]
+    InvalidOption { name: String, detail: String },
+    #[error("`step` called before `reset` or after the episode ended")]
+    NeedsReset,
+    #[error("invalid perturbation: {0}")]
+    InvalidPerturbation(String),
+    #[error("simulation failed: {0}")]
+    Simulation(String),
+}
