@@ -9,6 +9,8 @@
 //! - [`sim`]: fixed-step simulation with perturbations in simulated time;
 //! - [`flow`]: stable conditioned invertible-network policies (inference only; training
 //!   lives in the `ciflow-train` crate, the only libtorch user);
+//! - [`nn`]: the neural-network numerics the policies run on (dual numbers, dense layers
+//!   with an AVX2 kernel);
 //! - [`training`]: the settings of a training run, so tasks can carry their recipes.
 
 pub mod algorithm;
@@ -16,6 +18,7 @@ pub mod control;
 pub mod flow;
 pub mod math;
 pub mod model;
+pub mod nn;
 pub mod robot;
 pub mod sim;
 pub mod spatial;

@@ -24,14 +24,14 @@ pub struct TrainConfig {
     /// `target(c) = c[indices]` for go-to tasks whose target is in the context.
     pub goal_context_indices: Option<Vec<usize>>,
     /// Unordered sets in the context (e.g. obstacle centres) that the conditioners see
-    /// through permutation-invariant encoders ([`crate::flow::context_set`]).
+    /// through permutation-invariant encoders ([`crate::flow::layers::context_set`]).
     #[serde(default)]
     pub context_sets: Vec<ContextSet>,
     /// The encoders' architecture (used when there are sets).
     #[serde(default)]
     pub set_encoder: SetEncoderConfig,
     /// Radial contractions about context points (e.g. obstacle centres) in front of the
-    /// network ([`crate::flow::radial`]).
+    /// network ([`crate::flow::layers::radial`]).
     #[serde(default)]
     pub contractions: Option<ContractionConfig>,
     /// Longest modelled transition: each minibatch row spans `k ~ U{1, …, horizon}` steps

@@ -3,7 +3,7 @@
 mod flow_common;
 
 use ciflow_engine::flow::LatentKind;
-use ciflow_engine::flow::scalar::Dual;
+use ciflow_engine::nn::scalar::Dual;
 use flow_common::*;
 use nalgebra::DMatrix;
 

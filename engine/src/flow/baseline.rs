@@ -4,11 +4,11 @@
 
 use std::path::Path;
 
-use super::checkpoint;
-use super::config::{BaselineConfig, CheckpointConfig, Goal};
-use super::error::{FlowError, FlowResult, check_dim, check_input};
-use super::mlp::{Mlp, MlpScratch};
-use super::weights::Weights;
+use crate::flow::checkpoint;
+use crate::flow::checkpoint::config::{BaselineConfig, CheckpointConfig, Goal};
+use crate::flow::checkpoint::weights::Weights;
+use crate::flow::error::{FlowError, FlowResult, check_dim, check_input};
+use crate::nn::mlp::{Mlp, MlpScratch};
 
 #[derive(Clone, Debug)]
 pub struct BehaviourCloning {

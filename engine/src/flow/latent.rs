@@ -38,10 +38,10 @@ use nalgebra::{Cholesky, DMatrix, DVector};
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 
-use super::config::{FlowConfig, LatentKind};
-use super::error::{FlowError, FlowResult};
-use super::scalar::Scalar;
-use super::weights::Weights;
+use crate::flow::checkpoint::config::{FlowConfig, LatentKind};
+use crate::flow::checkpoint::weights::Weights;
+use crate::flow::error::{FlowError, FlowResult};
+use crate::nn::scalar::Scalar;
 
 const LN_2PI: f64 = 1.837_877_066_409_345_5;
 

@@ -2,15 +2,15 @@
 //! vector fields and the stability check step, whatever the model.
 //!
 //! For a flow, `F(y, c) = f(μ(f⁻¹(y, c)), c)` with `μ` the latent's mean step
-//! ([`super::policy`]); for the behaviour-cloning baseline, `F(y, c) = y + dt · MLP(y, c)`
-//! ([`super::baseline`]).
+//! ([`crate::flow::policy`]); for the behaviour-cloning baseline, `F(y, c) = y + dt · MLP(y, c)`
+//! ([`crate::flow::baseline`]).
 
 use crate::math::distance;
 
-use super::baseline::{BaselineWorkspace, BehaviourCloning};
-use super::config::Bounds;
-use super::error::FlowResult;
-use super::policy::{Policy, PolicyWorkspace};
+use crate::flow::baseline::{BaselineWorkspace, BehaviourCloning};
+use crate::flow::checkpoint::config::Bounds;
+use crate::flow::error::FlowResult;
+use crate::flow::policy::{Policy, PolicyWorkspace};
 
 /// A noise-free closed-form dynamics `y_{k+1} = F(y_k, c)` with a known attractor.
 pub trait MeanDynamics {

@@ -56,33 +56,23 @@
 //! The limit cycle's latent field is undefined at the origin of the cycle plane
 //! (`ρ = 0`); the discrete step maps it onto `ρ > 0`, the continuous loop claims exclude it.
 
-pub mod affine;
 pub mod baseline;
 pub mod checkpoint;
-pub mod conditioner;
-pub mod config;
-pub mod context_set;
-pub mod coupling;
 pub mod error;
 pub mod latent;
+pub mod layers;
 pub mod mean_dynamics;
-pub mod mixing;
-pub mod mlp;
 pub mod network;
 pub mod policy;
-pub mod radial;
-pub mod scalar;
-pub mod spline;
-pub mod weights;
 
 pub use baseline::BehaviourCloning;
-pub use config::{
+pub use checkpoint::config::{
     BaselineConfig, Bounds, CheckpointConfig, CouplingKind, FlowConfig, Goal, LatentKind,
     Normalisation,
 };
-pub use context_set::{ContextSet, LocalConfig, SetEncoderConfig};
+pub use checkpoint::weights::{Tensor, Weights};
 pub use error::{FlowError, FlowResult};
+pub use layers::context_set::{ContextSet, LocalConfig, SetEncoderConfig};
+pub use layers::radial::ContractionConfig;
 pub use mean_dynamics::MeanDynamics;
 pub use policy::{Policy, PolicyWorkspace};
-pub use radial::ContractionConfig;
-pub use weights::{Tensor, Weights};

@@ -3,9 +3,9 @@
 //! `f(z, c) = P_c⁻¹(μ_y + σ_y ⊙ g(z + a(c), ĉ))`, `ĉ = E((c - μ_c) ⊘ σ_c)`,
 //!
 //! where `E` encodes the context's unordered sets into permutation-invariant summaries
-//! ([`super::context_set`]; the identity when there are none), `g` is the stack of
+//! ([`crate::flow::layers::context_set`]; the identity when there are none), `g` is the stack of
 //! (LU mixing, coupling) blocks,
-//! `P_c` the radial contractions about context points ([`super::radial`]; the identity
+//! `P_c` the radial contractions about context points ([`crate::flow::layers::radial`]; the identity
 //! when there are none) and the anchor is
 //! `a(c) = g⁻¹((P_c(target(c)) - μ_y) ⊘ σ_y, ĉ)` for go-to tasks whose target is part
 //! of the context (so `f(0, c) = target(c)` exactly, for every `c`) and `a = 0` otherwise.
@@ -14,14 +14,14 @@
 //! For each `c`, `f(·, c)` is a bijection with
 //! `log|det ∂f/∂z| = Σ log σ_y + log|det ∂g/∂z| + log|det ∂P_c⁻¹/∂u|`.
 
-use super::config::FlowConfig;
-use super::context_set::{ContextEncoder, EncoderScratch};
-use super::coupling::{Coupling, CouplingRecord, CouplingScratch, TangentScratch};
-use super::error::{FlowResult, check_input};
-use super::mixing::LuMixing;
-use super::radial::{ContractionTape, RadialContractions};
-use super::scalar::Scalar;
-use super::weights::Weights;
+use crate::flow::checkpoint::config::FlowConfig;
+use crate::flow::checkpoint::weights::Weights;
+use crate::flow::error::{FlowResult, check_input};
+use crate::flow::layers::context_set::{ContextEncoder, EncoderScratch};
+use crate::flow::layers::coupling::{Coupling, CouplingRecord, CouplingScratch, TangentScratch};
+use crate::flow::layers::mixing::LuMixing;
+use crate::flow::layers::radial::{ContractionTape, RadialContractions};
+use crate::nn::scalar::Scalar;
 
 #[derive(Clone, Debug)]
 pub struct ConditionalFlow {
@@ -33,7 +33,7 @@ pub struct ConditionalFlow {
 }
 
 /// A context prepared for the network: normalised, encoded into the conditioning vector
-/// `ĉ` ([`super::context_set`]), folded into each conditioner's first-layer bias
+/// `ĉ` ([`crate::flow::layers::context_set`]), folded into each conditioner's first-layer bias
 /// ([`Coupling::fold_context`]), with its anchor `a(c)`. Recomputed only when the raw
 /// context changes (the anchor costs one network pass).
 #[derive(Clone, Debug)]

@@ -9,14 +9,14 @@ use rand::Rng;
 
 use crate::math::distance;
 
-use super::checkpoint;
-use super::config::{CheckpointConfig, FlowConfig};
-use super::coupling::{CouplingScratch, TangentScratch};
-use super::error::{FlowError, FlowResult, check_input};
-use super::latent::LatentDynamics;
-use super::network::{ConditionalFlow, Conditioning, FlowTape};
-use super::scalar::Dual;
-use super::weights::Weights;
+use crate::flow::checkpoint;
+use crate::flow::checkpoint::config::{CheckpointConfig, FlowConfig};
+use crate::flow::checkpoint::weights::Weights;
+use crate::flow::error::{FlowError, FlowResult, check_input};
+use crate::flow::latent::LatentDynamics;
+use crate::flow::layers::coupling::{CouplingScratch, TangentScratch};
+use crate::flow::network::{ConditionalFlow, Conditioning, FlowTape};
+use crate::nn::scalar::Dual;
 
 type Dual2 = Dual<Dual<f64>>;
 

@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use ciflow_engine::flow::{CheckpointConfig, CouplingKind, FlowConfig, LatentKind, Policy};
 use ciflow_train::latent::LatentInit;
-use ciflow_train::model::FlowModel;
+use ciflow_train::policy::FlowModel;
 use ciflow_train::trainer::{double_var_store, save_checkpoint};
 use tch::{Kind, Tensor};
 

@@ -10,9 +10,9 @@ use tch::{Kind, Tensor, nn};
 
 use crate::data::{Demonstrations, Transitions};
 use crate::error::TrainResult;
-use crate::model::row;
-use crate::nets::Mlp;
+use crate::nn::mlp::Mlp;
 use crate::optimise::{OptimConfig, Progress, mean_value, optimise};
+use crate::policy::row;
 use crate::trainer::{TrainConfig, double_var_store, save_checkpoint, split};
 
 #[derive(Clone, Debug, Serialize, Deserialize)]

@@ -4,8 +4,9 @@
 //! This crate is the only one in the workspace that links libtorch: inference, the
 //! environments, the bridge and the Python extension never load it.
 //!
-//! The tch model ([`model::FlowModel`]) mirrors the engine's network and latent dynamics
-//! parameter for parameter and runs in f64; [`trainer::TrainedFlow::save`] writes a
+//! The tch model ([`policy::FlowModel`]) mirrors the engine's network and latent dynamics
+//! parameter for parameter and runs in f64, file for file under the same names ([`nn`],
+//! [`layers`], [`latent`], [`policy`]); [`trainer::TrainedFlow::save`] writes a
 //! checkpoint directory the pure-Rust `Policy::load` reads. [`baseline`] trains the
 //! unconstrained behaviour-cloning MLP used as the stability check's negative control.
 //! [`dataset`] reads the demonstrations from a `ciflow demos` dataset; each task's
@@ -16,10 +17,10 @@ pub mod data;
 pub mod dataset;
 pub mod error;
 pub mod latent;
-pub mod model;
-pub mod nets;
+pub mod layers;
+pub mod nn;
 pub mod optimise;
-pub mod radial;
+pub mod policy;
 pub mod synthetic;
 pub mod trainer;
 

@@ -27,8 +27,8 @@ use tch::{Device, Kind, Tensor, nn};
 use crate::data::{Demonstrations, Episode, Transitions};
 use crate::error::{TrainError, TrainResult};
 use crate::latent::LatentInit;
-use crate::model::FlowModel;
 use crate::optimise::{Progress, mean_value, optimise};
+use crate::policy::FlowModel;
 
 /// Initial states drawn per minibatch for the `log p(y₀ | c₀)` term.
 const INITIAL_ROWS_PER_BATCH: usize = 16;
@@ -121,7 +121,7 @@ pub(crate) fn split(
 pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<FlowConfig> {
     let (d, m) = data.validate()?;
     let config = FlowConfig {
-        format: ciflow_engine::flow::config::FORMAT,
+        format: ciflow_engine::flow::checkpoint::config::FORMAT,
         task: train.task.clone(),
         state_dim: d,
         context_dim: m,

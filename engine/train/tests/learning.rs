@@ -7,7 +7,7 @@ use ciflow_engine::flow::{
 };
 use ciflow_evaluation::stability::{StabilityConfig, measure};
 use ciflow_train::latent::LatentInit;
-use ciflow_train::model::FlowModel;
+use ciflow_train::policy::FlowModel;
 use ciflow_train::synthetic::Spiral;
 use ciflow_train::trainer::{double_var_store, flow_config, save_checkpoint};
 use ciflow_train::{BaselineTrainConfig, OptimConfig, TrainConfig, train_baseline, train_flow};

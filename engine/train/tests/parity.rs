@@ -7,7 +7,7 @@ use ciflow_engine::flow::{
     LocalConfig, Policy, SetEncoderConfig,
 };
 use ciflow_train::latent::LatentInit;
-use ciflow_train::model::FlowModel;
+use ciflow_train::policy::FlowModel;
 use ciflow_train::trainer::{double_var_store, save_checkpoint};
 use std::sync::Mutex;
 

@@ -5,9 +5,9 @@
 //! construction, `log|det| = Σ s`, and `W⁻¹ = U⁻¹ L⁻¹` follows from two triangular solves
 //! (done once, at load time).
 
-use super::error::FlowResult;
-use super::scalar::Scalar;
-use super::weights::Weights;
+use crate::flow::checkpoint::weights::Weights;
+use crate::flow::error::FlowResult;
+use crate::nn::scalar::Scalar;
 
 #[derive(Clone, Debug)]
 pub struct LuMixing {

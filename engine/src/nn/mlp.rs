@@ -13,9 +13,9 @@
 
 use std::marker::PhantomData;
 
-use super::error::FlowResult;
-use super::scalar::{Dual, Scalar, tanh_with};
-use super::weights::Weights;
+use crate::flow::checkpoint::weights::Weights;
+use crate::flow::error::FlowResult;
+use crate::nn::scalar::{Dual, Scalar, tanh_with};
 
 /// Names and shapes `{prefix}.{j}.weight: [out, in]`, `{prefix}.{j}.bias: [out]`, as
 /// `tch::nn::linear` creates them.
@@ -184,7 +184,7 @@ enum Simd {
 
 /// Whether this CPU has AVX2 and FMA (detected once, then cached by the standard library).
 #[cfg(target_arch = "x86_64")]
-pub(super) fn has_avx2_fma() -> bool {
+pub(crate) fn has_avx2_fma() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
@@ -225,7 +225,7 @@ mod avx2 {
     /// The CPU supports AVX2 and FMA; `x` and `out` hold `planes.lanes` planes of
     /// `planes.stride >= max(inputs, padded_outputs)` values.
     #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn apply(
+    pub(crate) unsafe fn apply(
         linear: &Linear,
         planes: Planes,
         x: &[f64],

@@ -3,15 +3,17 @@
 //! latent dynamics of [`LatentModel`], mirroring `ciflow_engine::flow` parameter for
 //! parameter, so `VarStore::save("weights.safetensors")` loads in the pure-Rust policy.
 
-use ciflow_engine::flow::context_set::{encoder_prefix, encoder_sizes, rest_indices};
+use ciflow_engine::flow::layers::context_set::{encoder_prefix, encoder_sizes, rest_indices};
 use ciflow_engine::flow::{ContextSet, FlowConfig};
 use tch::nn;
 use tch::{Device, Kind, Tensor};
 
 use crate::data::Pairs;
 use crate::latent::{LatentInit, LatentModel};
-use crate::nets::{Coupling, CouplingContext, LuMixing, Mlp};
-use crate::radial::Contractions;
+use crate::layers::coupling::{Coupling, CouplingContext};
+use crate::layers::mixing::LuMixing;
+use crate::layers::radial::Contractions;
+use crate::nn::mlp::Mlp;
 
 #[derive(Debug)]
 pub struct FlowModel {
@@ -133,7 +135,7 @@ impl FlowModel {
     }
 
     /// What the couplings see for normalised contexts `[B, m]`: `ĉ` (the entries outside
-    /// the sets, then each set's mean-pooled encoding, `ciflow_engine::flow::context_set`)
+    /// the sets, then each set's mean-pooled encoding, `ciflow_engine::flow::layers::context_set`)
     /// and each set's elements.
     fn encode(&self, normalised: &Tensor) -> CouplingContext {
         let Some(rest) = &self.rest else {

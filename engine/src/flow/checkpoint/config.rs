@@ -6,13 +6,13 @@ use serde::{Deserialize, Serialize};
 
 use crate::math::distance;
 
-use super::context_set::{
+use crate::flow::error::{FlowResult, invalid};
+use crate::flow::layers::context_set::{
     ContextSet, LocalConfig, SetEncoderConfig, encoder_parameter_shapes, local_prefix, local_sizes,
     rest_indices,
 };
-use super::error::{FlowResult, invalid};
-use super::mlp::mlp_parameter_shapes;
-use super::radial::ContractionConfig;
+use crate::flow::layers::radial::ContractionConfig;
+use crate::nn::mlp::mlp_parameter_shapes;
 
 /// Minimum bin width / height and knot derivative of the rational-quadratic spline
 /// (the defaults of Durkan et al. 2019).
@@ -145,7 +145,7 @@ impl Bounds {
 }
 
 /// The checkpoint format this build reads and writes. Format 2 anchors a go-to target by
-/// shifting the latent ([`super::network`]); format 1 shifted the network's output, so
+/// shifting the latent ([`crate::flow::network`]); format 1 shifted the network's output, so
 /// the same weights meant another map.
 pub const FORMAT: u32 = 2;
 
@@ -181,7 +181,7 @@ pub struct FlowConfig {
     #[serde(default)]
     pub goal_context_indices: Option<Vec<usize>>,
     /// Unordered sets in the context, which the conditioners see through permutation-
-    /// invariant encoders ([`super::context_set`]); the goal is read from the raw
+    /// invariant encoders ([`crate::flow::layers::context_set`]); the goal is read from the raw
     /// context. Checkpoints without the key have none.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub context_sets: Vec<ContextSet>,
@@ -189,7 +189,7 @@ pub struct FlowConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub set_encoder: Option<SetEncoderConfig>,
     /// Radial contractions about context points in front of the network
-    /// ([`super::radial`]); checkpoints without the key have none.
+    /// ([`crate::flow::layers::radial`]); checkpoints without the key have none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contractions: Option<ContractionConfig>,
     /// Statistics of the states and of the contexts (a set's slots share theirs).
@@ -246,7 +246,7 @@ impl FlowConfig {
 
     /// `|ĉ|`, the dimension of the conditioning vector the conditioners see: the context
     /// itself without sets, else its entries outside them and one summary per set
-    /// ([`super::context_set`]).
+    /// ([`crate::flow::layers::context_set`]).
     pub fn conditioning_dim(&self) -> usize {
         match &self.set_encoder {
             Some(encoder) => {
@@ -257,7 +257,7 @@ impl FlowConfig {
         }
     }
 
-    /// The couplings' local element networks ([`super::conditioner`]), if any.
+    /// The couplings' local element networks ([`crate::flow::layers::conditioner`]), if any.
     pub fn local(&self) -> Option<&LocalConfig> {
         self.set_encoder.as_ref().and_then(|e| e.local.as_ref())
     }

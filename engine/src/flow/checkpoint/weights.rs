@@ -8,7 +8,7 @@ use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 
-use super::error::{FlowError, FlowResult};
+use crate::flow::error::{FlowError, FlowResult};
 
 /// A dense row-major tensor.
 #[derive(Clone, Debug, PartialEq)]

@@ -1,4 +1,4 @@
-//! The radial contractions `P_c` of `ciflow_engine::flow::radial` in tch, parameter for
+//! The radial contractions `P_c` of `ciflow_engine::flow::layers::radial` in tch, parameter for
 //! parameter: per layer `P(y) = y − Σ_i (1 − s(q_i)) (y − o_i)`,
 //! `s(q) = 1 − (α / K) / (1 + (q / w²)^m)`, `α = sigmoid(strength)`,
 //! `w = radius · exp(width)`, with `log|det ∂P/∂y| = log det J`,

@@ -2,7 +2,7 @@
 //! `y = x·e^s + t`, `s = B·tanh(ŝ/B)`. Because `|s| < B` the layer can neither overflow
 //! nor collapse far from the data, and `log|dy/dx| = s`.
 
-use super::scalar::Scalar;
+use crate::nn::scalar::Scalar;
 
 #[derive(Clone, Copy, Debug)]
 pub struct AffineTransform {

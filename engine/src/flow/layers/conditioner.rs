@@ -2,7 +2,7 @@
 //! kept coordinates `x_k` and the context.
 //!
 //! Without context sets it is one MLP, `θ = MLP([x_k, ĉ])`. Over a context with unordered
-//! sets ([`super::context_set`]) it also pools, per set, a *local* feature of every
+//! sets ([`crate::flow::layers::context_set`]) it also pools, per set, a *local* feature of every
 //! element seen from the current point:
 //!
 //! `θ = MLP([x_k, p₁, …, p_K, ĉ])`, `p_k = (1/n_k) Σ_j ψ_k([x_k, ẽ_j, ĉ])`,
@@ -19,11 +19,11 @@
 //! ([`Conditioner::fold_context`]): one for the MLP and one per element for each `ψ_k`,
 //! back to back, so evaluations read only the columns of `x_k` (and of `p`).
 
-use super::context_set::{ContextSet, LocalConfig, local_prefix, local_sizes};
-use super::error::FlowResult;
-use super::mlp::{Mlp, MlpScratch};
-use super::scalar::{Dual, Scalar};
-use super::weights::Weights;
+use crate::flow::checkpoint::weights::Weights;
+use crate::flow::error::FlowResult;
+use crate::flow::layers::context_set::{ContextSet, LocalConfig, local_prefix, local_sizes};
+use crate::nn::mlp::{Mlp, MlpScratch};
+use crate::nn::scalar::{Dual, Scalar};
 
 /// `θ(x_k, c)` of one coupling (see the module docs).
 #[derive(Clone, Debug)]

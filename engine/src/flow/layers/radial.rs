@@ -41,10 +41,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::context_set::ContextSet;
-use super::error::{FlowResult, invalid};
-use super::scalar::Scalar;
-use super::weights::Weights;
+use crate::flow::checkpoint::weights::Weights;
+use crate::flow::error::{FlowResult, invalid};
+use crate::flow::layers::context_set::ContextSet;
+use crate::nn::scalar::Scalar;
 
 /// The largest point dimension `d` contracted about: `J` is factored in a `d × d` array on
 /// the stack (obstacles are planar or spatial).
@@ -378,7 +378,7 @@ fn solve_layer(profile: &Profile, centres: &[f64], u: &[f64]) -> [f64; MAX_CENTR
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::flow::scalar::Dual;
+    use crate::nn::scalar::Dual;
 
     /// Two layers about two centres in the plane, the first strongly contracting; the
     /// centres `far` apart.

@@ -25,9 +25,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::error::FlowResult;
-use super::mlp::{Mlp, MlpScratch, mlp_parameter_shapes};
-use super::weights::Weights;
+use crate::flow::checkpoint::weights::Weights;
+use crate::flow::error::FlowResult;
+use crate::nn::mlp::{Mlp, MlpScratch, mlp_parameter_shapes};
 
 /// `count` consecutive elements of `size` entries each, from context index `start`, that
 /// form an unordered set.
@@ -57,7 +57,7 @@ pub struct SetEncoderConfig {
     pub hidden: Vec<usize>,
     /// `W`, the width of each pooled summary.
     pub width: usize,
-    /// Every coupling's local element network `ψ` ([`super::conditioner`]); none when
+    /// Every coupling's local element network `ψ` ([`crate::flow::layers::conditioner`]); none when
     /// absent.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub local: Option<LocalConfig>,
@@ -78,7 +78,7 @@ impl Default for SetEncoderConfig {
     }
 }
 
-/// Architecture of the couplings' local element networks `ψ` ([`super::conditioner`]).
+/// Architecture of the couplings' local element networks `ψ` ([`crate::flow::layers::conditioner`]).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct LocalConfig {
     /// Hidden widths of `ψ`.

@@ -14,8 +14,8 @@
 //!
 //! and the inverse solves the quadratic for `ξ` with the numerically stable root.
 
-use super::config::{SPLINE_MIN_BIN, SPLINE_MIN_DERIVATIVE};
-use super::scalar::Scalar;
+use crate::flow::checkpoint::config::{SPLINE_MIN_BIN, SPLINE_MIN_DERIVATIVE};
+use crate::nn::scalar::Scalar;
 
 #[derive(Clone, Copy, Debug)]
 pub struct SplineTransform {

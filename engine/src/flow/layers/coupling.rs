@@ -2,7 +2,7 @@
 //! generation with conditional invertible neural networks"):
 //!
 //! `y_kept = x_kept`, `y_i = h(x_i; θ_i)` for the transformed dimensions, with
-//! `θ = MLP([x_kept, c])` ([`super::conditioner`], which also pools local features of the
+//! `θ = MLP([x_kept, c])` ([`crate::flow::layers::conditioner`], which also pools local features of the
 //! context's sets). The Jacobian is triangular, so `log|det| = Σ_i log|h'(x_i)|`,
 //! and the inverse evaluates the same `θ` from `y_kept = x_kept`.
 //!
@@ -11,15 +11,17 @@
 
 use std::ops::Range;
 
-use super::affine::AffineTransform;
-use super::conditioner::{Conditioner, ConditionerScratch, ConditionerTangentScratch};
-use super::config::{CouplingKind, FlowConfig};
-use super::error::FlowResult;
+use crate::flow::checkpoint::config::{CouplingKind, FlowConfig};
+use crate::flow::checkpoint::weights::Weights;
+use crate::flow::error::FlowResult;
+use crate::flow::layers::affine::AffineTransform;
+use crate::flow::layers::conditioner::{
+    Conditioner, ConditionerScratch, ConditionerTangentScratch,
+};
+use crate::flow::layers::spline::SplineTransform;
 #[cfg(target_arch = "x86_64")]
-use super::mlp::has_avx2_fma;
-use super::scalar::{Dual, Scalar};
-use super::spline::SplineTransform;
-use super::weights::Weights;
+use crate::nn::mlp::has_avx2_fma;
+use crate::nn::scalar::{Dual, Scalar};
 
 #[derive(Clone, Copy, Debug)]
 pub enum Transform {
@@ -77,7 +79,7 @@ pub struct Coupling {
 #[derive(Clone, Debug)]
 pub struct CouplingScratch<S> {
     /// A state-sized buffer for the layers around the coupling (the mixing).
-    pub(super) state: Vec<S>,
+    pub(crate) state: Vec<S>,
     params: Vec<S>,
     transform: Vec<S>,
     conditioner: ConditionerScratch<S>,
@@ -119,7 +121,7 @@ impl CouplingRecord {
 #[derive(Clone, Debug)]
 pub struct TangentScratch {
     /// Two state-sized buffers for the layers around the coupling (the mixing).
-    pub(super) state: Vec<f64>,
+    pub(crate) state: Vec<f64>,
     params: Vec<f64>,
     params_tangent: Vec<f64>,
     dual_params: Vec<Dual<f64>>,

@@ -1,11 +1,14 @@
 //! A checkpoint is a directory holding `config.json` ([`CheckpointConfig`]) and
 //! `weights.safetensors` ([`Weights`], F64 or F32, names as in the trainer's `VarStore`).
 
+pub mod config;
+pub mod weights;
+
 use std::path::Path;
 
-use super::config::CheckpointConfig;
-use super::error::{FlowError, FlowResult};
-use super::weights::Weights;
+use crate::flow::checkpoint::config::CheckpointConfig;
+use crate::flow::checkpoint::weights::Weights;
+use crate::flow::error::{FlowError, FlowResult};
 
 pub const CONFIG_FILE: &str = "config.json";
 pub const WEIGHTS_FILE: &str = "weights.safetensors";

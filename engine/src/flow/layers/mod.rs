@@ -1,0 +1,13 @@
+//! The layers of the conditioned invertible network `f(·, c)`, each a bijection for every
+//! context and weight value: the coupling transforms ([`affine`], [`spline`]) inside
+//! [`coupling`] blocks whose parameters come from [`conditioner`] networks, the LU
+//! [`mixing`] between blocks, the [`radial`] contractions about context points, and the
+//! permutation-invariant [`context_set`] encoders that feed the conditioners.
+
+pub mod affine;
+pub mod conditioner;
+pub mod context_set;
+pub mod coupling;
+pub mod mixing;
+pub mod radial;
+pub mod spline;

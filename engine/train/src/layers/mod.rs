@@ -1,0 +1,7 @@
+//! The layers of `ciflow_engine::flow::layers` in tch, file for file.
+
+pub mod affine;
+pub mod coupling;
+pub mod mixing;
+pub mod radial;
+pub mod spline;
