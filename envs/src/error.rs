@@ -1,7 +1,9 @@
 //! The environments' error type.
 
+use ciflow_engine::sim::SimError;
+
 /// Why an environment call was refused. Never a panic: every bad input has a variant.
-#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+#[derive(Debug, thiserror::Error)]
 pub enum EnvError {
     #[error("{what} has {got} elements, expected {expected}")]
     WrongDimension {
@@ -17,8 +19,8 @@ pub enum EnvError {
     InvalidOption { name: String, detail: String },
     #[error("`step` called before `reset` or after the episode ended")]
     NeedsReset,
-    #[error("invalid perturbation: {0}")]
-    InvalidPerturbation(String),
-    #[error("simulation failed: {0}")]
-    Simulation(String),
+    #[error("invalid perturbation")]
+    InvalidPerturbation(#[source] SimError),
+    #[error("simulation failed")]
+    Simulation(#[from] SimError),
 }

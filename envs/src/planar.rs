@@ -103,9 +103,8 @@ impl<T: PlanarTask> PlanarEnv<T> {
             control_dt: setup.control_dt,
             ..SimConfig::default()
         };
-        let robot = PointMass2d::new(MASS).map_err(|e| EnvError::Simulation(e.to_string()))?;
-        let simulator = Simulator::new(Box::new(robot), config)
-            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        let robot = PointMass2d::new(MASS).map_err(|e| EnvError::Simulation(e.into()))?;
+        let simulator = Simulator::new(Box::new(robot), config).map_err(EnvError::Simulation)?;
         let context_space = task.context_space().clone();
         let unbounded = |n: usize| vec![f64::INFINITY; n];
         let observation_space = BoxSpace::new(
@@ -209,7 +208,7 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         };
         self.simulator
             .reset(x0.as_slice(), xd0.as_slice())
-            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+            .map_err(EnvError::Simulation)?;
         self.context = context;
         self.phase = Phase::Running;
         self.steps = 0;
@@ -222,9 +221,7 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
             return Err(EnvError::NeedsReset);
         }
         self.spec.action_space.check("action", action)?;
-        self.simulator
-            .step(action)
-            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        self.simulator.step(action).map_err(EnvError::Simulation)?;
         self.steps += 1;
         self.trail.push(self.state().0);
         let outcome = self.outcome();
@@ -266,7 +263,7 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         }
         self.simulator
             .perturb(perturbation)
-            .map_err(|e| EnvError::InvalidPerturbation(e.to_string()))
+            .map_err(EnvError::InvalidPerturbation)
     }
 
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {

@@ -30,7 +30,7 @@ const LIMIT_CYCLE_MIN_RATE: f64 = 0.1;
 /// 5.3 mm after 30 epochs; obstacle avoidance (3 obstacles, 60 demonstrations, 8 epochs)
 /// 67% of 100 random contexts reached against 3%.
 const GO_TO_MIN_RATE: f64 = 1.0;
-/// Radial contraction layers about the obstacle centres ([`ciflow_engine::flow::radial`])
+/// Radial contraction layers about the obstacle centres ([`ciflow_engine::flow::layers::radial`])
 /// and the exponent `m` of their profile. A layer pulls by at most `α / K` about each of
 /// the `K` centres (what keeps it a bijection when centres coincide), so the layers
 /// compound: with 3 obstacles (1000 demonstrations, 2 epochs) 8 layers reached the goal

@@ -147,13 +147,33 @@ impl From<EnvError> for ErrorReply {
             EnvError::InvalidPerturbation(_) => ErrorCode::InvalidPerturbation,
             EnvError::Simulation(_) => ErrorCode::Simulation,
         };
-        Self::new(code, error.to_string())
+        // The message carries the whole chain: a client sees why the simulation failed,
+        // not only that it did.
+        let mut message = error.to_string();
+        let mut source = std::error::Error::source(&error);
+        while let Some(cause) = source {
+            message = format!("{message}: {cause}");
+            source = cause.source();
+        }
+        Self::new(code, message)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_env_error_s_reply_names_its_causes() {
+        use ciflow_engine::sim::SimError;
+        let cause = SimError::NonFiniteState { time: 1.5 };
+        let reply = ErrorReply::from(EnvError::Simulation(cause));
+        assert_eq!(reply.code, ErrorCode::Simulation);
+        assert_eq!(
+            reply.message,
+            "simulation failed: the state became non-finite at t = 1.5 s"
+        );
+    }
 
     #[test]
     fn codes_round_trip_as_strings() {

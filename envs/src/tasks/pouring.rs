@@ -162,8 +162,7 @@ impl Pouring {
             control_dt: 0.01,
             ..SimConfig::default()
         };
-        let simulator =
-            Simulator::new(robot, config).map_err(|e| EnvError::Simulation(e.to_string()))?;
+        let simulator = Simulator::new(robot, config).map_err(EnvError::Simulation)?;
         let context_space =
             BoxSpace::new(CONTEXT_LOW.to_vec(), CONTEXT_HIGH.to_vec(), Dtype::Float64);
         let observation_space = BoxSpace::new(
@@ -250,7 +249,7 @@ impl Pouring {
         let hand = self
             .robot()
             .frame_placement(self.simulator.q().as_slice(), self.robot().end_effector())
-            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+            .map_err(|e| EnvError::Simulation(e.into()))?;
         Ok(CupPose::of_hand(&hand))
     }
 
@@ -393,11 +392,11 @@ impl Env for Pouring {
         self.apply_context(&context)?;
         self.simulator
             .reset(&q0, &qd0)
-            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+            .map_err(EnvError::Simulation)?;
         if let Some(push) = push {
             self.simulator
                 .perturb(push)
-                .map_err(|e| EnvError::InvalidPerturbation(e.to_string()))?;
+                .map_err(EnvError::InvalidPerturbation)?;
         }
         self.phase = Phase::Running;
         self.steps = 0;
@@ -410,9 +409,7 @@ impl Env for Pouring {
             return Err(EnvError::NeedsReset);
         }
         self.spec.action_space.check("action", action)?;
-        self.simulator
-            .step(action)
-            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        self.simulator.step(action).map_err(EnvError::Simulation)?;
         self.steps += 1;
         self.spout_trail.push(self.cup()?.spout);
         let (reward, terminated, info) = self.outcome()?;
@@ -440,7 +437,7 @@ impl Env for Pouring {
             self.simulator.q().as_slice(),
             self.simulator.qd().as_slice(),
         )
-        .map_err(|e| EnvError::Simulation(e.to_string()))?;
+        .map_err(|e| EnvError::Simulation(e.into()))?;
         Ok(self.spec.action_space.clip(qdd.as_slice()))
     }
 
@@ -457,7 +454,7 @@ impl Env for Pouring {
         }
         self.simulator
             .perturb(perturbation)
-            .map_err(|e| EnvError::InvalidPerturbation(e.to_string()))
+            .map_err(EnvError::InvalidPerturbation)
     }
 
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
@@ -482,7 +479,7 @@ impl Env for Pouring {
         let placements = (0..self.robot().frames().len())
             .map(|f| self.robot().frame_placement(q, f))
             .collect::<Result<Vec<_>, _>>()
-            .map_err(|e| EnvError::Simulation(e.to_string()))?;
+            .map_err(|e| EnvError::Simulation(e.into()))?;
         let joints: Vec<_> = placements
             .iter()
             .map(|m| project(&m.translation.vector))
