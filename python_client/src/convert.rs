@@ -3,9 +3,10 @@
 
 use std::collections::BTreeMap;
 
-use ciflow_bridge::protocol::F64s;
+use ciflow_bridge::protocol::{F64s, PerturbationKindMsg, PerturbationMsg};
 use ciflow_envs::{BoxSpace, Dtype, EnvSpec, ResetOptions};
 use pyo3::exceptions::PyValueError;
+use pyo3::conversion::FromPyObjectOwned;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
@@ -62,11 +63,75 @@ pub fn spec_to_dict<'py>(py: Python<'py>, spec: &EnvSpec) -> PyResult<Bound<'py,
     Ok(dict)
 }
 
-/// Reset options as JSON (`{"context": [...], "initial_position": [...], "extra": {...}}`).
-pub fn reset_options_from_json(json: Option<&str>) -> PyResult<Option<ResetOptions>> {
-    json.map(|text| {
-        serde_json::from_str(text)
-            .map_err(|e| PyValueError::new_err(format!("bad reset options {text}: {e}")))
+/// `dict[key]` as `T`, if present and not `None`; a clear error names `what` and the key.
+fn field<'py, T: FromPyObjectOwned<'py>>(
+    dict: &Bound<'py, PyDict>,
+    what: &str,
+    key: &str,
+) -> PyResult<Option<T>> {
+    match dict.get_item(key)? {
+        Some(value) if !value.is_none() => value.extract::<T>().map(Some).map_err(|e| {
+            let error: PyErr = e.into();
+            PyValueError::new_err(format!("{what}: `{key}` has the wrong type: {error}"))
+        }),
+        _ => Ok(None),
+    }
+}
+
+/// Reset options from a dict: `context`, `initial_position` and `initial_velocity`
+/// (sequences of numbers), `extra` (a dict of numbers) and any other key a task-specific
+/// number, folded into `extra`.
+pub fn reset_options_from_dict(options: Option<&Bound<'_, PyDict>>) -> PyResult<Option<ResetOptions>> {
+    let Some(options) = options else {
+        return Ok(None);
+    };
+    const WHAT: &str = "reset options";
+    let mut extra: BTreeMap<String, f64> = field(options, WHAT, "extra")?.unwrap_or_default();
+    for (key, value) in options.iter() {
+        let key: String = key.extract()?;
+        if ["context", "initial_position", "initial_velocity", "extra"].contains(&key.as_str())
+            || value.is_none()
+        {
+            continue;
+        }
+        let number = value.extract::<f64>().map_err(|_| {
+            PyValueError::new_err(format!("{WHAT}: `{key}` must be a number, got {value}"))
+        })?;
+        extra.insert(key, number);
+    }
+    Ok(Some(ResetOptions {
+        context: field(options, WHAT, "context")?,
+        initial_position: field(options, WHAT, "initial_position")?,
+        initial_velocity: field(options, WHAT, "initial_velocity")?,
+        extra,
+    }))
+}
+
+/// A perturbation from a dict: `{"kind": "joint_torque", "torque", "duration", "start"?}`
+/// or `{"kind": "link_wrench", "link", "force", "torque"?, "duration", "start"?}`
+/// (bridge/PROTOCOL.md; `start` in simulated seconds since the reset, absent: now).
+pub fn perturbation_from_dict(perturbation: &Bound<'_, PyDict>) -> PyResult<PerturbationMsg> {
+    const WHAT: &str = "perturbation";
+    let required = |key: &str| PyValueError::new_err(format!("{WHAT}: `{key}` is required"));
+    let kind: String = field(perturbation, WHAT, "kind")?.ok_or_else(|| required("kind"))?;
+    let kind = match kind.as_str() {
+        "joint_torque" => PerturbationKindMsg::JointTorque {
+            torque: field(perturbation, WHAT, "torque")?.ok_or_else(|| required("torque"))?,
+        },
+        "link_wrench" => PerturbationKindMsg::LinkWrench {
+            link: field(perturbation, WHAT, "link")?.ok_or_else(|| required("link"))?,
+            force: field(perturbation, WHAT, "force")?.ok_or_else(|| required("force"))?,
+            torque: field(perturbation, WHAT, "torque")?.unwrap_or([0.0; 3]),
+        },
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "{WHAT}: kind `{other}` is neither `joint_torque` nor `link_wrench`"
+            )));
+        }
+    };
+    Ok(PerturbationMsg {
+        kind,
+        start: field(perturbation, WHAT, "start")?,
+        duration: field(perturbation, WHAT, "duration")?.ok_or_else(|| required("duration"))?,
     })
-    .transpose()
 }

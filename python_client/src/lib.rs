@@ -9,7 +9,6 @@ mod errors;
 use std::collections::BTreeMap;
 use std::sync::Mutex;
 
-use ciflow_bridge::protocol::PerturbationMsg;
 use ciflow_bridge::{
     Client, EngineServer, EpisodePublisher, Mode, NetworkOptions, RemoteEnv, ServerOptions,
 };
@@ -18,7 +17,8 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
 use crate::convert::{
-    columns_to_dict, floats_from_bytes, floats_to_bytes, reset_options_from_json, spec_to_dict,
+    columns_to_dict, floats_from_bytes, floats_to_bytes, perturbation_from_dict, reset_options_from_dict,
+    spec_to_dict,
 };
 use crate::datasets::{PyDatasetSpec, PyDatasetWriter, PyEpisode, PyEpisodePublisher};
 use crate::errors::{CiflowError, EngineUnreachable, to_py};
@@ -284,15 +284,15 @@ impl Session {
         PyBytes::new(py, self.env.token())
     }
 
-    /// `(observation bytes, info)`; `options` is JSON of the reset options.
+    /// `(observation bytes, info)`; `options` is a dict of reset options.
     #[pyo3(signature = (seed=None, options=None))]
     fn reset<'py>(
         &self,
         py: Python<'py>,
         seed: Option<u64>,
-        options: Option<&str>,
+        options: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<(Bound<'py, PyBytes>, Bound<'py, PyDict>)> {
-        let options = reset_options_from_json(options)?;
+        let options = reset_options_from_dict(options)?;
         let (observation, info) = py.detach(|| self.env.reset(seed, options)).map_err(to_py)?;
         Ok((floats_to_bytes(py, &observation), info_dict(py, &info)?))
     }
@@ -329,9 +329,9 @@ impl Session {
         &self,
         py: Python<'py>,
         seed: Option<u64>,
-        options: Option<&str>,
+        options: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<(Bound<'py, PyBytes>, Bound<'py, PyDict>)> {
-        let options = reset_options_from_json(options)?;
+        let options = reset_options_from_dict(options)?;
         let (observations, info) = py
             .detach(|| self.env.reset_batch(seed, options))
             .map_err(to_py)?;
@@ -382,11 +382,15 @@ impl Session {
             .map_err(to_py)
     }
 
-    /// Schedules a perturbation given as JSON (see PROTOCOL.md); returns the time.
+    /// Schedules a perturbation given as a dict (see PROTOCOL.md); returns the time.
     #[pyo3(signature = (perturbation, index=0))]
-    fn perturb(&self, py: Python<'_>, perturbation: &str, index: u32) -> PyResult<f64> {
-        let message: PerturbationMsg = serde_json::from_str(perturbation)
-            .map_err(|e| PyValueError::new_err(format!("bad perturbation {perturbation}: {e}")))?;
+    fn perturb(
+        &self,
+        py: Python<'_>,
+        perturbation: &Bound<'_, PyDict>,
+        index: u32,
+    ) -> PyResult<f64> {
+        let message = perturbation_from_dict(perturbation)?;
         py.detach(|| self.env.perturb(index, message))
             .map_err(to_py)
     }

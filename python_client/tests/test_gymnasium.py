@@ -95,6 +95,28 @@ def test_bad_input_raises_typed_errors_and_the_env_stays_usable(engine):
         env.close()
 
 
+def test_options_and_perturbations_cross_as_dicts_with_clear_errors(engine):
+    env = gym.make("ciflow/LimitCycle-v0", engine=engine[0]).unwrapped
+    try:
+        # A task-specific option folds into `extra`; an unknown one is the task's to refuse.
+        with pytest.raises(ciflow.CiflowError) as unknown:
+            env.reset(seed=0, options={"no_such_option": 1.0})
+        assert unknown.value.code == "invalid_option"
+        with pytest.raises(ValueError, match="`context` has the wrong type"):
+            env._session.reset(0, {"context": "not numbers"})
+        env.reset(seed=0)
+        with pytest.raises(ValueError, match="`duration` is required"):
+            env._session.perturb({"kind": "link_wrench", "link": 0, "force": [1.0, 0.0, 0.0]})
+        with pytest.raises(ValueError, match="neither `joint_torque` nor `link_wrench`"):
+            env._session.perturb({"kind": "shove", "duration": 0.1})
+        accepted = env._session.perturb(
+            {"kind": "link_wrench", "link": 0, "force": [1.0, 0.0, 0.0], "duration": 0.1}
+        )
+        assert accepted >= 0.0
+    finally:
+        env.close()
+
+
 def test_make_vec_steps_all_environments_in_one_request(task_id, engine):
     n = 8
     envs = gym.make_vec(task_id, num_envs=n, engine=engine[0])

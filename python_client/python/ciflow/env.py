@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import json
-
 import gymnasium as gym
 import numpy as np
 
 from ciflow import connection
-from ciflow.spaces import box, construction_kwargs, from_wire, options_json, to_wire
+from ciflow.spaces import box, construction_kwargs, from_wire, reset_options, to_wire
 
 
 class CiflowEnv(gym.Env):
@@ -115,7 +113,7 @@ class CiflowEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         observation, info = self._session.reset(
-            seed, options_json(self._reset_defaults, options)
+            seed, reset_options(self._reset_defaults, options)
         )
         self._last_time = 0.0
         return from_wire(observation, self.observation_space.dtype), dict(info)
@@ -175,7 +173,7 @@ class CiflowEnv(gym.Env):
 
     def _perturb(self, kind: dict, duration: float, start: float | None) -> float:
         message = {**kind, "duration": float(duration), "start": start}
-        return self._session.perturb(json.dumps(message, allow_nan=False))
+        return self._session.perturb(message)
 
     def close(self):
         if self._control is not None:

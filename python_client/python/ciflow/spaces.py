@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 
 import numpy as np
 from gymnasium import spaces
@@ -33,9 +32,9 @@ def from_wire(data: bytes, dtype, shape=None) -> np.ndarray:
     return array.astype(dtype, copy=True)
 
 
-def options_json(defaults: dict, options: dict | None) -> str | None:
-    """Reset options as the engine's JSON: known fields as lists, everything else in
-    ``extra`` (task-specific numbers such as ``obstacles``)."""
+def reset_options(defaults: dict, options: dict | None) -> dict | None:
+    """Reset options as the engine takes them: known fields as lists of floats,
+    everything else in ``extra`` (task-specific numbers such as ``obstacles``)."""
     merged = dict(defaults)
     merged.update(options or {})
     if not merged:
@@ -50,7 +49,7 @@ def options_json(defaults: dict, options: dict | None) -> str | None:
             wire["extra"].update({k: float(v) for k, v in value.items()})
         else:
             wire["extra"][key] = float(value)
-    return json.dumps(wire, allow_nan=False)
+    return wire
 
 
 def construction_kwargs(kwargs: dict) -> dict:

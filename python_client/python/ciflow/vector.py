@@ -9,7 +9,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from ciflow import connection
-from ciflow.spaces import box, construction_kwargs, from_wire, options_json, to_wire
+from ciflow.spaces import box, construction_kwargs, from_wire, reset_options, to_wire
 
 
 class CiflowVectorEnv(gym.vector.VectorEnv):
@@ -62,7 +62,7 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
         if isinstance(seed, (list, tuple)):
             raise ValueError("pass one integer seed; environment i gets seed + i")
         observations, info = self._session.reset_batch(
-            seed, options_json(self._reset_defaults, options)
+            seed, reset_options(self._reset_defaults, options)
         )
         return self._observations(observations), self._info(info)
 
