@@ -76,7 +76,9 @@ fn workspace_root() -> PathBuf {
         .to_path_buf()
 }
 
-fn python() -> String {
+/// The project's Python: `CIFLOW_PYTHON`, else the workspace's `.venv`, else `python3`
+/// (the LASA conversion here, `ciflow lasa`'s plots).
+pub fn python() -> String {
     if let Ok(python) = std::env::var("CIFLOW_PYTHON") {
         return python;
     }

@@ -3,11 +3,11 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
+use crate::progress;
 use anyhow::Context;
 use ciflow_envs::env::SUCCESS_INFO;
 use ciflow_envs::registry::TaskEntry;
 use ciflow_envs::rollout::{Recording, record_expert_dataset};
-use indicatif::{ProgressBar, ProgressStyle};
 
 /// Arguments of `ciflow demos`.
 #[derive(clap::Args, Debug)]
@@ -75,14 +75,7 @@ pub fn run(args: DemosArgs) -> anyhow::Result<()> {
         seed: args.seed,
         dataset_id: args.dataset_id,
     };
-    let progress = ProgressBar::new(args.episodes).with_style(
-        ProgressStyle::with_template(
-            "{msg} [{bar:40}] {pos}/{len} episodes, {elapsed} (eta {eta})",
-        )
-        .expect("the template is valid")
-        .progress_chars("=> "),
-    );
-    progress.set_message(format!("{} demos", args.task));
+    let progress = progress::bar(args.episodes, &format!("{} demos", args.task), "episodes");
     let mut steps = 0usize;
     let mut successes = 0usize;
     let spec = record_expert_dataset(&recording, &args.out, args.overwrite, |episode| {

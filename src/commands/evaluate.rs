@@ -21,10 +21,10 @@ use ciflow_evaluation::{
     Acting, ContextSwitch, Disturbance, EvaluationConfig, EvaluationReport, PushConfig, evaluate,
 };
 use clap::ValueEnum;
-use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 use super::demos::{parse_key_value, task_values};
+use crate::progress;
 use ciflow_envs::learning_curve::subset;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -133,17 +133,6 @@ pub struct EvaluateArgs {
     /// Latent grid lines per axis.
     #[arg(long, default_value_t = 11)]
     pub field_lines: usize,
-}
-
-fn bar(len: usize, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} ({elapsed}, eta {eta})")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    bar.set_prefix(what.to_owned());
-    bar
 }
 
 fn write_json(path: &Path, value: &impl Serialize) -> anyhow::Result<()> {
@@ -339,7 +328,7 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
         disturbance: disturbance(args, task),
         trajectories: args.trajectories,
     };
-    let progress = bar(args.episodes, "episodes");
+    let progress = progress::bar(args.episodes as u64, "evaluate", "episodes");
     let report = evaluate(env.as_mut(), acting, &config, |done| {
         progress.set_position(done as u64)
     })

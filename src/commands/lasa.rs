@@ -26,9 +26,10 @@ use ciflow_train::{
     BaselineTrainConfig, Contexts, Demonstrations, Episode, OptimConfig, Progress, TrainConfig,
     train_baseline, train_flow,
 };
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 
 use super::train::ModelArgs;
+use crate::progress;
 
 /// The plotting script, embedded so the command runs from any directory.
 const PLOT_SCRIPT: &str = include_str!("../../bench/lasa_plot.py");
@@ -80,12 +81,7 @@ struct RunProgress {
 impl RunProgress {
     /// A bar over `epochs`, every model's budget added up.
     fn new(epochs: usize) -> Self {
-        let bar = ProgressBar::new(epochs as u64);
-        bar.set_style(
-            ProgressStyle::with_template("lasa [{bar:30}] {percent}% {msg} ({elapsed}, eta {eta})")
-                .expect("valid template")
-                .progress_chars("=> "),
-        );
+        let bar = progress::bar(epochs as u64, "lasa", "epochs");
         Self { bar, done: 0 }
     }
 
@@ -254,21 +250,8 @@ fn settings(flow: &TrainConfig) -> String {
     )
 }
 
-/// The project's Python: `CIFLOW_PYTHON`, else the workspace's `.venv`, else `python3`.
-fn python() -> String {
-    if let Ok(python) = std::env::var("CIFLOW_PYTHON") {
-        return python;
-    }
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python");
-    if venv.exists() {
-        venv.to_string_lossy().into_owned()
-    } else {
-        "python3".into()
-    }
-}
-
 fn plot(out: &Path) -> anyhow::Result<()> {
-    let python = python();
+    let python = lasa::python();
     let output = Command::new(&python)
         .arg("-c")
         .arg(PLOT_SCRIPT)

@@ -15,6 +15,7 @@
 
 use std::path::PathBuf;
 
+use crate::progress;
 use anyhow::Context;
 use ciflow_engine::flow::MeanDynamics;
 use ciflow_engine::flow::Policy;
@@ -24,7 +25,6 @@ use ciflow_envs::actor::Model;
 use ciflow_envs::registry;
 use ciflow_evaluation::robot_loop::{RobotLoopConfig, RobotLoopReport, measure_robot_loop};
 use ciflow_evaluation::stability::{StabilityConfig, StabilityReport, measure};
-use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 #[derive(clap::Args, Debug)]
@@ -91,25 +91,13 @@ struct Report {
     robot_loop: Option<RobotLoopReport>,
 }
 
-/// A bar over `len` rollouts.
-fn rollout_bar(len: usize, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} ({elapsed})")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    bar.set_prefix(what.to_owned());
-    bar
-}
-
 /// [`measure`] behind a progress bar labelled `what`.
 fn measured<M: MeanDynamics + Sync>(
     model: &M,
     config: &StabilityConfig,
     what: &str,
 ) -> anyhow::Result<StabilityReport> {
-    let bar = rollout_bar(config.starts, what);
+    let bar = progress::bar(config.starts as u64, what, "rollouts");
     let report = measure(model, config, |done| bar.set_position(done as u64));
     bar.finish_and_clear();
     report.with_context(|| format!("the stability check ({what})"))
@@ -208,7 +196,7 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
                 ..RobotLoopConfig::default()
             };
             let mut simulator = robot_simulator(policy, args.scale)?;
-            let bar = rollout_bar(args.robot_starts, "robot loop");
+            let bar = progress::bar(args.robot_starts as u64, "robot loop", "rollouts");
             let report = measure_robot_loop(policy, &mut simulator, &loop_config, |done| {
                 bar.set_position(done as u64)
             })?;

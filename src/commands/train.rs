@@ -25,9 +25,9 @@ use ciflow_train::{
     train_flow,
 };
 use clap::ValueEnum;
-use indicatif::{ProgressBar, ProgressStyle};
 
 use super::demos::{parse_key_value, task_values};
+use crate::progress;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum LatentArg {
@@ -302,18 +302,6 @@ fn parse_context_set(text: &str) -> Result<Option<ContextSet>, String> {
     }
 }
 
-/// A bar over `epochs` epochs, prefixed with `what`.
-fn epoch_bar(epochs: usize, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(epochs as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} epochs {msg} ({elapsed})")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    bar.set_prefix(what.to_owned());
-    bar
-}
-
 /// Writes a better checkpoint to `out` (an interrupted run keeps its best so far) and
 /// publishes it. A failed publication is reported and training goes on: the file is the
 /// record, the publication a convenience for running engines.
@@ -411,7 +399,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         })
         .transpose()
         .context("--publish")?;
-    let bar = epoch_bar(config.optim.epochs, "flow");
+    let bar = progress::bar(config.optim.epochs as u64, "flow", "epochs");
     // The last epoch written to --out (and published): the first one always improves.
     let mut kept_epoch = Ok(0);
     let trained = train_flow(&data, &config, |p: &Progress, snapshot: &Snapshot| {
@@ -462,7 +450,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     );
 
     if args.baseline {
-        let bar = epoch_bar(config.optim.epochs, "baseline");
+        let bar = progress::bar(config.optim.epochs as u64, "baseline", "epochs");
         let baseline = train_baseline(
             &data,
             &BaselineTrainConfig::matching(&config, &data),

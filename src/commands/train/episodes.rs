@@ -10,9 +10,9 @@ use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::TaskEntry;
 use ciflow_train::Demonstrations;
 use ciflow_train::dataset::{self as screening_dataset, Screened, Screening};
-use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::commands::network::NetworkArgs;
+use crate::progress;
 
 /// Where the demonstrations come from besides `--demos`.
 #[derive(clap::Args, Debug)]
@@ -60,11 +60,7 @@ pub fn demonstrations(
         );
     }
     let network = source.network.options()?;
-    let bar = ProgressBar::new(count).with_style(
-        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} episodes ({elapsed})")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
+    let bar = progress::bar(count, task.name, "episodes");
     let (spec, episodes) = collect(
         &network,
         task.name,
@@ -73,11 +69,11 @@ pub fn demonstrations(
         |key| {
             // Scripts and tests start the recorders once this line is out.
             println!("waiting for {count} episodes on {key}");
-            bar.set_message(format!("{} episodes", task.name));
+            bar.set_message("waiting");
         },
         |message| {
             bar.inc(1);
-            bar.set_message(format!("{} ({})", task.name, message.recorder));
+            bar.set_message(format!("from {}", message.recorder));
         },
     )
     .with_context(|| format!("collecting {count} episodes of `{}` from Zenoh", task.name))?;
