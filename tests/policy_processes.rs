@@ -265,12 +265,12 @@ fn policy_driven_session_recovers_from_a_push_and_refuses_client_steps() {
     let client = connect(27535);
     let kwargs = BTreeMap::from([("obstacles".to_owned(), 1.0)]);
     let env = client.make("policy-run", OBSTACLE, 1, &kwargs).unwrap();
-    let telemetry = env.telemetry().unwrap();
+    let telemetry = env.control().telemetry().unwrap();
     std::thread::sleep(Duration::from_millis(300));
 
     // `run` needs a reset first; then the unperturbed reference run at 4× real time.
     assert_eq!(
-        code(env.run(0, "avoid", 4.0, None).unwrap_err()),
+        code(env.control().run(0, "avoid", 4.0, None).unwrap_err()),
         ErrorCode::NeedsReset
     );
     reset_for_run(&env);
@@ -279,7 +279,7 @@ fn policy_driven_session_recovers_from_a_push_and_refuses_client_steps() {
         .unwrap()
         .is_some()
     {}
-    env.run(0, "avoid", 4.0, None).unwrap();
+    env.control().run(0, "avoid", 4.0, None).unwrap();
     assert_eq!(code(env.step(&[0.0, 0.0]).unwrap_err()), ErrorCode::Busy);
     assert_eq!(code(env.reset(None, None).unwrap_err()), ErrorCode::Busy);
     let reference = record_run(&env, &telemetry);
@@ -291,18 +291,19 @@ fn policy_driven_session_recovers_from_a_push_and_refuses_client_steps() {
         .unwrap()
         .is_some()
     {}
-    env.perturb(
-        0,
-        PerturbationMsg {
-            kind: PerturbationKindMsg::JointTorque {
-                torque: vec![0.0, 10.0],
+    env.control()
+        .perturb(
+            0,
+            PerturbationMsg {
+                kind: PerturbationKindMsg::JointTorque {
+                    torque: vec![0.0, 10.0],
+                },
+                start: Some(0.5),
+                duration: 0.2,
             },
-            start: Some(0.5),
-            duration: 0.2,
-        },
-    )
-    .unwrap();
-    env.run(0, "avoid", 4.0, None).unwrap();
+        )
+        .unwrap();
+    env.control().run(0, "avoid", 4.0, None).unwrap();
     let pushed = record_run(&env, &telemetry);
 
     for run in [&reference, &pushed] {
@@ -335,9 +336,9 @@ fn policy_driven_session_recovers_from_a_push_and_refuses_client_steps() {
 
     // `stop` ends a run early and hands stepping back to the client.
     reset_for_run(&env);
-    env.run(0, "avoid", 1.0, None).unwrap();
+    env.control().run(0, "avoid", 1.0, None).unwrap();
     std::thread::sleep(Duration::from_millis(200));
-    env.stop().unwrap();
+    env.control().stop().unwrap();
     env.reset(None, None).unwrap();
     env.step(&[0.0, 0.0]).unwrap();
 }

@@ -46,7 +46,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 start: None,
                 duration: 0.2,
             };
-            let time = pushed.perturb(0, push)?;
+            let time = pushed.control().perturb(0, push)?;
             println!("pushed the second environment at t = {time:.2} s");
         }
         let a = calm.step(&calm.expert(0)?)?.observation;

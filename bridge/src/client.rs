@@ -17,54 +17,20 @@ use zenoh::Wait;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Subscriber;
-use zenoh::query::{ConsolidationMode, Querier, QueryTarget, Reply};
+use zenoh::query::{ConsolidationMode, Querier, QueryTarget};
 use zenoh::sample::Sample;
 
 use crate::config::{NetworkOptions, Role};
+use crate::control::SessionControl;
 use crate::error::BridgeError;
 use crate::protocol::keys::{self, SessionOp};
 use crate::protocol::{
-    AckReply, ActRequest, ActionReply, BatchResetReply, BatchStepReply, BatchStepRequest,
-    ContextRequest, ErrorReply, F64s, FrameHeader, MakeReply, MakeRequest, PROTOCOL_VERSION,
-    PerturbRequest, PerturbationMsg, PolicyInfo, RenderReply, RenderRequest, ResetReply,
-    ResetRequest, RunRequest, SessionRequest, StepReply, StepRequest, TaskInfo, TasksReply,
-    TasksRequest, Telemetry, decode_reply, encode,
+    AckReply, ActRequest, ActionReply, BatchResetReply, BatchStepReply, BatchStepRequest, F64s,
+    FrameHeader, MakeReply, MakeRequest, PROTOCOL_VERSION, PolicyInfo, RenderReply, RenderRequest,
+    ResetReply, ResetRequest, SessionRequest, StepReply, StepRequest, TaskInfo, TasksReply,
+    TasksRequest, decode_reply, encode,
 };
-
-/// The telemetry samples of one session, as they arrive.
-pub struct TelemetryStream {
-    subscriber: Subscriber<FifoChannelHandler<Sample>>,
-}
-
-impl TelemetryStream {
-    /// Subscribes to `…/session/<session>/telemetry` of `engine` (anyone may: telemetry
-    /// needs no token).
-    pub fn subscribe(
-        zsession: &zenoh::Session,
-        engine: &str,
-        session: &str,
-    ) -> Result<Self, BridgeError> {
-        let subscriber = zsession
-            .declare_subscriber(keys::session(engine, session, "telemetry"))
-            .wait()
-            .map_err(BridgeError::zenoh)?;
-        Ok(Self { subscriber })
-    }
-
-    /// The next sample, or `None` if none arrives within `timeout`.
-    pub fn recv_timeout(&self, timeout: Duration) -> Result<Option<Telemetry>, BridgeError> {
-        match self.subscriber.recv_timeout(timeout) {
-            Ok(Some(sample)) => decode_reply(&sample.payload().to_bytes())
-                .map(Some)
-                .map_err(|e| BridgeError::BadReply {
-                    key: sample.key_expr().to_string(),
-                    detail: e.to_string(),
-                }),
-            Ok(None) => Ok(None),
-            Err(e) => Err(BridgeError::zenoh(e)),
-        }
-    }
-}
+use crate::query::{decode_ok, first_reply, query};
 
 /// Default wait for a reply.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(10);
@@ -173,6 +139,18 @@ impl Client {
         Ok(reply.into())
     }
 
+    /// The controls of a session another process made, from its id and token; `engine`
+    /// names the engine that holds it, or [`ANY_ENGINE`](crate::ANY_ENGINE) for whichever
+    /// does. Nothing is sent until a control is used; the session stays its owner's.
+    pub fn attach(
+        &self,
+        engine: &str,
+        session: &str,
+        token: &[u8],
+    ) -> Result<SessionControl, BridgeError> {
+        SessionControl::new(self.zsession.clone(), engine, session, token, self.timeout)
+    }
+
     /// Opens a session of `num_envs` environments of `task` on `engine`, built with the
     /// task's construction arguments `kwargs`.
     pub fn make(
@@ -221,86 +199,6 @@ impl Client {
     }
 }
 
-/// Sends raw `payload` to `key` and collects every reply until the query completes: each
-/// is the reply payload or the engine's typed error. For tools and tests that speak the
-/// protocol by hand (the engine always sends exactly one).
-pub fn query_all(
-    zsession: &zenoh::Session,
-    key: &str,
-    payload: Vec<u8>,
-    timeout: Duration,
-) -> Result<Vec<Result<Vec<u8>, ErrorReply>>, BridgeError> {
-    let replies = zsession
-        .get(key)
-        .payload(payload)
-        .consolidation(ConsolidationMode::None)
-        .timeout(timeout)
-        .wait()
-        .map_err(BridgeError::zenoh)?;
-    replies
-        .iter()
-        .map(
-            |reply| match decode_ok::<serde::de::IgnoredAny>(key, &reply) {
-                Ok(_) => Ok(Ok(reply
-                    .result()
-                    .map(|s| s.payload().to_bytes().into_owned())
-                    .unwrap_or_default())),
-                Err(BridgeError::Remote(error)) => Ok(Err(error)),
-                Err(other) => Err(other),
-            },
-        )
-        .collect()
-}
-
-/// One query, one reply.
-pub(crate) fn query<R: DeserializeOwned>(
-    zsession: &zenoh::Session,
-    key: &str,
-    payload: Vec<u8>,
-    timeout: Duration,
-) -> Result<R, BridgeError> {
-    let replies = zsession
-        .get(key)
-        .payload(payload)
-        .consolidation(ConsolidationMode::None)
-        .timeout(timeout)
-        .wait()
-        .map_err(BridgeError::zenoh)?;
-    first_reply(key, &replies)
-}
-
-fn first_reply<R: DeserializeOwned>(
-    key: &str,
-    replies: &FifoChannelHandler<Reply>,
-) -> Result<R, BridgeError> {
-    match replies.recv() {
-        Ok(reply) => decode_ok(key, &reply),
-        Err(_) => Err(BridgeError::NoEngine {
-            key: key.to_owned(),
-        }),
-    }
-}
-
-fn decode_ok<R: DeserializeOwned>(key: &str, reply: &Reply) -> Result<R, BridgeError> {
-    let bad = |detail: String| BridgeError::BadReply {
-        key: key.to_owned(),
-        detail,
-    };
-    match reply.result() {
-        Ok(sample) => decode_reply(&sample.payload().to_bytes()).map_err(|e| bad(e.to_string())),
-        Err(error) => {
-            let bytes = error.payload().to_bytes();
-            match decode_reply::<ErrorReply>(&bytes) {
-                Ok(remote) => Err(BridgeError::Remote(remote)),
-                Err(_) => Err(bad(format!(
-                    "error reply: {}",
-                    String::from_utf8_lossy(&bytes)
-                ))),
-            }
-        }
-    }
-}
-
 /// Result of [`RemoteEnv::step`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct StepResult {
@@ -339,6 +237,7 @@ pub struct RemoteEnv {
     stepper: Querier<'static>,
     frames: Mutex<Option<Subscriber<FifoChannelHandler<Sample>>>>,
     closed: AtomicBool,
+    control: SessionControl,
 }
 
 impl RemoteEnv {
@@ -359,6 +258,13 @@ impl RemoteEnv {
             .timeout(timeout)
             .wait()
             .map_err(BridgeError::zenoh)?;
+        let control = SessionControl::new(
+            zsession.clone(),
+            engine,
+            &reply.session,
+            &reply.token,
+            timeout,
+        )?;
         Ok(Self {
             zsession,
             engine: engine.to_owned(),
@@ -370,6 +276,7 @@ impl RemoteEnv {
             stepper,
             frames: Mutex::new(None),
             closed: AtomicBool::new(false),
+            control,
         })
     }
 
@@ -490,68 +397,9 @@ impl RemoteEnv {
         Ok(reply.action.0)
     }
 
-    /// Replaces the context of environment `index`; returns the simulated time.
-    pub fn set_context(&self, index: u32, context: &[f64]) -> Result<f64, BridgeError> {
-        let reply: AckReply = self.call(
-            SessionOp::Context,
-            &ContextRequest {
-                v: PROTOCOL_VERSION,
-                token: self.token.clone(),
-                index,
-                context: F64s(context.to_vec()),
-            },
-        )?;
-        Ok(reply.time)
-    }
-
-    /// Lets policy `policy` drive environment `index` (`speed` 1 = real time, 0 = as fast
-    /// as possible; `steps` absent = until the episode ends). Returns the simulated time
-    /// at the start. `step`/`reset` answer `busy` until the run ends or [`stop`](Self::stop).
-    pub fn run(
-        &self,
-        index: u32,
-        policy: &str,
-        speed: f64,
-        steps: Option<u32>,
-    ) -> Result<f64, BridgeError> {
-        let reply: AckReply = self.call(
-            SessionOp::Run,
-            &RunRequest {
-                v: PROTOCOL_VERSION,
-                token: self.token.clone(),
-                index,
-                policy: policy.to_owned(),
-                speed,
-                steps,
-            },
-        )?;
-        Ok(reply.time)
-    }
-
-    /// Stops a policy run (no effect without one); returns the simulated time.
-    pub fn stop(&self) -> Result<f64, BridgeError> {
-        let reply: AckReply = self.call(SessionOp::Stop, &self.session_request(0))?;
-        Ok(reply.time)
-    }
-
-    /// Subscribes to this session's telemetry.
-    pub fn telemetry(&self) -> Result<TelemetryStream, BridgeError> {
-        TelemetryStream::subscribe(&self.zsession, &self.engine, &self.session)
-    }
-
-    /// Schedules a perturbation of environment `index`; returns the simulated time at
-    /// which the engine accepted it.
-    pub fn perturb(&self, index: u32, perturbation: PerturbationMsg) -> Result<f64, BridgeError> {
-        let reply: AckReply = self.call(
-            SessionOp::Perturb,
-            &PerturbRequest {
-                v: PROTOCOL_VERSION,
-                token: self.token.clone(),
-                index,
-                perturbation,
-            },
-        )?;
-        Ok(reply.time)
+    /// The session's controls: policy runs, pushes, context changes, telemetry.
+    pub fn control(&self) -> &SessionControl {
+        &self.control
     }
 
     /// Renders environment `index` as `height × width × 3` RGB bytes. The frame travels

@@ -16,24 +16,26 @@
 pub mod checkpoint_policy;
 pub mod client;
 pub mod config;
+pub mod control;
 pub mod episodes;
 pub mod error;
 pub mod policy;
 pub mod protocol;
 pub mod publisher;
+pub mod query;
 pub mod server;
 pub mod task_factory;
 
 pub use checkpoint_policy::{CheckpointPolicy, PolicyLoadError};
 pub use ciflow_envs::registry::Kwargs;
-pub use client::{
-    BatchStep, Client, EngineInfo, RemoteEnv, StepResult, TelemetryStream, query_all,
-};
+pub use client::{BatchStep, Client, EngineInfo, RemoteEnv, StepResult};
 pub use config::{DEFAULT_ENDPOINT, Mode, NetworkOptions, Role};
+pub use control::{ANY_ENGINE, SessionControl, TelemetryStream};
 pub use episodes::{CollectError, EpisodePublisher, EpisodeSubscriber};
 pub use error::BridgeError;
 pub use policy::{Policy, PolicyError};
 pub use publisher::CheckpointPublisher;
+pub use query::query_all;
 pub use server::{EngineServer, ServerOptions};
 pub use task_factory::TaskFactory;
 /// The Zenoh crate this bridge is built with, for callers that need its types.

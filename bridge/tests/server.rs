@@ -75,12 +75,13 @@ fn every_operation_round_trips_with_gymnasium_seeding() {
     );
     assert!(step.info.contains_key("distance"));
 
-    assert_eq!(env.set_context(0, &[-0.5]).unwrap(), step.time);
+    assert_eq!(env.control().set_context(0, &[-0.5]).unwrap(), step.time);
     assert_eq!(
-        remote_code(env.set_context(0, &[3.0]).unwrap_err()),
+        remote_code(env.control().set_context(0, &[3.0]).unwrap_err()),
         ErrorCode::OutOfBounds
     );
     let accepted = env
+        .control()
         .perturb(
             0,
             PerturbationMsg {

@@ -5,8 +5,8 @@ use std::collections::BTreeMap;
 
 use ciflow_bridge::protocol::{F64s, PerturbationKindMsg, PerturbationMsg};
 use ciflow_envs::{BoxSpace, Dtype, EnvSpec, ResetOptions};
-use pyo3::exceptions::PyValueError;
 use pyo3::conversion::FromPyObjectOwned;
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
@@ -81,7 +81,9 @@ fn field<'py, T: FromPyObjectOwned<'py>>(
 /// Reset options from a dict: `context`, `initial_position` and `initial_velocity`
 /// (sequences of numbers), `extra` (a dict of numbers) and any other key a task-specific
 /// number, folded into `extra`.
-pub fn reset_options_from_dict(options: Option<&Bound<'_, PyDict>>) -> PyResult<Option<ResetOptions>> {
+pub fn reset_options_from_dict(
+    options: Option<&Bound<'_, PyDict>>,
+) -> PyResult<Option<ResetOptions>> {
     let Some(options) = options else {
         return Ok(None);
     };

@@ -8,17 +8,19 @@ mod errors;
 
 use std::collections::BTreeMap;
 use std::sync::Mutex;
+use std::time::{Duration, Instant};
 
 use ciflow_bridge::{
-    Client, EngineServer, EpisodePublisher, Mode, NetworkOptions, RemoteEnv, ServerOptions,
+    ANY_ENGINE, Client, EngineServer, EpisodePublisher, Mode, NetworkOptions, RemoteEnv,
+    ServerOptions, SessionControl, TelemetryStream,
 };
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
 use crate::convert::{
-    columns_to_dict, floats_from_bytes, floats_to_bytes, perturbation_from_dict, reset_options_from_dict,
-    spec_to_dict,
+    columns_to_dict, floats_from_bytes, floats_to_bytes, perturbation_from_dict,
+    reset_options_from_dict, spec_to_dict,
 };
 use crate::datasets::{PyDatasetSpec, PyDatasetWriter, PyEpisode, PyEpisodePublisher};
 use crate::errors::{CiflowError, EngineUnreachable, to_py};
@@ -177,6 +179,15 @@ impl ClientHandle {
         Ok(Session { env })
     }
 
+    /// The controls of session `session` held by another process, from its `token`;
+    /// `engine` names the engine holding it (default: whichever does).
+    #[pyo3(signature = (session, token, engine=None))]
+    fn attach(&self, session: &str, token: &[u8], engine: Option<&str>) -> PyResult<Control> {
+        let engine = engine.unwrap_or(ANY_ENGINE);
+        let control = self.client.attach(engine, session, token).map_err(to_py)?;
+        Ok(Control { control })
+    }
+
     /// A publisher of finished episodes of `task` on
     /// `ciflow/v1/episodes/<task name>/<recorder>`, through this client's Zenoh session.
     fn episode_publisher(
@@ -210,8 +221,8 @@ impl ClientHandle {
     }
 }
 
-fn seconds(timeout: f64) -> PyResult<std::time::Duration> {
-    std::time::Duration::try_from_secs_f64(timeout)
+fn seconds(timeout: f64) -> PyResult<Duration> {
+    Duration::try_from_secs_f64(timeout)
         .map_err(|e| PyValueError::new_err(format!("timeout {timeout}: {e}")))
 }
 
@@ -374,25 +385,11 @@ impl Session {
         Ok(floats_to_bytes(py, &action))
     }
 
-    /// Replaces the context; returns the simulated time.
-    #[pyo3(signature = (context, index=0))]
-    fn set_context(&self, py: Python<'_>, context: &[u8], index: u32) -> PyResult<f64> {
-        let context = floats_from_bytes("context", context)?;
-        py.detach(|| self.env.set_context(index, &context))
-            .map_err(to_py)
-    }
-
-    /// Schedules a perturbation given as a dict (see PROTOCOL.md); returns the time.
-    #[pyo3(signature = (perturbation, index=0))]
-    fn perturb(
-        &self,
-        py: Python<'_>,
-        perturbation: &Bound<'_, PyDict>,
-        index: u32,
-    ) -> PyResult<f64> {
-        let message = perturbation_from_dict(perturbation)?;
-        py.detach(|| self.env.perturb(index, message))
-            .map_err(to_py)
+    /// The session's controls (policy runs, pushes, context changes, telemetry).
+    fn control(&self) -> Control {
+        Control {
+            control: self.env.control().clone(),
+        }
     }
 
     /// RGB bytes, row-major `height × width × 3`.
@@ -413,6 +410,126 @@ impl Session {
     /// Closes the session on the engine (idempotent).
     fn close(&self, py: Python<'_>) -> PyResult<()> {
         py.detach(|| self.env.close()).map_err(to_py)
+    }
+}
+
+/// A session's controls, its owner's or an attached process's (`ciflow.attach`).
+#[pyclass(module = "ciflow._native")]
+struct Control {
+    control: SessionControl,
+}
+
+#[pymethods]
+impl Control {
+    #[getter]
+    fn session_id(&self) -> &str {
+        self.control.session_id()
+    }
+
+    /// The engine's name, or `*` when attached to whichever holds the session.
+    #[getter]
+    fn engine(&self) -> &str {
+        self.control.engine()
+    }
+
+    /// Lets `policy` drive environment `index`; returns the simulated time at the start.
+    #[pyo3(signature = (policy, speed=1.0, steps=None, index=0))]
+    fn run(
+        &self,
+        py: Python<'_>,
+        policy: &str,
+        speed: f64,
+        steps: Option<u32>,
+        index: u32,
+    ) -> PyResult<f64> {
+        py.detach(|| self.control.run(index, policy, speed, steps))
+            .map_err(to_py)
+    }
+
+    /// Stops the policy run (no effect without one); returns the simulated time.
+    fn stop(&self, py: Python<'_>) -> PyResult<f64> {
+        py.detach(|| self.control.stop()).map_err(to_py)
+    }
+
+    /// Schedules a perturbation given as a dict (see PROTOCOL.md); returns the time.
+    #[pyo3(signature = (perturbation, index=0))]
+    fn perturb(
+        &self,
+        py: Python<'_>,
+        perturbation: &Bound<'_, PyDict>,
+        index: u32,
+    ) -> PyResult<f64> {
+        let message = perturbation_from_dict(perturbation)?;
+        py.detach(|| self.control.perturb(index, message))
+            .map_err(to_py)
+    }
+
+    /// Replaces the context (f64 bytes) of environment `index`; returns the time.
+    #[pyo3(signature = (context, index=0))]
+    fn set_context(&self, py: Python<'_>, context: &[u8], index: u32) -> PyResult<f64> {
+        let context = floats_from_bytes("context", context)?;
+        py.detach(|| self.control.set_context(index, &context))
+            .map_err(to_py)
+    }
+
+    /// A feed of the session's telemetry samples.
+    fn telemetry(&self, py: Python<'_>) -> PyResult<TelemetryFeed> {
+        let stream = py.detach(|| self.control.telemetry()).map_err(to_py)?;
+        Ok(TelemetryFeed { stream })
+    }
+}
+
+/// Telemetry samples of one session, as they arrive.
+#[pyclass(module = "ciflow._native")]
+struct TelemetryFeed {
+    stream: TelemetryStream,
+}
+
+/// How long one wait for telemetry lasts before Python may handle a signal (Ctrl-C).
+const TELEMETRY_POLL: Duration = Duration::from_millis(200);
+
+#[pymethods]
+impl TelemetryFeed {
+    /// The next sample as a dict (`state`, `command`, `context` as f64 bytes), or `None`
+    /// if none arrives within `timeout` seconds (`None`: wait for one).
+    #[pyo3(signature = (timeout=None))]
+    fn recv<'py>(
+        &self,
+        py: Python<'py>,
+        timeout: Option<f64>,
+    ) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let deadline = timeout
+            .map(seconds)
+            .transpose()?
+            .map(|t| Instant::now() + t);
+        loop {
+            let wait = match deadline {
+                Some(deadline) => deadline
+                    .saturating_duration_since(Instant::now())
+                    .min(TELEMETRY_POLL),
+                None => TELEMETRY_POLL,
+            };
+            if let Some(sample) = py
+                .detach(|| self.stream.recv_timeout(wait))
+                .map_err(to_py)?
+            {
+                let dict = PyDict::new(py);
+                dict.set_item("session", &sample.session)?;
+                dict.set_item("step", sample.step)?;
+                dict.set_item("time", sample.time)?;
+                dict.set_item("state", floats_to_bytes(py, &sample.state.0))?;
+                dict.set_item("command", floats_to_bytes(py, &sample.command.0))?;
+                dict.set_item("context", floats_to_bytes(py, &sample.context.0))?;
+                dict.set_item("reward", sample.reward)?;
+                dict.set_item("running", sample.running)?;
+                dict.set_item("episode_done", sample.episode_done)?;
+                return Ok(Some(dict));
+            }
+            if deadline.is_some_and(|d| Instant::now() >= d) {
+                return Ok(None);
+            }
+            py.check_signals()?;
+        }
     }
 }
 
@@ -439,6 +556,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Engine>()?;
     m.add_class::<ClientHandle>()?;
     m.add_class::<Session>()?;
+    m.add_class::<Control>()?;
+    m.add_class::<TelemetryFeed>()?;
     m.add_class::<PyDatasetSpec>()?;
     m.add_class::<PyEpisode>()?;
     m.add_class::<PyDatasetWriter>()?;

@@ -106,10 +106,10 @@ def test_options_and_perturbations_cross_as_dicts_with_clear_errors(engine):
             env._session.reset(0, {"context": "not numbers"})
         env.reset(seed=0)
         with pytest.raises(ValueError, match="`duration` is required"):
-            env._session.perturb({"kind": "link_wrench", "link": 0, "force": [1.0, 0.0, 0.0]})
+            env._session.control().perturb({"kind": "link_wrench", "link": 0, "force": [1.0, 0.0, 0.0]})
         with pytest.raises(ValueError, match="neither `joint_torque` nor `link_wrench`"):
-            env._session.perturb({"kind": "shove", "duration": 0.1})
-        accepted = env._session.perturb(
+            env._session.control().perturb({"kind": "shove", "duration": 0.1})
+        accepted = env._session.control().perturb(
             {"kind": "link_wrench", "link": 0, "force": [1.0, 0.0, 0.0], "duration": 0.1}
         )
         assert accepted >= 0.0

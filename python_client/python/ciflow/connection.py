@@ -111,6 +111,17 @@ def _default(task: str | None) -> tuple[_native.ClientHandle, str]:
     return client, _embedded.name
 
 
+def client(engine: str | None, zenoh_config: str | None) -> _native.ClientHandle:
+    """A client reaching ``engine`` (an endpoint) or the default endpoint, or through
+    ``zenoh_config``; the client of this process's embedded engine when there is one and
+    neither is given."""
+    connect = engine if engine and _looks_like_endpoint(engine) else None
+    with _lock:
+        if connect is None and zenoh_config is None and ("embedded", None) in _clients:
+            return _clients[("embedded", None)]
+        return _client(connect, zenoh_config)
+
+
 def discover(engine: str | None = None, zenoh_config: str | None = None) -> list[dict]:
     """Lists reachable engines with their tasks (``[{"name", "tasks", "policies"}]``).
 

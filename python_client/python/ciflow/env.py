@@ -64,7 +64,6 @@ class CiflowEnv(gym.Env):
         }
         self._size = (int(width), int(height))
         self._last_time = 0.0
-        self._engine, self._zenoh_config = engine, zenoh_config
 
     @property
     def session_id(self) -> str:
@@ -83,15 +82,12 @@ class CiflowEnv(gym.Env):
         return self._session.token.hex()
 
     def attach(self):
-        """This session's :class:`ciflow.remote.Attached` control (run, stop, perturb,
+        """This session's :class:`ciflow.remote.Attached` controls (run, stop, perturb,
         context, telemetry), made on first use."""
         if self._control is None:
             from ciflow.remote import Attached
 
-            self._control = Attached(
-                self.session_id, self.token_hex, self._engine, self.engine_name,
-                self._zenoh_config,
-            )
+            self._control = Attached(self._session.control())
         return self._control
 
     def run_policy(self, name: str, speed: float = 1.0, steps: int | None = None) -> float:
@@ -146,34 +142,19 @@ class CiflowEnv(gym.Env):
 
     def set_context(self, context) -> float:
         """Replaces the context mid-episode; returns the simulated time it took effect."""
-        return self._session.set_context(to_wire(context))
+        return self.attach().set_context(context)
 
     def perturb_joint_torque(self, torque, duration: float, start: float | None = None) -> float:
         """Adds joint torques during ``[start, start + duration)`` simulated seconds
         (``start`` default: now). Returns the simulated time of acceptance."""
-        return self._perturb(
-            {"kind": "joint_torque", "torque": [float(t) for t in torque]}, duration, start
-        )
+        return self.attach().push_joint_torque(torque, duration, start)
 
     def perturb_link_wrench(
         self, link: int, force, torque=(0.0, 0.0, 0.0), duration: float = 0.1,
         start: float | None = None,
     ) -> float:
         """Applies a world-aligned wrench at movable link ``link``."""
-        return self._perturb(
-            {
-                "kind": "link_wrench",
-                "link": int(link),
-                "force": [float(f) for f in force],
-                "torque": [float(t) for t in torque],
-            },
-            duration,
-            start,
-        )
-
-    def _perturb(self, kind: dict, duration: float, start: float | None) -> float:
-        message = {**kind, "duration": float(duration), "start": start}
-        return self._session.perturb(message)
+        return self.attach().push_link_wrench(link, force, torque, duration, start)
 
     def close(self):
         if self._control is not None:

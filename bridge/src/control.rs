@@ -1,0 +1,212 @@
+//! Control of a session: start or stop a policy run, push the robot, change the context,
+//! read the telemetry. The session's owner holds one ([`RemoteEnv::control`]); any other
+//! process that knows the session's id and token gets one with [`Client::attach`] — with
+//! the engine's name, or through a wildcard when it does not know which engine holds the
+//! session. Dropping it leaves the session to its owner.
+//!
+//! [`RemoteEnv::control`]: crate::client::RemoteEnv::control
+//! [`Client::attach`]: crate::client::Client::attach
+
+use std::time::Duration;
+
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+use serde_bytes::ByteBuf;
+use zenoh::Wait;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::Subscriber;
+use zenoh::sample::Sample;
+
+use crate::error::BridgeError;
+use crate::protocol::keys::{self, SessionOp};
+use crate::protocol::{
+    AckReply, ContextRequest, ErrorCode, F64s, PROTOCOL_VERSION, PerturbRequest, PerturbationMsg,
+    RunRequest, SessionRequest, Telemetry, decode_reply, encode,
+};
+use crate::query::query_all;
+
+/// Any engine: the session's keys with a wildcard in place of the engine's name.
+pub const ANY_ENGINE: &str = "*";
+
+/// The controls of one session (module docs).
+#[derive(Clone)]
+pub struct SessionControl {
+    zsession: zenoh::Session,
+    engine: String,
+    session: String,
+    token: ByteBuf,
+    timeout: Duration,
+}
+
+impl SessionControl {
+    pub(crate) fn new(
+        zsession: zenoh::Session,
+        engine: &str,
+        session: &str,
+        token: &[u8],
+        timeout: Duration,
+    ) -> Result<Self, BridgeError> {
+        for (what, chunk) in [("engine", engine), ("session", session)] {
+            if chunk != ANY_ENGINE && !keys::is_plain_chunk(chunk) {
+                return Err(BridgeError::InvalidArgument(format!(
+                    "{what} `{chunk}` must be letters, digits, `-`, `_` or `.`"
+                )));
+            }
+        }
+        if session == ANY_ENGINE {
+            return Err(BridgeError::InvalidArgument(
+                "name one session, not `*`".into(),
+            ));
+        }
+        Ok(Self {
+            zsession,
+            engine: engine.to_owned(),
+            session: session.to_owned(),
+            token: ByteBuf::from(token.to_vec()),
+            timeout,
+        })
+    }
+
+    /// The engine's name, or [`ANY_ENGINE`].
+    pub fn engine(&self) -> &str {
+        &self.engine
+    }
+
+    pub fn session_id(&self) -> &str {
+        &self.session
+    }
+
+    /// One request to the session. Through a wildcard every engine answers: the engine
+    /// holding the session with its reply, the others with `unknown_session`, so the
+    /// first success wins and otherwise the most telling error.
+    fn call<R: DeserializeOwned>(
+        &self,
+        op: SessionOp,
+        request: &impl Serialize,
+    ) -> Result<R, BridgeError> {
+        let key = keys::session(&self.engine, &self.session, op.as_str());
+        let replies = query_all(&self.zsession, &key, encode(request), self.timeout)?;
+        let mut errors = Vec::new();
+        for reply in replies {
+            match reply {
+                Ok(bytes) => {
+                    return decode_reply(&bytes).map_err(|e| BridgeError::BadReply {
+                        key: key.clone(),
+                        detail: e.to_string(),
+                    });
+                }
+                Err(error) => errors.push(error),
+            }
+        }
+        errors.sort_by_key(|e| e.code == ErrorCode::UnknownSession);
+        match errors.into_iter().next() {
+            Some(error) => Err(BridgeError::Remote(error)),
+            None => Err(BridgeError::NoEngine { key }),
+        }
+    }
+
+    /// Replaces the context of environment `index`; returns the simulated time.
+    pub fn set_context(&self, index: u32, context: &[f64]) -> Result<f64, BridgeError> {
+        let reply: AckReply = self.call(
+            SessionOp::Context,
+            &ContextRequest {
+                v: PROTOCOL_VERSION,
+                token: self.token.clone(),
+                index,
+                context: F64s(context.to_vec()),
+            },
+        )?;
+        Ok(reply.time)
+    }
+
+    /// Lets policy `policy` drive environment `index` (`speed` 1 = real time, 0 = as fast
+    /// as possible; `steps` absent = until the episode ends). Returns the simulated time
+    /// at the start. `step`/`reset` answer `busy` until the run ends or [`stop`](Self::stop).
+    pub fn run(
+        &self,
+        index: u32,
+        policy: &str,
+        speed: f64,
+        steps: Option<u32>,
+    ) -> Result<f64, BridgeError> {
+        let reply: AckReply = self.call(
+            SessionOp::Run,
+            &RunRequest {
+                v: PROTOCOL_VERSION,
+                token: self.token.clone(),
+                index,
+                policy: policy.to_owned(),
+                speed,
+                steps,
+            },
+        )?;
+        Ok(reply.time)
+    }
+
+    /// Stops a policy run (no effect without one); returns the simulated time.
+    pub fn stop(&self) -> Result<f64, BridgeError> {
+        let request = SessionRequest {
+            v: PROTOCOL_VERSION,
+            token: self.token.clone(),
+            index: 0,
+        };
+        let reply: AckReply = self.call(SessionOp::Stop, &request)?;
+        Ok(reply.time)
+    }
+
+    /// Schedules a perturbation of environment `index`; returns the simulated time at
+    /// which the engine accepted it.
+    pub fn perturb(&self, index: u32, perturbation: PerturbationMsg) -> Result<f64, BridgeError> {
+        let reply: AckReply = self.call(
+            SessionOp::Perturb,
+            &PerturbRequest {
+                v: PROTOCOL_VERSION,
+                token: self.token.clone(),
+                index,
+                perturbation,
+            },
+        )?;
+        Ok(reply.time)
+    }
+
+    /// Subscribes to this session's telemetry (subscribe before starting what you want
+    /// to record).
+    pub fn telemetry(&self) -> Result<TelemetryStream, BridgeError> {
+        TelemetryStream::subscribe(&self.zsession, &self.engine, &self.session)
+    }
+}
+
+/// The telemetry samples of one session, as they arrive.
+pub struct TelemetryStream {
+    subscriber: Subscriber<FifoChannelHandler<Sample>>,
+}
+
+impl TelemetryStream {
+    /// Subscribes to `…/session/<session>/telemetry` of `engine` (anyone may: telemetry
+    /// needs no token).
+    pub fn subscribe(
+        zsession: &zenoh::Session,
+        engine: &str,
+        session: &str,
+    ) -> Result<Self, BridgeError> {
+        let subscriber = zsession
+            .declare_subscriber(keys::session(engine, session, "telemetry"))
+            .wait()
+            .map_err(BridgeError::zenoh)?;
+        Ok(Self { subscriber })
+    }
+
+    /// The next sample, or `None` if none arrives within `timeout`.
+    pub fn recv_timeout(&self, timeout: Duration) -> Result<Option<Telemetry>, BridgeError> {
+        match self.subscriber.recv_timeout(timeout) {
+            Ok(Some(sample)) => decode_reply(&sample.payload().to_bytes())
+                .map(Some)
+                .map_err(|e| BridgeError::BadReply {
+                    key: sample.key_expr().to_string(),
+                    detail: e.to_string(),
+                }),
+            Ok(None) => Ok(None),
+            Err(e) => Err(BridgeError::zenoh(e)),
+        }
+    }
+}
