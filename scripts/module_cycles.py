@@ -24,39 +24,38 @@ CRATES = [".", "engine", "engine/train", "envs", "evaluation", "bridge", "python
 IDENT = r"[A-Za-z_][A-Za-z0-9_]*"
 
 
-def without_tests_and_comments(text):
-    """The source with `#[cfg(test)]` modules and comments removed."""
-    text = re.sub(r"//[^\n]*", "", text)
+def rewrite_blocks(text, opening, rewrite):
+    """`text` with every brace block that `opening` (a regex ending in `{`) starts
+    replaced by `rewrite(header, body)`."""
     out, i = [], 0
-    pattern = re.compile(r"#\[cfg\(test\)\]\s*(pub(\([^)]*\))?\s+)?mod\s+" + IDENT + r"\s*\{")
+    pattern = re.compile(opening)
     while True:
         m = pattern.search(text, i)
         if not m:
             out.append(text[i:])
             return "".join(out)
-        out.append(text[i : m.start()])
         depth, j = 1, m.end()
         while depth and j < len(text):
             depth += {"{": 1, "}": -1}.get(text[j], 0)
             j += 1
+        out.append(text[i : m.start()] + rewrite(text[m.start() : m.end()], text[m.end() : j]))
         i = j
+
+
+def without_tests_and_comments(text):
+    """The source with `#[cfg(test)]` modules and comments removed."""
+    text = re.sub(r"//[^\n]*", "", text)
+    test_module = r"#\[cfg\(test\)\]\s*(pub(\([^)]*\))?\s+)?mod\s+" + IDENT + r"\s*\{"
+    return rewrite_blocks(text, test_module, lambda header, body: "")
 
 
 def inline_modules_as_file(text):
     """`super::` inside an inline `mod name { … }` names the file's own module."""
-    out, i = [], 0
-    pattern = re.compile(r"\bmod\s+" + IDENT + r"\s*\{")
-    while True:
-        m = pattern.search(text, i)
-        if not m:
-            out.append(text[i:])
-            return "".join(out)
-        depth, j = 1, m.end()
-        while depth and j < len(text):
-            depth += {"{": 1, "}": -1}.get(text[j], 0)
-            j += 1
-        out.append(text[i : m.end()] + text[m.end() : j].replace("super::", "self::"))
-        i = j
+    return rewrite_blocks(
+        text,
+        r"\bmod\s+" + IDENT + r"\s*\{",
+        lambda header, body: header + body.replace("super::", "self::"),
+    )
 
 
 def expand_use_tree(tree):

@@ -10,6 +10,23 @@ use zenoh::query::{ConsolidationMode, Reply};
 use crate::error::BridgeError;
 use crate::protocol::{ErrorReply, decode_reply};
 
+/// Sends `payload` to `key`; every matching queryable's reply arrives on the handler
+/// (none are merged), until `timeout`.
+fn send(
+    zsession: &zenoh::Session,
+    key: &str,
+    payload: Vec<u8>,
+    timeout: Duration,
+) -> Result<FifoChannelHandler<Reply>, BridgeError> {
+    zsession
+        .get(key)
+        .payload(payload)
+        .consolidation(ConsolidationMode::None)
+        .timeout(timeout)
+        .wait()
+        .map_err(BridgeError::zenoh)
+}
+
 /// Sends raw `payload` to `key` and collects every reply until the query completes: each
 /// is the reply payload or the engine's typed error. For tools and tests that speak the
 /// protocol by hand (the engine always sends exactly one).
@@ -19,13 +36,7 @@ pub fn query_all(
     payload: Vec<u8>,
     timeout: Duration,
 ) -> Result<Vec<Result<Vec<u8>, ErrorReply>>, BridgeError> {
-    let replies = zsession
-        .get(key)
-        .payload(payload)
-        .consolidation(ConsolidationMode::None)
-        .timeout(timeout)
-        .wait()
-        .map_err(BridgeError::zenoh)?;
+    let replies = send(zsession, key, payload, timeout)?;
     replies
         .iter()
         .map(
@@ -48,13 +59,7 @@ pub(crate) fn query<R: DeserializeOwned>(
     payload: Vec<u8>,
     timeout: Duration,
 ) -> Result<R, BridgeError> {
-    let replies = zsession
-        .get(key)
-        .payload(payload)
-        .consolidation(ConsolidationMode::None)
-        .timeout(timeout)
-        .wait()
-        .map_err(BridgeError::zenoh)?;
+    let replies = send(zsession, key, payload, timeout)?;
     first_reply(key, &replies)
 }
 
