@@ -3,11 +3,12 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use crate::progress;
 use anyhow::Context;
 use ciflow_envs::env::SUCCESS_INFO;
 use ciflow_envs::registry::TaskEntry;
 use ciflow_envs::rollout::{Recording, record_expert_dataset};
+
+use crate::progress;
 
 /// Arguments of `ciflow demos`.
 #[derive(clap::Args, Debug)]

@@ -15,10 +15,8 @@
 
 use std::path::PathBuf;
 
-use crate::progress;
 use anyhow::Context;
-use ciflow_engine::flow::MeanDynamics;
-use ciflow_engine::flow::Policy;
+use ciflow_engine::flow::{MeanDynamics, Policy};
 use ciflow_engine::robot::{JointLimits, PointMass2d, Robot};
 use ciflow_engine::sim::{SimConfig, Simulator};
 use ciflow_envs::actor::Model;
@@ -26,6 +24,8 @@ use ciflow_envs::registry;
 use ciflow_evaluation::robot_loop::{RobotLoopConfig, RobotLoopReport, measure_robot_loop};
 use ciflow_evaluation::stability::{StabilityConfig, StabilityReport, measure};
 use serde::Serialize;
+
+use crate::progress;
 
 #[derive(clap::Args, Debug)]
 pub struct StabilityArgs {

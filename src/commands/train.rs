@@ -19,10 +19,9 @@ use ciflow_engine::flow::{
 };
 use ciflow_envs::learning_curve::subset;
 use ciflow_envs::registry;
-use ciflow_train::Screening;
 use ciflow_train::{
-    BaselineTrainConfig, Keep, OptimConfig, Progress, Snapshot, TrainConfig, train_baseline,
-    train_flow,
+    BaselineTrainConfig, Keep, OptimConfig, Progress, Screening, Snapshot, TrainConfig,
+    train_baseline, train_flow,
 };
 use clap::ValueEnum;
 

@@ -9,7 +9,7 @@ use ciflow_bridge::episodes::collect;
 use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::TaskEntry;
 use ciflow_train::Demonstrations;
-use ciflow_train::dataset::{self as screening_dataset, Screened, Screening};
+use ciflow_train::{Screened, Screening};
 
 use crate::commands::network::NetworkArgs;
 use crate::progress;
@@ -43,7 +43,7 @@ pub fn demonstrations(
     let report = |source: &str, screened: Screened| println!("{source}: {screened}");
     let Some(count) = source.from_zenoh else {
         let demos = demos.context("give the dataset with --demos, or --from-zenoh <N>")?;
-        let (spec, data, screened) = screening_dataset::read(demos, task, screening)
+        let (spec, data, screened) = ciflow_train::dataset::read(demos, task, screening)
             .with_context(|| format!("reading the dataset {}", demos.display()))?;
         report(&demos.display().to_string(), screened);
         return Ok((spec, data));
@@ -89,7 +89,7 @@ pub fn demonstrations(
     }
     let source = "the episodes collected from Zenoh";
     let (data, screened) =
-        screening_dataset::demonstrations(&spec, episodes, task, source, screening)?;
+        ciflow_train::dataset::demonstrations(&spec, episodes, task, source, screening)?;
     report(source, screened);
     Ok((spec, data))
 }
