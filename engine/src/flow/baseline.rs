@@ -6,6 +6,7 @@ use std::path::Path;
 
 use crate::flow::checkpoint;
 use crate::flow::checkpoint::config::{BaselineConfig, CheckpointConfig, Goal};
+use crate::flow::checkpoint::names::NET;
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::{FlowError, FlowResult, check_dim, check_input};
 use crate::nn::mlp::{Mlp, MlpScratch};
@@ -27,7 +28,7 @@ pub struct BaselineWorkspace {
 impl BehaviourCloning {
     pub fn new(config: &BaselineConfig, mut weights: Weights) -> FlowResult<Self> {
         config.validate()?;
-        let net = Mlp::from_weights(&mut weights, "net", &config.mlp_sizes())?;
+        let net = Mlp::from_weights(&mut weights, NET, &config.mlp_sizes())?;
         weights.finish()?;
         Ok(Self {
             config: config.clone(),

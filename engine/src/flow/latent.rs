@@ -39,6 +39,9 @@ use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::flow::checkpoint::config::{FlowConfig, LatentKind};
+use crate::flow::checkpoint::names::{
+    self, FACTOR, LATENT, LOG_RADIUS, LOG_RATE, LOG_SIGMA, LOG_SIGMA0, LOG_SPEED, OMEGA, SKEW,
+};
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::{FlowError, FlowResult};
 use crate::nn::scalar::Scalar;
@@ -153,19 +156,31 @@ pub fn stable_rate_matrix(
 impl LatentDynamics {
     pub fn from_weights(config: &FlowConfig, weights: &mut Weights) -> FlowResult<Self> {
         let d = config.state_dim;
-        let sigma = exp_all(weights.take("latent.log_sigma", &[d])?);
-        let sigma0 = exp_all(weights.take("latent.log_sigma0", &[d])?);
+        let sigma = exp_all(weights.take(&names::name(&[&LATENT, &LOG_SIGMA]), &[d])?);
+        let sigma0 = exp_all(weights.take(&names::name(&[&LATENT, &LOG_SIGMA0]), &[d])?);
         let r = config.linear_latent_dim();
         let rate_matrix = if r > 0 {
-            let factor = DMatrix::from_row_slice(r, r, &weights.take("latent.factor", &[r, r])?);
-            let skew = DMatrix::from_row_slice(r, r, &weights.take("latent.skew", &[r, r])?);
+            let factor = DMatrix::from_row_slice(
+                r,
+                r,
+                &weights.take(&names::name(&[&LATENT, &FACTOR]), &[r, r])?,
+            );
+            let skew = DMatrix::from_row_slice(
+                r,
+                r,
+                &weights.take(&names::name(&[&LATENT, &SKEW]), &[r, r])?,
+            );
             stable_rate_matrix(&factor, &skew, config.min_rate)
         } else {
             DMatrix::zeros(0, 0)
         };
         let rotation = match config.latent {
             LatentKind::SaturatedGoTo => {
-                let skew = DMatrix::from_row_slice(d, d, &weights.take("latent.skew", &[d, d])?);
+                let skew = DMatrix::from_row_slice(
+                    d,
+                    d,
+                    &weights.take(&names::name(&[&LATENT, &SKEW]), &[d, d])?,
+                );
                 let lower = skew.lower_triangle() - DMatrix::from_diagonal(&skew.diagonal());
                 &lower - lower.transpose()
             }
@@ -175,22 +190,26 @@ impl LatentDynamics {
             true => DMatrix::zeros(0, 0),
             false => (&rotation * config.dt).exp(),
         };
-        let mut scalar = |name: &str| weights.take(&format!("latent.{name}"), &[1]).map(|v| v[0]);
+        let mut scalar = |name: &str| {
+            weights
+                .take(&names::name(&[&LATENT, &name]), &[1])
+                .map(|v| v[0])
+        };
         let (mut cycle, mut saturation) = (None, None);
         match config.latent {
             LatentKind::GoTo => {}
             LatentKind::SaturatedGoTo => {
                 saturation = Some(Saturation {
-                    rate: config.min_rate + scalar("log_rate")?.exp(),
-                    speed: scalar("log_speed")?.exp(),
+                    rate: config.min_rate + scalar(LOG_RATE)?.exp(),
+                    speed: scalar(LOG_SPEED)?.exp(),
                     floor: config.min_rate,
                 });
             }
             LatentKind::LimitCycle => {
                 cycle = Some(Cycle {
-                    radius: scalar("log_radius")?.exp(),
-                    rate: -scalar("log_rate")?.exp(),
-                    omega: scalar("omega")?,
+                    radius: scalar(LOG_RADIUS)?.exp(),
+                    rate: -scalar(LOG_RATE)?.exp(),
+                    omega: scalar(OMEGA)?,
                 });
             }
         }

@@ -15,6 +15,7 @@
 //! `log|det ∂f/∂z| = Σ log σ_y + log|det ∂g/∂z| + log|det ∂P_c⁻¹/∂u|`.
 
 use crate::flow::checkpoint::config::FlowConfig;
+use crate::flow::checkpoint::names::{self, LAYERS, MIXING};
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::{FlowResult, check_input};
 use crate::flow::layers::context_set::{ContextEncoder, EncoderScratch};
@@ -83,9 +84,13 @@ impl ConditionalFlow {
         )?;
         let blocks = (0..config.layers)
             .map(|i| {
-                let prefix = format!("layers.{i}");
+                let prefix = names::name(&[&LAYERS, &i]);
                 Ok((
-                    LuMixing::from_weights(weights, &format!("{prefix}.mixing"), config.state_dim)?,
+                    LuMixing::from_weights(
+                        weights,
+                        &names::name(&[&prefix, &MIXING]),
+                        config.state_dim,
+                    )?,
                     Coupling::from_weights(weights, &prefix, i, config)?,
                 ))
             })

@@ -13,6 +13,7 @@
 
 use std::marker::PhantomData;
 
+use crate::flow::checkpoint::names::{self, BIAS, WEIGHT};
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::FlowResult;
 use crate::nn::scalar::{Dual, Scalar, tanh_with};
@@ -25,8 +26,8 @@ pub fn mlp_parameter_shapes(prefix: &str, sizes: &[usize]) -> Vec<(String, Vec<u
         .enumerate()
         .flat_map(|(j, io)| {
             [
-                (format!("{prefix}.{j}.weight"), vec![io[1], io[0]]),
-                (format!("{prefix}.{j}.bias"), vec![io[1]]),
+                (names::name(&[&prefix, &j, &WEIGHT]), vec![io[1], io[0]]),
+                (names::name(&[&prefix, &j, &BIAS]), vec![io[1]]),
             ]
         })
         .collect()

@@ -14,6 +14,7 @@ use crate::nn::mlp::Mlp;
 use crate::optimise::{OptimConfig, Progress, mean_value, optimise};
 use crate::policy::row;
 use crate::trainer::{TrainConfig, double_var_store, save_checkpoint, split};
+use ciflow_engine::flow::checkpoint::names::NET;
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct BaselineTrainConfig {
@@ -101,7 +102,7 @@ pub fn train_baseline(
     tch::set_num_threads(train.threads);
     tch::manual_seed(train.optim.seed as i64);
     let vs = double_var_store();
-    let net = Mlp::new(&(vs.root() / "net"), &config.mlp_sizes(), false);
+    let net = Mlp::new(&(vs.root() / NET), &config.mlp_sizes(), false);
     let norm = &config.normalisation;
     let (state_mean, state_std) = (row(&norm.state_mean), row(&norm.state_std));
     let (context_mean, context_std) = (row(&norm.context_mean), row(&norm.context_std));

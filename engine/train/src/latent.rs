@@ -2,6 +2,9 @@
 //! equations): exact linear step `exp(A dt)`, exact polar radius step, exact saturated
 //! radial step, Gaussian noise in Cartesian latent coordinates.
 
+use ciflow_engine::flow::checkpoint::names::{
+    FACTOR, LOG_RADIUS, LOG_RATE, LOG_SIGMA, LOG_SIGMA0, LOG_SPEED, OMEGA, SKEW,
+};
 use ciflow_engine::flow::{FlowConfig, LatentKind};
 use tch::nn;
 use tch::{Kind, Tensor};
@@ -61,20 +64,16 @@ impl LatentModel {
                 stdev: 0.1,
             };
             (
-                path.var("factor", &[r, r], small),
-                path.var("skew", &[r, r], small),
+                path.var(FACTOR, &[r, r], small),
+                path.var(SKEW, &[r, r], small),
             )
         });
         let saturation = (config.latent == LatentKind::SaturatedGoTo).then(|| Saturation {
-            log_rate: path.var(
-                "log_rate",
-                &[1],
-                nn::Init::Const(INITIAL_SATURATED_RATE.ln()),
-            ),
-            log_speed: path.var("log_speed", &[1], nn::Init::Const(init.speed.ln())),
+            log_rate: path.var(LOG_RATE, &[1], nn::Init::Const(INITIAL_SATURATED_RATE.ln())),
+            log_speed: path.var(LOG_SPEED, &[1], nn::Init::Const(init.speed.ln())),
             skew: {
                 // Turning at `ω` in the first latent plane: `Ω₁₀ = W₁₀ = ω`.
-                let skew = path.var("skew", &[d, d], nn::Init::Const(0.0));
+                let skew = path.var(SKEW, &[d, d], nn::Init::Const(0.0));
                 tch::no_grad(|| {
                     let _ = skew.get(1).get(0).fill_(init.omega);
                 });
@@ -82,15 +81,15 @@ impl LatentModel {
             },
         });
         let cycle = (config.latent == LatentKind::LimitCycle).then(|| Cycle {
-            log_radius: path.var("log_radius", &[1], nn::Init::Const(0.0)),
-            log_rate: path.var("log_rate", &[1], nn::Init::Const(0.0)),
-            omega: path.var("omega", &[1], nn::Init::Const(init.omega)),
+            log_radius: path.var(LOG_RADIUS, &[1], nn::Init::Const(0.0)),
+            log_rate: path.var(LOG_RATE, &[1], nn::Init::Const(0.0)),
+            omega: path.var(OMEGA, &[1], nn::Init::Const(init.omega)),
         });
         Self {
             dt: config.dt,
             min_rate: config.min_rate,
-            log_sigma: path.var("log_sigma", &[d], nn::Init::Const(init.sigma.ln())),
-            log_sigma0: path.var("log_sigma0", &[d], nn::Init::Const(0.0)),
+            log_sigma: path.var(LOG_SIGMA, &[d], nn::Init::Const(init.sigma.ln())),
+            log_sigma0: path.var(LOG_SIGMA0, &[d], nn::Init::Const(0.0)),
             linear,
             cycle,
             saturation,

@@ -14,6 +14,7 @@ use crate::layers::coupling::{Coupling, CouplingContext};
 use crate::layers::mixing::LuMixing;
 use crate::layers::radial::Contractions;
 use crate::nn::mlp::Mlp;
+use ciflow_engine::flow::checkpoint::names::{LATENT, LAYERS, MIXING};
 
 #[derive(Debug)]
 pub struct FlowModel {
@@ -51,9 +52,9 @@ impl FlowModel {
         let rest = rest_indices(&config.context_sets, config.context_dim);
         let blocks = (0..config.layers)
             .map(|i| {
-                let p = path / "layers" / i;
+                let p = path / LAYERS / i;
                 (
-                    LuMixing::new(&(&p / "mixing"), config.state_dim),
+                    LuMixing::new(&(&p / MIXING), config.state_dim),
                     Coupling::new(&p, i, config),
                 )
             })
@@ -62,7 +63,7 @@ impl FlowModel {
         Self {
             config: config.clone(),
             blocks,
-            latent: LatentModel::new(&(path / "latent"), config, init),
+            latent: LatentModel::new(&(path / LATENT), config, init),
             state_mean: row(&norm.state_mean),
             state_std: row(&norm.state_std),
             context_mean: row(&norm.context_mean),

@@ -6,6 +6,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::math::distance;
 
+use crate::flow::checkpoint::names::{
+    self, BIAS, CONDITIONER, FACTOR, LATENT, LAYERS, LOG_DIAG, LOG_RADIUS, LOG_RATE, LOG_SIGMA,
+    LOG_SIGMA0, LOG_SPEED, LOWER, MIXING, NET, OMEGA, SKEW, UPPER,
+};
 use crate::flow::error::{FlowResult, invalid};
 use crate::flow::layers::context_set::{
     ContextSet, LocalConfig, SetEncoderConfig, encoder_parameter_shapes, local_prefix, local_sizes,
@@ -291,13 +295,14 @@ impl FlowConfig {
         let d = self.state_dim;
         let mut shapes = Vec::new();
         for i in 0..self.layers {
-            let prefix = format!("layers.{i}");
-            shapes.push((format!("{prefix}.mixing.lower"), vec![d, d]));
-            shapes.push((format!("{prefix}.mixing.upper"), vec![d, d]));
-            shapes.push((format!("{prefix}.mixing.log_diag"), vec![d]));
-            shapes.push((format!("{prefix}.mixing.bias"), vec![d]));
+            let prefix = names::name(&[&LAYERS, &i]);
+            let mixing = |p: &str| names::name(&[&prefix, &MIXING, &p]);
+            shapes.push((mixing(LOWER), vec![d, d]));
+            shapes.push((mixing(UPPER), vec![d, d]));
+            shapes.push((mixing(LOG_DIAG), vec![d]));
+            shapes.push((mixing(BIAS), vec![d]));
             shapes.extend(mlp_parameter_shapes(
-                &format!("{prefix}.conditioner"),
+                &names::name(&[&prefix, &CONDITIONER]),
                 &self.conditioner_sizes(),
             ));
             if let Some(local) = self.local() {
@@ -307,23 +312,24 @@ impl FlowConfig {
                 }
             }
         }
-        shapes.push(("latent.log_sigma".into(), vec![d]));
-        shapes.push(("latent.log_sigma0".into(), vec![d]));
+        let latent = |p: &str| names::name(&[&LATENT, &p]);
+        shapes.push((latent(LOG_SIGMA), vec![d]));
+        shapes.push((latent(LOG_SIGMA0), vec![d]));
         let r = self.linear_latent_dim();
         if r > 0 {
-            shapes.push(("latent.factor".into(), vec![r, r]));
-            shapes.push(("latent.skew".into(), vec![r, r]));
+            shapes.push((latent(FACTOR), vec![r, r]));
+            shapes.push((latent(SKEW), vec![r, r]));
         }
         if self.latent == LatentKind::SaturatedGoTo {
-            shapes.push(("latent.skew".into(), vec![d, d]));
+            shapes.push((latent(SKEW), vec![d, d]));
         }
         let scalars: &[&str] = match self.latent {
             LatentKind::GoTo => &[],
-            LatentKind::SaturatedGoTo => &["log_rate", "log_speed"],
-            LatentKind::LimitCycle => &["log_radius", "log_rate", "omega"],
+            LatentKind::SaturatedGoTo => &[LOG_RATE, LOG_SPEED],
+            LatentKind::LimitCycle => &[LOG_RADIUS, LOG_RATE, OMEGA],
         };
         for name in scalars {
-            shapes.push((format!("latent.{name}"), vec![1]));
+            shapes.push((latent(name), vec![1]));
         }
         if let Some(encoder) = &self.set_encoder {
             shapes.extend(encoder_parameter_shapes(
@@ -483,7 +489,7 @@ impl BaselineConfig {
     }
 
     pub fn parameter_shapes(&self) -> Vec<(String, Vec<usize>)> {
-        mlp_parameter_shapes("net", &self.mlp_sizes())
+        mlp_parameter_shapes(NET, &self.mlp_sizes())
     }
 
     pub fn validate(&self) -> FlowResult<()> {

@@ -2,6 +2,7 @@
 //! `weights.safetensors` ([`Weights`], F64 or F32, names as in the trainer's `VarStore`).
 
 pub mod config;
+pub mod names;
 pub mod weights;
 
 use std::path::Path;

@@ -19,6 +19,7 @@
 //! ([`Conditioner::fold_context`]): one for the MLP and one per element for each `ψ_k`,
 //! back to back, so evaluations read only the columns of `x_k` (and of `p`).
 
+use crate::flow::checkpoint::names::{self, CONDITIONER};
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::FlowResult;
 use crate::flow::layers::context_set::{ContextSet, LocalConfig, local_prefix, local_sizes};
@@ -92,7 +93,7 @@ impl Conditioner {
         local: Option<&LocalConfig>,
         conditioning_dim: usize,
     ) -> FlowResult<Self> {
-        let mlp = Mlp::from_weights(weights, &format!("{prefix}.conditioner"), sizes)?;
+        let mlp = Mlp::from_weights(weights, &names::name(&[&prefix, &CONDITIONER]), sizes)?;
         let (local, local_width) = match local {
             Some(config) => {
                 let nets = sets

@@ -25,6 +25,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::flow::checkpoint::names::{self, ENCODER, LOCAL, SETS};
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::FlowResult;
 use crate::nn::mlp::{Mlp, MlpScratch, mlp_parameter_shapes};
@@ -102,7 +103,7 @@ pub fn local_sizes(
 
 /// The parameter prefix of set `k`'s `ψ` in the coupling under `coupling_prefix`.
 pub fn local_prefix(coupling_prefix: &str, k: usize) -> String {
-    format!("{coupling_prefix}.local.{k}")
+    names::name(&[&coupling_prefix, &LOCAL, &k])
 }
 
 /// The context indices outside every set, in order: `ã`'s entries.
@@ -122,7 +123,7 @@ pub fn encoder_sizes(set: &ContextSet, rest: usize, config: &SetEncoderConfig) -
 
 /// The parameter prefix of set `k`'s encoder, as the trainer names it.
 pub fn encoder_prefix(k: usize) -> String {
-    format!("sets.{k}.encoder")
+    names::name(&[&SETS, &k, &ENCODER])
 }
 
 /// Names and shapes of every set encoder's parameters.

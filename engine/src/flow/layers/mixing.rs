@@ -5,6 +5,7 @@
 //! construction, `log|det| = Σ s`, and `W⁻¹ = U⁻¹ L⁻¹` follows from two triangular solves
 //! (done once, at load time).
 
+use crate::flow::checkpoint::names::{self, BIAS, LOG_DIAG, LOWER, UPPER};
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::FlowResult;
 use crate::nn::scalar::Scalar;
@@ -26,10 +27,10 @@ impl LuMixing {
     /// Multiplies the factors out once: a dense `d × d` product is one short loop per
     /// row, cheaper than two triangular sweeps of ever-changing length at small `d`.
     pub fn from_weights(weights: &mut Weights, prefix: &str, dim: usize) -> FlowResult<Self> {
-        let lower = weights.take(&format!("{prefix}.lower"), &[dim, dim])?;
-        let mut upper = weights.take(&format!("{prefix}.upper"), &[dim, dim])?;
-        let log_diag = weights.take(&format!("{prefix}.log_diag"), &[dim])?;
-        let bias = weights.take(&format!("{prefix}.bias"), &[dim])?;
+        let lower = weights.take(&names::name(&[&prefix, &LOWER]), &[dim, dim])?;
+        let mut upper = weights.take(&names::name(&[&prefix, &UPPER]), &[dim, dim])?;
+        let log_diag = weights.take(&names::name(&[&prefix, &LOG_DIAG]), &[dim])?;
+        let bias = weights.take(&names::name(&[&prefix, &BIAS]), &[dim])?;
         for (i, s) in log_diag.iter().enumerate() {
             upper[i * dim + i] = s.exp();
         }

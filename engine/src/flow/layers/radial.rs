@@ -41,6 +41,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::flow::checkpoint::names::{self, RADIAL, STRENGTH, WIDTH};
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::{FlowResult, invalid};
 use crate::flow::layers::context_set::ContextSet;
@@ -91,7 +92,7 @@ impl ContractionConfig {
     /// Parameter names and shapes of layer `l`: `α = sigmoid(strength)`,
     /// `w = radius · exp(width)`.
     pub fn parameter_names(l: usize) -> [String; 2] {
-        [format!("radial.{l}.strength"), format!("radial.{l}.width")]
+        [STRENGTH, WIDTH].map(|p| names::name(&[&RADIAL, &l, &p]))
     }
 }
 

@@ -9,6 +9,7 @@ use tch::{Kind, Tensor};
 use super::affine::affine;
 use super::spline::rational_quadratic_spline;
 use crate::nn::mlp::Mlp;
+use ciflow_engine::flow::checkpoint::names::{CONDITIONER, LOCAL};
 
 /// What the couplings are conditioned on, per row: the conditioning vector `ĉ`
 /// `[B, |ĉ|]` and the normalised elements `[B, n, s]` of each context set.
@@ -61,14 +62,14 @@ impl Coupling {
                 .map(|(k, set)| {
                     let sizes =
                         local_sizes(set, config.kept_dim(), config.conditioning_dim(), local);
-                    Mlp::new(&(path / "local" / k), &sizes, false)
+                    Mlp::new(&(path / LOCAL / k), &sizes, false)
                 })
                 .collect(),
             None => Vec::new(),
         };
         Self {
             kind: config.coupling.clone(),
-            conditioner: Mlp::new(&(path / "conditioner"), &config.conditioner_sizes(), true),
+            conditioner: Mlp::new(&(path / CONDITIONER), &config.conditioner_sizes(), true),
             local,
             kept,
             transformed,

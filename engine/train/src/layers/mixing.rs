@@ -1,6 +1,7 @@
 //! The LU mixing of `ciflow_engine::flow::layers::mixing` in tch, parameter for
 //! parameter.
 
+use ciflow_engine::flow::checkpoint::names::{BIAS, LOG_DIAG, LOWER, UPPER};
 use tch::nn;
 use tch::{Kind, Tensor};
 
@@ -21,10 +22,10 @@ impl LuMixing {
             stdev: 0.1,
         };
         Self {
-            lower: path.var("lower", &[d, d], small),
-            upper: path.var("upper", &[d, d], small),
-            log_diag: path.var("log_diag", &[d], nn::Init::Const(0.0)),
-            bias: path.var("bias", &[d], nn::Init::Const(0.0)),
+            lower: path.var(LOWER, &[d, d], small),
+            upper: path.var(UPPER, &[d, d], small),
+            log_diag: path.var(LOG_DIAG, &[d], nn::Init::Const(0.0)),
+            bias: path.var(BIAS, &[d], nn::Init::Const(0.0)),
         }
     }
 

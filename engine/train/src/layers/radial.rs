@@ -5,6 +5,7 @@
 //! `J = (1 − Σ_i (1 − s_i)) I + 2 Σ_i s'(q_i) v_i v_iᵀ` (symmetric positive definite).
 
 use ciflow_engine::flow::ContractionConfig;
+use ciflow_engine::flow::checkpoint::names::{RADIAL, STRENGTH, WIDTH};
 use tch::{Kind, Tensor, nn};
 
 /// Initial `strength`: `α = sigmoid(4) ≈ 0.98` (`α / K` per centre), a contraction strong
@@ -52,10 +53,10 @@ impl Contractions {
     pub fn new(path: &nn::Path, config: &ContractionConfig) -> Self {
         let layers = (0..config.layers)
             .map(|l| {
-                let p = path / "radial" / l;
+                let p = path / RADIAL / l;
                 (
-                    p.var("strength", &[1], nn::Init::Const(INITIAL_STRENGTH)),
-                    p.var("width", &[1], nn::Init::Const(0.0)),
+                    p.var(STRENGTH, &[1], nn::Init::Const(INITIAL_STRENGTH)),
+                    p.var(WIDTH, &[1], nn::Init::Const(0.0)),
                 )
             })
             .collect();
