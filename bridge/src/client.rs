@@ -12,7 +12,6 @@ use std::time::{Duration, Instant};
 use ciflow_envs::{EnvSpec, Info, ResetOptions};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
-use serde_bytes::ByteBuf;
 use zenoh::Wait;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::liveliness::LivelinessToken;
@@ -27,8 +26,8 @@ use crate::protocol::keys::{self, SessionOp};
 use crate::protocol::{
     AckReply, ActRequest, ActionReply, BatchResetReply, BatchStepReply, BatchStepRequest, F64s,
     FrameHeader, MakeReply, MakeRequest, PROTOCOL_VERSION, PolicyInfo, RenderReply, RenderRequest,
-    ResetReply, ResetRequest, SessionRequest, StepReply, StepRequest, TaskInfo, TasksReply,
-    TasksRequest, decode_reply, encode,
+    ResetReply, ResetRequest, StepReply, StepRequest, TaskInfo, TasksReply, TasksRequest,
+    decode_reply, encode,
 };
 use crate::query::{decode_ok, first_reply, query};
 
@@ -227,17 +226,13 @@ pub struct BatchStep {
 
 /// A session on an engine, owned by the [`Client`] that made it. Closed on drop.
 pub struct RemoteEnv {
-    zsession: zenoh::Session,
-    engine: String,
-    session: String,
-    token: ByteBuf,
+    /// The session's engine, id, token, Zenoh session and timeout: its controls hold them.
+    control: SessionControl,
     spec: EnvSpec,
     num_envs: u32,
-    timeout: Duration,
     stepper: Querier<'static>,
     frames: Mutex<Option<Subscriber<FifoChannelHandler<Sample>>>>,
     closed: AtomicBool,
-    control: SessionControl,
 }
 
 impl RemoteEnv {
@@ -258,25 +253,14 @@ impl RemoteEnv {
             .timeout(timeout)
             .wait()
             .map_err(BridgeError::zenoh)?;
-        let control = SessionControl::new(
-            zsession.clone(),
-            engine,
-            &reply.session,
-            &reply.token,
-            timeout,
-        )?;
+        let control = SessionControl::new(zsession, engine, &reply.session, &reply.token, timeout)?;
         Ok(Self {
-            zsession,
-            engine: engine.to_owned(),
-            session: reply.session,
-            token: reply.token,
+            control,
             spec: reply.spec,
             num_envs: reply.num_envs,
-            timeout,
             stepper,
             frames: Mutex::new(None),
             closed: AtomicBool::new(false),
-            control,
         })
     }
 
@@ -285,25 +269,21 @@ impl RemoteEnv {
     }
 
     pub fn engine(&self) -> &str {
-        &self.engine
+        self.control.engine()
     }
 
     /// The `<session>` chunk of the session's keys.
     pub fn session_id(&self) -> &str {
-        &self.session
+        self.control.session_id()
     }
 
     /// The session's secret; whoever holds it may control the session.
     pub fn token(&self) -> &[u8] {
-        &self.token
+        self.control.token()
     }
 
     pub fn num_envs(&self) -> u32 {
         self.num_envs
-    }
-
-    fn key(&self, op: SessionOp) -> String {
-        keys::session(&self.engine, &self.session, op.as_str())
     }
 
     fn call<R: DeserializeOwned>(
@@ -311,7 +291,12 @@ impl RemoteEnv {
         op: SessionOp,
         request: &impl Serialize,
     ) -> Result<R, BridgeError> {
-        query(&self.zsession, &self.key(op), encode(request), self.timeout)
+        query(
+            self.control.zenoh_session(),
+            &self.control.key(op.as_str()),
+            encode(request),
+            self.control.timeout(),
+        )
     }
 
     fn call_stepper<R: DeserializeOwned>(
@@ -341,7 +326,7 @@ impl RemoteEnv {
     pub fn step(&self, action: &[f64]) -> Result<StepResult, BridgeError> {
         let request = StepRequest {
             v: PROTOCOL_VERSION,
-            token: self.token.clone(),
+            token: self.control.token_field(),
             action: F64s(action.to_vec()),
         };
         let reply: StepReply = if self.num_envs == 1 {
@@ -374,7 +359,7 @@ impl RemoteEnv {
     pub fn step_batch(&self, actions: &[f64]) -> Result<BatchStep, BridgeError> {
         let request = BatchStepRequest {
             v: PROTOCOL_VERSION,
-            token: self.token.clone(),
+            token: self.control.token_field(),
             actions: F64s(actions.to_vec()),
         };
         let reply: BatchStepReply = if self.num_envs == 1 {
@@ -393,7 +378,8 @@ impl RemoteEnv {
 
     /// The expert's action for environment `index`.
     pub fn expert(&self, index: u32) -> Result<Vec<f64>, BridgeError> {
-        let reply: ActionReply = self.call(SessionOp::Expert, &self.session_request(index))?;
+        let reply: ActionReply =
+            self.call(SessionOp::Expert, &self.control.session_request(index))?;
         Ok(reply.action.0)
     }
 
@@ -409,8 +395,9 @@ impl RemoteEnv {
         let first_use = frames.is_none();
         if first_use {
             let subscriber = self
-                .zsession
-                .declare_subscriber(self.key_leaf("frame"))
+                .control
+                .zenoh_session()
+                .declare_subscriber(self.control.key("frame"))
                 .wait()
                 .map_err(BridgeError::zenoh)?;
             *frames = Some(subscriber);
@@ -418,7 +405,7 @@ impl RemoteEnv {
         let subscriber = frames.as_ref().expect("declared above");
         let request = RenderRequest {
             v: PROTOCOL_VERSION,
-            token: self.token.clone(),
+            token: self.control.token_field(),
             index,
             width,
             height,
@@ -432,16 +419,16 @@ impl RemoteEnv {
             match receive_frame(
                 subscriber,
                 reply.frame,
-                self.timeout.min(Duration::from_secs(2)),
+                self.control.timeout().min(Duration::from_secs(2)),
             )? {
                 Some(pixels) => return Ok(pixels),
                 None => lost = Some(reply.frame.id),
             }
         }
         Err(BridgeError::FrameLost {
-            session: self.session.clone(),
+            session: self.session_id().to_owned(),
             id: lost.unwrap_or_default(),
-            timeout_ms: self.timeout.as_millis(),
+            timeout_ms: self.control.timeout().as_millis(),
         })
     }
 
@@ -450,28 +437,16 @@ impl RemoteEnv {
         if self.closed.swap(true, Ordering::SeqCst) {
             return Ok(());
         }
-        let _: AckReply = self.call(SessionOp::Close, &self.session_request(0))?;
+        let _: AckReply = self.call(SessionOp::Close, &self.control.session_request(0))?;
         Ok(())
-    }
-
-    fn key_leaf(&self, leaf: &str) -> String {
-        keys::session(&self.engine, &self.session, leaf)
     }
 
     fn reset_request(&self, seed: Option<u64>, options: Option<ResetOptions>) -> ResetRequest {
         ResetRequest {
             v: PROTOCOL_VERSION,
-            token: self.token.clone(),
+            token: self.control.token_field(),
             seed,
             options,
-        }
-    }
-
-    fn session_request(&self, index: u32) -> SessionRequest {
-        SessionRequest {
-            v: PROTOCOL_VERSION,
-            token: self.token.clone(),
-            index,
         }
     }
 }

@@ -76,6 +76,38 @@ impl SessionControl {
         &self.session
     }
 
+    /// The session's secret; whoever holds it may control the session.
+    pub fn token(&self) -> &[u8] {
+        &self.token
+    }
+
+    pub(crate) fn zenoh_session(&self) -> &zenoh::Session {
+        &self.zsession
+    }
+
+    pub(crate) fn timeout(&self) -> Duration {
+        self.timeout
+    }
+
+    /// The key of the session's `leaf` (an operation, `telemetry`, `frame`).
+    pub(crate) fn key(&self, leaf: &str) -> String {
+        keys::session(&self.engine, &self.session, leaf)
+    }
+
+    /// A request that only names environment `index`, with the token.
+    pub(crate) fn session_request(&self, index: u32) -> SessionRequest {
+        SessionRequest {
+            v: PROTOCOL_VERSION,
+            token: self.token.clone(),
+            index,
+        }
+    }
+
+    /// The token as requests carry it.
+    pub(crate) fn token_field(&self) -> ByteBuf {
+        self.token.clone()
+    }
+
     /// One request to the session. Through a wildcard every engine answers: the engine
     /// holding the session with its reply, the others with `unknown_session`, so the
     /// first success wins and otherwise the most telling error.
@@ -84,7 +116,7 @@ impl SessionControl {
         op: SessionOp,
         request: &impl Serialize,
     ) -> Result<R, BridgeError> {
-        let key = keys::session(&self.engine, &self.session, op.as_str());
+        let key = self.key(op.as_str());
         let replies = query_all(&self.zsession, &key, encode(request), self.timeout)?;
         let mut errors = Vec::new();
         for reply in replies {
@@ -145,12 +177,7 @@ impl SessionControl {
 
     /// Stops a policy run (no effect without one); returns the simulated time.
     pub fn stop(&self) -> Result<f64, BridgeError> {
-        let request = SessionRequest {
-            v: PROTOCOL_VERSION,
-            token: self.token.clone(),
-            index: 0,
-        };
-        let reply: AckReply = self.call(SessionOp::Stop, &request)?;
+        let reply: AckReply = self.call(SessionOp::Stop, &self.session_request(0))?;
         Ok(reply.time)
     }
 
