@@ -3,6 +3,7 @@
 
 mod args;
 mod commands;
+mod parse;
 mod progress;
 
 use args::Command;

@@ -155,8 +155,7 @@ impl CheckpointPolicy {
         let pooled = self.actors.lock().unwrap_or_else(|p| p.into_inner()).pop();
         match pooled {
             Some(actor) => Ok(actor),
-            None => Actor::new(&self.model, &self.spec, DEFAULT_VELOCITY_GAIN)
-                .map_err(|e| PolicyError(e.to_string())),
+            None => Ok(Actor::new(&self.model, &self.spec, DEFAULT_VELOCITY_GAIN)?),
         }
     }
 }
@@ -172,9 +171,7 @@ impl Policy for CheckpointPolicy {
 
     fn act_into(&self, observation: &[f64], action: &mut [f64]) -> Result<(), PolicyError> {
         let mut actor = self.actor()?;
-        let result = actor
-            .act(observation, action)
-            .map_err(|e| PolicyError(e.to_string()));
+        let result = actor.act(observation, action).map_err(PolicyError::from);
         self.actors
             .lock()
             .unwrap_or_else(|p| p.into_inner())

@@ -65,13 +65,11 @@ impl Client {
     /// Connects to Zenoh as a client (default: to [`crate::DEFAULT_ENDPOINT`]). Fails
     /// fast with [`BridgeError::NoEngine`]-like advice when nothing listens there.
     pub fn open(network: &NetworkOptions) -> Result<Self, BridgeError> {
-        let config = network.to_zenoh_config(Role::Client)?;
-        let zsession = zenoh::open(config).wait().map_err(|e| {
-            BridgeError::Zenoh(format!(
-                "cannot join Zenoh ({e}). Is an engine or router running there? Start one \
-                 with `ciflow serve`"
-            ))
-        })?;
+        let zsession = network.open(
+            Role::Client,
+            "join Zenoh",
+            "is an engine or router running there? Start one with `ciflow serve`",
+        )?;
         Self::with_session(zsession)
     }
 
@@ -82,7 +80,9 @@ impl Client {
             .liveliness()
             .declare_token(keys::client_alive(&id))
             .wait()
-            .map_err(BridgeError::zenoh)?;
+            .map_err(BridgeError::zenoh(
+                "declaring the client's liveliness token",
+            ))?;
         Ok(Self {
             zsession,
             id,
@@ -116,7 +116,7 @@ impl Client {
             .target(QueryTarget::All)
             .timeout(self.timeout)
             .wait()
-            .map_err(BridgeError::zenoh)?;
+            .map_err(BridgeError::zenoh("asking the engines for their tasks"))?;
         let mut engines: Vec<EngineInfo> = replies
             .iter()
             .filter_map(|reply| decode_ok::<TasksReply>(keys::ALL_ENGINES_TASKS, &reply).ok())
@@ -252,7 +252,7 @@ impl RemoteEnv {
             .consolidation(ConsolidationMode::None)
             .timeout(timeout)
             .wait()
-            .map_err(BridgeError::zenoh)?;
+            .map_err(BridgeError::zenoh("declaring the session's step querier"))?;
         let control = SessionControl::new(zsession, engine, &reply.session, &reply.token, timeout)?;
         Ok(Self {
             control,
@@ -308,7 +308,7 @@ impl RemoteEnv {
             .get()
             .payload(encode(request))
             .wait()
-            .map_err(BridgeError::zenoh)?;
+            .map_err(BridgeError::zenoh("sending the step query"))?;
         first_reply(self.stepper.key_expr().as_str(), &replies)
     }
 
@@ -399,7 +399,7 @@ impl RemoteEnv {
                 .zenoh_session()
                 .declare_subscriber(self.control.key("frame"))
                 .wait()
-                .map_err(BridgeError::zenoh)?;
+                .map_err(BridgeError::zenoh("subscribing to the session's frames"))?;
             *frames = Some(subscriber);
         }
         let subscriber = frames.as_ref().expect("declared above");
@@ -467,7 +467,7 @@ fn receive_frame(
     let deadline = Instant::now() + timeout;
     while let Some(sample) = subscriber
         .recv_deadline(deadline)
-        .map_err(BridgeError::zenoh)?
+        .map_err(BridgeError::zenoh("receiving a frame"))?
     {
         let Some(attachment) = sample.attachment() else {
             continue;

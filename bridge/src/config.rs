@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use zenoh::Config;
+use zenoh::{Config, Wait};
 
 use crate::error::BridgeError;
 
@@ -37,9 +37,7 @@ impl std::str::FromStr for Mode {
             "peer" => Ok(Mode::Peer),
             "client" => Ok(Mode::Client),
             "router" => Ok(Mode::Router),
-            other => Err(BridgeError::Config(format!(
-                "unknown Zenoh mode `{other}`; expected peer, client or router"
-            ))),
+            other => Err(BridgeError::UnknownMode(other.to_owned())),
         }
     }
 }
@@ -76,6 +74,34 @@ impl NetworkOptions {
         options
     }
 
+    /// The endpoints an engine with these options listens on, as far as the options say:
+    /// those given, else [`DEFAULT_ENDPOINT`] without a file (with one, the file's, not
+    /// listed here).
+    pub fn engine_endpoints(&self) -> Vec<String> {
+        match (self.listen.is_empty(), &self.config_file) {
+            (true, None) => vec![DEFAULT_ENDPOINT.to_owned()],
+            _ => self.listen.clone(),
+        }
+    }
+
+    /// A Zenoh session for `role` with these options; a failure says what was being done
+    /// (`action`) and what to check (`hint`).
+    pub(crate) fn open(
+        &self,
+        role: Role,
+        action: &'static str,
+        hint: &'static str,
+    ) -> Result<zenoh::Session, BridgeError> {
+        let config = self.to_zenoh_config(role)?;
+        zenoh::open(config)
+            .wait()
+            .map_err(|source| BridgeError::Open {
+                action,
+                hint,
+                source,
+            })
+    }
+
     /// The Zenoh configuration for `role`.
     ///
     /// Without a file: multicast scouting off; an engine is a peer listening on
@@ -83,8 +109,9 @@ impl NetworkOptions {
     /// [`DEFAULT_ENDPOINT`] (or `connect`). With a file, only the explicit overrides apply.
     pub fn to_zenoh_config(&self, role: Role) -> Result<Config, BridgeError> {
         let mut config = match &self.config_file {
-            Some(path) => Config::from_file(path).map_err(|e| {
-                BridgeError::Config(format!("cannot read Zenoh config {}: {e}", path.display()))
+            Some(path) => Config::from_file(path).map_err(|source| BridgeError::ConfigFile {
+                path: path.clone(),
+                source,
             })?,
             None => default_config(role)?,
         };
@@ -121,7 +148,11 @@ fn default_config(role: Role) -> Result<Config, BridgeError> {
 fn insert(config: &mut Config, key: &str, json5: &str) -> Result<(), BridgeError> {
     config
         .insert_json5(key, json5)
-        .map_err(|e| BridgeError::Config(format!("bad Zenoh setting {key} = {json5}: {e}")))
+        .map_err(|source| BridgeError::ConfigSetting {
+            key: key.to_owned(),
+            value: json5.to_owned(),
+            source,
+        })
 }
 
 fn json_string(s: &str) -> String {
@@ -136,6 +167,21 @@ fn json_list(items: &[String]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_engine_reports_the_endpoints_it_was_told_or_the_default() {
+        assert_eq!(
+            NetworkOptions::default().engine_endpoints(),
+            [DEFAULT_ENDPOINT]
+        );
+        let given = NetworkOptions::endpoint(Role::Engine, "tcp/127.0.0.1:1");
+        assert_eq!(given.engine_endpoints(), ["tcp/127.0.0.1:1"]);
+        let from_file = NetworkOptions {
+            config_file: Some("zenoh.json5".into()),
+            ..NetworkOptions::default()
+        };
+        assert!(from_file.engine_endpoints().is_empty());
+    }
 
     #[test]
     fn defaults_meet_on_the_loopback_endpoint() {

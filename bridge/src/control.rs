@@ -122,9 +122,9 @@ impl SessionControl {
         for reply in replies {
             match reply {
                 Ok(bytes) => {
-                    return decode_reply(&bytes).map_err(|e| BridgeError::BadReply {
+                    return decode_reply(&bytes).map_err(|source| BridgeError::BadReply {
                         key: key.clone(),
-                        detail: e.to_string(),
+                        source,
                     });
                 }
                 Err(error) => errors.push(error),
@@ -219,7 +219,7 @@ impl TelemetryStream {
         let subscriber = zsession
             .declare_subscriber(keys::session(engine, session, "telemetry"))
             .wait()
-            .map_err(BridgeError::zenoh)?;
+            .map_err(BridgeError::zenoh("subscribing to the telemetry"))?;
         Ok(Self { subscriber })
     }
 
@@ -228,12 +228,15 @@ impl TelemetryStream {
         match self.subscriber.recv_timeout(timeout) {
             Ok(Some(sample)) => decode_reply(&sample.payload().to_bytes())
                 .map(Some)
-                .map_err(|e| BridgeError::BadReply {
+                .map_err(|source| BridgeError::BadReply {
                     key: sample.key_expr().to_string(),
-                    detail: e.to_string(),
+                    source,
                 }),
             Ok(None) => Ok(None),
-            Err(e) => Err(BridgeError::zenoh(e)),
+            Err(source) => Err(BridgeError::Zenoh {
+                action: "receiving the telemetry",
+                source,
+            }),
         }
     }
 }

@@ -23,7 +23,7 @@ use crate::protocol::{EpisodeError, EpisodeMsg, decode_episode, encode};
 fn task_name(task: &str) -> Result<&'static str, BridgeError> {
     ciflow_envs::registry::entry(task)
         .map(|entry| entry.name)
-        .map_err(|e| BridgeError::InvalidArgument(e.to_string()))
+        .map_err(BridgeError::UnknownTask)
 }
 
 /// Publishes one recorder's episodes of one task.
@@ -50,7 +50,7 @@ impl EpisodePublisher {
             .declare_publisher(keys::episodes(task_name(task)?, recorder))
             .congestion_control(CongestionControl::Block)
             .wait()
-            .map_err(BridgeError::zenoh)?;
+            .map_err(BridgeError::zenoh("declaring the episode publisher"))?;
         Ok(Self {
             publisher,
             recorder: recorder.to_owned(),
@@ -72,7 +72,7 @@ impl EpisodePublisher {
         self.publisher
             .put(encode(&message))
             .wait()
-            .map_err(BridgeError::zenoh)
+            .map_err(BridgeError::zenoh("publishing an episode"))
     }
 }
 
@@ -120,7 +120,7 @@ impl EpisodeSubscriber {
         let subscriber = zsession
             .declare_subscriber(keys::all_episodes(task))
             .wait()
-            .map_err(BridgeError::zenoh)?;
+            .map_err(BridgeError::zenoh("subscribing to the episodes"))?;
         Ok(Self { subscriber, task })
     }
 
@@ -228,13 +228,12 @@ pub fn collect(
     if count == 0 {
         return Err(BridgeError::InvalidArgument("collect at least one episode".into()).into());
     }
-    let config = network.to_zenoh_config(Role::Client)?;
-    let zsession = zenoh::open(config).wait().map_err(|e| {
-        BridgeError::Zenoh(format!(
-            "cannot join Zenoh ({e}). Episodes travel through an engine or a router: start \
-             one with `ciflow serve` (or point --connect/--config at a router)"
-        ))
-    })?;
+    let zsession = network.open(
+        Role::Client,
+        "join Zenoh",
+        "episodes travel through an engine or a router: start one with `ciflow serve`, or \
+         point --connect/--config at a router",
+    )?;
     let subscriber = EpisodeSubscriber::declare(&zsession, task)?;
     on_subscribed(subscriber.key());
     subscriber.collect(count, timeout, on_episode)

@@ -2,12 +2,19 @@
 //! an observation in, the policy's desired acceleration out.
 
 use crate::protocol::PolicyInfo;
+use ciflow_envs::actor::ActorError;
 use ciflow_envs::registry::Kwargs;
 
 /// Why a policy could not produce an action.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{0}")]
-pub struct PolicyError(pub String);
+#[derive(Debug, thiserror::Error)]
+pub enum PolicyError {
+    /// A checkpoint's actor refused the observation or could not evaluate its model.
+    #[error("the checkpoint cannot act")]
+    Actor(#[from] ActorError),
+    /// The failure of another [`Policy`] implementation.
+    #[error("the policy cannot act")]
+    Other(#[source] Box<dyn std::error::Error + Send + Sync>),
+}
 
 /// A policy evaluated by the engine. Implementations must be cheap to call concurrently
 /// (`&self`): several clients and session drivers may ask at once.

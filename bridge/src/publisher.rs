@@ -27,13 +27,11 @@ impl CheckpointPublisher {
     /// Joins Zenoh as a client (the default endpoint unless `network` says otherwise) and
     /// declares the publisher of policy `name`.
     pub fn open(network: &NetworkOptions, name: &str) -> Result<Self, BridgeError> {
-        let config = network.to_zenoh_config(Role::Client)?;
-        let session = zenoh::open(config).wait().map_err(|e| {
-            BridgeError::Zenoh(format!(
-                "cannot join Zenoh to publish checkpoints (is an engine or router \
-                 listening?): {e}"
-            ))
-        })?;
+        let session = network.open(
+            Role::Client,
+            "join Zenoh to publish checkpoints",
+            "is an engine or router listening?",
+        )?;
         Self::new(&session, name)
     }
 
@@ -49,7 +47,7 @@ impl CheckpointPublisher {
             // Every checkpoint matters: wait for the network rather than drop one.
             .congestion_control(CongestionControl::Block)
             .wait()
-            .map_err(BridgeError::zenoh)?;
+            .map_err(BridgeError::zenoh("declaring the checkpoint publisher"))?;
         Ok(Self {
             _session: session.clone(),
             name: name.to_owned(),
@@ -75,15 +73,19 @@ impl CheckpointPublisher {
     pub fn publish(&self, dir: &Path, epoch: u64, validation_nll: f64) -> Result<(), BridgeError> {
         let read = |file: &str| {
             let path = dir.join(file);
-            std::fs::read(&path).map_err(|e| {
-                BridgeError::InvalidArgument(format!("cannot read {}: {e}", path.display()))
-            })
+            std::fs::read(&path).map_err(|source| BridgeError::ReadCheckpoint { path, source })
         };
-        let config = String::from_utf8(read(CONFIG_FILE)?).map_err(|e| {
-            BridgeError::InvalidArgument(format!("{CONFIG_FILE} is not UTF-8: {e}"))
+        let config = String::from_utf8(read(CONFIG_FILE)?).map_err(|source| {
+            BridgeError::CheckpointNotUtf8 {
+                path: dir.join(CONFIG_FILE),
+                source,
+            }
         })?;
         let task = checkpoint::parse_config(&config)
-            .map_err(|e| BridgeError::InvalidArgument(format!("{}: {e}", dir.display())))?
+            .map_err(|source| BridgeError::CheckpointConfig {
+                dir: dir.to_path_buf(),
+                source,
+            })?
             .task()
             .to_owned();
         let message = CheckpointMsg {
@@ -99,6 +101,6 @@ impl CheckpointPublisher {
         self.publisher
             .put(encode(&message))
             .wait()
-            .map_err(BridgeError::zenoh)
+            .map_err(BridgeError::zenoh("publishing the checkpoint"))
     }
 }

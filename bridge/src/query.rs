@@ -24,7 +24,7 @@ fn send(
         .consolidation(ConsolidationMode::None)
         .timeout(timeout)
         .wait()
-        .map_err(BridgeError::zenoh)
+        .map_err(BridgeError::zenoh("sending a query"))
 }
 
 /// Sends raw `payload` to `key` and collects every reply until the query completes: each
@@ -76,20 +76,22 @@ pub(crate) fn first_reply<R: DeserializeOwned>(
 }
 
 pub(crate) fn decode_ok<R: DeserializeOwned>(key: &str, reply: &Reply) -> Result<R, BridgeError> {
-    let bad = |detail: String| BridgeError::BadReply {
-        key: key.to_owned(),
-        detail,
-    };
     match reply.result() {
-        Ok(sample) => decode_reply(&sample.payload().to_bytes()).map_err(|e| bad(e.to_string())),
+        Ok(sample) => {
+            decode_reply(&sample.payload().to_bytes()).map_err(|source| BridgeError::BadReply {
+                key: key.to_owned(),
+                source,
+            })
+        }
         Err(error) => {
             let bytes = error.payload().to_bytes();
             match decode_reply::<ErrorReply>(&bytes) {
                 Ok(remote) => Err(BridgeError::Remote(remote)),
-                Err(_) => Err(bad(format!(
-                    "error reply: {}",
-                    String::from_utf8_lossy(&bytes)
-                ))),
+                Err(source) => Err(BridgeError::BadErrorReply {
+                    key: key.to_owned(),
+                    payload: String::from_utf8_lossy(&bytes).into_owned(),
+                    source,
+                }),
             }
         }
     }

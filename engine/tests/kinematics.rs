@@ -161,3 +161,24 @@ fn joint_rotation_matches_axis_angle_for_any_axis() {
         }
     }
 }
+
+#[test]
+fn a_frame_is_found_by_index_or_by_name() {
+    let robot = panda();
+    let flange = robot.frame_index("panda_link8").unwrap();
+    assert_eq!(robot.find_frame("panda_link8"), Ok(flange));
+    assert_eq!(robot.find_frame(&flange.to_string()), Ok(flange));
+    let count = robot.frames().len();
+    assert_eq!(
+        robot.find_frame(&count.to_string()),
+        Err(DynamicsError::NoSuchFrame {
+            index: count,
+            count
+        })
+    );
+    let unknown = robot.find_frame("elbow").unwrap_err();
+    assert!(
+        matches!(&unknown, DynamicsError::NoFrameNamed { name, known }
+        if name == "elbow" && known.len() == count)
+    );
+}

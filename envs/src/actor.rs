@@ -97,6 +97,15 @@ impl Model {
         })
     }
 
+    /// The flow, or `None` for the baseline (which has no density, latent space or
+    /// desired acceleration).
+    pub fn flow(&self) -> Option<&Policy> {
+        match self {
+            Self::Flow(policy) => Some(policy),
+            Self::Baseline(_) => None,
+        }
+    }
+
     /// The task name recorded in the checkpoint.
     pub fn task(&self) -> &str {
         match self {

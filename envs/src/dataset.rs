@@ -54,6 +54,20 @@ pub enum DatasetError {
     },
     #[error("{path}: not a ciflow/Minari dataset: {detail}")]
     Format { path: PathBuf, detail: String },
+    #[error("{path}: not a ciflow/Minari dataset: malformed JSON")]
+    Json {
+        path: PathBuf,
+        #[source]
+        source: serde_json::Error,
+    },
+    /// A space in the metadata (`observation_space`, …) is not the JSON of a Box.
+    #[error("{path}: not a ciflow/Minari dataset: `{field}` is not a serialized space")]
+    Space {
+        path: PathBuf,
+        field: &'static str,
+        #[source]
+        source: serde_json::Error,
+    },
     #[error("episode {episode}: {detail}")]
     InvalidEpisode { episode: usize, detail: String },
     #[error("{0} already exists (pass overwrite to replace it)")]
@@ -283,9 +297,16 @@ pub fn read(dir: &Path) -> Result<(DatasetSpec, Vec<Episode>)> {
     let data = dir.join("data");
     let metadata_path = data.join(METADATA_FILE);
     let metadata = read_json(&metadata_path)?;
-    let spec = spec_from_metadata(&metadata).map_err(|detail| DatasetError::Format {
-        path: metadata_path.clone(),
-        detail,
+    let spec = spec_from_metadata(&metadata).map_err(|error| match error {
+        MetadataError::Invalid(detail) => DatasetError::Format {
+            path: metadata_path.clone(),
+            detail,
+        },
+        MetadataError::Space { field, source } => DatasetError::Space {
+            path: metadata_path.clone(),
+            field,
+            source,
+        },
     })?;
     let total = metadata["total_episodes"]
         .as_u64()
@@ -570,7 +591,23 @@ fn dataset_metadata(spec: &DatasetSpec, total_episodes: usize, total_steps: usiz
     })
 }
 
-fn spec_from_metadata(metadata: &Value) -> std::result::Result<DatasetSpec, String> {
+/// Why metadata do not describe a dataset: a check of ours failed, or a space is not JSON.
+#[derive(Debug)]
+enum MetadataError {
+    Invalid(String),
+    Space {
+        field: &'static str,
+        source: serde_json::Error,
+    },
+}
+
+impl From<String> for MetadataError {
+    fn from(detail: String) -> Self {
+        Self::Invalid(detail)
+    }
+}
+
+fn spec_from_metadata(metadata: &Value) -> std::result::Result<DatasetSpec, MetadataError> {
     let text = |value: &Value, name: &str| {
         value[name]
             .as_str()
@@ -578,15 +615,16 @@ fn spec_from_metadata(metadata: &Value) -> std::result::Result<DatasetSpec, Stri
             .ok_or_else(|| format!("missing `{name}`"))
     };
     let ciflow = &metadata["ciflow"];
-    let observation_space = parse_minari_box(&text(metadata, "observation_space")?)?;
+    let observation_space =
+        parse_minari_box("observation_space", &text(metadata, "observation_space")?)?;
     let context_space = match ciflow["context_space"].as_str() {
-        Some(serialized) => parse_minari_box(serialized)?,
+        Some(serialized) => parse_minari_box("context_space", serialized)?,
         None => BoxSpace::new(vec![], vec![], observation_space.dtype),
     };
     Ok(DatasetSpec {
         dataset_id: text(metadata, "dataset_id")?,
         env_id: text(ciflow, "env_id").unwrap_or_default(),
-        action_space: parse_minari_box(&text(metadata, "action_space")?)?,
+        action_space: parse_minari_box("action_space", &text(metadata, "action_space")?)?,
         observation_space,
         context_space,
         control_dt: ciflow["control_dt"].as_f64().unwrap_or(f64::NAN),
@@ -620,16 +658,18 @@ fn minari_box(space: &BoxSpace) -> String {
     )
 }
 
-fn parse_minari_box(serialized: &str) -> std::result::Result<BoxSpace, String> {
+/// The space `field` of the metadata from its serialization `serialized`.
+fn parse_minari_box(
+    field: &'static str,
+    serialized: &str,
+) -> std::result::Result<BoxSpace, MetadataError> {
     let standard = serialized
         .replace("-Infinity", "\"-inf\"")
         .replace("Infinity", "\"inf\"");
-    let value: Value = serde_json::from_str(&standard).map_err(|e| e.to_string())?;
+    let value: Value =
+        serde_json::from_str(&standard).map_err(|source| MetadataError::Space { field, source })?;
     if value["type"] != "Box" {
-        return Err(format!(
-            "only Box spaces are supported, found {}",
-            value["type"]
-        ));
+        return Err(format!("only Box spaces are supported, found {}", value["type"]).into());
     }
     let bounds = |name: &str| -> std::result::Result<Vec<f64>, String> {
         value[name]
@@ -645,7 +685,7 @@ fn parse_minari_box(serialized: &str) -> std::result::Result<BoxSpace, String> {
     };
     let (low, high) = (bounds("low")?, bounds("high")?);
     if low.len() != high.len() {
-        return Err("Box bounds differ in length".into());
+        return Err(MetadataError::Invalid("Box bounds differ in length".into()));
     }
     let dtype = match value["dtype"].as_str() {
         Some("float32") => Dtype::Float32,
@@ -661,9 +701,9 @@ fn write_json(path: &Path, value: &Value) -> Result<()> {
 
 fn read_json(path: &Path) -> Result<Value> {
     let text = fs::read_to_string(path).map_err(io_error(path))?;
-    serde_json::from_str(&text).map_err(|e| DatasetError::Format {
+    serde_json::from_str(&text).map_err(|source| DatasetError::Json {
         path: path.to_path_buf(),
-        detail: e.to_string(),
+        source,
     })
 }
 
@@ -692,6 +732,7 @@ mod tests {
             vec![f64::INFINITY, 2.0],
             Dtype::Float32,
         );
-        assert_eq!(parse_minari_box(&minari_box(&space)).unwrap(), space);
+        let parsed = parse_minari_box("observation_space", &minari_box(&space)).unwrap();
+        assert_eq!(parsed, space);
     }
 }

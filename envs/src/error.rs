@@ -2,6 +2,8 @@
 
 use ciflow_engine::sim::SimError;
 
+use crate::lasa::LasaError;
+
 /// Why an environment call was refused. Never a panic: every bad input has a variant.
 #[derive(Debug, thiserror::Error)]
 pub enum EnvError {
@@ -23,4 +25,12 @@ pub enum EnvError {
     InvalidPerturbation(#[source] SimError),
     #[error("simulation failed")]
     Simulation(#[from] SimError),
+    /// The LASA data of a shape chosen by an option could not be loaded.
+    #[error("invalid option `{option}`: cannot load the LASA shape `{shape}`")]
+    Lasa {
+        option: &'static str,
+        shape: &'static str,
+        #[source]
+        source: LasaError,
+    },
 }

@@ -9,7 +9,7 @@
 //! workspace, else `python3`).
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, ExitStatus};
 
 use serde::Deserialize;
 
@@ -22,10 +22,32 @@ const INDEX: &str = "index.json";
 pub enum LasaError {
     #[error("unknown LASA shape `{name}`; known: {known}")]
     UnknownShape { name: String, known: String },
-    #[error("converting the LASA .mat files with `{python}` failed: {detail}")]
-    Conversion { python: String, detail: String },
-    #[error("{path}: {detail}")]
-    Read { path: PathBuf, detail: String },
+    /// The converter could not be started.
+    #[error("cannot run `{python}` to convert the LASA .mat files")]
+    Launch {
+        python: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The converter ran and failed; `stderr` is what it printed.
+    #[error("converting the LASA .mat files with `{python}` failed ({status}): {stderr}")]
+    Conversion {
+        python: String,
+        status: ExitStatus,
+        stderr: String,
+    },
+    #[error("cannot read {}", path.display())]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("malformed LASA data in {}", path.display())]
+    Parse {
+        path: PathBuf,
+        #[source]
+        source: serde_json::Error,
+    },
 }
 
 /// One demonstration, sampled at the times `t`.
@@ -100,29 +122,34 @@ fn ensure_converted(dir: &Path) -> Result<(), LasaError> {
         return Ok(());
     }
     let python = python();
-    let failed = |detail: String| LasaError::Conversion {
-        python: python.clone(),
-        detail,
-    };
-    let output = Command::new(&python)
+    let output = match Command::new(&python)
         .arg("-c")
         .arg(CONVERTER)
         .arg(dir)
         .output()
-        .map_err(|e| failed(e.to_string()))?;
+    {
+        Ok(output) => output,
+        Err(source) => return Err(LasaError::Launch { python, source }),
+    };
     if !output.status.success() {
-        return Err(failed(String::from_utf8_lossy(&output.stderr).into_owned()));
+        return Err(LasaError::Conversion {
+            python,
+            status: output.status,
+            stderr: String::from_utf8_lossy(&output.stderr).into_owned(),
+        });
     }
     Ok(())
 }
 
 fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, LasaError> {
-    let read = |detail: String| LasaError::Read {
+    let text = std::fs::read_to_string(path).map_err(|source| LasaError::Read {
         path: path.to_path_buf(),
-        detail,
-    };
-    let text = std::fs::read_to_string(path).map_err(|e| read(e.to_string()))?;
-    serde_json::from_str(&text).map_err(|e| read(e.to_string()))
+        source,
+    })?;
+    serde_json::from_str(&text).map_err(|source| LasaError::Parse {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// The 30 shape names, sorted (converting the dataset on first use).
@@ -156,4 +183,44 @@ pub fn load(name: &str) -> Result<Shape, LasaError> {
             })
             .collect(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::error::Error as _;
+
+    use super::*;
+    use crate::EnvError;
+
+    #[test]
+    fn read_and_parse_failures_carry_their_cause() {
+        let dir = std::env::temp_dir().join(format!("ciflow-lasa-errors-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+
+        let missing = read_json::<RawShape>(&dir.join("missing.json"))
+            .err()
+            .unwrap();
+        assert!(matches!(missing, LasaError::Read { .. }));
+        let cause = missing.source().expect("the I/O error is the source");
+        assert!(cause.is::<std::io::Error>());
+
+        let garbled = dir.join("garbled.json");
+        std::fs::write(&garbled, "{ not json").unwrap();
+        let parse = read_json::<RawShape>(&garbled).err().unwrap();
+        assert!(matches!(parse, LasaError::Parse { .. }));
+        assert!(parse.source().unwrap().is::<serde_json::Error>());
+
+        // A task's environment error keeps the LASA error as its source.
+        let env = EnvError::Lasa {
+            option: "shape",
+            shape: "Angle",
+            source: parse,
+        };
+        let cause = env.source().expect("the LASA error is the source");
+        assert!(matches!(
+            cause.downcast_ref::<LasaError>(),
+            Some(LasaError::Parse { .. })
+        ));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -81,6 +81,14 @@ impl TaskEntry {
             None => Err(invalid(format!("`{text}` is not a number"))),
         }
     }
+
+    /// `NAME=VALUE` pairs of arguments or options as numbers ([`Self::value`] of each).
+    pub fn values(&self, pairs: &[(String, String)]) -> Result<Kwargs, EnvError> {
+        pairs
+            .iter()
+            .map(|(key, text)| Ok((key.clone(), self.value(key, text)?)))
+            .collect()
+    }
 }
 
 fn unknown_kwargs(kwargs: &Kwargs, known: &[&str]) -> Result<(), EnvError> {

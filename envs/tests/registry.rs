@@ -4,7 +4,7 @@
 
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use ciflow_envs::ResetOptions;
-use ciflow_envs::registry::tasks;
+use ciflow_envs::registry::{self, tasks};
 
 fn push(link: usize) -> Perturbation {
     Perturbation {
@@ -61,4 +61,20 @@ fn a_task_arm_has_a_joint_per_action() {
         }
     }
     assert_eq!(arms, 1, "pouring drives the Panda");
+}
+
+#[test]
+fn arguments_are_numbers_or_the_index_of_a_named_value() {
+    let lasa = registry::entry("lasa").unwrap();
+    let pair = |key: &str, text: &str| (key.to_owned(), text.to_owned());
+    let shape = ciflow_envs::tasks::lasa::SHAPES[3];
+    let values = lasa
+        .values(&[pair("shape", shape), pair("noise", "0.5")])
+        .unwrap();
+    assert_eq!(values["shape"], 3.0);
+    assert_eq!(values["noise"], 0.5);
+    let unknown = lasa.values(&[pair("shape", "NoSuchShape")]).unwrap_err();
+    assert!(unknown.to_string().contains("NoSuchShape"), "{unknown}");
+    let obstacles = registry::entry("obstacle-avoidance").unwrap();
+    assert!(obstacles.values(&[pair("obstacles", "three")]).is_err());
 }

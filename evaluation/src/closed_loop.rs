@@ -155,6 +155,54 @@ pub struct EvaluationReport {
     pub example: Option<Example>,
 }
 
+impl std::fmt::Display for EvaluationReport {
+    /// The summary `ciflow evaluate` prints: rates, final distance, episode length and, for
+    /// pushes, displacement and recovery.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let percent = |r: f64| format!("{:.1}%", 100.0 * r);
+        write!(
+            f,
+            "{} ({}) on {}, {:?}: success {}",
+            self.task,
+            self.model,
+            self.env_id,
+            self.disturbance,
+            percent(self.success_rate)
+        )?;
+        if let Some(r) = self.collision_rate {
+            write!(f, ", collision {}", percent(r))?;
+        }
+        if let Some(r) = self.spill_rate {
+            write!(f, ", spill {}", percent(r))?;
+        }
+        if let (Some(key), Some(d)) = (&self.distance_key, &self.final_distance) {
+            write!(f, ", final {key} {:.4} ± {:.4}", d.mean, d.std)?;
+        }
+        if let Some(s) = &self.episode_steps {
+            write!(f, ", {:.0} ± {:.0} steps", s.mean, s.std)?;
+        }
+        writeln!(f, " ({} episodes)", self.episodes)?;
+        if let Some(push) = &self.push {
+            writeln!(
+                f,
+                "push: displacement {:.4} ± {:.4} (min {:.4}; ≥ {} in {}), recovered within {} \
+                 of the unpushed path in {} ({} within {} s; mean {:.2} s)",
+                push.displacement.mean,
+                push.displacement.std,
+                push.displacement.min,
+                push.required_displacement,
+                percent(push.displaced_fraction),
+                push.recovery_tolerance,
+                percent(push.recovered_fraction),
+                percent(push.recovered_within_deadline_fraction),
+                push.recovery_deadline,
+                push.recovery_time.as_ref().map_or(f64::NAN, |t| t.mean),
+            )?;
+        }
+        Ok(())
+    }
+}
+
 /// A scheduled disturbance of one run.
 #[derive(Clone, Debug)]
 enum Schedule {

@@ -12,6 +12,10 @@ pub enum EvaluationError {
     Actor(#[from] ActorError),
     #[error(transparent)]
     Flow(#[from] FlowError),
+    #[error(transparent)]
+    Model(#[from] ciflow_engine::model::ModelError),
+    #[error(transparent)]
+    RobotLoop(#[from] crate::robot_loop::RobotLoopError),
     #[error("invalid evaluation setting: {0}")]
     InvalidConfig(String),
     #[error("no valid new context found for the episode of seed {seed} in {tries} draws")]

@@ -1,16 +1,18 @@
 //! Figure data of a 2-D flow policy, per context `c`:
 //!
 //! - the learned vector field `ẏ_des = J_f(z) v(z)`, `z = f⁻¹(y, c)`, noise-free
-//!   ([`Policy::velocity`]), on a regular grid over a window of the state plane;
+//!   ([`Policy::velocity`]), on a regular grid over a window of the state plane
+//!   ([`velocity_grid`], which the LASA plots draw for the baseline too);
 //! - noise-free rollouts `y_{k+1} = f(μ(f⁻¹(y_k, c)), c)` ([`Policy::mean_next`]) from
 //!   given starts;
 //! - the learned deformation: the image under `f(·, c)` of a regular grid of lines in
 //!   the latent plane, spanning the latent box that `f⁻¹(·, c)` maps the window into.
 
-use ciflow_engine::flow::Policy;
+use ciflow_engine::flow::{FlowResult, MeanDynamics, Policy};
 use serde::Serialize;
 
 use ciflow_envs::dataset::Episode;
+use ciflow_envs::registry;
 
 use crate::rollout::mean_rollout;
 use crate::{EvaluationError, EvaluationResult};
@@ -69,7 +71,7 @@ pub struct FieldReport {
 
 const LATENT_LINE_SAMPLES: usize = 100;
 
-fn linspace(lo: f64, hi: f64, n: usize) -> Vec<f64> {
+pub(crate) fn linspace(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     (0..n)
         .map(|k| lo + (hi - lo) * k as f64 / (n.max(2) - 1) as f64)
         .collect()
@@ -105,6 +107,31 @@ fn default_starts(window: &[f64; 4]) -> Vec<[f64; 2]> {
     .collect()
 }
 
+/// The desired velocity `ẏ(y, c)` of a 2-D `model` on the grid `xs × ys`: its `x` and `y`
+/// components, each as rows `[j][i]` at `(xs[i], ys[j])`.
+pub fn velocity_grid<M: MeanDynamics>(
+    model: &M,
+    xs: &[f64],
+    ys: &[f64],
+    context: &[f64],
+    ws: &mut M::Workspace,
+) -> FlowResult<[Vec<Vec<f64>>; 2]> {
+    let mut components = [Vec::with_capacity(ys.len()), Vec::with_capacity(ys.len())];
+    let mut v = [0.0; 2];
+    for &y in ys {
+        let mut rows = [Vec::with_capacity(xs.len()), Vec::with_capacity(xs.len())];
+        for &x in xs {
+            model.velocity(&[x, y], context, ws, &mut v)?;
+            rows[0].push(v[0]);
+            rows[1].push(v[1]);
+        }
+        let [row_x, row_y] = rows;
+        components[0].push(row_x);
+        components[1].push(row_y);
+    }
+    Ok(components)
+}
+
 /// The figure data of a 2-D `policy` (module docs); `demonstrations` are copied as
 /// position paths for overlays.
 pub fn field(
@@ -136,25 +163,20 @@ pub fn field(
     let mut ws = policy.workspace();
     let xs = linspace(window[0], window[1], config.resolution);
     let ys = linspace(window[2], window[3], config.resolution);
+    let reference_curve = registry::entry(&policy.config().task)?.reference_curve;
     let mut fields = Vec::with_capacity(config.contexts.len());
     for context in &config.contexts {
-        let (mut velocity_x, mut velocity_y) = (Vec::new(), Vec::new());
+        let [velocity_x, velocity_y] = velocity_grid(policy, &xs, &ys, context, &mut ws)?;
         let (mut z_min, mut z_max) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        let (mut v, mut z) = ([0.0; 2], [0.0; 2]);
+        let mut z = [0.0; 2];
         for &y in &ys {
-            let (mut row_x, mut row_y) = (Vec::new(), Vec::new());
             for &x in &xs {
-                policy.velocity(&[x, y], context, &mut ws, &mut v)?;
-                row_x.push(v[0]);
-                row_y.push(v[1]);
                 policy.latent_state(&[x, y], context, &mut ws, &mut z)?;
                 for k in 0..2 {
                     z_min[k] = z_min[k].min(z[k]);
                     z_max[k] = z_max[k].max(z[k]);
                 }
             }
-            velocity_x.push(row_x);
-            velocity_y.push(row_y);
         }
         let mut rollouts = Vec::with_capacity(starts.len());
         for start in &starts {
@@ -186,7 +208,7 @@ pub fn field(
             velocity_y,
             rollouts,
             latent_grid,
-            reference: None,
+            reference: reference_curve.map(|curve| curve(context)),
         });
     }
     let demonstrations = demonstrations

@@ -10,6 +10,7 @@
 //! - [`stability`]: noise-free rollouts in observation space from starts far outside the
 //!   data, with a negative control that the check must catch; [`robot_loop`]: the same
 //!   through computed torque and the arm's rigid-body dynamics with its real limits;
+//!   [`stability_check`]: both, as `ciflow stability` runs them on a checkpoint;
 //! - [`rollout`] and [`field`]: the noise-free rollouts and the vector-field and
 //!   latent-grid figures of 2-D policies;
 //! - [`lasa`]: the LASA handwriting benchmark's reproductions and scores.
@@ -23,6 +24,7 @@ pub mod push;
 pub mod robot_loop;
 pub mod rollout;
 pub mod stability;
+pub mod stability_check;
 pub mod summary;
 pub mod trace;
 

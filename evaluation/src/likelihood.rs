@@ -28,6 +28,17 @@ pub struct LogLikelihood {
     pub initial_per_episode: f64,
 }
 
+impl std::fmt::Display for LogLikelihood {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "log-likelihood {:.4} per transition ({} transitions, {} episodes; initial {:.4} \
+             per episode)",
+            self.per_transition, self.transitions, self.episodes, self.initial_per_episode
+        )
+    }
+}
+
 /// `ℓ` of `policy` on `episodes` (module docs).
 pub fn log_likelihood(policy: &Policy, episodes: &[Episode]) -> EvaluationResult<LogLikelihood> {
     let d = policy.config().state_dim;

@@ -105,6 +105,14 @@ impl MeanDynamics for Toy {
         (self.step)(y, c, out);
         Ok(())
     }
+    /// One step per unit time.
+    fn velocity(&self, y: &[f64], c: &[f64], _: &mut (), out: &mut [f64]) -> FlowResult<()> {
+        (self.step)(y, c, out);
+        for (o, yi) in out.iter_mut().zip(y) {
+            *o -= yi;
+        }
+        Ok(())
+    }
     fn attractor_distance(
         &self,
         y: &[f64],

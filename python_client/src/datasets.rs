@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use std::sync::Mutex;
 
 use ciflow_bridge::EpisodePublisher;
+use ciflow_bridge::error::full_message;
 use ciflow_envs::dataset::{self, DatasetSpec, Episode};
 use ciflow_envs::rollout::{Recording, record_expert_dataset};
 use ciflow_envs::{BoxSpace, Dtype};
@@ -18,11 +19,12 @@ use crate::convert::{floats_from_bytes, floats_to_bytes};
 use crate::errors::to_py;
 
 fn dataset_error(error: dataset::DatasetError) -> PyErr {
+    let message = full_message(&error);
     match error {
         dataset::DatasetError::Io { .. } | dataset::DatasetError::AlreadyExists(_) => {
-            PyOSError::new_err(error.to_string())
+            PyOSError::new_err(message)
         }
-        _ => PyValueError::new_err(error.to_string()),
+        _ => PyValueError::new_err(message),
     }
 }
 
@@ -339,7 +341,7 @@ pub fn record_expert(
     };
     let spec = py
         .detach(|| record_expert_dataset(&recording, &out, overwrite, |_| {}))
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        .map_err(|e| PyValueError::new_err(full_message(&e)))?;
     Ok(spec.dataset_id)
 }
 
@@ -349,5 +351,5 @@ pub fn record_expert(
 pub fn task_value(task: &str, key: &str, text: &str) -> PyResult<f64> {
     ciflow_envs::registry::entry(task)
         .and_then(|entry| entry.value(key, text))
-        .map_err(|e| PyValueError::new_err(e.to_string()))
+        .map_err(|e| PyValueError::new_err(full_message(&e)))
 }

@@ -1,6 +1,7 @@
 //! Python exceptions for bridge errors.
 
 use ciflow_bridge::BridgeError;
+use ciflow_bridge::error::full_message;
 use pyo3::exceptions::{PyConnectionError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 
@@ -17,8 +18,10 @@ pyo3::create_exception!(
     "No ciflow engine answered; the message says how to start one."
 );
 
-/// Converts a bridge error into the matching Python exception.
+/// Converts a bridge error into the matching Python exception, whose message names the
+/// error's causes too.
 pub fn to_py(error: BridgeError) -> PyErr {
+    let message = full_message(&error);
     match error {
         BridgeError::Remote(reply) => Python::attach(|py| {
             let err = CiflowError::new_err(format!("{}: {}", reply.code, reply.message));
@@ -26,14 +29,21 @@ pub fn to_py(error: BridgeError) -> PyErr {
             let _ = err.value(py).setattr("code", reply.code.as_str());
             err
         }),
-        BridgeError::NoEngine { .. } | BridgeError::Zenoh(_) => {
-            EngineUnreachable::new_err(error.to_string())
-        }
-        BridgeError::Config(_) | BridgeError::InvalidArgument(_) => {
-            PyValueError::new_err(error.to_string())
-        }
-        BridgeError::BadReply { .. } | BridgeError::FrameLost { .. } => {
-            CiflowError::new_err(error.to_string())
-        }
+        BridgeError::NoEngine { .. }
+        | BridgeError::Open { .. }
+        | BridgeError::Zenoh { .. }
+        | BridgeError::Worker(_) => EngineUnreachable::new_err(message),
+        BridgeError::ConfigFile { .. }
+        | BridgeError::ConfigSetting { .. }
+        | BridgeError::UnknownMode(_)
+        | BridgeError::InvalidArgument(_)
+        | BridgeError::UnknownTask(_)
+        | BridgeError::TaskDefaults { .. }
+        | BridgeError::ReadCheckpoint { .. }
+        | BridgeError::CheckpointNotUtf8 { .. }
+        | BridgeError::CheckpointConfig { .. } => PyValueError::new_err(message),
+        BridgeError::BadReply { .. }
+        | BridgeError::BadErrorReply { .. }
+        | BridgeError::FrameLost { .. } => CiflowError::new_err(message),
     }
 }

@@ -1,13 +1,12 @@
 //! `ciflow demos`: record expert demonstrations of a task as a Minari dataset.
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::Context;
 use ciflow_envs::env::SUCCESS_INFO;
-use ciflow_envs::registry::TaskEntry;
 use ciflow_envs::rollout::{Recording, record_expert_dataset};
 
+use crate::parse::parse_key_value;
 use crate::progress;
 
 /// Arguments of `ciflow demos`.
@@ -43,35 +42,13 @@ pub struct DemosArgs {
     pub overwrite: bool,
 }
 
-pub(crate) fn parse_key_value(text: &str) -> Result<(String, String), String> {
-    let (key, value) = text
-        .split_once('=')
-        .ok_or_else(|| format!("`{text}` is not NAME=VALUE"))?;
-    Ok((key.to_string(), value.to_string()))
-}
-
 /// Resolves NAME=VALUE pairs to the task's numbers (names of values included).
-pub(crate) fn task_values(
-    task: &TaskEntry,
-    pairs: Vec<(String, String)>,
-) -> anyhow::Result<BTreeMap<String, f64>> {
-    pairs
-        .into_iter()
-        .map(|(key, text)| {
-            let value = task
-                .value(&key, &text)
-                .with_context(|| format!("{key}={text} for task `{}`", task.name))?;
-            Ok((key, value))
-        })
-        .collect()
-}
-
 pub fn run(args: DemosArgs) -> anyhow::Result<()> {
     let task = ciflow_envs::registry::entry(&args.task)?;
     let recording = Recording {
         task: args.task.clone(),
-        kwargs: task_values(task, args.kwargs)?,
-        options: task_values(task, args.options)?,
+        kwargs: task.values(&args.kwargs)?,
+        options: task.values(&args.options)?,
         episodes: args.episodes,
         seed: args.seed,
         dataset_id: args.dataset_id,

@@ -13,17 +13,17 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use ciflow_engine::flow::Policy;
 use ciflow_envs::actor::{DEFAULT_VELOCITY_GAIN, Model};
-use ciflow_envs::dataset;
+use ciflow_envs::dataset::{self, Episode};
 use ciflow_envs::registry::{self, TaskEntry};
 use ciflow_evaluation::field::{FieldConfig, field};
 use ciflow_evaluation::likelihood::log_likelihood;
 use ciflow_evaluation::{
-    Acting, ContextSwitch, Disturbance, EvaluationConfig, EvaluationReport, PushConfig, evaluate,
+    Acting, ContextSwitch, Disturbance, EvaluationConfig, PushConfig, evaluate,
 };
 use clap::ValueEnum;
 use serde::Serialize;
 
-use super::demos::{parse_key_value, task_values};
+use crate::parse::{parse_contexts, parse_key_value};
 use crate::progress;
 use ciflow_envs::learning_curve::subset;
 
@@ -66,27 +66,27 @@ pub struct EvaluateArgs {
     #[arg(long, value_enum, default_value = "none")]
     pub perturb: PerturbArg,
     /// Push start (simulated s).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = PushConfig::default().start)]
     pub push_start: f64,
     /// Push duration (s).
-    #[arg(long, default_value_t = 0.2)]
+    #[arg(long, default_value_t = PushConfig::default().duration)]
     pub push_duration: f64,
     /// Minimum displacement of the tracked point (pouring: the spout) from the unpushed
     /// run at equal times; the force grows until it is reached (m).
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = PushConfig::default().displacement)]
     pub push_displacement: f64,
     /// First push force tried (N).
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = PushConfig::default().initial_force)]
     pub push_force: f64,
     /// Link pushed [default: the task's: the hand (last link) for pouring, the mass
     /// otherwise].
     #[arg(long)]
     pub push_link: Option<usize>,
     /// Distance to the unpushed path that counts as recovered (m).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = PushConfig::default().recovery_tolerance)]
     pub recovery_tolerance: f64,
     /// Recovery within this time after the push counts as prompt (s).
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = PushConfig::default().recovery_deadline)]
     pub recovery_deadline: f64,
     /// Time of the context change (simulated s).
     #[arg(long, default_value_t = 1.0)]
@@ -145,24 +145,14 @@ fn write_json(path: &Path, value: &impl Serialize) -> anyhow::Result<()> {
 }
 
 fn flow(model: &Model) -> anyhow::Result<&Policy> {
-    match model {
-        Model::Flow(policy) => Ok(policy),
-        Model::Baseline(_) => anyhow::bail!("the baseline has no density or latent space"),
-    }
+    model
+        .flow()
+        .context("the baseline has no density or latent space")
 }
 
-fn parse_contexts(text: &str) -> anyhow::Result<Vec<Vec<f64>>> {
-    text.split(';')
-        .map(|c| {
-            c.split(',')
-                .map(|v| {
-                    v.trim()
-                        .parse::<f64>()
-                        .with_context(|| format!("`{v}` in context `{c}` is not a number"))
-                })
-                .collect()
-        })
-        .collect()
+fn read_dataset(dir: &Path) -> anyhow::Result<Vec<Episode>> {
+    let (_, episodes) = dataset::read(dir).with_context(|| format!("reading {}", dir.display()))?;
+    Ok(episodes)
 }
 
 /// The disturbance the flags ask for in `task` (its defaults where a flag is not given).
@@ -186,47 +176,6 @@ fn disturbance(args: &EvaluateArgs, task: &TaskEntry) -> Disturbance {
     }
 }
 
-fn print_summary(report: &EvaluationReport) {
-    let percent = |r: f64| format!("{:.1}%", 100.0 * r);
-    let mut line = format!(
-        "{} ({}) on {}, {:?}: success {}",
-        report.task,
-        report.model,
-        report.env_id,
-        report.disturbance,
-        percent(report.success_rate)
-    );
-    if let Some(r) = report.collision_rate {
-        line += &format!(", collision {}", percent(r));
-    }
-    if let Some(r) = report.spill_rate {
-        line += &format!(", spill {}", percent(r));
-    }
-    if let (Some(key), Some(d)) = (&report.distance_key, &report.final_distance) {
-        line += &format!(", final {key} {:.4} ± {:.4}", d.mean, d.std);
-    }
-    if let Some(s) = &report.episode_steps {
-        line += &format!(", {:.0} ± {:.0} steps", s.mean, s.std);
-    }
-    println!("{line} ({} episodes)", report.episodes);
-    if let Some(push) = &report.push {
-        println!(
-            "push: displacement {:.4} ± {:.4} (min {:.4}; ≥ {} in {}), recovered within {} of \
-             the unpushed path in {} ({} within {} s; mean {:.2} s)",
-            push.displacement.mean,
-            push.displacement.std,
-            push.displacement.min,
-            push.required_displacement,
-            percent(push.displaced_fraction),
-            push.recovery_tolerance,
-            percent(push.recovered_fraction),
-            percent(push.recovered_within_deadline_fraction),
-            push.recovery_deadline,
-            push.recovery_time.as_ref().map_or(f64::NAN, |t| t.mean),
-        );
-    }
-}
-
 pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
     let Some(dir) = &args.checkpoint else {
         let task = registry::entry(args.task.as_deref().expect("clap requires --task"))?;
@@ -234,16 +183,16 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
     };
     let model = Model::load(dir, args.task.as_deref())
         .with_context(|| format!("loading {}", dir.display()))?;
-    if let Some(dataset_dir) = &args.nll {
-        let (_, mut episodes) = dataset::read(dataset_dir)
-            .with_context(|| format!("reading {}", dataset_dir.display()))?;
+    if let Some(dir) = &args.nll {
+        // What `ciflow train` fits by default: the episodes that achieved their task.
+        let mut episodes = read_dataset(dir)?;
         let recorded = episodes.len();
         episodes.retain(|e| !e.failed());
         if episodes.len() < recorded {
+            let failed = recorded - episodes.len();
             println!(
-                "{}: {} of {recorded} episodes failed their task and are not scored",
-                dataset_dir.display(),
-                recorded - episodes.len()
+                "{}: {failed} of {recorded} episodes failed their task and are not scored",
+                dir.display()
             );
         }
         if let Some(count) = args.nll_subset {
@@ -251,31 +200,21 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
                 subset(episodes, count, args.seed, |e| &e.contexts[0]).context("--nll-subset")?;
         }
         let nll = log_likelihood(flow(&model)?, &episodes)?;
-        println!(
-            "{}: log-likelihood {:.4} per transition ({} transitions, {} episodes; initial \
-             {:.4} per episode)",
-            dataset_dir.display(),
-            nll.per_transition,
-            nll.transitions,
-            nll.episodes,
-            nll.initial_per_episode
-        );
-        if let Some(out) = &args.out {
-            write_json(out, &nll)?;
-        }
-        return Ok(());
+        println!("{}: {nll}", dir.display());
+        return args
+            .out
+            .as_deref()
+            .map_or(Ok(()), |out| write_json(out, &nll));
     }
     if let Some(out) = &args.field {
         let demonstrations = match &args.field_demos {
-            Some(d) => {
-                dataset::read(d)
-                    .with_context(|| format!("reading {}", d.display()))?
-                    .1
-            }
+            Some(dir) => read_dataset(dir)?,
             None => Vec::new(),
         };
         let contexts = match &args.field_contexts {
-            Some(text) => parse_contexts(text)?,
+            Some(text) => parse_contexts(text)
+                .map_err(anyhow::Error::msg)
+                .context("--field-contexts")?,
             None => demonstrations
                 .iter()
                 .take(3)
@@ -297,12 +236,7 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
             rollout_steps: args.field_steps,
             latent_lines: args.field_lines,
         };
-        let mut report = field(flow(&model)?, &config, &demonstrations)?;
-        if let Some(curve) = registry::entry(model.task())?.reference_curve {
-            for f in &mut report.fields {
-                f.reference = Some(curve(&f.context));
-            }
-        }
+        let report = field(flow(&model)?, &config, &demonstrations)?;
         write_json(out, &report)?;
         println!(
             "wrote {}: {} contexts, window {:?}",
@@ -317,14 +251,14 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
 
 /// The closed-loop episodes of `acting` in `task` (the default mode).
 fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Result<()> {
-    let kwargs = task_values(task, args.kwargs.clone())?;
+    let kwargs = task.values(&args.kwargs)?;
     let mut env = (task.make_with)(&kwargs)
         .with_context(|| format!("building `{}` with {kwargs:?}", task.name))?;
     let config = EvaluationConfig {
         episodes: args.episodes,
         seed: args.seed,
         velocity_gain: args.velocity_gain,
-        reset_extra: task_values(task, args.options.clone())?,
+        reset_extra: task.values(&args.options)?,
         disturbance: disturbance(args, task),
         trajectories: args.trajectories,
     };
@@ -334,7 +268,7 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
     })
     .context("evaluating")?;
     progress.finish_and_clear();
-    print_summary(&report);
+    print!("{report}");
     if let Some(out) = &args.out {
         write_json(out, &report)?;
         println!("wrote {}", out.display());

@@ -1,6 +1,6 @@
 //! `ciflow robot`: kinematics and dynamics of a robot model at a given state, as JSON.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use ciflow_engine::math::{DMatrix, DVector, Real, Vector3};
 use ciflow_engine::robot::{PointMass2d, Robot, panda};
 use clap::{Args, Subcommand};
@@ -167,7 +167,7 @@ fn evaluate(robot: &mut dyn Robot, query: Query) -> Result<Value> {
         }
         Query::ForwardKinematics { position, link } => {
             let frames = match link {
-                Some(link) => vec![frame_index(robot, &link)?],
+                Some(link) => vec![robot.find_frame(&link)?],
                 None => (0..robot.frames().len()).collect(),
             };
             let placements = frames
@@ -178,7 +178,7 @@ fn evaluate(robot: &mut dyn Robot, query: Query) -> Result<Value> {
         }
         Query::Jacobian { position, link } => {
             let frame = match link {
-                Some(link) => frame_index(robot, &link)?,
+                Some(link) => robot.find_frame(&link)?,
                 None => robot.end_effector(),
             };
             let mut jacobian = DMatrix::zeros(6, n);
@@ -193,30 +193,6 @@ fn evaluate(robot: &mut dyn Robot, query: Query) -> Result<Value> {
         }
     };
     Ok(value)
-}
-
-/// A frame by index or by name.
-fn frame_index(robot: &dyn Robot, link: &str) -> Result<usize> {
-    let count = robot.frames().len();
-    let index = match link.parse::<usize>() {
-        Ok(index) => index,
-        Err(_) => match robot.frame_index(link) {
-            Some(index) => index,
-            None => bail!(
-                "no frame named `{link}`; frames: {}",
-                robot
-                    .frames()
-                    .iter()
-                    .map(|f| f.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-        },
-    };
-    if index >= count {
-        bail!("frame index {index} is out of range (the robot has {count} frames)");
-    }
-    Ok(index)
 }
 
 fn placement(robot: &dyn Robot, q: &[Real], frame: usize) -> Result<Value> {

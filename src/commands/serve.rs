@@ -7,6 +7,7 @@ use anyhow::Context;
 use ciflow_bridge::{CheckpointPolicy, EngineServer, Kwargs, Policy, ServerOptions, TaskFactory};
 
 use super::network::NetworkArgs;
+use crate::parse::parse_number_pair;
 
 /// Start an engine that hosts environment sessions for Zenoh clients (Python
 /// `gymnasium.make("ciflow/...")`, or any Zenoh client following bridge/PROTOCOL.md).
@@ -33,21 +34,10 @@ pub struct ServeArgs {
     pub policies: Vec<String>,
     /// Construction argument of the policies' task, as given to `ciflow demos --kwarg`
     /// when the checkpoint's data was made (e.g. obstacles=1; repeatable).
-    #[arg(long = "policy-kwarg", value_name = "NAME=VALUE", value_parser = parse_kwarg)]
+    #[arg(long = "policy-kwarg", value_name = "NAME=VALUE", value_parser = parse_number_pair)]
     pub policy_kwargs: Vec<(String, f64)>,
 }
 
-fn parse_kwarg(text: &str) -> Result<(String, f64), String> {
-    let (key, value) = text
-        .split_once('=')
-        .ok_or_else(|| format!("`{text}` is not NAME=VALUE"))?;
-    let value = value
-        .parse()
-        .map_err(|_| format!("`{value}` in `{text}` is not a number"))?;
-    Ok((key.to_owned(), value))
-}
-
-/// Loads `[NAME=]DIR` for the tasks the engine serves.
 fn load_policy(
     spec: &str,
     tasks: &[TaskFactory],
@@ -82,11 +72,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let policy_names: Vec<String> = options.policies.iter().map(|p| p.info().name).collect();
     let task_ids: Vec<String> = options.tasks.iter().map(|t| t.id.clone()).collect();
     let server = EngineServer::open(&network, options).context("starting the engine")?;
-    let endpoints = if network.listen.is_empty() && network.config_file.is_none() {
-        vec![ciflow_bridge::DEFAULT_ENDPOINT.to_owned()]
-    } else {
-        network.listen.clone()
-    };
+    let endpoints = network.engine_endpoints();
     // Tests and scripts wait for this line before connecting.
     println!(
         "ciflow engine `{}` ready on [{}] serving {}; policies: [{}]",

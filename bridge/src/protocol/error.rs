@@ -146,17 +146,28 @@ impl From<EnvError> for ErrorReply {
             EnvError::NeedsReset => ErrorCode::NeedsReset,
             EnvError::InvalidPerturbation(_) => ErrorCode::InvalidPerturbation,
             EnvError::Simulation(_) => ErrorCode::Simulation,
+            EnvError::Lasa { .. } => ErrorCode::InvalidOption,
         };
         // The message carries the whole chain: a client sees why the simulation failed,
         // not only that it did.
-        let mut message = error.to_string();
-        let mut source = std::error::Error::source(&error);
-        while let Some(cause) = source {
-            message = format!("{message}: {cause}");
-            source = cause.source();
-        }
-        Self::new(code, message)
+        Self::new(code, full_message(&error))
     }
+}
+
+/// An error's message followed by those of its sources, `outer: cause: …`, for where only
+/// text travels on (protocol error replies, Python exceptions, logs). A cause whose text
+/// already ends the message (an error that prints its source itself) is not repeated.
+pub fn full_message(error: &(dyn std::error::Error + 'static)) -> String {
+    let mut message = error.to_string();
+    let mut source = error.source();
+    while let Some(cause) = source {
+        let text = cause.to_string();
+        if !message.ends_with(&text) {
+            message = format!("{message}: {text}");
+        }
+        source = cause.source();
+    }
+    message
 }
 
 #[cfg(test)]

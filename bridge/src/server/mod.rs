@@ -36,7 +36,7 @@ use self::session::Session;
 use self::slot::EnvSlot;
 use self::telemetry::TelemetryPublisher;
 use crate::config::{NetworkOptions, Role};
-use crate::error::BridgeError;
+use crate::error::{BridgeError, full_message};
 use crate::policy::Policy;
 use crate::protocol::keys::{self, Route, SessionOp};
 use crate::protocol::{
@@ -89,13 +89,11 @@ impl EngineServer {
     /// Opens a Zenoh session for an engine (listening on the default endpoint unless
     /// `network` says otherwise) and starts serving.
     pub fn open(network: &NetworkOptions, options: ServerOptions) -> Result<Self, BridgeError> {
-        let config = network.to_zenoh_config(Role::Engine)?;
-        let session = zenoh::open(config).wait().map_err(|e| {
-            BridgeError::Zenoh(format!(
-                "cannot open the engine's Zenoh session (is another engine already \
-                 listening on that endpoint?): {e}"
-            ))
-        })?;
+        let session = network.open(
+            Role::Engine,
+            "open the engine's Zenoh session",
+            "is another engine already listening on that endpoint?",
+        )?;
         Self::start(session, options)
     }
 
@@ -114,12 +112,11 @@ impl EngineServer {
             .tasks
             .iter()
             .map(|factory| {
-                let env = (factory.make)(&Kwargs::new()).map_err(|e| {
-                    BridgeError::InvalidArgument(format!(
-                        "task {} fails with its default arguments: {e}",
-                        factory.id
-                    ))
-                })?;
+                let env =
+                    (factory.make)(&Kwargs::new()).map_err(|source| BridgeError::TaskDefaults {
+                        task: factory.id.clone(),
+                        source,
+                    })?;
                 Ok(TaskInfo {
                     name: factory.name.clone(),
                     spec: env.spec().clone(),
@@ -155,7 +152,9 @@ impl EngineServer {
                     }
                 })
                 .wait()
-                .map_err(BridgeError::zenoh)?
+                .map_err(BridgeError::zenoh(
+                    "declaring the subscriber to client tokens",
+                ))?
         };
 
         let checkpoints = {
@@ -181,13 +180,16 @@ impl EngineServer {
                         ),
                         // A bad publication must not disturb serving: report and go on.
                         Err(error) => eprintln!(
-                            "ciflow engine `{}`: ignored checkpoint on `{key}`: {error}",
-                            shared.name
+                            "ciflow engine `{}`: ignored checkpoint on `{key}`: {}",
+                            shared.name,
+                            full_message(&error)
                         ),
                     }
                 })
                 .wait()
-                .map_err(BridgeError::zenoh)?
+                .map_err(BridgeError::zenoh(
+                    "declaring the subscriber to checkpoint publications",
+                ))?
         };
 
         let (slow_tx, slow_rx) = mpsc::channel::<Query>();
@@ -200,7 +202,7 @@ impl EngineServer {
                         shared.answer(&query);
                     }
                 })
-                .map_err(|e| BridgeError::Zenoh(format!("cannot spawn the worker: {e}")))?;
+                .map_err(BridgeError::Worker)?;
         }
         let queryable = {
             let shared = Arc::clone(&shared);
@@ -229,13 +231,15 @@ impl EngineServer {
                     }
                 })
                 .wait()
-                .map_err(BridgeError::zenoh)?
+                .map_err(BridgeError::zenoh("declaring the engine's queryable"))?
         };
         let token = zsession
             .liveliness()
             .declare_token(keys::engine_alive(&shared.name))
             .wait()
-            .map_err(BridgeError::zenoh)?;
+            .map_err(BridgeError::zenoh(
+                "declaring the engine's liveliness token",
+            ))?;
         Ok(Self {
             shared,
             _queryable: queryable,
@@ -420,7 +424,7 @@ impl Shared {
             keys::session(&self.name, &id, "telemetry"),
             self.telemetry_hz,
         )
-        .map_err(|e| ErrorReply::new(ErrorCode::Internal, e.to_string()))?;
+        .map_err(|e| ErrorReply::new(ErrorCode::Internal, full_message(&e)))?;
         let session = Session::new(id.clone(), request.client.clone(), token, envs, telemetry);
         self.sessions_mut()
             .insert(id.clone(), Arc::new(Mutex::new(session)));
@@ -631,7 +635,7 @@ impl Shared {
         {
             policy
                 .act_into(observation, action)
-                .map_err(|e| ErrorReply::new(ErrorCode::Policy, e.to_string()))?;
+                .map_err(|e| ErrorReply::new(ErrorCode::Policy, full_message(&e)))?;
         }
         Ok(encode(&ActionReply {
             v: PROTOCOL_VERSION,

@@ -10,6 +10,7 @@ use serde_bytes::ByteBuf;
 
 use super::slot::{EnvSlot, check_vector};
 use super::telemetry::TelemetryPublisher;
+use crate::error::full_message;
 use crate::policy::Policy;
 use crate::protocol::{
     AckReply, ActionReply, BatchResetReply, BatchStepReply, ContextRequest, ErrorCode, ErrorReply,
@@ -163,7 +164,7 @@ impl Session {
         let slot = &mut self.envs[run.index];
         let outcome = policy
             .act_into(&slot.observation, action)
-            .map_err(|e| ErrorReply::new(ErrorCode::Policy, e.to_string()))
+            .map_err(|e| ErrorReply::new(ErrorCode::Policy, full_message(&e)))
             .and_then(|()| slot.step(action).map_err(ErrorReply::from));
         let going_on = matches!(&outcome, Ok(step) if !(step.terminated || step.truncated || last));
         if !going_on {

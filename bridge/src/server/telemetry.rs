@@ -28,7 +28,7 @@ impl TelemetryPublisher {
             .declare_publisher(key)
             .congestion_control(CongestionControl::Drop)
             .wait()
-            .map_err(BridgeError::zenoh)?;
+            .map_err(BridgeError::zenoh("declaring the telemetry publisher"))?;
         let matching = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&matching);
         publisher
@@ -36,7 +36,9 @@ impl TelemetryPublisher {
             .callback(move |status| flag.store(status.matching(), Ordering::Relaxed))
             .background()
             .wait()
-            .map_err(BridgeError::zenoh)?;
+            .map_err(BridgeError::zenoh(
+                "declaring the telemetry matching listener",
+            ))?;
         Ok(Self {
             publisher,
             matching,

@@ -29,6 +29,8 @@ pub enum DynamicsError {
     },
     #[error("frame {index} does not exist (the robot has {count} frames)")]
     NoSuchFrame { index: usize, count: usize },
+    #[error("no frame named `{name}`; frames: {}", known.join(", "))]
+    NoFrameNamed { name: String, known: Vec<String> },
     #[error("link {index} does not exist (the robot has {count} movable links)")]
     NoSuchLink { index: usize, count: usize },
     #[error("the mass matrix is not positive definite")]

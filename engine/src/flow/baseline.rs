@@ -66,6 +66,39 @@ impl BehaviourCloning {
         ws: &mut BaselineWorkspace,
         out: &mut [f64],
     ) -> FlowResult<()> {
+        self.eval(y, context, ws, out)?;
+        let std = &self.config.normalisation.state_std;
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = y[i] + self.config.dt * std[i] * ws.output[i];
+        }
+        Ok(())
+    }
+
+    /// The velocity the network predicts, `ẏ = σ_y ⊙ MLP(ỹ, c̃)`.
+    pub fn velocity(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut BaselineWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
+        self.eval(y, context, ws, out)?;
+        let std = &self.config.normalisation.state_std;
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = std[i] * ws.output[i];
+        }
+        Ok(())
+    }
+
+    /// The network on the normalised state and context, into `ws.output`; checks that
+    /// `out` has the state dimension.
+    fn eval(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut BaselineWorkspace,
+        out: &[f64],
+    ) -> FlowResult<()> {
         let (d, norm) = (self.config.state_dim, &self.config.normalisation);
         check_input("state", d, y)?;
         check_input("context", self.config.context_dim, context)?;
@@ -77,9 +110,6 @@ impl BehaviourCloning {
             *slot = (context[i] - norm.context_mean[i]) / norm.context_std[i];
         }
         self.net.eval(&ws.input, &mut ws.scratch, &mut ws.output);
-        for i in 0..d {
-            out[i] = y[i] + self.config.dt * norm.state_std[i] * ws.output[i];
-        }
         Ok(())
     }
 

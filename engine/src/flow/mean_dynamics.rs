@@ -1,8 +1,10 @@
-//! The noise-free map `y_{k+1} = F(y_k, c)` of a policy, behind one trait: what rollouts,
-//! vector fields and the stability check step, whatever the model.
+//! The noise-free map `y_{k+1} = F(y_k, c)` of a policy and its desired velocity `ẏ(y, c)`,
+//! behind one trait: what rollouts, vector fields and the stability check evaluate,
+//! whatever the model.
 //!
-//! For a flow, `F(y, c) = f(μ(f⁻¹(y, c)), c)` with `μ` the latent's mean step
-//! ([`crate::flow::policy`]); for the behaviour-cloning baseline, `F(y, c) = y + dt · MLP(y, c)`
+//! For a flow, `F(y, c) = f(μ(f⁻¹(y, c)), c)` with `μ` the latent's mean step and
+//! `ẏ = J_f(z) v(z)` at `z = f⁻¹(y, c)` ([`crate::flow::policy`]); for the
+//! behaviour-cloning baseline, `ẏ = MLP(y, c)` and `F(y, c) = y + dt · ẏ`
 //! ([`crate::flow::baseline`]).
 
 use crate::math::distance;
@@ -18,6 +20,14 @@ pub trait MeanDynamics {
     fn workspace(&self) -> Self::Workspace;
     fn bounds(&self) -> &Bounds;
     fn mean_next(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut Self::Workspace,
+        out: &mut [f64],
+    ) -> FlowResult<()>;
+    /// The desired velocity `ẏ(y, c)` (state dimension), what the robot is driven to follow.
+    fn velocity(
         &self,
         y: &[f64],
         context: &[f64],
@@ -51,6 +61,15 @@ impl MeanDynamics for Policy {
     ) -> FlowResult<()> {
         Policy::mean_next(self, y, context, ws, out)
     }
+    fn velocity(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut PolicyWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
+        Policy::velocity(self, y, context, ws, out)
+    }
     fn attractor_distance(
         &self,
         y: &[f64],
@@ -78,6 +97,15 @@ impl MeanDynamics for BehaviourCloning {
         out: &mut [f64],
     ) -> FlowResult<()> {
         BehaviourCloning::mean_next(self, y, context, ws, out)
+    }
+    fn velocity(
+        &self,
+        y: &[f64],
+        context: &[f64],
+        ws: &mut BaselineWorkspace,
+        out: &mut [f64],
+    ) -> FlowResult<()> {
+        BehaviourCloning::velocity(self, y, context, ws, out)
     }
     fn attractor_distance(
         &self,

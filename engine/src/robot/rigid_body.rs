@@ -33,6 +33,21 @@ pub trait Robot: Send + Sync {
         self.frames().iter().position(|f| f.name == name)
     }
 
+    /// The frame `label` designates: an index into [`frames`](Self::frames), or a name.
+    fn find_frame(&self, label: &str) -> Result<usize, DynamicsError> {
+        let count = self.frames().len();
+        match label.parse::<usize>() {
+            Ok(index) if index < count => Ok(index),
+            Ok(index) => Err(DynamicsError::NoSuchFrame { index, count }),
+            Err(_) => self
+                .frame_index(label)
+                .ok_or_else(|| DynamicsError::NoFrameNamed {
+                    name: label.to_owned(),
+                    known: self.frames().iter().map(|f| f.name.clone()).collect(),
+                }),
+        }
+    }
+
     /// Placement `⁰M_f(q)` of frame `frame` in the base frame.
     fn frame_placement(&self, q: &[Real], frame: usize) -> Result<Isometry3, DynamicsError>;
 

@@ -10,7 +10,8 @@
 //! checkpoint directory the pure-Rust `Policy::load` reads. [`baseline`] trains the
 //! unconstrained behaviour-cloning MLP used as the stability check's negative control.
 //! [`dataset`] reads the demonstrations from a `ciflow demos` dataset; each task's
-//! default [`TrainConfig`] is its registry entry's recipe (`ciflow_envs::recipes`).
+//! default [`TrainConfig`] is its registry entry's recipe (`ciflow_envs::recipes`), which
+//! [`overrides`] replaces setting by setting.
 
 pub mod baseline;
 pub mod data;
@@ -20,6 +21,7 @@ pub mod latent;
 pub mod layers;
 pub mod nn;
 pub mod optimise;
+pub mod overrides;
 pub mod policy;
 pub mod synthetic;
 pub mod trainer;
@@ -29,4 +31,7 @@ pub use data::{Contexts, Demonstrations, Episode};
 pub use dataset::{Screened, Screening};
 pub use error::{TrainError, TrainResult};
 pub use optimise::{Keep, OptimConfig, Progress};
-pub use trainer::{DEFAULT_STATE_NOISE, Snapshot, TrainConfig, TrainedFlow, train_flow};
+pub use overrides::{ContextOverrides, OverrideError, RecipeOverrides};
+pub use trainer::{
+    DEFAULT_STATE_NOISE, Snapshot, TrainConfig, TrainedFlow, train_flow, train_flow_into,
+};

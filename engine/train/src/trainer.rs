@@ -260,3 +260,34 @@ pub fn train_flow(
         best_epoch,
     })
 }
+
+/// Trains like [`train_flow`], keeping the checkpoint in `dir` current as it goes: every
+/// epoch that improves is written there at once (an interrupted run keeps its best so far),
+/// and at the end the parameters kept, if the last ones written were not those (with
+/// [`Keep::Last`](crate::Keep::Last)). `written` is called after each write with the
+/// figures of the epoch now on disk (to publish it, say); `progress` once per epoch.
+pub fn train_flow_into(
+    dir: &Path,
+    data: &Demonstrations,
+    train: &TrainConfig,
+    mut progress: impl FnMut(&Progress),
+    mut written: impl FnMut(&Progress),
+) -> TrainResult<TrainedFlow> {
+    // The epoch on disk, or the write that failed (training stops writing after one).
+    let mut on_disk = Ok(0);
+    let trained = train_flow(data, train, |p, snapshot| {
+        progress(p);
+        if p.improved && on_disk.is_ok() {
+            on_disk = snapshot.save(dir).map(|()| p.epoch);
+            if on_disk.is_ok() {
+                written(p);
+            }
+        }
+    })?;
+    if on_disk? != trained.best_epoch {
+        trained.save(dir)?;
+        let kept = trained.history.get(trained.best_epoch.wrapping_sub(1));
+        written(kept.ok_or(TrainError::InvalidConfig("training ran no epoch".into()))?);
+    }
+    Ok(trained)
+}

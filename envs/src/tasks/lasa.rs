@@ -56,7 +56,7 @@
 //! names are resolved with [`shape_index`] (the registry lists [`SHAPES`] as the names of
 //! `shape`, so `ciflow demos --kwarg shape=Sshape` works), or in Rust with
 //! [`make_named`]. The dataset is converted on the first reset that needs a shape, so a
-//! missing dataset is an `InvalidOption` error of `reset`, never of construction.
+//! missing dataset is an error of `reset` (`EnvError::Lasa`), never of construction.
 //!
 //! ## Version history
 //! v0: initial version.
@@ -152,7 +152,11 @@ impl ShapeModel {
             name: SHAPE_OPTION.into(),
             detail,
         };
-        let data = crate::lasa::load(SHAPES[shape]).map_err(|e| failed(e.to_string()))?;
+        let data = crate::lasa::load(SHAPES[shape]).map_err(|source| EnvError::Lasa {
+            option: SHAPE_OPTION,
+            shape: SHAPES[shape],
+            source,
+        })?;
         let vector = |[x, y]: [f64; 2]| Vector2::new(x, y);
         let demos: Vec<Vec<Sample>> = data
             .demos

@@ -14,6 +14,7 @@ use ciflow_envs::lasa::Shape;
 use serde::Serialize;
 use serde_json::json;
 
+use crate::field::{linspace, velocity_grid};
 use crate::rollout::mean_rollout;
 use metrics::{Point, dtw_distance, final_point_error, swept_error_area};
 
@@ -81,7 +82,7 @@ pub fn mean(values: impl Iterator<Item = f64>) -> f64 {
     sum / n as f64
 }
 
-/// The field `(F(y, g) − y) / dt` on a grid: `(xs, ys, u[j][i], v[j][i])` at `(xs[i], ys[j])`.
+/// The desired velocity `ẏ(y, g)` on a grid: `(xs, ys, u[j][i], v[j][i])` at `(xs[i], ys[j])`.
 fn vector_field<M: MeanDynamics>(model: &M, shape: &Shape) -> FlowResult<serde_json::Value> {
     let points = || shape.demos.iter().flat_map(|d| d.positions.iter());
     let (mut lo, mut hi) = ([GOAL[0], GOAL[1]], [GOAL[0], GOAL[1]]);
@@ -93,25 +94,10 @@ fn vector_field<M: MeanDynamics>(model: &M, shape: &Shape) -> FlowResult<serde_j
     }
     let axis = |k: usize| -> Vec<f64> {
         let margin = FIELD_MARGIN * (hi[k] - lo[k]);
-        let (a, b) = (lo[k] - margin, hi[k] + margin);
-        (0..FIELD_GRID)
-            .map(|i| a + (b - a) * i as f64 / (FIELD_GRID - 1) as f64)
-            .collect()
+        linspace(lo[k] - margin, hi[k] + margin, FIELD_GRID)
     };
     let (xs, ys) = (axis(0), axis(1));
-    let mut ws = model.workspace();
-    let mut next = vec![0.0; 2];
-    let (mut u, mut v) = (Vec::new(), Vec::new());
-    for &y in &ys {
-        let (mut row_u, mut row_v) = (Vec::new(), Vec::new());
-        for &x in &xs {
-            model.mean_next(&[x, y], &GOAL, &mut ws, &mut next)?;
-            row_u.push((next[0] - x) / shape.dt);
-            row_v.push((next[1] - y) / shape.dt);
-        }
-        u.push(row_u);
-        v.push(row_v);
-    }
+    let [u, v] = velocity_grid(model, &xs, &ys, &GOAL, &mut model.workspace())?;
     Ok(json!({"x": xs, "y": ys, "u": u, "v": v}))
 }
 

@@ -1,4 +1,4 @@
-//! `ciflow lasa --ablation`: what each choice of LASA's training recipe buys. The flow
+//! What each choice of LASA's training recipe buys (`ciflow lasa --ablation`). The flow
 //! is retrained on each shape with one setting of the recipe changed at a time, scored
 //! with the benchmark's metrics, and set beside the recipe itself and the unconstrained
 //! baseline trained once per shape in the same run. Writes `<out>/ablation.md` and
@@ -8,14 +8,16 @@ use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
-use anyhow::Context;
 use ciflow_engine::flow::{CouplingKind, LatentKind};
 use ciflow_envs::lasa;
+use ciflow_evaluation::lasa::{METRICS, Model, Scores, cell, mean};
 use ciflow_train::{DEFAULT_STATE_NOISE, Keep, OptimConfig, TrainConfig};
 
-use ciflow_evaluation::lasa::{METRICS, Scores, cell, evaluate, mean};
-
-use super::{RunProgress, demonstrations, settings, train_shape_baseline, train_shape_flow};
+use super::{
+    RunEpoch, Tally, create_dir, demonstrations, scored, settings, train_shape_baseline,
+    train_shape_flow, write,
+};
+use crate::error::ExperimentResult;
 
 /// One change to the recipe: its label, what it sets, and the change.
 struct Variant {
@@ -103,19 +105,40 @@ struct Row {
     scores: Vec<Scores>,
 }
 
-pub fn run(names: &[String], recipe: &TrainConfig, out: &Path) -> anyhow::Result<()> {
-    let start = Instant::now();
-    let configs: Vec<TrainConfig> = VARIANTS
+/// The recipe `recipe` with each variant's change.
+fn variants(recipe: &TrainConfig) -> Vec<TrainConfig> {
+    VARIANTS
         .iter()
         .map(|v| {
             let mut config = recipe.clone();
             (v.apply)(&mut config);
             config
         })
-        .collect();
-    let budget: usize =
-        configs.iter().map(|c| c.optim.epochs).sum::<usize>() + OptimConfig::default().epochs;
-    let mut progress = RunProgress::new(names.len() * budget);
+        .collect()
+}
+
+/// The epochs [`run`] spends at most on `shapes` shapes: every variant's and the baseline's.
+pub fn budget(shapes: usize, recipe: &TrainConfig) -> u64 {
+    let variants: usize = variants(recipe).iter().map(|c| c.optim.epochs).sum();
+    (shapes * (variants + OptimConfig::default().epochs)) as u64
+}
+
+/// Retrains the flow with each variant of `recipe` and the baseline once on the shapes
+/// `names` into `out`, telling `on_epoch` after every epoch; writes `ablation.md` and
+/// `ablation.csv` and returns the table.
+pub fn run(
+    names: &[String],
+    recipe: &TrainConfig,
+    out: &Path,
+    mut on_epoch: impl FnMut(&RunEpoch),
+) -> ExperimentResult<String> {
+    let start = Instant::now();
+    create_dir(out)?;
+    let configs = variants(recipe);
+    let mut tally = Tally {
+        done: 0,
+        on_epoch: &mut on_epoch,
+    };
     let mut rows: Vec<Row> = VARIANTS
         .iter()
         .map(|v| Row {
@@ -131,32 +154,22 @@ pub fn run(names: &[String], recipe: &TrainConfig, out: &Path) -> anyhow::Result
         let data = demonstrations(&shape);
         for ((variant, config), row) in VARIANTS.iter().zip(&configs).zip(&mut rows) {
             let dir = checkpoints.join(name).join(variant.label.replace(' ', "-"));
-            let trained = train_shape_flow(&shape, &data, config, &progress, &dir)?;
-            progress.finish_model(config.optim.epochs);
-            row.scores.push(evaluate(&trained, &shape)?.0);
+            let trained = train_shape_flow(&shape, &data, config, &mut tally, &dir)?;
+            row.scores.push(scored(&trained, &shape, Model::Flow)?.0);
         }
         let dir = checkpoints.join(name).join("baseline");
-        let trained = train_shape_baseline(&shape, &data, recipe, &progress, &dir)?;
-        progress.finish_model(OptimConfig::default().epochs);
-        baseline.push(evaluate(&trained, &shape)?.0);
+        let trained = train_shape_baseline(&shape, &data, recipe, &mut tally, &dir)?;
+        baseline.push(scored(&trained, &shape, Model::Baseline)?.0);
     }
-    progress.bar.finish_and_clear();
     rows.push(Row {
         label: "baseline",
         change: "the unconstrained MLP (control)",
         scores: baseline,
     });
     let table = markdown(names, &rows, recipe, start.elapsed().as_secs_f64());
-    for (file, text) in [
-        ("ablation.md", &table),
-        ("ablation.csv", &csv(names, &rows)),
-    ] {
-        let path = out.join(file);
-        std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
-    }
-    println!("{table}");
-    println!("wrote {}", out.display());
-    Ok(())
+    write(&out.join("ablation.md"), &table)?;
+    write(&out.join("ablation.csv"), &csv(names, &rows))?;
+    Ok(table)
 }
 
 fn markdown(names: &[String], rows: &[Row], recipe: &TrainConfig, seconds: f64) -> String {

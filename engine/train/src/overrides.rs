@@ -1,0 +1,383 @@
+//! Settings that replace a task's training recipe (`TaskEntry::training_recipe`) where
+//! they are given: what `ciflow train` and `ciflow lasa` accept on the command line. With
+//! the `clap` feature both structs are `clap::Args`, documented once here for `--help`.
+//!
+//! [`RecipeOverrides`] covers the network, the latent and the optimisation, for any task;
+//! [`ContextOverrides`] how the context is read (where the target sits, which entries form
+//! unordered sets, the radial contractions about obstacle centres).
+
+use ciflow_engine::flow::{
+    ContextSet, ContractionConfig, CouplingKind, LatentKind, LocalConfig, SetEncoderConfig,
+};
+
+use crate::{Keep, OptimConfig, TrainConfig};
+
+/// A setting given that does not fit the recipe it would replace.
+#[derive(Debug, thiserror::Error)]
+pub enum OverrideError {
+    #[error(
+        "--spline-bins and --tail-bound set a spline coupling, and this one is affine (add \
+         --coupling spline)"
+    )]
+    SplineSettingsOnAffine,
+    #[error("--contraction-layers: task `{task}` has no centres to contract about")]
+    NoCentres { task: String },
+}
+
+/// The coupling layers, by name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum CouplingChoice {
+    /// Affine coupling with tanh-bounded log-scale.
+    Affine,
+    /// Rational-quadratic spline coupling with identity tails.
+    Spline,
+}
+
+/// The latent attractor, by name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum LatentChoice {
+    /// Fixed-point attractor.
+    GoTo,
+    /// Fixed-point attractor approached at bounded speed.
+    SaturatedGoTo,
+    /// Limit cycle in the first two latent dimensions.
+    LimitCycle,
+}
+
+impl From<LatentChoice> for LatentKind {
+    fn from(latent: LatentChoice) -> Self {
+        match latent {
+            LatentChoice::GoTo => LatentKind::GoTo,
+            LatentChoice::SaturatedGoTo => LatentKind::SaturatedGoTo,
+            LatentChoice::LimitCycle => LatentKind::LimitCycle,
+        }
+    }
+}
+
+/// Which epoch's parameters to keep, by name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum KeepChoice {
+    /// The epoch with the best validation score (early stopping).
+    BestValidation,
+    /// The last epoch's.
+    Last,
+}
+
+impl From<KeepChoice> for Keep {
+    fn from(keep: KeepChoice) -> Self {
+        match keep {
+            KeepChoice::BestValidation => Keep::BestValidation,
+            KeepChoice::Last => Keep::Last,
+        }
+    }
+}
+
+/// Architecture and optimisation settings; those not given keep the task's recipe.
+#[derive(Clone, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct RecipeOverrides {
+    /// Latent attractor [default: the task's: limit-cycle for limit-cycle, saturated-go-to
+    /// for lasa, else go-to].
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub latent: Option<LatentChoice>,
+    /// Coupling layers [default: the task's: affine for lasa and pouring, else spline].
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub coupling: Option<CouplingChoice>,
+    /// Bins of each spline coupling [default: the task's spline's, else 8].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub spline_bins: Option<usize>,
+    /// Half-width `B` of the spline's interval `[-B, B]` (normalised units; identity
+    /// outside) [default: the task's spline's, else 4].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub tail_bound: Option<f64>,
+    /// Number of (mixing, coupling) blocks [default: the task's: 10 for lasa and pouring,
+    /// else 6].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub layers: Option<usize>,
+    /// Hidden widths of each conditioner MLP, comma-separated [default: the task's: 32,32
+    /// for lasa, else 64,64].
+    #[cfg_attr(feature = "clap", arg(long, value_delimiter = ','))]
+    pub hidden: Option<Vec<usize>>,
+    /// Guaranteed latent contraction rate (1/s) [default: the task's: 1 for go-to tasks,
+    /// whose demonstrations arrive within 2–9 s; 0.2 for lasa, whose saturated latent
+    /// keeps its constant pace only where it is faster than this rate; 0.1 for the limit
+    /// cycle].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub min_rate: Option<f64>,
+    /// Gaussian jitter added to training states, as a fraction of the demonstrations' RMS
+    /// step; gives deterministic (expert) demonstrations a bounded likelihood; 0 trains
+    /// on the states as recorded (exact maximum likelihood) [default: the task's: 0 for
+    /// lasa, else 0.1].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub state_noise: Option<f64>,
+    /// Longest modelled transition: each training pair spans k ~ U{1..K} steps, scored
+    /// with the exact k-step density (1: one-step transitions) [default: the task's: 40
+    /// for lasa, else 1].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub horizon: Option<usize>,
+    /// Share of the training pairs whose span runs to the end of their demonstration
+    /// (0: none) [default: the task's: 0.25 for lasa, else 0].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub arrival: Option<f64>,
+    /// Fraction of the demonstrations held out for early stopping (0: fit all of them,
+    /// the training loss stands in for the validation score) [default: the task's: 0 for
+    /// lasa, pouring and the limit cycle, else 0.2].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub validation_fraction: Option<f64>,
+    /// Epoch budget [default: the task's: 30 for lasa, 6 for pouring, else 200].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub epochs: Option<usize>,
+    /// Training pairs per step [default: the task's: 512 for pouring, else 256].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub batch_size: Option<usize>,
+    /// Initial learning rate [default: the recipe's, 2e-3].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub learning_rate: Option<f64>,
+    /// Early-stopping patience in epochs [default: the recipe's, 30].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub patience: Option<usize>,
+    /// Which epoch's parameters to keep [default: the task's: last for lasa, pouring and
+    /// the limit cycle, else best-validation].
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub keep: Option<KeepChoice>,
+    /// Seed of the initial weights, the hold-out and the batches [default: 0].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub seed: Option<u64>,
+    /// libtorch threads [default: 1].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub threads: Option<i32>,
+}
+
+impl RecipeOverrides {
+    /// `recipe` with the settings given in its place. The spline settings apply to
+    /// whichever spline the coupling is; with an affine one they are an error rather than
+    /// silently ignored.
+    pub fn apply(&self, recipe: TrainConfig) -> Result<TrainConfig, OverrideError> {
+        let (bins, tail_bound) = match recipe.coupling {
+            CouplingKind::Spline { bins, tail_bound } => (bins, tail_bound),
+            CouplingKind::Affine { .. } => (8, 4.0),
+        };
+        let spline = CouplingKind::Spline {
+            bins: self.spline_bins.unwrap_or(bins),
+            tail_bound: self.tail_bound.unwrap_or(tail_bound),
+        };
+        let spline_settings = self.spline_bins.is_some() || self.tail_bound.is_some();
+        let coupling = match (self.coupling, recipe.coupling) {
+            (Some(CouplingChoice::Spline), _) | (None, CouplingKind::Spline { .. }) => spline,
+            _ if spline_settings => return Err(OverrideError::SplineSettingsOnAffine),
+            (Some(CouplingChoice::Affine), _) => CouplingKind::AFFINE,
+            (None, affine) => affine,
+        };
+        Ok(TrainConfig {
+            latent: self.latent.map_or(recipe.latent, LatentKind::from),
+            coupling,
+            layers: self.layers.unwrap_or(recipe.layers),
+            hidden: self.hidden.clone().unwrap_or(recipe.hidden),
+            min_rate: self.min_rate.unwrap_or(recipe.min_rate),
+            horizon: self.horizon.unwrap_or(recipe.horizon),
+            arrival: self.arrival.unwrap_or(recipe.arrival),
+            state_noise: self.state_noise.unwrap_or(recipe.state_noise),
+            validation_fraction: self
+                .validation_fraction
+                .unwrap_or(recipe.validation_fraction),
+            threads: self.threads.unwrap_or(recipe.threads),
+            optim: OptimConfig {
+                epochs: self.epochs.unwrap_or(recipe.optim.epochs),
+                batch_size: self.batch_size.unwrap_or(recipe.optim.batch_size),
+                learning_rate: self.learning_rate.unwrap_or(recipe.optim.learning_rate),
+                patience: self.patience.unwrap_or(recipe.optim.patience),
+                keep: self.keep.map_or(recipe.optim.keep, Keep::from),
+                seed: self.seed.unwrap_or(recipe.optim.seed),
+                ..recipe.optim
+            },
+            ..recipe
+        })
+    }
+}
+
+/// How the context is read; settings not given keep the task's recipe.
+#[derive(Clone, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct ContextOverrides {
+    /// Context indices holding the go-to target (one per state dimension),
+    /// comma-separated [default: the task's: the target of obstacle-avoidance, the goal
+    /// of lasa, none otherwise].
+    #[cfg_attr(feature = "clap", arg(long, value_delimiter = ','))]
+    pub goal_context_indices: Option<Vec<usize>>,
+    /// Unordered sets in the context, which the conditioners see through a
+    /// permutation-invariant set encoder: START:COUNT:SIZE (COUNT elements of SIZE entries
+    /// from context index START), comma-separated, or `none` [default: the task's: the
+    /// obstacle centres of obstacle-avoidance, none otherwise].
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_delimiter = ',', value_parser = parse_context_set)
+    )]
+    pub context_sets: Option<Vec<Option<ContextSet>>>,
+    /// Radial contraction layers about the obstacle centres in front of the network (0:
+    /// none) [default: the task's: 8 for obstacle-avoidance; other tasks have no centres
+    /// to contract about].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub contraction_layers: Option<usize>,
+    /// Width `W_ψ` of the local features each coupling pools over every context set, from
+    /// a network with one hidden layer of `2 W_ψ` (0: none; the set encoder's summary
+    /// alone) [default: the set encoder's].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub local_features: Option<usize>,
+}
+
+impl ContextOverrides {
+    /// `recipe` with the settings given in its place.
+    pub fn apply(&self, recipe: TrainConfig) -> Result<TrainConfig, OverrideError> {
+        let contractions = match (self.contraction_layers, recipe.contractions) {
+            (Some(0), _) => None,
+            (Some(layers), Some(contractions)) => Some(ContractionConfig {
+                layers,
+                ..contractions
+            }),
+            (Some(_), None) => return Err(OverrideError::NoCentres { task: recipe.task }),
+            (None, contractions) => contractions,
+        };
+        let local = match self.local_features {
+            Some(0) => None,
+            Some(width) => Some(LocalConfig {
+                hidden: vec![2 * width],
+                width,
+            }),
+            None => recipe.set_encoder.local.clone(),
+        };
+        Ok(TrainConfig {
+            goal_context_indices: self
+                .goal_context_indices
+                .clone()
+                .or(recipe.goal_context_indices),
+            context_sets: match &self.context_sets {
+                Some(sets) => sets.iter().flatten().copied().collect(),
+                None => recipe.context_sets,
+            },
+            contractions,
+            set_encoder: SetEncoderConfig {
+                local,
+                ..recipe.set_encoder
+            },
+            ..recipe
+        })
+    }
+}
+
+/// `START:COUNT:SIZE` as a [`ContextSet`], `none` as no set.
+pub fn parse_context_set(text: &str) -> Result<Option<ContextSet>, String> {
+    if text == "none" {
+        return Ok(None);
+    }
+    let fields: Vec<usize> = text
+        .split(':')
+        .map(|f| f.parse().map_err(|e| format!("`{f}`: {e}")))
+        .collect::<Result<_, _>>()?;
+    match fields[..] {
+        [start, count, size] => Ok(Some(ContextSet { start, count, size })),
+        _ => Err(format!("`{text}` is not START:COUNT:SIZE or `none`")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ciflow_engine::flow::LatentKind;
+
+    fn recipe(coupling: CouplingKind) -> TrainConfig {
+        TrainConfig {
+            coupling,
+            ..TrainConfig::new("test", LatentKind::GoTo)
+        }
+    }
+
+    #[test]
+    fn nothing_given_keeps_the_recipe() {
+        let recipe = recipe(CouplingKind::AFFINE);
+        let kept = RecipeOverrides::default().apply(recipe.clone()).unwrap();
+        assert_eq!(kept, recipe);
+        assert_eq!(
+            ContextOverrides::default().apply(recipe.clone()).unwrap(),
+            recipe
+        );
+    }
+
+    #[test]
+    fn every_setting_given_replaces_the_recipe() {
+        let overrides = RecipeOverrides {
+            batch_size: Some(64),
+            epochs: Some(2),
+            validation_fraction: Some(0.1),
+            learning_rate: Some(1e-4),
+            keep: Some(KeepChoice::Last),
+            latent: Some(LatentChoice::LimitCycle),
+            ..RecipeOverrides::default()
+        };
+        let config = overrides.apply(recipe(CouplingKind::AFFINE)).unwrap();
+        assert_eq!((config.optim.batch_size, config.optim.epochs), (64, 2));
+        assert_eq!(config.validation_fraction, 0.1);
+        assert_eq!(config.optim.learning_rate, 1e-4);
+        assert_eq!(config.optim.keep, Keep::Last);
+        assert_eq!(config.latent, LatentKind::LimitCycle);
+    }
+
+    #[test]
+    fn spline_settings_apply_to_a_spline_and_are_refused_for_an_affine_coupling() {
+        let bins = RecipeOverrides {
+            spline_bins: Some(12),
+            ..RecipeOverrides::default()
+        };
+        let spline = recipe(CouplingKind::Spline {
+            bins: 8,
+            tail_bound: 3.0,
+        });
+        assert_eq!(
+            bins.apply(spline).unwrap().coupling,
+            CouplingKind::Spline {
+                bins: 12,
+                tail_bound: 3.0
+            }
+        );
+        assert!(matches!(
+            bins.apply(recipe(CouplingKind::AFFINE)),
+            Err(OverrideError::SplineSettingsOnAffine)
+        ));
+        let switched = RecipeOverrides {
+            coupling: Some(CouplingChoice::Spline),
+            ..bins
+        };
+        assert!(matches!(
+            switched
+                .apply(recipe(CouplingKind::AFFINE))
+                .unwrap()
+                .coupling,
+            CouplingKind::Spline { bins: 12, .. }
+        ));
+    }
+
+    #[test]
+    fn contraction_layers_need_centres_and_context_sets_parse() {
+        let layers = ContextOverrides {
+            contraction_layers: Some(3),
+            ..ContextOverrides::default()
+        };
+        assert!(matches!(
+            layers.apply(recipe(CouplingKind::AFFINE)),
+            Err(OverrideError::NoCentres { .. })
+        ));
+        assert_eq!(
+            parse_context_set("2:3:2"),
+            Ok(Some(ContextSet {
+                start: 2,
+                count: 3,
+                size: 2
+            }))
+        );
+        assert_eq!(parse_context_set("none"), Ok(None));
+        assert!(parse_context_set("2:3").is_err());
+        assert!(parse_context_set("a:3:2").is_err());
+    }
+}

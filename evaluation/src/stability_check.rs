@@ -1,0 +1,270 @@
+//! The stability check of a checkpoint, as `ciflow stability` runs it: [`measure`]d
+//! rollouts in observation space for contexts from the training box and, as many again,
+//! for contexts from the box scaled by `far_context_scale`; optionally the negative
+//! control that the check must catch — the same flow with its latent run backwards in time
+//! ([`Policy::time_reversed`]), a model of the same class whose attractor repels — and the
+//! rollouts through the computed-torque simulator of the flow's robot ([`robot_loop`]).
+//!
+//! A flow must converge from every start; the behaviour-cloning baseline need not.
+//! [`StabilityCheckReport::verdict`] fails when the negative control slipped through.
+//!
+//! [`Policy::time_reversed`]: ciflow_engine::flow::Policy::time_reversed
+//! [`robot_loop`]: crate::robot_loop
+
+use std::fmt;
+
+use ciflow_engine::flow::{MeanDynamics, Policy};
+use ciflow_engine::robot::{JointLimits, PointMass2d, Robot};
+use ciflow_engine::sim::{SimConfig, Simulator};
+use ciflow_envs::actor::Model;
+use ciflow_envs::registry;
+use serde::Serialize;
+
+use crate::error::{EvaluationError, EvaluationResult};
+use crate::robot_loop::{RobotLoopConfig, RobotLoopError, RobotLoopReport, measure_robot_loop};
+use crate::stability::{StabilityConfig, StabilityReport, measure};
+
+/// The share of the negative control's rollouts the check must flag.
+pub const NEGATIVE_CONTROL_FLAGGED: f64 = 0.99;
+
+/// Settings of [`check_stability`].
+#[derive(Clone, Debug)]
+pub struct StabilityCheck {
+    /// The rollouts with contexts from the training box (their `context_scale` is 1).
+    pub rollouts: StabilityConfig,
+    /// The far contexts come from the training box scaled by this factor.
+    pub far_context_scale: f64,
+    /// Rollouts of the negative control (flows only; `None`: no control).
+    pub negative_control_starts: Option<usize>,
+    /// The robot loop (flows only; `None`: not run).
+    pub robot_loop: Option<RobotLoopConfig>,
+}
+
+/// Outcome of [`check_stability`].
+#[derive(Clone, Debug, Serialize)]
+pub struct StabilityCheckReport {
+    /// Contexts from the training box.
+    pub observation_space: StabilityReport,
+    /// Contexts from the box scaled by `far_context_scale`.
+    pub far_contexts: StabilityReport,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub negative_control: Option<StabilityReport>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robot_loop: Option<RobotLoopReport>,
+    /// What was run, for the text report.
+    #[serde(skip)]
+    pub check: StabilityCheck,
+}
+
+/// A stage of the check, for progress reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    TrainingContexts,
+    FarContexts,
+    NegativeControl,
+    RobotLoop,
+}
+
+impl Stage {
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::TrainingContexts => "training contexts",
+            Stage::FarContexts => "far contexts",
+            Stage::NegativeControl => "negative control",
+            Stage::RobotLoop => "robot loop",
+        }
+    }
+}
+
+/// Runs `check` on `model`; `progress(stage, total, done)` is called after each rollout.
+pub fn check_stability(
+    model: &Model,
+    check: &StabilityCheck,
+    mut progress: impl FnMut(Stage, usize, usize),
+) -> EvaluationResult<StabilityCheckReport> {
+    let flow = model.flow();
+    if flow.is_none() && (check.negative_control_starts.is_some() || check.robot_loop.is_some()) {
+        return Err(EvaluationError::InvalidConfig(
+            "the negative control and the robot loop need a flow: the baseline has no latent \
+             to reverse and no desired acceleration"
+                .into(),
+        ));
+    }
+    let mut run = |config: &StabilityConfig, stage: Stage| match model {
+        Model::Flow(policy) => measured(policy.as_ref(), config, stage, &mut progress),
+        Model::Baseline(baseline) => measured(baseline.as_ref(), config, stage, &mut progress),
+    };
+    let observation_space = run(&check.rollouts, Stage::TrainingContexts)?;
+    let far = StabilityConfig {
+        context_scale: check.far_context_scale,
+        ..check.rollouts.clone()
+    };
+    let far_contexts = run(&far, Stage::FarContexts)?;
+    let negative_control = match (flow, check.negative_control_starts) {
+        (Some(policy), Some(starts)) => {
+            let config = StabilityConfig {
+                starts,
+                ..check.rollouts.clone()
+            };
+            let reversed = policy.time_reversed();
+            Some(measured(
+                &reversed,
+                &config,
+                Stage::NegativeControl,
+                &mut progress,
+            )?)
+        }
+        _ => None,
+    };
+    let robot_loop = match (flow, &check.robot_loop) {
+        (Some(policy), Some(config)) => {
+            let mut simulator = robot_simulator(policy, check.rollouts.scale)?;
+            let stage = Stage::RobotLoop;
+            let report = measure_robot_loop(policy, &mut simulator, config, |done| {
+                progress(stage, config.starts, done)
+            })?;
+            Some(report)
+        }
+        _ => None,
+    };
+    Ok(StabilityCheckReport {
+        observation_space,
+        far_contexts,
+        negative_control,
+        robot_loop,
+        check: check.clone(),
+    })
+}
+
+/// [`measure`] reporting its progress as `stage`.
+fn measured<M: MeanDynamics + Sync>(
+    model: &M,
+    config: &StabilityConfig,
+    stage: Stage,
+    progress: &mut impl FnMut(Stage, usize, usize),
+) -> EvaluationResult<StabilityReport> {
+    Ok(measure(model, config, |done| {
+        progress(stage, config.starts, done)
+    })?)
+}
+
+/// The robot `policy` drives: its task's arm (real limits), or for the planar tasks a
+/// 1 kg point mass confined to the demonstrations' box scaled by `scale` about its centre.
+pub fn robot_simulator(policy: &Policy, scale: f64) -> EvaluationResult<Simulator> {
+    let config = policy.config();
+    let sim_config = SimConfig {
+        physics_dt: config.dt.min(1e-3),
+        control_dt: config.dt,
+        ..SimConfig::default()
+    };
+    let task = registry::entry(&config.task)?;
+    let robot: Box<dyn Robot> = match task.robot {
+        Some(arm) => arm(),
+        None => {
+            let bounds = &config.bounds;
+            let d = config.state_dim;
+            let mut limits = JointLimits::unlimited(d);
+            for i in 0..d {
+                let (lo, hi) = (bounds.state_min[i], bounds.state_max[i]);
+                let (centre, half) = (0.5 * (lo + hi), 0.5 * scale * (hi - lo));
+                limits.q_min[i] = centre - half;
+                limits.q_max[i] = centre + half;
+            }
+            Box::new(PointMass2d::new(1.0)?.with_limits(limits)?)
+        }
+    };
+    if robot.dof() != config.state_dim {
+        return Err(RobotLoopError::Invalid(format!(
+            "task `{}` drives a {}-joint robot, the checkpoint's state is {}-D",
+            task.name,
+            robot.dof(),
+            config.state_dim
+        ))
+        .into());
+    }
+    Ok(Simulator::new(robot, sim_config).map_err(RobotLoopError::from)?)
+}
+
+/// The negative control slipped through the check.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "the stability check missed its negative control: {converged} of {rollouts} rollouts of \
+     the time-reversed flow counted as converged"
+)]
+pub struct NegativeControlMissed {
+    pub converged: usize,
+    pub rollouts: usize,
+}
+
+impl StabilityCheckReport {
+    /// Fails unless the check flagged at least [`NEGATIVE_CONTROL_FLAGGED`] of the negative
+    /// control's rollouts (when it ran).
+    pub fn verdict(&self) -> Result<(), NegativeControlMissed> {
+        match &self.negative_control {
+            Some(report) if 1.0 - report.fraction < NEGATIVE_CONTROL_FLAGGED => {
+                Err(NegativeControlMissed {
+                    converged: report.converged,
+                    rollouts: report.rollouts,
+                })
+            }
+            _ => Ok(()),
+        }
+    }
+}
+
+impl fmt::Display for StabilityCheckReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let rollouts = &self.check.rollouts;
+        let far = format!("contexts up to {}x outside", self.check.far_context_scale);
+        for (report, contexts) in [
+            (&self.observation_space, "training contexts"),
+            (&self.far_contexts, far.as_str()),
+        ] {
+            writeln!(
+                f,
+                "stability, {contexts}: {:.1}% ({}/{} rollouts from up to {}x outside the \
+                 demonstrations converged within {:.3e} in {} steps; {} non-finite, {} stalled \
+                 away from the attractor)",
+                100.0 * report.fraction,
+                report.converged,
+                report.rollouts,
+                rollouts.scale,
+                report.tolerance,
+                rollouts.max_steps,
+                report.diverged_to_non_finite,
+                report.stalled_away,
+            )?;
+            let shares: Vec<String> = report
+                .within
+                .iter()
+                .map(|share| format!("{:.1}% within {}x", 100.0 * share.fraction, share.factor))
+                .collect();
+            writeln!(f, "  ending near the attractor: {}", shares.join(", "))?;
+        }
+        if let Some(report) = &self.negative_control {
+            writeln!(
+                f,
+                "negative control (the same flow, its latent run backwards): {:.1}% flagged \
+                 ({} of {} did not converge)",
+                100.0 * (1.0 - report.fraction),
+                report.rollouts - report.converged,
+                report.rollouts,
+            )?;
+        }
+        if let (Some(report), Some(config)) = (&self.robot_loop, &self.check.robot_loop) {
+            writeln!(
+                f,
+                "robot loop: {:.1}% ({}/{} computed-torque rollouts converged within {:.3e} in \
+                 {} s; {} saturated the torques, {} hit end stops)",
+                100.0 * report.fraction,
+                report.converged,
+                report.rollouts,
+                config.tolerance,
+                config.duration,
+                report.saturated,
+                report.hit_end_stops,
+            )?;
+        }
+        Ok(())
+    }
+}

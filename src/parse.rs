@@ -1,0 +1,58 @@
+//! Value parsers of the command line's arguments, shared by the commands.
+
+/// `NAME=VALUE` as its two parts.
+pub fn parse_key_value(text: &str) -> Result<(String, String), String> {
+    let (key, value) = text
+        .split_once('=')
+        .ok_or_else(|| format!("`{text}` is not NAME=VALUE"))?;
+    Ok((key.to_string(), value.to_string()))
+}
+
+/// `NAME=VALUE` with a number for VALUE.
+pub fn parse_number_pair(text: &str) -> Result<(String, f64), String> {
+    let (key, value) = parse_key_value(text)?;
+    let number = value
+        .parse()
+        .map_err(|_| format!("`{value}` in `{text}` is not a number"))?;
+    Ok((key, number))
+}
+
+/// `;`-separated contexts, each comma-separated.
+pub fn parse_contexts(text: &str) -> Result<Vec<Vec<f64>>, String> {
+    text.split(';')
+        .map(|c| {
+            c.split(',')
+                .map(|v| v.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|e| format!("context `{c}`: {e}"))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pairs_split_at_the_first_equals_sign() {
+        assert_eq!(
+            parse_key_value("shape=a=b"),
+            Ok(("shape".into(), "a=b".into()))
+        );
+        assert!(parse_key_value("shape").is_err());
+        assert_eq!(
+            parse_number_pair("obstacles=2"),
+            Ok(("obstacles".into(), 2.0))
+        );
+        assert!(parse_number_pair("obstacles=two").is_err());
+    }
+
+    #[test]
+    fn contexts_are_separated_by_semicolons_and_their_entries_by_commas() {
+        assert_eq!(
+            parse_contexts("0; 0.5,1"),
+            Ok(vec![vec![0.0], vec![0.5, 1.0]])
+        );
+        assert!(parse_contexts("0;x").unwrap_err().contains("context `x`"));
+    }
+}
