@@ -3,8 +3,8 @@
 Usage: python lasa_plot.py OUT_DIR
 
 Reads OUT_DIR/plots/<shape>.json (demonstrations, noise-free rollouts of the flow and of
-the behaviour-cloning baseline, and each model's vector field (F(y, g) - y) / dt on a
-grid) and writes
+the behaviour-cloning baseline, and each model's desired velocity on a grid: J_f(z) v(z)
+for the flow, the network's output for the baseline) and writes
 - OUT_DIR/plots/<shape>.png: the flow (left) and the baseline (right), each with its
   streamlines, the demonstrations (grey, dashed) and its rollouts from their starts;
 - OUT_DIR/lasa.png: every shape in a grid, flow streamlines behind the demonstrations,

@@ -267,13 +267,7 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
     }
 
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
-        if width == 0 || height == 0 {
-            return Err(EnvError::InvalidOption {
-                name: "render size".into(),
-                detail: format!("{width} × {height} has no pixels"),
-            });
-        }
-        let mut canvas = Canvas::new(width, height, self.task.setup().workspace);
+        let mut canvas = Canvas::new(width, height, self.task.setup().workspace)?;
         if self.phase != Phase::NeedsReset {
             self.task.draw(&mut canvas);
             canvas.polyline(&self.trail, false, BLUE, 2.0);

@@ -6,6 +6,8 @@
 
 use nalgebra::Vector2;
 
+use crate::env::EnvError;
+
 pub type Rgb = [u8; 3];
 
 pub const WHITE: Rgb = [255, 255, 255];
@@ -37,8 +39,15 @@ pub struct Canvas {
 }
 
 impl Canvas {
-    /// A white frame showing `view`, centred, with equal axis scales.
-    pub fn new(width: u32, height: u32, view: View) -> Self {
+    /// A white frame showing `view`, centred, with equal axis scales; refuses a size
+    /// without pixels.
+    pub fn new(width: u32, height: u32, view: View) -> Result<Self, EnvError> {
+        if width == 0 || height == 0 {
+            return Err(EnvError::InvalidOption {
+                name: "render size".into(),
+                detail: format!("{width} × {height} has no pixels"),
+            });
+        }
         let extent = view.max - view.min;
         let scale = (width as f64 / extent.x).min(height as f64 / extent.y);
         let centre = (view.min + view.max) / 2.0;
@@ -46,13 +55,13 @@ impl Canvas {
             width as f64 / 2.0 - scale * centre.x,
             height as f64 / 2.0 + scale * centre.y,
         );
-        Self {
+        Ok(Self {
             width,
             height,
             pixels: vec![255; width as usize * height as usize * 3],
             scale,
             origin,
-        }
+        })
     }
 
     pub fn into_pixels(self) -> Vec<u8> {
@@ -150,7 +159,7 @@ mod tests {
             min: Vector2::new(-1.0, -1.0),
             max: Vector2::new(1.0, 1.0),
         };
-        let mut canvas = Canvas::new(100, 100, view);
+        let mut canvas = Canvas::new(100, 100, view).unwrap();
         canvas.disc(&Vector2::new(0.5, 0.5), 0.1, RED);
         canvas.line(
             &Vector2::new(-1.0, -0.5),

@@ -242,6 +242,10 @@ fn invalid_inputs_are_typed_errors() {
     ));
     let frame = env.render(96, 96).unwrap();
     assert!(frame.chunks(3).filter(|p| p != &[255, 255, 255]).count() > 200);
+    assert!(matches!(
+        env.render(96, 0),
+        Err(EnvError::InvalidOption { .. })
+    ));
 }
 
 #[test]

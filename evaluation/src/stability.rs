@@ -26,7 +26,8 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use ciflow_engine::flow::{FlowError, FlowResult, MeanDynamics};
-use ciflow_engine::math::distance;
+
+use crate::rollout::MeanStepper;
 
 /// Settings of [`measure`].
 #[derive(Clone, Debug, Serialize)]
@@ -239,8 +240,7 @@ struct Rollout<'a, M: MeanDynamics> {
     model: &'a M,
     config: &'a StabilityConfig,
     ws: M::Workspace,
-    y: Vec<f64>,
-    next: Vec<f64>,
+    stepper: MeanStepper<'a, M>,
     scratch: Vec<f64>,
     context: Vec<f64>,
     /// Radii in observation units: converged and stalled step.
@@ -256,8 +256,7 @@ impl<'a, M: MeanDynamics> Rollout<'a, M> {
             model,
             config,
             ws: model.workspace(),
-            y: vec![0.0; d],
-            next: vec![0.0; d],
+            stepper: MeanStepper::new(model),
             scratch: vec![0.0; d],
             context: vec![0.0; bounds.context_min.len()],
             tolerance,
@@ -275,7 +274,7 @@ impl<'a, M: MeanDynamics> Rollout<'a, M> {
             &bounds.state_max,
             config.scale,
             &mut rng,
-            &mut self.y,
+            self.stepper.state_mut(),
         );
         sample_box(
             &bounds.context_min,
@@ -290,20 +289,18 @@ impl<'a, M: MeanDynamics> Rollout<'a, M> {
         let (mut step, mut stalled) = (0, 0);
         loop {
             step += 1;
-            self.model
-                .mean_next(&self.y, &self.context, &mut self.ws, &mut self.next)?;
-            stalled = match distance(&self.y, &self.next) < self.stall {
+            stalled = match self.stepper.step(&self.context, &mut self.ws)? < self.stall {
                 true => stalled + 1,
                 false => 0,
             };
-            std::mem::swap(&mut self.y, &mut self.next);
-            if self.y.iter().any(|v| !v.is_finite()) {
+            let y = self.stepper.state();
+            if y.iter().any(|v| !v.is_finite()) {
                 return Ok(Ending::NonFinite);
             }
             let (stalls, last) = (stalled >= config.stall_steps, step >= config.max_steps);
             if stalls || last || step % config.check_every == 0 {
                 let distance = self.model.attractor_distance(
-                    &self.y,
+                    y,
                     &self.context,
                     &mut self.ws,
                     &mut self.scratch,

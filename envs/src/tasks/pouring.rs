@@ -458,13 +458,7 @@ impl Env for Pouring {
     }
 
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
-        if width == 0 || height == 0 {
-            return Err(EnvError::InvalidOption {
-                name: "render size".into(),
-                detail: format!("{width} × {height} has no pixels"),
-            });
-        }
-        let mut canvas = Canvas::new(width, height, VIEW);
+        let mut canvas = Canvas::new(width, height, VIEW)?;
         if self.phase == Phase::NeedsReset {
             return Ok(canvas.into_pixels());
         }
