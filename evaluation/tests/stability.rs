@@ -12,7 +12,10 @@ use ciflow_engine::flow::{
     BaselineConfig, BehaviourCloning, Bounds, FlowResult, Goal, Normalisation, Weights,
 };
 use ciflow_engine::math::distance;
+use ciflow_envs::actor::Model;
+use ciflow_evaluation::EvaluationError;
 use ciflow_evaluation::stability::{StabilityConfig, TOLERANCE_FACTORS, measure};
+use ciflow_evaluation::stability_check::{StabilityCheck, check_stability};
 use flow_common::*;
 
 fn check() -> StabilityConfig {
@@ -44,8 +47,8 @@ fn the_check_flags_every_rollout_of_the_time_reversed_flows() {
     }
 }
 
-#[test]
-fn random_behaviour_cloning_does_not_converge_everywhere() {
+/// A behaviour-cloning MLP at random weights, in the unit box around its goal.
+fn random_baseline() -> BehaviourCloning {
     let (d, m) = (2, 2);
     let config = BaselineConfig {
         task: "test".into(),
@@ -60,8 +63,12 @@ fn random_behaviour_cloning_does_not_converge_everywhere() {
         bounds: flow_common::config(d, m, ciflow_engine::flow::LatentKind::GoTo, AFFINE).bounds,
     };
     let weights = Weights::random(&config.parameter_shapes(), 1.0, &mut rng(9));
-    let baseline = BehaviourCloning::new(&config, weights).unwrap();
-    let report = measure(&baseline, &check(), |_| {}).unwrap();
+    BehaviourCloning::new(&config, weights).unwrap()
+}
+
+#[test]
+fn random_behaviour_cloning_does_not_converge_everywhere() {
+    let report = measure(&random_baseline(), &check(), |_| {}).unwrap();
     assert!(report.fraction < 1.0, "{report:?}");
     // Looser tolerances can only admit more rollouts.
     assert_eq!(report.within[0].fraction, report.fraction);
@@ -219,4 +226,53 @@ fn the_report_does_not_depend_on_the_number_of_threads() {
             + &serde_json::to_string(&measure(&policy, &config, |_| {}).unwrap()).unwrap()
     };
     assert_eq!(report(1), report(3));
+}
+
+fn whole_check(negative_control_starts: Option<usize>) -> StabilityCheck {
+    StabilityCheck {
+        rollouts: StabilityConfig {
+            starts: 20,
+            ..check()
+        },
+        far_context_scale: 10.0,
+        negative_control_starts,
+        robot_loop: None,
+    }
+}
+
+#[test]
+fn the_whole_check_passes_a_flow_and_its_verdict_fails_on_a_converging_control() {
+    let model = Model::from(random_policy(&variants()[0], 7));
+    let mut stages = Vec::new();
+    let report = check_stability(&model, &whole_check(Some(20)), |stage, _, _| {
+        if stages.last() != Some(&stage) {
+            stages.push(stage);
+        }
+    })
+    .unwrap();
+    assert_eq!(
+        stages.len(),
+        3,
+        "training contexts, far contexts, control: {stages:?}"
+    );
+    assert_eq!(report.observation_space.fraction, 1.0);
+    assert_eq!(report.far_contexts.fraction, 1.0);
+    assert_eq!(report.far_contexts.context_scale, 10.0);
+    assert!(report.verdict().is_ok(), "{report}");
+    // The same report with a control that converges (the flow itself) must be refused.
+    let flow = model.flow().unwrap();
+    let mut missed = report.clone();
+    missed.negative_control = Some(measure(flow, &missed.check.rollouts, |_| {}).unwrap());
+    let error = missed.verdict().unwrap_err();
+    assert_eq!((error.converged, error.rollouts), (20, 20));
+}
+
+#[test]
+fn the_baseline_has_no_negative_control() {
+    let model = Model::from(random_baseline());
+    assert!(check_stability(&model, &whole_check(None), |_, _, _| {}).is_ok());
+    assert!(matches!(
+        check_stability(&model, &whole_check(Some(20)), |_, _, _| {}),
+        Err(EvaluationError::InvalidConfig(_))
+    ));
 }
