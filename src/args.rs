@@ -19,7 +19,7 @@ pub enum Command {
     /// Record expert demonstrations of a task into a Minari dataset.
     Demos(commands::demos::DemosArgs),
     /// Train a stable conditioned policy by exact maximum likelihood on demonstrations.
-    Train(commands::train::TrainArgs),
+    Train(Box<commands::train::TrainArgs>),
     /// Measure how many noise-free rollouts of a trained policy converge.
     Stability(commands::stability::StabilityArgs),
     /// Evaluate a checkpoint: closed-loop success, collision, spill and push-recovery

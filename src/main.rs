@@ -13,7 +13,7 @@ fn main() -> anyhow::Result<()> {
     match args::Cli::parse().command {
         Command::Robot(args) => commands::robot::run(args),
         Command::Demos(args) => commands::demos::run(args),
-        Command::Train(args) => commands::train::run(args),
+        Command::Train(args) => commands::train::run(*args),
         Command::Stability(args) => commands::stability::run(args),
         Command::Evaluate(args) => commands::evaluate::run(args),
         Command::Lasa(args) => commands::lasa::run(args),

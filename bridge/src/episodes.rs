@@ -188,6 +188,12 @@ fn mismatch(first: &DatasetSpec, other: &DatasetSpec) -> Option<String> {
     if other.env_id != first.env_id {
         return Some(format!("task {} instead of {}", other.env_id, first.env_id));
     }
+    if other.env_kwargs != first.env_kwargs {
+        return Some(format!(
+            "construction arguments {:?} instead of {:?}",
+            other.env_kwargs, first.env_kwargs
+        ));
+    }
     let spaces = [
         (
             "observation",
@@ -264,7 +270,11 @@ mod tests {
     fn episodes_travel_from_a_recorder_to_a_trainer_through_a_hub() {
         let (_hub, recorder, trainer) = sessions(27461);
         let mut env = ciflow_envs::make("limit-cycle").unwrap();
-        let spec = expert_dataset_spec(env.as_ref(), "ciflow/limit-cycle-expert-v0");
+        let spec = expert_dataset_spec(
+            env.as_ref(),
+            &Default::default(),
+            "ciflow/limit-cycle-expert-v0",
+        );
         let episodes: Vec<Episode> = (0..3)
             .map(|seed| expert_episode(env.as_mut(), Some(seed), &ResetOptions::default()))
             .collect::<Result<_, _>>()
@@ -320,7 +330,8 @@ mod tests {
         for obstacles in [1.0, 3.0] {
             let kwargs = [("obstacles".to_owned(), obstacles)].into();
             let mut env = ciflow_envs::make_with("obstacle-avoidance", &kwargs).unwrap();
-            let spec = expert_dataset_spec(env.as_ref(), "ciflow/obstacle-avoidance-expert-v0");
+            let spec =
+                expert_dataset_spec(env.as_ref(), &kwargs, "ciflow/obstacle-avoidance-expert-v0");
             let episode = expert_episode(env.as_mut(), Some(0), &ResetOptions::default()).unwrap();
             publisher.publish(0, &spec, &episode).unwrap();
         }

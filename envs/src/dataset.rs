@@ -3,7 +3,8 @@
 //! A dataset is a directory that `minari.load_dataset` opens without ciflow:
 //!
 //! ```text
-//! <dir>/data/metadata.json          dataset: spaces, counts, id, ciflow extras (dt, context)
+//! <dir>/data/metadata.json          dataset: spaces, counts, id, the environment's
+//!                                   Gymnasium spec, ciflow extras (dt, context)
 //! <dir>/data/<i>/metadata.json      episode i: id, total_steps, seed
 //! <dir>/data/<i>/part-0.arrow       episode i: Arrow IPC file, T + 1 rows
 //! ```
@@ -31,10 +32,18 @@ use arrow_schema::{DataType, Field, Fields, Schema};
 use serde_json::{Value, json};
 
 use crate::env::{PERTURBED_INFO, SUCCESS_INFO};
+use crate::registry::Kwargs;
 use crate::space::{BoxSpace, Dtype};
 
 /// The Minari release whose layout this module writes.
 pub const MINARI_VERSION: &str = "0.5.4";
+/// Where Gymnasium finds ciflow's environment classes (`python/ciflow/registration.py`
+/// registers every task with these): the `env_spec` of a dataset names them so that
+/// Minari's `recover_environment()` rebuilds the environment.
+pub const GYMNASIUM_ENTRY_POINT: &str = "ciflow.env:CiflowEnv";
+pub const GYMNASIUM_VECTOR_ENTRY_POINT: &str = "ciflow.vector:CiflowVectorEnv";
+/// The Python package a recovered environment needs, at this build's version.
+const REQUIREMENT: &str = concat!("ciflow==", env!("CARGO_PKG_VERSION"));
 const METADATA_FILE: &str = "metadata.json";
 const EPISODE_FILE: &str = "part-0.arrow";
 const CONTEXT_INFO: &str = "context";
@@ -60,9 +69,10 @@ pub enum DatasetError {
         #[source]
         source: serde_json::Error,
     },
-    /// A space in the metadata (`observation_space`, …) is not the JSON of a Box.
-    #[error("{path}: not a ciflow/Minari dataset: `{field}` is not a serialized space")]
-    Space {
+    /// A field of the metadata that holds serialized JSON (`observation_space`, …,
+    /// `env_spec`) does not.
+    #[error("{path}: not a ciflow/Minari dataset: `{field}` is not valid serialized JSON")]
+    FieldJson {
         path: PathBuf,
         field: &'static str,
         #[source]
@@ -83,6 +93,8 @@ pub struct DatasetSpec {
     pub dataset_id: String,
     /// The Gymnasium id of the environment that produced the data.
     pub env_id: String,
+    /// Its construction arguments: `gymnasium.make(env_id, **env_kwargs)` rebuilds it.
+    pub env_kwargs: Kwargs,
     pub observation_space: BoxSpace,
     pub action_space: BoxSpace,
     pub context_space: BoxSpace,
@@ -90,6 +102,39 @@ pub struct DatasetSpec {
     pub control_dt: f64,
     /// Who produced the actions, e.g. `expert`.
     pub algorithm_name: String,
+    /// Who made the dataset and how to reach them (Minari's `minari show` lists these).
+    pub credits: Credits,
+}
+
+/// The free-text fields of Minari's dataset metadata (with the `clap` feature, the
+/// command line's flags for them).
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct Credits {
+    /// Author of the dataset (Minari's `author`); repeatable.
+    #[cfg_attr(feature = "clap", arg(long = "author", default_value = "ciflow"))]
+    pub author: Vec<String>,
+    /// Contact address of the author (Minari's `author_email`); repeatable.
+    #[cfg_attr(feature = "clap", arg(long = "author-email"))]
+    pub author_email: Vec<String>,
+    /// Link to the versioned code that produced the data (Minari's `code_permalink`).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub code_permalink: Option<String>,
+    /// What the dataset holds (Minari's `description`; default: one naming the task, its
+    /// arguments, the time step and where the context is).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub description: Option<String>,
+}
+
+impl Default for Credits {
+    fn default() -> Self {
+        Self {
+            author: vec!["ciflow".into()],
+            author_email: Vec::new(),
+            code_permalink: None,
+            description: None,
+        }
+    }
 }
 
 /// One episode: `T` steps, `T + 1` observations.
@@ -127,6 +172,15 @@ impl Episode {
             .get(PERTURBED_INFO)
             .and_then(|flags| flags.get(t + 1))
             .is_some_and(|&flag| flag == 1.0)
+    }
+
+    /// Whether the episode records that it achieved its task: its last [`SUCCESS_INFO`]
+    /// is 1.
+    pub fn succeeded(&self) -> bool {
+        self.infos
+            .get(SUCCESS_INFO)
+            .and_then(|flags| flags.last())
+            .is_some_and(|&last| last == 1.0)
     }
 
     /// Whether the episode records that it ended without achieving its task: its last
@@ -210,7 +264,12 @@ pub struct DatasetWriter {
 }
 
 impl DatasetWriter {
-    pub fn create(dir: &Path, spec: DatasetSpec, overwrite: bool) -> Result<Self> {
+    /// Starts a dataset at `dir` described by `spec`; a description naming the environment
+    /// is filled in when `spec` has none (see [`DatasetWriter::spec`]).
+    pub fn create(dir: &Path, mut spec: DatasetSpec, overwrite: bool) -> Result<Self> {
+        if spec.credits.description.is_none() {
+            spec.credits.description = Some(default_description(&spec));
+        }
         if dir.exists() && !overwrite {
             return Err(DatasetError::AlreadyExists(dir.to_path_buf()));
         }
@@ -236,6 +295,11 @@ impl DatasetWriter {
             total_steps: 0,
             finished: false,
         })
+    }
+
+    /// The description written to the dataset's metadata.
+    pub fn spec(&self) -> &DatasetSpec {
+        &self.spec
     }
 
     /// Writes the next episode (its id is the number of episodes written before it).
@@ -302,7 +366,7 @@ pub fn read(dir: &Path) -> Result<(DatasetSpec, Vec<Episode>)> {
             path: metadata_path.clone(),
             detail,
         },
-        MetadataError::Space { field, source } => DatasetError::Space {
+        MetadataError::Json { field, source } => DatasetError::FieldJson {
             path: metadata_path.clone(),
             field,
             source,
@@ -572,7 +636,8 @@ fn list_rows(array: &ArrayRef) -> std::result::Result<Vec<Vec<f64>>, String> {
 }
 
 fn dataset_metadata(spec: &DatasetSpec, total_episodes: usize, total_steps: usize) -> Value {
-    json!({
+    let credits = &spec.credits;
+    let mut metadata = json!({
         "dataset_id": spec.dataset_id,
         "algorithm_name": spec.algorithm_name,
         "total_episodes": total_episodes,
@@ -581,21 +646,92 @@ fn dataset_metadata(spec: &DatasetSpec, total_episodes: usize, total_steps: usiz
         "jpeg_encoding": false,
         "observation_space": minari_box(&spec.observation_space),
         "action_space": minari_box(&spec.action_space),
+        "env_spec": gymnasium_env_spec(spec),
+        "requirements": [REQUIREMENT],
         "minari_version": MINARI_VERSION,
-        "author": ["ciflow"],
+        "author": credits.author,
         "ciflow": {
             "env_id": spec.env_id,
             "control_dt": spec.control_dt,
             "context_space": minari_box(&spec.context_space),
         },
-    })
+    });
+    if !credits.author_email.is_empty() {
+        metadata["author_email"] = json!(credits.author_email);
+    }
+    if let Some(link) = &credits.code_permalink {
+        metadata["code_permalink"] = json!(link);
+    }
+    if let Some(description) = &credits.description {
+        metadata["description"] = json!(description);
+    }
+    metadata
 }
 
-/// Why metadata do not describe a dataset: a check of ours failed, or a space is not JSON.
+/// The environment as Gymnasium's `EnvSpec.to_json()` writes it, which Minari stores as
+/// `env_spec` and `recover_environment()` hands to `gymnasium.make`. No time limit: the
+/// tasks truncate their episodes themselves, as registered.
+fn gymnasium_env_spec(spec: &DatasetSpec) -> String {
+    let mut kwargs = serde_json::Map::from_iter([("task".to_string(), json!(spec.env_id))]);
+    kwargs.extend(
+        spec.env_kwargs
+            .iter()
+            .map(|(name, &value)| (name.clone(), json_number(value))),
+    );
+    json!({
+        "id": spec.env_id,
+        "entry_point": GYMNASIUM_ENTRY_POINT,
+        "reward_threshold": null,
+        "nondeterministic": false,
+        "max_episode_steps": null,
+        "order_enforce": true,
+        "disable_env_checker": false,
+        "kwargs": kwargs,
+        "additional_wrappers": [],
+        "vector_entry_point": GYMNASIUM_VECTOR_ENTRY_POINT,
+    })
+    .to_string()
+}
+
+/// An integer where the value is one (`obstacles: 2`, as a person would write it).
+fn json_number(value: f64) -> Value {
+    const EXACT: f64 = (1u64 << 53) as f64;
+    if value.fract() == 0.0 && value.abs() < EXACT {
+        json!(value as i64)
+    } else {
+        json!(value)
+    }
+}
+
+/// What a dataset of `spec` holds, for Minari's `description` when none is given.
+fn default_description(spec: &DatasetSpec) -> String {
+    let arguments = spec
+        .env_kwargs
+        .iter()
+        .map(|(name, value)| format!("{name}={value}"))
+        .collect::<Vec<_>>();
+    let with = match arguments.is_empty() {
+        true => String::new(),
+        false => format!(" ({})", arguments.join(", ")),
+    };
+    format!(
+        "Demonstrations of {}{with} by its `{}` policy, recorded by ciflow {}: one \
+         observation every {} s; the context is the observation's last {} values and the \
+         `context` info.",
+        spec.env_id,
+        spec.algorithm_name,
+        env!("CARGO_PKG_VERSION"),
+        spec.control_dt,
+        spec.context_space.dim()
+    )
+}
+
+/// Why metadata do not describe a dataset: a check of ours failed, or a field that holds
+/// serialized JSON (a space, the environment's spec) is not JSON.
 #[derive(Debug)]
 enum MetadataError {
     Invalid(String),
-    Space {
+    Json {
         field: &'static str,
         source: serde_json::Error,
     },
@@ -614,7 +750,27 @@ fn spec_from_metadata(metadata: &Value) -> std::result::Result<DatasetSpec, Meta
             .map(str::to_owned)
             .ok_or_else(|| format!("missing `{name}`"))
     };
+    let texts = |name: &str| -> Vec<String> {
+        match &metadata[name] {
+            Value::String(one) => vec![one.clone()],
+            many => many
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter_map(|v| v.as_str().map(str::to_owned))
+                .collect(),
+        }
+    };
     let ciflow = &metadata["ciflow"];
+    let env_spec = match metadata["env_spec"].as_str() {
+        Some(serialized) => {
+            serde_json::from_str(serialized).map_err(|source| MetadataError::Json {
+                field: "env_spec",
+                source,
+            })?
+        }
+        None => Value::Null,
+    };
     let observation_space =
         parse_minari_box("observation_space", &text(metadata, "observation_space")?)?;
     let context_space = match ciflow["context_space"].as_str() {
@@ -623,12 +779,29 @@ fn spec_from_metadata(metadata: &Value) -> std::result::Result<DatasetSpec, Meta
     };
     Ok(DatasetSpec {
         dataset_id: text(metadata, "dataset_id")?,
-        env_id: text(ciflow, "env_id").unwrap_or_default(),
+        env_id: text(ciflow, "env_id")
+            .or_else(|_| text(&env_spec, "id"))
+            .unwrap_or_default(),
+        // The numbers among the construction arguments, which are what ciflow's take;
+        // `task` only repeats the id.
+        env_kwargs: env_spec["kwargs"]
+            .as_object()
+            .into_iter()
+            .flatten()
+            .filter(|(name, _)| name.as_str() != "task")
+            .filter_map(|(name, value)| Some((name.clone(), value.as_f64()?)))
+            .collect(),
         action_space: parse_minari_box("action_space", &text(metadata, "action_space")?)?,
         observation_space,
         context_space,
         control_dt: ciflow["control_dt"].as_f64().unwrap_or(f64::NAN),
         algorithm_name: text(metadata, "algorithm_name").unwrap_or_default(),
+        credits: Credits {
+            author: texts("author"),
+            author_email: texts("author_email"),
+            code_permalink: text(metadata, "code_permalink").ok(),
+            description: text(metadata, "description").ok(),
+        },
     })
 }
 
@@ -667,7 +840,7 @@ fn parse_minari_box(
         .replace("-Infinity", "\"-inf\"")
         .replace("Infinity", "\"inf\"");
     let value: Value =
-        serde_json::from_str(&standard).map_err(|source| MetadataError::Space { field, source })?;
+        serde_json::from_str(&standard).map_err(|source| MetadataError::Json { field, source })?;
     if value["type"] != "Box" {
         return Err(format!("only Box spaces are supported, found {}", value["type"]).into());
     }
@@ -685,7 +858,7 @@ fn parse_minari_box(
     };
     let (low, high) = (bounds("low")?, bounds("high")?);
     if low.len() != high.len() {
-        return Err(MetadataError::Invalid("Box bounds differ in length".into()));
+        return Err(String::from("Box bounds differ in length").into());
     }
     let dtype = match value["dtype"].as_str() {
         Some("float32") => Dtype::Float32,

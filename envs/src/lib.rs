@@ -17,6 +17,7 @@ pub mod expert;
 pub mod lasa;
 pub mod learning_curve;
 pub mod planar;
+pub mod python;
 pub mod raster;
 pub mod recipes;
 pub mod registry;

@@ -1,7 +1,8 @@
 //! Recording episodes of the expert: what `ciflow demos` and the tests run.
 
-use crate::dataset::{DatasetSpec, Episode};
+use crate::dataset::{Credits, DatasetSpec, Episode};
 use crate::env::{Env, EnvError, ResetOptions};
+use crate::registry::Kwargs;
 
 /// Resets `env` with `seed` and `options`, then lets the expert act until the episode
 /// terminates or is truncated, recording everything a dataset holds.
@@ -38,17 +39,19 @@ pub fn expert_episode(
     }
 }
 
-/// The dataset description of `env`'s expert demonstrations.
-pub fn expert_dataset_spec(env: &dyn Env, dataset_id: &str) -> DatasetSpec {
+/// The dataset description of the expert demonstrations of `env`, built with `kwargs`.
+pub fn expert_dataset_spec(env: &dyn Env, kwargs: &Kwargs, dataset_id: &str) -> DatasetSpec {
     let spec = env.spec();
     DatasetSpec {
         dataset_id: dataset_id.to_string(),
         env_id: spec.id.clone(),
+        env_kwargs: kwargs.clone(),
         observation_space: spec.observation_space.clone(),
         action_space: spec.action_space.clone(),
         context_space: spec.context_space.clone(),
         control_dt: spec.control_dt,
         algorithm_name: "expert".into(),
+        credits: Credits::default(),
     }
 }
 
@@ -58,7 +61,7 @@ pub struct Recording {
     /// Task name or Gymnasium id.
     pub task: String,
     /// Construction arguments of the task.
-    pub kwargs: crate::registry::Kwargs,
+    pub kwargs: Kwargs,
     /// Reset options for every episode (`ResetOptions::extra`).
     pub options: std::collections::BTreeMap<String, f64>,
     pub episodes: u64,
@@ -66,6 +69,8 @@ pub struct Recording {
     pub seed: u64,
     /// Minari dataset id; `ciflow/<task name>-expert-v0` when unset.
     pub dataset_id: Option<String>,
+    /// Who made the dataset.
+    pub credits: Credits,
 }
 
 /// Why a recording failed.
@@ -93,12 +98,16 @@ pub fn record_expert_dataset(
         .dataset_id
         .clone()
         .unwrap_or_else(|| format!("ciflow/{}-expert-v0", entry.name));
-    let spec = expert_dataset_spec(env.as_ref(), &dataset_id);
+    let spec = DatasetSpec {
+        credits: recording.credits.clone(),
+        ..expert_dataset_spec(env.as_ref(), &recording.kwargs, &dataset_id)
+    };
     let options = ResetOptions {
         extra: recording.options.clone(),
         ..ResetOptions::default()
     };
-    let mut writer = crate::dataset::DatasetWriter::create(out, spec.clone(), overwrite)?;
+    let mut writer = crate::dataset::DatasetWriter::create(out, spec, overwrite)?;
+    let spec = writer.spec().clone();
     for episode in 0..recording.episodes {
         let seed = recording.seed.wrapping_add(episode);
         let data = expert_episode(env.as_mut(), Some(seed), &options)

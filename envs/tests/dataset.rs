@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use ciflow_envs::ResetOptions;
-use ciflow_envs::dataset::{self, DatasetError, DatasetWriter};
+use ciflow_envs::dataset::{self, Credits, DatasetError, DatasetWriter};
 use ciflow_envs::rollout::{Recording, expert_dataset_spec, expert_episode, record_expert_dataset};
 use ciflow_envs::tasks::obstacle_avoidance;
 
@@ -14,24 +14,43 @@ fn scratch_dir(name: &str) -> PathBuf {
     dir
 }
 
+/// `episodes` expert episodes of obstacle avoidance with 2 obstacles (not the default 3).
+fn two_obstacles(episodes: u64, seed: u64, credits: Credits) -> Recording {
+    Recording {
+        task: "obstacle-avoidance".into(),
+        kwargs: [("obstacles".to_string(), 2.0)].into(),
+        options: Default::default(),
+        episodes,
+        seed,
+        dataset_id: None,
+        credits,
+    }
+}
+
 #[test]
 fn recorded_expert_episodes_read_back_identically() {
     let dir = scratch_dir("round-trip");
     let out = dir.join("ciflow").join("obstacles-expert-v0");
-    let recording = Recording {
-        task: "obstacle-avoidance".into(),
-        kwargs: [("obstacles".to_string(), 2.0)].into(),
-        options: Default::default(),
-        episodes: 4,
-        seed: 11,
-        dataset_id: None,
+    let credits = Credits {
+        author: vec!["A. Person".into(), "B. Person".into()],
+        author_email: vec!["a@example.org".into()],
+        code_permalink: Some("https://example.org/ciflow/tree/abc".into()),
+        description: None,
     };
+    let recording = two_obstacles(4, 11, credits);
     let mut recorded = vec![];
     let spec =
         record_expert_dataset(&recording, &out, false, |e| recorded.push(e.clone())).unwrap();
     let (read_spec, episodes) = dataset::read(&out).unwrap();
     assert_eq!(read_spec, spec);
     assert_eq!(spec.dataset_id, "ciflow/obstacle-avoidance-expert-v0");
+    assert_eq!(spec.env_kwargs, [("obstacles".to_string(), 2.0)].into());
+    assert_eq!(spec.credits.author, ["A. Person", "B. Person"]);
+    let description = spec.credits.description.as_deref().unwrap();
+    assert!(
+        description.contains("ciflow/Obstacle-v0 (obstacles=2)"),
+        "{description}"
+    );
     assert_eq!(episodes, recorded);
     assert_eq!(
         episodes.iter().map(|e| e.seed).collect::<Vec<_>>(),
@@ -51,12 +70,55 @@ fn recorded_expert_episodes_read_back_identically() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// Minari's `recover_environment()` calls `gymnasium.make(EnvSpec.from_json(env_spec))`:
+/// the spec must name ciflow's entry points and carry the construction arguments.
+#[test]
+fn the_metadata_carry_the_environment_as_gymnasium_serializes_its_spec() {
+    let dir = scratch_dir("env-spec");
+    let out = dir.join("obstacles-v0");
+    record_expert_dataset(
+        &two_obstacles(1, 0, Credits::default()),
+        &out,
+        false,
+        |_| {},
+    )
+    .unwrap();
+    let text = std::fs::read_to_string(out.join("data/metadata.json")).unwrap();
+    let metadata: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let env_spec: serde_json::Value =
+        serde_json::from_str(metadata["env_spec"].as_str().unwrap()).unwrap();
+    assert_eq!(
+        env_spec,
+        serde_json::json!({
+            "id": "ciflow/Obstacle-v0",
+            "entry_point": dataset::GYMNASIUM_ENTRY_POINT,
+            "reward_threshold": null,
+            "nondeterministic": false,
+            "max_episode_steps": null,
+            "order_enforce": true,
+            "disable_env_checker": false,
+            "kwargs": {"task": "ciflow/Obstacle-v0", "obstacles": 2},
+            "additional_wrappers": [],
+            "vector_entry_point": dataset::GYMNASIUM_VECTOR_ENTRY_POINT,
+        })
+    );
+    assert_eq!(
+        metadata["requirements"],
+        serde_json::json!([format!("ciflow=={}", env!("CARGO_PKG_VERSION"))])
+    );
+    assert_eq!(metadata["author"], serde_json::json!(["ciflow"]));
+    // Unset contact fields are left out, as Minari leaves them out, not written empty.
+    assert!(metadata.get("author_email").is_none());
+    assert!(metadata.get("code_permalink").is_none());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 #[test]
 fn an_unfinished_writer_leaves_no_dataset_behind() {
     let dir = scratch_dir("atomic");
     let out = dir.join("partial-v0");
     let mut env = obstacle_avoidance::make(1).unwrap();
-    let spec = expert_dataset_spec(&env, "ciflow/partial-v0");
+    let spec = expert_dataset_spec(&env, &Default::default(), "ciflow/partial-v0");
     let episode = expert_episode(&mut env, Some(0), &ResetOptions::default()).unwrap();
     {
         let mut writer = DatasetWriter::create(&out, spec.clone(), false).unwrap();
@@ -77,7 +139,7 @@ fn an_unfinished_writer_leaves_no_dataset_behind() {
 fn malformed_episodes_are_refused() {
     let dir = scratch_dir("malformed");
     let env = obstacle_avoidance::make(1).unwrap();
-    let spec = expert_dataset_spec(&env, "ciflow/bad-v0");
+    let spec = expert_dataset_spec(&env, &Default::default(), "ciflow/bad-v0");
     let mut writer = DatasetWriter::create(&dir.join("bad-v0"), spec, false).unwrap();
     let mut episode = ciflow_envs::dataset::Episode {
         observations: vec![vec![0.0; 8]; 2],

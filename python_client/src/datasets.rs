@@ -8,7 +8,8 @@ use std::sync::Mutex;
 
 use ciflow_bridge::EpisodePublisher;
 use ciflow_bridge::error::full_message;
-use ciflow_envs::dataset::{self, DatasetSpec, Episode};
+use ciflow_envs::dataset::{self, Credits, DatasetSpec, Episode};
+use ciflow_envs::registry::Kwargs;
 use ciflow_envs::rollout::{Recording, record_expert_dataset};
 use ciflow_envs::{BoxSpace, Dtype};
 use pyo3::exceptions::{PyKeyError, PyOSError, PyRuntimeError, PyValueError};
@@ -54,7 +55,7 @@ fn space_from_dict(spec: &Bound<'_, PyDict>, name: &str) -> PyResult<BoxSpace> {
 }
 
 /// What every episode of a dataset shares: built from an environment's spec (the dict of
-/// `CiflowEnv.task_spec`) and a Minari dataset id.
+/// `CiflowEnv.task_spec`), its construction arguments and a Minari dataset id.
 #[pyclass(name = "DatasetSpec", module = "ciflow._native", frozen)]
 pub struct PyDatasetSpec {
     pub spec: DatasetSpec,
@@ -63,8 +64,13 @@ pub struct PyDatasetSpec {
 #[pymethods]
 impl PyDatasetSpec {
     #[new]
-    #[pyo3(signature = (env_spec, dataset_id, algorithm_name="expert"))]
-    fn new(env_spec: &Bound<'_, PyDict>, dataset_id: &str, algorithm_name: &str) -> PyResult<Self> {
+    #[pyo3(signature = (env_spec, dataset_id, algorithm_name="expert", kwargs=None))]
+    fn new(
+        env_spec: &Bound<'_, PyDict>,
+        dataset_id: &str,
+        algorithm_name: &str,
+        kwargs: Option<Kwargs>,
+    ) -> PyResult<Self> {
         let id: String = env_spec
             .get_item("id")?
             .ok_or_else(|| PyKeyError::new_err("spec has no `id`"))?
@@ -82,11 +88,13 @@ impl PyDatasetSpec {
             spec: DatasetSpec {
                 dataset_id: dataset_id.to_owned(),
                 env_id: id,
+                env_kwargs: kwargs.unwrap_or_default(),
                 observation_space: space_from_dict(env_spec, "observation_space")?,
                 action_space: space_from_dict(env_spec, "action_space")?,
                 context_space: space_from_dict(env_spec, "context_space")?,
                 control_dt,
                 algorithm_name: algorithm_name.to_owned(),
+                credits: Credits::default(),
             },
         })
     }
@@ -270,7 +278,7 @@ fn space_to_py<'py>(py: Python<'py>, space: &BoxSpace) -> PyResult<Bound<'py, Py
 }
 
 /// Reads a dataset with the Rust reader: `(spec, episodes)` where `spec` holds
-/// `dataset_id, env_id, algorithm_name, control_dt` and the spaces, and each episode
+/// `dataset_id, env_id, env_kwargs, algorithm_name, control_dt` and the spaces, and each episode
 /// `seed, observations, actions, rewards, contexts` (f64 bytes, rows concatenated),
 /// `terminations, truncations` (one byte per step) and `infos` (name → f64 bytes).
 #[pyfunction]
@@ -282,6 +290,7 @@ pub fn read_dataset<'py>(
     let info = PyDict::new(py);
     info.set_item("dataset_id", &spec.dataset_id)?;
     info.set_item("env_id", &spec.env_id)?;
+    info.set_item("env_kwargs", &spec.env_kwargs)?;
     info.set_item("algorithm_name", &spec.algorithm_name)?;
     info.set_item("control_dt", spec.control_dt)?;
     info.set_item(
@@ -327,7 +336,7 @@ pub fn record_expert(
     out: PathBuf,
     episodes: u64,
     seed: u64,
-    kwargs: Option<BTreeMap<String, f64>>,
+    kwargs: Option<Kwargs>,
     options: Option<BTreeMap<String, f64>>,
     overwrite: bool,
 ) -> PyResult<String> {
@@ -338,6 +347,7 @@ pub fn record_expert(
         episodes,
         seed,
         dataset_id: None,
+        credits: Credits::default(),
     };
     let spec = py
         .detach(|| record_expert_dataset(&recording, &out, overwrite, |_| {}))

@@ -1,11 +1,18 @@
-"""Shared fixtures: an engine in a separate process on a private loopback port."""
+"""Shared fixtures: an engine in a separate process on a private loopback port, and where
+the command-line binary is."""
 
+import os
 import socket
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+#: The `ciflow` command line `cargo build --release` makes.
+BINARY = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target")) / "release" / "ciflow"
 
 
 def free_port() -> int:

@@ -2,7 +2,6 @@
 process with ``python -m ciflow.perturb`` attached by session id and token."""
 
 import json
-import os
 import subprocess
 import sys
 import time
@@ -16,10 +15,7 @@ import ciflow
 
 # pytest runs with --import-mode=importlib: conftest is not on sys.path by itself.
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from conftest import free_port  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[2]
-BINARY = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target")) / "release" / "ciflow"
+from conftest import BINARY, free_port  # noqa: E402
 
 
 def ciflow_cli(*args):

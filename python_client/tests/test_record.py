@@ -2,16 +2,20 @@
 process give the same dataset as ``ciflow demos`` (the in-process Rust recorder), which
 Minari opens; each episode is published on the episode channel as it finishes."""
 
+import importlib.metadata
 import json
 import subprocess
 import sys
 import threading
+import warnings
 
+import gymnasium as gym
 import minari
 import msgpack
 import numpy as np
 import pytest
 import zenoh
+from minari.utils import get_dataset_spec_dict
 
 from ciflow import _native
 from ciflow.record import record
@@ -140,3 +144,40 @@ def test_command_line_records_a_dataset_and_reports_errors(engine, tmp_path):
     assert again.returncode == 2 and "already exists" in again.stderr
     bad = subprocess.run(command[:-6] + ["--kwarg", "speed"], capture_output=True, text=True)
     assert bad.returncode != 0 and "NAME=VALUE" in bad.stderr
+
+
+def test_a_dataset_recovers_the_environment_that_recorded_it(engine, tmp_path):
+    """Minari's ``recover_environment()`` rebuilds the task with its construction
+    arguments (2 obstacles, not the default 3) from the dataset's ``env_spec``, and
+    ``minari show``'s tables are complete."""
+    endpoint, _name = engine
+    _native.record_expert(TASK, str(tmp_path / "ds"), 2, seed=3, kwargs={"obstacles": 2})
+    dataset = minari.MinariDataset(str(tmp_path / "ds" / "data"))
+    assert dataset.env_spec.kwargs == {"task": "ciflow/Obstacle-v0", "obstacles": 2}
+    assert dataset.env_spec.entry_point == gym.spec("ciflow/Obstacle-v0").entry_point
+
+    with warnings.catch_warnings():
+        # Minari warns when the dataset's `requirements` are not installed.
+        warnings.filterwarnings("error", message=".*(not installed|does not meet).*")
+        env = dataset.recover_environment(engine=endpoint)
+    try:
+        assert env.observation_space == dataset.observation_space
+        assert env.action_space == dataset.action_space
+        first = next(dataset.iterate_episodes())
+        observation, _info = env.reset(seed=3)
+        np.testing.assert_array_equal(observation, first.observations[0])
+        wrong = gym.make("ciflow/Obstacle-v0", engine=endpoint)  # 3 obstacles
+        try:
+            assert wrong.observation_space != dataset.observation_space
+        finally:
+            wrong.close()
+    finally:
+        env.close()
+
+    metadata = dataset.storage.metadata
+    shown = get_dataset_spec_dict(metadata)
+    assert shown["Total Steps"] == str(dataset.total_steps)
+    assert shown["Author"] == "ciflow"
+    assert "Dataset Observation Space" in shown and "Dataset Action Space" in shown
+    assert "ciflow/Obstacle-v0 (obstacles=2)" in metadata["description"]
+    assert metadata["requirements"] == [f"ciflow=={importlib.metadata.version('ciflow')}"]

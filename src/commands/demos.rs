@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use ciflow_envs::env::SUCCESS_INFO;
+use ciflow_envs::dataset::Credits;
 use ciflow_envs::rollout::{Recording, record_expert_dataset};
 
 use crate::parse::parse_key_value;
@@ -40,6 +40,8 @@ pub struct DemosArgs {
     /// Replace an existing dataset at --out.
     #[arg(long)]
     pub overwrite: bool,
+    #[command(flatten)]
+    pub credits: Credits,
 }
 
 /// Resolves NAME=VALUE pairs to the task's numbers (names of values included).
@@ -52,19 +54,14 @@ pub fn run(args: DemosArgs) -> anyhow::Result<()> {
         episodes: args.episodes,
         seed: args.seed,
         dataset_id: args.dataset_id,
+        credits: args.credits,
     };
     let progress = progress::bar(args.episodes, &format!("{} demos", args.task), "episodes");
     let mut steps = 0usize;
     let mut successes = 0usize;
     let spec = record_expert_dataset(&recording, &args.out, args.overwrite, |episode| {
         steps += episode.len();
-        successes += usize::from(
-            episode
-                .infos
-                .get(SUCCESS_INFO)
-                .and_then(|s| s.last())
-                .is_some_and(|&s| s == 1.0),
-        );
+        successes += usize::from(episode.succeeded());
         progress.inc(1);
     })
     .with_context(|| {

@@ -17,6 +17,7 @@ use ciflow_bridge::CheckpointPublisher;
 use ciflow_bridge::error::full_message;
 use ciflow_envs::learning_curve::subset;
 use ciflow_envs::registry;
+use ciflow_train::dataset::ForeignFields;
 use ciflow_train::{
     BaselineTrainConfig, ContextOverrides, Progress, RecipeOverrides, Screening, train_baseline,
     train_flow_into,
@@ -28,13 +29,16 @@ use crate::progress;
 #[derive(clap::Args, Debug)]
 pub struct TrainArgs {
     /// Task (command-line name or Gymnasium id); recorded in the checkpoint, and the
-    /// dataset must have been recorded on it.
+    /// dataset must have been recorded on it (with --state: its training recipe only).
     #[arg(long)]
     pub task: String,
-    /// Dataset directory written by `ciflow demos` (Minari Arrow layout); with
-    /// --from-zenoh, where the collected episodes are written.
+    /// Dataset directory written by `ciflow demos` (Minari Arrow layout), or with --state
+    /// one made by another tool; with --from-zenoh, where the collected episodes are
+    /// written.
     #[arg(long, required_unless_present = "from_zenoh")]
     pub demos: Option<PathBuf>,
+    #[command(flatten)]
+    pub foreign: ForeignFields,
     #[command(flatten)]
     pub zenoh: episodes::ZenohSource,
     /// Checkpoint directory to write (config.json + weights.safetensors).
@@ -50,22 +54,8 @@ pub struct TrainArgs {
     pub context: ContextOverrides,
     #[command(flatten)]
     pub model: RecipeOverrides,
-    /// Also train on demonstrations that failed their task (their last step is not a
-    /// success: spilled, collided, never arrived); by default they are dropped.
-    #[arg(long)]
-    pub keep_failed: bool,
-    /// Also fit the steps an external force moved (flagged `perturbed` in the data); by
-    /// default they are left out of the likelihood, so the policy does not learn the push
-    /// as its own motion.
-    #[arg(long)]
-    pub keep_perturbed: bool,
-    /// Also leave out this many seconds after each pushed step, while the velocity the
-    /// push left decays (the pouring expert's twist loop, 12 /s, takes 0.38 s to 1 %).
-    /// Those steps are the expert's response to the pushed state, what pushed
-    /// demonstrations are recorded to teach: leaving them out cost the pouring policy
-    /// most of its recovery from pushes (README "Pouring").
-    #[arg(long, default_value_t = 0.0, value_name = "SECONDS")]
-    pub push_settling: f64,
+    #[command(flatten)]
+    pub screening: Screening,
     /// Also train the behaviour-cloning baseline into `<out>/baseline`.
     #[arg(long)]
     pub baseline: bool,
@@ -84,13 +74,15 @@ pub struct TrainArgs {
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let task = registry::entry(&args.task)?;
-    let screening = Screening {
-        keep_failed: args.keep_failed,
-        keep_perturbed: args.keep_perturbed,
-        push_settling: args.push_settling,
-    };
-    let (spec, mut data) =
-        episodes::demonstrations(task, args.demos.as_deref(), &args.zenoh, screening)?;
+    let converted = args.out.join("demonstrations");
+    let foreign = (&args.foreign, converted.as_path());
+    let (spec, mut data) = episodes::demonstrations(
+        task,
+        args.demos.as_deref(),
+        foreign,
+        &args.zenoh,
+        args.screening,
+    )?;
     if let Some(count) = args.subset {
         data.episodes = subset(
             data.episodes,

@@ -12,7 +12,7 @@
 use std::collections::BTreeMap;
 
 use ciflow_envs::BoxSpace;
-use ciflow_envs::dataset::{DatasetSpec, Episode};
+use ciflow_envs::dataset::{Credits, DatasetSpec, Episode};
 use serde::{Deserialize, Serialize};
 
 use super::{F64s, Header, PROTOCOL_VERSION};
@@ -26,6 +26,9 @@ pub struct EpisodeMsg {
     pub v: u16,
     /// Gymnasium id of the task, e.g. `ciflow/Pouring-v0`.
     pub task: String,
+    /// The task's construction arguments, e.g. `{"obstacles": 2}` (none: its defaults).
+    #[serde(default)]
+    pub kwargs: BTreeMap<String, f64>,
     /// The publishing recorder, the last chunk of the key.
     pub recorder: String,
     /// Minari id of the dataset the recorder writes, e.g. `ciflow/pouring-expert-v0`.
@@ -90,6 +93,7 @@ impl EpisodeMsg {
         Self {
             v: PROTOCOL_VERSION,
             task: spec.env_id.clone(),
+            kwargs: spec.env_kwargs.clone(),
             recorder: recorder.to_owned(),
             dataset_id: spec.dataset_id.clone(),
             index,
@@ -120,11 +124,13 @@ impl EpisodeMsg {
         DatasetSpec {
             dataset_id: self.dataset_id.clone(),
             env_id: self.task.clone(),
+            env_kwargs: self.kwargs.clone(),
             observation_space: self.observation_space.clone(),
             action_space: self.action_space.clone(),
             context_space: self.context_space.clone(),
             control_dt: self.control_dt,
             algorithm_name: EPISODE_ALGORITHM.to_owned(),
+            credits: Credits::default(),
         }
     }
 
@@ -278,7 +284,11 @@ mod tests {
 
     fn recorded() -> (DatasetSpec, Episode) {
         let mut env = ciflow_envs::make("obstacle-avoidance").unwrap();
-        let spec = expert_dataset_spec(env.as_ref(), "ciflow/obstacle-avoidance-expert-v0");
+        let spec = expert_dataset_spec(
+            env.as_ref(),
+            &Default::default(),
+            "ciflow/obstacle-avoidance-expert-v0",
+        );
         let episode = expert_episode(env.as_mut(), Some(3), &ResetOptions::default()).unwrap();
         (spec, episode)
     }
@@ -365,11 +375,13 @@ mod tests {
         let spec = DatasetSpec {
             dataset_id: "ciflow/x-expert-v0".into(),
             env_id: "ciflow/X-v0".into(),
+            env_kwargs: Default::default(),
             observation_space: space(3),
             action_space: space(1),
             context_space: space(1),
             control_dt: 0.1,
             algorithm_name: EPISODE_ALGORITHM.into(),
+            credits: Default::default(),
         };
         let episode = Episode {
             seed: None,

@@ -11,9 +11,13 @@
 //!   velocity for a while after the force stops, so the window is the task's to choose.
 //!
 //! [`Screening`] keeps either on request; [`Screened`] reports the counts.
+//!
+//! A Minari dataset made by another tool is converted first ([`convert_foreign`]), with
+//! [`ForeignFields`] naming which of its fields are the state and the context.
 
 use std::fmt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::process::Command;
 
 use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::TaskEntry;
@@ -21,14 +25,29 @@ use ciflow_envs::registry::TaskEntry;
 use crate::data::{Contexts, Demonstrations, Episode};
 use crate::error::{TrainError, TrainResult};
 
-/// What of a dataset the trainer leaves out by default, and what the flags keep.
+/// What of a dataset the trainer leaves out by default, and what the flags keep (with the
+/// `clap` feature, `ciflow train`'s flags).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct Screening {
-    /// Demonstrations that failed their task: dropped unless kept.
+    /// Also train on demonstrations that failed their task (their last step is not a
+    /// success: spilled, collided, never arrived); by default they are dropped.
+    #[cfg_attr(feature = "clap", arg(long))]
     pub keep_failed: bool,
-    /// Steps an external force moved: left out of the likelihood unless kept…
+    /// Also fit the steps an external force moved (flagged `perturbed` in the data); by
+    /// default they are left out of the likelihood, so the policy does not learn the push
+    /// as its own motion.
+    #[cfg_attr(feature = "clap", arg(long))]
     pub keep_perturbed: bool,
-    /// …and so are the steps this long after each, s.
+    /// Also leave out this many seconds after each pushed step, while the velocity the
+    /// push left decays (the pouring expert's twist loop, 12 /s, takes 0.38 s to 1 %).
+    /// Those steps are the expert's response to the pushed state, what pushed
+    /// demonstrations are recorded to teach: leaving them out cost the pouring policy
+    /// most of its recovery from pushes (README "Pouring").
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, default_value_t = 0.0, value_name = "SECONDS")
+    )]
     pub push_settling: f64,
 }
 
@@ -77,6 +96,60 @@ impl fmt::Display for Screened {
     }
 }
 
+/// Which fields of a Minari dataset made by another tool are the policy's state and
+/// context (with the `clap` feature, `ciflow train`'s flags for them).
+#[derive(Clone, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct ForeignFields {
+    /// Train on a Minari dataset made by another tool (HDF5 or Arrow storage, Box or Dict
+    /// spaces) with this field as the state: a path and an optional column range, e.g.
+    /// observations[0:2] or observations/achieved_goal. `python -m ciflow.convert` writes
+    /// it into <out>/demonstrations first; the task names only the training recipe.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "FIELD"))]
+    pub state: Option<String>,
+    /// With --state: the field that is the context, one row per observation (e.g.
+    /// observations/desired_goal, infos/goal) [default: none].
+    #[cfg_attr(feature = "clap", arg(long, value_name = "FIELD", requires = "state"))]
+    pub context: Option<String>,
+    /// With --state: seconds between the dataset's observations, when it does not record
+    /// them (given both ways, they must agree).
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "SECONDS", requires = "state")
+    )]
+    pub dt: Option<f64>,
+}
+
+/// Converts the Minari dataset at `source`, made by another tool, into `out` (the layout
+/// [`read_foreign`] reads) with `python -m ciflow.convert`, which reads it with Minari's
+/// own loader. Returns `out`.
+pub fn convert_foreign(source: &Path, out: &Path, fields: &ForeignFields) -> TrainResult<PathBuf> {
+    let state = fields.state.as_deref().ok_or_else(|| {
+        TrainError::InvalidConfig("a foreign dataset needs the field that is the state".into())
+    })?;
+    let python = ciflow_envs::python::interpreter();
+    let mut command = Command::new(&python);
+    command
+        .args(["-m", "ciflow.convert", "--overwrite", "--state", state])
+        .arg(source)
+        .arg(out);
+    if let Some(context) = &fields.context {
+        command.args(["--context", context]);
+    }
+    if let Some(dt) = fields.dt {
+        command.arg("--dt").arg(dt.to_string());
+    }
+    let output = command
+        .output()
+        .map_err(|source| TrainError::ConverterLaunch { python, source })?;
+    if !output.status.success() {
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        let message = stderr.trim().trim_start_matches("ciflow.convert: ");
+        return Err(TrainError::Conversion(message.to_owned()));
+    }
+    Ok(out.to_path_buf())
+}
+
 /// Reads the dataset at `dir` as `task`'s demonstrations (see [`demonstrations`]).
 pub fn read(
     dir: &Path,
@@ -85,27 +158,42 @@ pub fn read(
 ) -> TrainResult<(DatasetSpec, Demonstrations, Screened)> {
     let (spec, episodes) = dataset::read(dir)?;
     let source = dir.display().to_string();
-    let (data, screened) = demonstrations(&spec, episodes, task, &source, screening)?;
+    recorded_on(&spec, task, &source)?;
+    let (data, screened) = demonstrations(&spec, episodes, &source, screening)?;
     Ok((spec, data, screened))
 }
 
-/// The policy's demonstrations of `task` in dataset episodes (from `source`, named in
-/// errors): positions `q` of each observation `[q, q̇, c]`, the per-step contexts,
+/// Reads a dataset [`convert_foreign`] wrote, whose environment is not a ciflow task.
+pub fn read_foreign(
+    dir: &Path,
+    screening: Screening,
+) -> TrainResult<(DatasetSpec, Demonstrations, Screened)> {
+    let (spec, episodes) = dataset::read(dir)?;
+    let (data, screened) = demonstrations(&spec, episodes, &dir.display().to_string(), screening)?;
+    Ok((spec, data, screened))
+}
+
+/// Refuses a dataset (from `source`, named in the error) recorded on another task.
+pub fn recorded_on(spec: &DatasetSpec, task: &TaskEntry, source: &str) -> TrainResult<()> {
+    if spec.env_id != task.id {
+        return Err(TrainError::InvalidData(format!(
+            "{source}: holds demonstrations of `{}` ({}), not of task `{}` ({})",
+            spec.env_id, spec.dataset_id, task.name, task.id
+        )));
+    }
+    Ok(())
+}
+
+/// The policy's demonstrations in dataset episodes (from `source`, named in errors):
+/// positions `q` of each observation `[q, q̇, c]`, the per-step contexts,
 /// `dt = control_dt`, screened as the module docs say.
 pub fn demonstrations(
     spec: &DatasetSpec,
     episodes: Vec<dataset::Episode>,
-    task: &TaskEntry,
     source: &str,
     screening: Screening,
 ) -> TrainResult<(Demonstrations, Screened)> {
     let invalid = |detail: String| Err(TrainError::InvalidData(format!("{source}: {detail}")));
-    if spec.env_id != task.id {
-        return invalid(format!(
-            "holds demonstrations of `{}` ({}), not of task `{}` ({})",
-            spec.env_id, spec.dataset_id, task.name, task.id
-        ));
-    }
     if !(screening.push_settling.is_finite() && screening.push_settling >= 0.0) {
         return Err(TrainError::InvalidConfig(format!(
             "the push settling window must be a finite number of seconds >= 0, not {}",
@@ -184,7 +272,7 @@ mod tests {
     use ciflow_envs::registry;
     use ciflow_envs::space::{BoxSpace, Dtype};
 
-    use super::{Screening, demonstrations};
+    use super::{Screening, demonstrations, recorded_on};
     use crate::error::TrainError;
 
     /// A 1-D task's dataset spec: observations `[q, q̇, c]`, a 1-D context, 0.1 s steps.
@@ -193,11 +281,13 @@ mod tests {
         DatasetSpec {
             dataset_id: "test/screening-v0".into(),
             env_id: env_id.into(),
+            env_kwargs: Default::default(),
             observation_space: space(3),
             action_space: space(1),
             context_space: space(1),
             control_dt: 0.1,
             algorithm_name: "expert".into(),
+            credits: Default::default(),
         }
     }
 
@@ -238,7 +328,7 @@ mod tests {
         let task = registry::entry("limit-cycle").unwrap();
         let recorded = vec![episode(&[1], true), episode(&[], false)];
         let (data, screened) =
-            demonstrations(&spec(task.id), recorded.clone(), task, "test", DEFAULT).unwrap();
+            demonstrations(&spec(task.id), recorded.clone(), "test", DEFAULT).unwrap();
         assert_eq!(data.episodes.len(), 1);
         assert_eq!(data.episodes[0].states[3], [3.0], "positions only");
         // Step 1 pushed, steps 2 and 3 within the 0.2 s settling window.
@@ -258,8 +348,7 @@ mod tests {
             keep_perturbed: true,
             ..DEFAULT
         };
-        let (data, screened) =
-            demonstrations(&spec(task.id), recorded, task, "test", keep_all).unwrap();
+        let (data, screened) = demonstrations(&spec(task.id), recorded, "test", keep_all).unwrap();
         assert_eq!(data.episodes.len(), 2);
         assert!(data.episodes.iter().flat_map(|e| &e.excluded).all(|&x| !x));
         assert_eq!(screened.excluded, 0);
@@ -272,27 +361,15 @@ mod tests {
     #[test]
     fn another_task_s_data_and_all_failed_data_are_refused() {
         let task = registry::entry("limit-cycle").unwrap();
-        let other = demonstrations(&spec("ciflow/Pouring-v0"), vec![], task, "test", DEFAULT);
+        let other = recorded_on(&spec("ciflow/Pouring-v0"), task, "test");
         assert!(matches!(other, Err(TrainError::InvalidData(m)) if m.contains("Pouring")));
-        let failed = demonstrations(
-            &spec(task.id),
-            vec![episode(&[], false)],
-            task,
-            "t",
-            DEFAULT,
-        );
+        let failed = demonstrations(&spec(task.id), vec![episode(&[], false)], "t", DEFAULT);
         assert!(matches!(failed, Err(TrainError::InvalidData(m)) if m.contains("--keep-failed")));
         let never_settles = Screening {
             push_settling: f64::NAN,
             ..DEFAULT
         };
-        let nan = demonstrations(
-            &spec(task.id),
-            vec![episode(&[], true)],
-            task,
-            "t",
-            never_settles,
-        );
+        let nan = demonstrations(&spec(task.id), vec![episode(&[], true)], "t", never_settles);
         assert!(matches!(nan, Err(TrainError::InvalidConfig(_))));
     }
 }

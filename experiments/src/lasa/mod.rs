@@ -328,7 +328,7 @@ pub fn benchmark(
 
 /// Draws the plots of the run in `out` with the project's Python.
 pub fn plot(out: &Path) -> ExperimentResult<()> {
-    let python = lasa::python();
+    let python = ciflow_envs::python::interpreter();
     let output = Command::new(&python)
         .arg("-c")
         .arg(PLOT_SCRIPT)

@@ -135,7 +135,7 @@ def record(
 
     env = gym.make(task_id, engine=engine, zenoh_config=zenoh_config, **kwargs)
     try:
-        spec = _native.DatasetSpec(env.unwrapped.task_spec, dataset_id)
+        spec = _native.DatasetSpec(env.unwrapped.task_spec, dataset_id, kwargs=kwargs)
         writer = _native.DatasetWriter(str(out), spec, overwrite) if out is not None else None
         publisher = None
         if publish:

@@ -6,10 +6,10 @@ use std::time::Duration;
 
 use anyhow::Context;
 use ciflow_bridge::episodes::collect;
-use ciflow_envs::dataset::{self, DatasetSpec};
+use ciflow_envs::dataset::DatasetSpec;
 use ciflow_envs::registry::TaskEntry;
-use ciflow_train::Demonstrations;
-use ciflow_train::{Screened, Screening};
+use ciflow_train::dataset::{self, ForeignFields};
+use ciflow_train::{Demonstrations, Screened, Screening};
 
 use crate::commands::network::NetworkArgs;
 use crate::progress;
@@ -21,7 +21,7 @@ pub struct ZenohSource {
     /// ciflow/v1/episodes/<task>/*, instead of reading --demos; with --demos they are also
     /// written there as a dataset, so that the run can be repeated from files. Start the
     /// trainer before the recorders: earlier episodes are not replayed.
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..), conflicts_with = "state")]
     pub from_zenoh: Option<u64>,
     /// Longest wait for the next episode, in seconds.
     #[arg(long, default_value_t = 300.0, value_name = "SECONDS")]
@@ -32,19 +32,25 @@ pub struct ZenohSource {
     pub network: NetworkArgs,
 }
 
-/// The demonstrations of `task`: read from `demos`, or collected from Zenoh (and then
-/// written to `demos` when given); prints what the screening left out.
+/// The demonstrations of `task`: read from `demos` (converted into `converted` first when
+/// `foreign` names its fields), or collected from Zenoh (and then written to `demos` when
+/// given); prints what the screening left out.
 pub fn demonstrations(
     task: &TaskEntry,
     demos: Option<&Path>,
+    (foreign, converted): (&ForeignFields, &Path),
     source: &ZenohSource,
     screening: Screening,
 ) -> anyhow::Result<(DatasetSpec, Demonstrations)> {
     let report = |source: &str, screened: Screened| println!("{source}: {screened}");
     let Some(count) = source.from_zenoh else {
         let demos = demos.context("give the dataset with --demos, or --from-zenoh <N>")?;
-        let (spec, data, screened) = ciflow_train::dataset::read(demos, task, screening)
-            .with_context(|| format!("reading the dataset {}", demos.display()))?;
+        let (spec, data, screened) = match foreign.state {
+            None => dataset::read(demos, task, screening),
+            Some(_) => dataset::convert_foreign(demos, converted, foreign)
+                .and_then(|dir| dataset::read_foreign(&dir, screening)),
+        }
+        .with_context(|| format!("reading the dataset {}", demos.display()))?;
         report(&demos.display().to_string(), screened);
         return Ok((spec, data));
     };
@@ -79,7 +85,7 @@ pub fn demonstrations(
     .with_context(|| format!("collecting {count} episodes of `{}` from Zenoh", task.name))?;
     bar.finish();
     if let Some(dir) = demos {
-        dataset::write(dir, &spec, &episodes, false)
+        ciflow_envs::dataset::write(dir, &spec, &episodes, false)
             .with_context(|| format!("writing the collected episodes to {}", dir.display()))?;
         println!(
             "wrote {} ({}): {count} episodes",
@@ -88,8 +94,8 @@ pub fn demonstrations(
         );
     }
     let source = "the episodes collected from Zenoh";
-    let (data, screened) =
-        ciflow_train::dataset::demonstrations(&spec, episodes, task, source, screening)?;
+    dataset::recorded_on(&spec, task, source)?;
+    let (data, screened) = dataset::demonstrations(&spec, episodes, source, screening)?;
     report(source, screened);
     Ok((spec, data))
 }

@@ -1,0 +1,176 @@
+"""Demonstrations from elsewhere: a Minari dataset written by Minari itself (HDF5, its
+default storage; ``Dict`` observations as Gymnasium-Robotics lays them out) is converted
+by ``python -m ciflow.convert`` and trained on by ``ciflow train --state ... --context``;
+bad fields, lengths, values and time steps are refused with messages that say where."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import minari
+import numpy as np
+import pytest
+from gymnasium import spaces
+from minari.data_collector.episode_buffer import EpisodeBuffer
+
+from ciflow import _native
+from ciflow.convert import ConversionError, Field, convert
+
+# pytest runs with --import-mode=importlib: conftest is not on sys.path by itself.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from conftest import BINARY  # noqa: E402
+
+DT = 0.05
+STEPS = 60
+# Minari asks datasets it writes for an evaluation environment and spec; these have none.
+pytestmark = pytest.mark.filterwarnings("ignore:.*(eval_env|env_spec is None).*:UserWarning")
+
+
+def vector(n: int) -> spaces.Box:
+    return spaces.Box(-np.inf, np.inf, (n,), np.float64)
+
+
+OBSERVATION_SPACE = spaces.Dict(
+    {"observation": vector(4), "achieved_goal": vector(2), "desired_goal": vector(2)}
+)
+ACTION_SPACE = spaces.Box(-10.0, 10.0, (2,), np.float64)
+
+
+def reach(seed: int, corrupt: bool = False) -> EpisodeBuffer:
+    """A point mass under a PD law from a random start to a random goal."""
+    rng = np.random.default_rng(seed)
+    x, v, goal = rng.uniform(-1, 1, 2), np.zeros(2), rng.uniform(-0.3, 0.3, 2)
+    observations = {"observation": [], "achieved_goal": [], "desired_goal": []}
+    actions, rewards, distance = [], [], []
+
+    def observe():
+        observations["observation"].append(np.concatenate([x, v]))
+        observations["achieved_goal"].append(x.copy())
+        observations["desired_goal"].append(goal.copy())
+        distance.append(float(np.linalg.norm(x - goal)))
+
+    observe()
+    for _ in range(STEPS):
+        action = np.clip(16 * (goal - x) - 8 * v, -10, 10)
+        v = v + DT * action
+        x = x + DT * v
+        actions.append(action)
+        rewards.append(-float(np.linalg.norm(x - goal)))
+        observe()
+    if corrupt:
+        observations["achieved_goal"][STEPS // 2] = np.array([np.nan, 0.0])
+    return EpisodeBuffer(
+        id=seed, seed=seed,
+        observations={k: np.array(rows) for k, rows in observations.items()},
+        actions=np.array(actions), rewards=rewards,
+        terminations=[False] * STEPS, truncations=[False] * (STEPS - 1) + [True],
+        infos={"distance": np.array(distance)},
+    )
+
+
+def foreign_dataset(root, name: str, episodes: int, corrupt: bool = False):
+    """A dataset Minari writes itself, in its default storage; returns its directory."""
+    minari.create_dataset_from_buffers(
+        f"test/{name}-v0", [reach(i, corrupt and i == 1) for i in range(episodes)],
+        observation_space=OBSERVATION_SPACE, action_space=ACTION_SPACE,
+        algorithm_name="pd", author="someone", author_email="someone@example.org",
+        code_permalink="https://example.org", description="point reaching",
+    )
+    return root / "test" / f"{name}-v0"
+
+
+@pytest.fixture
+def minari_root(tmp_path, monkeypatch):
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    return tmp_path / "minari"
+
+
+def test_fields_parse_paths_ranges_and_indices():
+    assert Field.parse("observations[0:2]").columns == slice(0, 2)
+    assert Field.parse("observations/desired_goal").path == ("observations", "desired_goal")
+    assert Field.parse("infos/goal[3]").columns == slice(3, 4)
+    assert Field.parse("observations[-1]").columns == slice(-1, None)
+    for bad in ("states[0:2]", "observations[0:2", "observations//x", "observations[a]"):
+        with pytest.raises(ConversionError):
+            Field.parse(bad)
+
+
+def test_a_dataset_written_by_minari_converts_exactly(minari_root, tmp_path):
+    source = foreign_dataset(minari_root, "reach", 3)
+    out = convert(source, tmp_path / "out", "observations/achieved_goal",
+                  "observations/desired_goal", dt=DT)
+    spec, episodes = _native.read_dataset(str(out))
+    assert spec["control_dt"] == DT
+    assert len(spec["observation_space"]["low"]) == 6  # [y, ẏ, c]
+    assert len(spec["context_space"]["low"]) == 2
+    for episode, want in zip(episodes, minari.MinariDataset(str(source / "data")).iterate_episodes()):
+        observations = np.frombuffer(episode["observations"], "<f8").reshape(-1, 6)
+        np.testing.assert_array_equal(observations[:, :2], want.observations["achieved_goal"])
+        np.testing.assert_array_equal(observations[:, 4:], want.observations["desired_goal"])
+        np.testing.assert_allclose(
+            observations[:-1, 2:4], np.diff(want.observations["achieved_goal"], axis=0) / DT
+        )
+        contexts = np.frombuffer(episode["contexts"], "<f8").reshape(-1, 2)
+        np.testing.assert_array_equal(contexts, want.observations["desired_goal"])
+        np.testing.assert_array_equal(
+            np.frombuffer(episode["actions"], "<f8").reshape(-1, 2), want.actions
+        )
+
+
+def test_bad_requests_are_refused_with_where_and_why(minari_root, tmp_path):
+    source = foreign_dataset(minari_root, "reach", 2)
+    cases = {
+        "observations/goal": "no 'observations/goal'",
+        "observations": "is a Dict",
+        "observations/achieved_goal[5:9]": "selects no column",
+    }
+    for state, message in cases.items():
+        with pytest.raises(ConversionError, match=message):
+            convert(source, tmp_path / "x", state, None, dt=DT)
+    with pytest.raises(ConversionError, match="context 'actions' has 60 rows, the state"):
+        convert(source, tmp_path / "x", "observations/achieved_goal", "actions", dt=DT)
+    with pytest.raises(ConversionError, match="give it with --dt"):
+        convert(source, tmp_path / "x", "observations/achieved_goal")
+    with pytest.raises(ConversionError, match="not a positive number"):
+        convert(source, tmp_path / "x", "observations/achieved_goal", dt=float("nan"))
+    corrupt = foreign_dataset(minari_root, "corrupt", 2, corrupt=True)
+    with pytest.raises(ConversionError, match="episode 1: state is NaN or infinite at step 30"):
+        convert(corrupt, tmp_path / "x", "observations/achieved_goal", dt=DT)
+    assert not (tmp_path / "x").exists()
+
+
+def test_a_ciflow_dataset_s_own_time_step_must_agree_with_dt(tmp_path):
+    _native.record_expert("obstacle-avoidance", str(tmp_path / "ds"), 1, kwargs={"obstacles": 1})
+    convert(tmp_path / "ds", tmp_path / "same", "observations[0:2]", "observations[4:]")
+    with pytest.raises(ConversionError, match="unit mismatch"):
+        convert(tmp_path / "ds", tmp_path / "ms", "observations[0:2]", dt=10.0)
+
+
+def test_ciflow_train_fits_a_dataset_from_elsewhere(minari_root, tmp_path):
+    """End to end: `ciflow train` converts (beside the checkpoint) and fits; the
+    checkpoint's model has the named fields' dimensions and acts."""
+    source = foreign_dataset(minari_root, "reach", 12)
+    out = tmp_path / "policy"
+    result = subprocess.run(
+        [str(BINARY), "train", "--task", "lasa", "--demos", str(source), "--state",
+         "observations/achieved_goal", "--context", "observations/desired_goal", "--dt",
+         str(DT), "--epochs", "2", "--out", str(out)],
+        capture_output=True, text=True, timeout=600,
+    )
+    assert result.returncode == 0, result.stderr
+    config = json.loads((out / "config.json").read_text())
+    assert (config["state_dim"], config["context_dim"], config["dt"]) == (2, 2, DT)
+    spec, episodes = _native.read_dataset(str(out / "demonstrations"))
+    assert len(episodes) == 12 and spec["control_dt"] == DT
+
+    refused = subprocess.run(
+        [str(BINARY), "train", "--task", "lasa", "--demos", str(source), "--state",
+         "observations/nothing", "--dt", str(DT), "--out", str(tmp_path / "refused")],
+        capture_output=True, text=True, timeout=600,
+    )
+    assert refused.returncode != 0
+    assert "no 'observations/nothing'" in refused.stderr
+    assert "Traceback" not in refused.stderr
+    assert not (tmp_path / "refused" / "config.json").exists()
+
