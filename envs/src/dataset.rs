@@ -82,6 +82,40 @@ pub enum DatasetError {
     InvalidEpisode { episode: usize, detail: String },
     #[error("{0} already exists (pass overwrite to replace it)")]
     AlreadyExists(PathBuf),
+    #[error("writing the LeRobot dataset {path}")]
+    Lerobot {
+        path: PathBuf,
+        #[source]
+        source: crate::python::PythonError,
+    },
+}
+
+/// The layouts ciflow writes datasets in (with the `clap` feature, `--format`'s values).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum DatasetFormat {
+    /// Minari's Arrow layout (`envs/DATASET.md`), which `ciflow train` reads.
+    #[default]
+    Minari,
+    /// LeRobot v3.0, numbers as float32 (see [`write_lerobot`]).
+    Lerobot,
+}
+
+/// Writes the dataset at `source` (this module's layout) as a LeRobot v3.0 dataset at
+/// `out`, with `python -m ciflow.convert --to-lerobot` (pyarrow): per frame the position
+/// `observation.state`, its rate `observation.velocity`, the context
+/// `observation.environment_state`, `action`, `next.reward`, `next.done`, as float32.
+pub fn write_lerobot(source: &Path, out: &Path, overwrite: bool) -> Result<()> {
+    let mut args = vec!["--to-lerobot".as_ref(), source.as_os_str(), out.as_os_str()];
+    if overwrite {
+        args.push("--overwrite".as_ref());
+    }
+    crate::python::run_module("ciflow.convert", args)
+        .map(drop)
+        .map_err(|source| DatasetError::Lerobot {
+            path: out.to_path_buf(),
+            source,
+        })
 }
 
 type Result<T> = std::result::Result<T, DatasetError>;

@@ -24,3 +24,41 @@ pub(crate) fn workspace_root() -> PathBuf {
         .expect("the envs crate lives in the workspace")
         .to_path_buf()
 }
+
+/// Why a step run in the project's Python failed.
+#[derive(Debug, thiserror::Error)]
+pub enum PythonError {
+    #[error("cannot run `{python}` (the project's Python, with the ciflow package)")]
+    Launch {
+        python: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The module refused or failed; `message` is what it printed on stderr.
+    #[error("python -m {module}: {message}")]
+    Failed { module: String, message: String },
+}
+
+/// Runs `python -m <module> <args>` with the project's Python; returns its stdout.
+pub fn run_module<I, S>(module: &str, args: I) -> Result<String, PythonError>
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
+    let python = interpreter();
+    let output = std::process::Command::new(&python)
+        .args(["-m", module])
+        .args(args)
+        .output()
+        .map_err(|source| PythonError::Launch { python, source })?;
+    if !output.status.success() {
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        // The module's own prefix would repeat the one of this error.
+        let message = stderr.trim().trim_start_matches(&format!("{module}: "));
+        return Err(PythonError::Failed {
+            module: module.to_owned(),
+            message: message.to_owned(),
+        });
+    }
+    Ok(String::from_utf8_lossy(&output.stdout).into_owned())
+}

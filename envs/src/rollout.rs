@@ -1,6 +1,6 @@
 //! Recording episodes of the expert: what `ciflow demos` and the tests run.
 
-use crate::dataset::{Credits, DatasetSpec, Episode};
+use crate::dataset::{Credits, DatasetError, DatasetFormat, DatasetSpec, Episode};
 use crate::env::{Env, EnvError, ResetOptions};
 use crate::registry::Kwargs;
 
@@ -71,6 +71,8 @@ pub struct Recording {
     pub dataset_id: Option<String>,
     /// Who made the dataset.
     pub credits: Credits,
+    /// The layout to write.
+    pub format: DatasetFormat,
 }
 
 /// Why a recording failed.
@@ -84,14 +86,18 @@ pub enum RecordingError {
     Dataset(#[from] crate::dataset::DatasetError),
 }
 
-/// Records expert episodes into a dataset at `out`, atomically; `on_episode` is called
-/// after each episode (for progress bars). Returns the dataset's description.
+/// Records expert episodes into a dataset at `out`, atomically, in `recording.format`;
+/// `on_episode` is called after each episode (for progress bars). Returns the dataset's
+/// description.
 pub fn record_expert_dataset(
     recording: &Recording,
     out: &std::path::Path,
     overwrite: bool,
     mut on_episode: impl FnMut(&Episode),
 ) -> Result<DatasetSpec, RecordingError> {
+    if out.exists() && !overwrite {
+        return Err(DatasetError::AlreadyExists(out.to_path_buf()).into());
+    }
     let entry = crate::registry::entry(&recording.task)?;
     let mut env = (entry.make_with)(&recording.kwargs)?;
     let dataset_id = recording
@@ -106,7 +112,16 @@ pub fn record_expert_dataset(
         extra: recording.options.clone(),
         ..ResetOptions::default()
     };
-    let mut writer = crate::dataset::DatasetWriter::create(out, spec, overwrite)?;
+    // LeRobot is written from the Minari layout, recorded beside the target first.
+    let minari = match recording.format {
+        DatasetFormat::Minari => out.to_path_buf(),
+        DatasetFormat::Lerobot => out.with_file_name(format!(
+            ".{}.minari-{}",
+            out.file_name().unwrap_or_default().to_string_lossy(),
+            std::process::id()
+        )),
+    };
+    let mut writer = crate::dataset::DatasetWriter::create(&minari, spec, true)?;
     let spec = writer.spec().clone();
     for episode in 0..recording.episodes {
         let seed = recording.seed.wrapping_add(episode);
@@ -116,5 +131,11 @@ pub fn record_expert_dataset(
         on_episode(&data);
     }
     writer.finish()?;
+    if recording.format == DatasetFormat::Lerobot {
+        let written = crate::dataset::write_lerobot(&minari, out, overwrite);
+        // Best effort: a leftover hidden directory is harmless, just untidy.
+        let _ = std::fs::remove_dir_all(&minari);
+        written?;
+    }
     Ok(spec)
 }

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use ciflow_envs::ResetOptions;
-use ciflow_envs::dataset::{self, Credits, DatasetError, DatasetWriter};
+use ciflow_envs::dataset::{self, Credits, DatasetError, DatasetFormat, DatasetWriter};
 use ciflow_envs::rollout::{Recording, expert_dataset_spec, expert_episode, record_expert_dataset};
 use ciflow_envs::tasks::obstacle_avoidance;
 
@@ -24,6 +24,7 @@ fn two_obstacles(episodes: u64, seed: u64, credits: Credits) -> Recording {
         seed,
         dataset_id: None,
         credits,
+        format: DatasetFormat::Minari,
     }
 }
 

@@ -348,6 +348,7 @@ pub fn record_expert(
         seed,
         dataset_id: None,
         credits: Credits::default(),
+        format: Default::default(),
     };
     let spec = py
         .detach(|| record_expert_dataset(&recording, &out, overwrite, |_| {}))

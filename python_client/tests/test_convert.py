@@ -1,7 +1,9 @@
 """Demonstrations from elsewhere: a Minari dataset written by Minari itself (HDF5, its
-default storage; ``Dict`` observations as Gymnasium-Robotics lays them out) is converted
-by ``python -m ciflow.convert`` and trained on by ``ciflow train --state ... --context``;
-bad fields, lengths, values and time steps are refused with messages that say where."""
+default storage; ``Dict`` observations as Gymnasium-Robotics lays them out) and a LeRobot
+v3.0 dataset written by ``lerobot`` itself (the committed fixture, see
+``lerobot/write_fixture.py``) are converted by ``python -m ciflow.convert`` and trained on
+by ``ciflow train --state ... --context``; bad fields, lengths, values and time steps are
+refused with messages that say where."""
 
 import json
 import subprocess
@@ -15,7 +17,7 @@ from gymnasium import spaces
 from minari.data_collector.episode_buffer import EpisodeBuffer
 
 from ciflow import _native
-from ciflow.convert import ConversionError, Field, convert
+from ciflow.convert import ConversionError, Field, convert, to_lerobot
 
 # pytest runs with --import-mode=importlib: conftest is not on sys.path by itself.
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -23,6 +25,7 @@ from conftest import BINARY  # noqa: E402
 
 DT = 0.05
 STEPS = 60
+LEROBOT_FIXTURE = Path(__file__).resolve().parent / "lerobot" / "fixture"
 # Minari asks datasets it writes for an evaluation environment and spec; these have none.
 pytestmark = pytest.mark.filterwarnings("ignore:.*(eval_env|env_spec is None).*:UserWarning")
 
@@ -91,7 +94,7 @@ def test_fields_parse_paths_ranges_and_indices():
     assert Field.parse("observations/desired_goal").path == ("observations", "desired_goal")
     assert Field.parse("infos/goal[3]").columns == slice(3, 4)
     assert Field.parse("observations[-1]").columns == slice(-1, None)
-    for bad in ("states[0:2]", "observations[0:2", "observations//x", "observations[a]"):
+    for bad in ("observations[0:2", "observations//x", "observations[a]", "[0:2]"):
         with pytest.raises(ConversionError):
             Field.parse(bad)
 
@@ -118,9 +121,39 @@ def test_a_dataset_written_by_minari_converts_exactly(minari_root, tmp_path):
         )
 
 
+def test_a_dataset_written_by_lerobot_converts_exactly(tmp_path):
+    """Frames are observations in frame order, the time step is 1 / fps, the last frame's
+    action is left out (no step follows it), and float32 values convert exactly."""
+    import pyarrow.parquet as pq
+
+    out = convert(LEROBOT_FIXTURE, tmp_path / "out", "observation.state[0:2]", "observation.goal")
+    spec, episodes = _native.read_dataset(str(out))
+    assert spec["control_dt"] == 1 / 20
+    table = pq.read_table(LEROBOT_FIXTURE / "data" / "chunk-000" / "file-000.parquet")
+    frames = table.to_pydict()
+    assert len(episodes) == len(set(frames["episode_index"])) == 3
+    for number, episode in enumerate(episodes):
+        rows = [i for i, e in enumerate(frames["episode_index"]) if e == number]
+        rows.sort(key=lambda i: frames["frame_index"][i])
+        state = np.array([frames["observation.state"][i] for i in rows], dtype=np.float32)
+        goal = np.array([frames["observation.goal"][i] for i in rows], dtype=np.float32)
+        action = np.array([frames["action"][i] for i in rows], dtype=np.float32)
+        observations = np.frombuffer(episode["observations"], "<f8").reshape(-1, 6)
+        np.testing.assert_array_equal(observations[:, :2], state[:, :2].astype(np.float64))
+        np.testing.assert_array_equal(observations[:, 4:], goal.astype(np.float64))
+        np.testing.assert_array_equal(
+            np.frombuffer(episode["actions"], "<f8").reshape(-1, 2), action[:-1].astype(np.float64)
+        )
+    with pytest.raises(ConversionError, match="unit mismatch"):
+        convert(LEROBOT_FIXTURE, tmp_path / "ms", "observation.state[0:2]", dt=0.01)
+    with pytest.raises(ConversionError, match="no 'observation.images'"):
+        convert(LEROBOT_FIXTURE, tmp_path / "img", "observation.images")
+
+
 def test_bad_requests_are_refused_with_where_and_why(minari_root, tmp_path):
     source = foreign_dataset(minari_root, "reach", 2)
     cases = {
+        "states[0:2]": "no 'states' .there: actions, infos, observations, rewards",
         "observations/goal": "no 'observations/goal'",
         "observations": "is a Dict",
         "observations/achieved_goal[5:9]": "selects no column",
@@ -164,6 +197,16 @@ def test_ciflow_train_fits_a_dataset_from_elsewhere(minari_root, tmp_path):
     spec, episodes = _native.read_dataset(str(out / "demonstrations"))
     assert len(episodes) == 12 and spec["control_dt"] == DT
 
+    lerobot = subprocess.run(
+        [str(BINARY), "train", "--task", "lasa", "--demos", str(LEROBOT_FIXTURE), "--state",
+         "observation.state[0:2]", "--context", "observation.goal", "--epochs", "1", "--out",
+         str(tmp_path / "from-lerobot")],
+        capture_output=True, text=True, timeout=600,
+    )
+    assert lerobot.returncode == 0, lerobot.stderr
+    config = json.loads((tmp_path / "from-lerobot" / "config.json").read_text())
+    assert (config["state_dim"], config["context_dim"], config["dt"]) == (2, 2, 1 / 20)
+
     refused = subprocess.run(
         [str(BINARY), "train", "--task", "lasa", "--demos", str(source), "--state",
          "observations/nothing", "--dt", str(DT), "--out", str(tmp_path / "refused")],
@@ -174,3 +217,64 @@ def test_ciflow_train_fits_a_dataset_from_elsewhere(minari_root, tmp_path):
     assert "Traceback" not in refused.stderr
     assert not (tmp_path / "refused" / "config.json").exists()
 
+
+
+def test_minari_to_lerobot_to_minari_is_exact_up_to_float32(tmp_path):
+    """A ciflow dataset written as LeRobot v3.0 (float32, as LeRobot stores numbers) and
+    read back holds the same episodes rounded to float32, nothing else changed; the
+    layout is the one `lerobot` writes (the fixture's files and columns)."""
+    import pyarrow.parquet as pq
+
+    _native.record_expert("pouring", str(tmp_path / "ciflow"), 2, seed=4)
+    lerobot = to_lerobot(tmp_path / "ciflow", tmp_path / "lerobot")
+    back = convert(lerobot, tmp_path / "back", "observation.state",
+                   "observation.environment_state", velocity="observation.velocity")
+    spec, episodes = _native.read_dataset(str(tmp_path / "ciflow"))
+    back_spec, back_episodes = _native.read_dataset(str(back))
+    assert back_spec["control_dt"] == spec["control_dt"]
+    assert len(back_episodes) == len(episodes) == 2
+
+    def float32(data: bytes) -> np.ndarray:
+        return np.frombuffer(data, "<f8").astype(np.float32).astype(np.float64)
+
+    for original, returned in zip(episodes, back_episodes):
+        for key in ("observations", "actions", "rewards", "contexts"):
+            np.testing.assert_array_equal(np.frombuffer(returned[key], "<f8"),
+                                          float32(original[key]), err_msg=key)
+        assert returned["terminations"] == original["terminations"]
+
+    index_columns = ("timestamp", "frame_index", "episode_index", "index", "task_index")
+
+    def layout(root):
+        files = sorted(str(p.relative_to(root)) for p in root.rglob("*") if p.is_file())
+        info = json.loads((root / "meta" / "info.json").read_text())
+        data = pq.read_schema(root / "data" / "chunk-000" / "file-000.parquet")
+        episodes = pq.read_schema(root / "meta" / "episodes" / "chunk-000" / "file-000.parquet")
+        return (files, sorted(k for k in info if k != "features"),
+                {f.name: f.type for f in data if f.name in index_columns},
+                sorted(n for n in episodes.names if not n.startswith("stats/")))
+
+    assert layout(lerobot) == layout(LEROBOT_FIXTURE)
+    with pytest.raises(FileExistsError):
+        to_lerobot(tmp_path / "ciflow", tmp_path / "lerobot")
+
+
+def test_both_recorders_write_lerobot(engine, tmp_path):
+    """`ciflow demos --format lerobot` and `python -m ciflow.record --format lerobot` write
+    the same LeRobot dataset, and leave no Minari staging directory behind."""
+    import pyarrow.parquet as pq
+
+    endpoint, _name = engine
+    args = ["--task", "obstacle-avoidance", "--episodes", "2", "--seed", "7", "--kwarg",
+            "obstacles=1", "--format", "lerobot"]
+    subprocess.run([str(BINARY), "demos", *args, "--out", str(tmp_path / "rust")],
+                   check=True, capture_output=True, timeout=300)
+    subprocess.run([sys.executable, "-m", "ciflow.record", *args, "--out", str(tmp_path / "py"),
+                    "--engine", endpoint, "--no-publish", "--quiet"],
+                   check=True, capture_output=True, timeout=300)
+    for name in ("data/chunk-000/file-000.parquet", "meta/episodes/chunk-000/file-000.parquet",
+                 "meta/tasks.parquet"):
+        assert pq.read_table(tmp_path / "py" / name).equals(pq.read_table(tmp_path / "rust" / name))
+    for name in ("meta/info.json", "meta/stats.json"):
+        assert (tmp_path / "py" / name).read_text() == (tmp_path / "rust" / name).read_text()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["py", "rust"]

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use ciflow_envs::dataset::Credits;
+use ciflow_envs::dataset::{Credits, DatasetFormat};
 use ciflow_envs::rollout::{Recording, record_expert_dataset};
 
 use crate::parse::parse_key_value;
@@ -42,6 +42,9 @@ pub struct DemosArgs {
     pub overwrite: bool,
     #[command(flatten)]
     pub credits: Credits,
+    /// The layout to write: Minari's (what `ciflow train` reads) or LeRobot v3.0.
+    #[arg(long, value_enum, default_value_t)]
+    pub format: DatasetFormat,
 }
 
 /// Resolves NAME=VALUE pairs to the task's numbers (names of values included).
@@ -55,6 +58,7 @@ pub fn run(args: DemosArgs) -> anyhow::Result<()> {
         seed: args.seed,
         dataset_id: args.dataset_id,
         credits: args.credits,
+        format: args.format,
     };
     let progress = progress::bar(args.episodes, &format!("{} demos", args.task), "episodes");
     let mut steps = 0usize;

@@ -17,7 +17,6 @@
 
 use std::fmt;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use ciflow_envs::dataset::{self, DatasetSpec};
 use ciflow_envs::registry::TaskEntry;
@@ -127,26 +126,15 @@ pub fn convert_foreign(source: &Path, out: &Path, fields: &ForeignFields) -> Tra
     let state = fields.state.as_deref().ok_or_else(|| {
         TrainError::InvalidConfig("a foreign dataset needs the field that is the state".into())
     })?;
-    let python = ciflow_envs::python::interpreter();
-    let mut command = Command::new(&python);
-    command
-        .args(["-m", "ciflow.convert", "--overwrite", "--state", state])
-        .arg(source)
-        .arg(out);
+    let mut args: Vec<std::ffi::OsString> = vec!["--overwrite".into(), "--state".into()];
+    args.extend([state.into(), source.into(), out.into()]);
     if let Some(context) = &fields.context {
-        command.args(["--context", context]);
+        args.extend(["--context".into(), context.into()]);
     }
     if let Some(dt) = fields.dt {
-        command.arg("--dt").arg(dt.to_string());
+        args.extend(["--dt".into(), dt.to_string().into()]);
     }
-    let output = command
-        .output()
-        .map_err(|source| TrainError::ConverterLaunch { python, source })?;
-    if !output.status.success() {
-        let stderr = String::from_utf8_lossy(&output.stderr);
-        let message = stderr.trim().trim_start_matches("ciflow.convert: ");
-        return Err(TrainError::Conversion(message.to_owned()));
-    }
+    ciflow_envs::python::run_module("ciflow.convert", args).map_err(TrainError::Conversion)?;
     Ok(out.to_path_buf())
 }
 

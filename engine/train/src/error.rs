@@ -16,18 +16,10 @@ pub enum TrainError {
     Dataset(#[from] ciflow_envs::dataset::DatasetError),
     #[error(transparent)]
     Torch(#[from] tch::TchError),
-    /// The project's Python could not be started to convert a dataset made elsewhere.
-    #[error(
-        "cannot run `{python}` (the project's Python, with the ciflow package) to convert the dataset"
-    )]
-    ConverterLaunch {
-        python: String,
-        #[source]
-        source: std::io::Error,
-    },
-    /// `python -m ciflow.convert` refused the dataset; its message says what and where.
-    #[error("converting the dataset: {0}")]
-    Conversion(String),
+    /// Converting a dataset made elsewhere (`python -m ciflow.convert`) failed; the
+    /// source says what and where.
+    #[error("converting the dataset")]
+    Conversion(#[source] ciflow_envs::python::PythonError),
 }
 
 pub type TrainResult<T> = Result<T, TrainError>;

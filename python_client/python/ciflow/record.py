@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,7 @@ import gymnasium as gym
 import numpy as np
 
 from ciflow import _native, connection
+from ciflow.convert import to_lerobot
 from ciflow.registration import task_entry
 
 __all__ = ["Recorded", "record", "main"]
@@ -103,6 +105,7 @@ def record(
     dataset_id: str | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    format: str = "minari",
 ) -> Recorded:
     """Records ``episodes`` expert episodes of ``task``.
 
@@ -118,6 +121,8 @@ def record(
         dataset_id: Minari id (default ``ciflow/<task>-expert-v0``, as ``ciflow demos``).
         overwrite: replace an existing dataset at ``out``.
         progress: show a tqdm bar.
+        format: ``"minari"`` (the layout ``ciflow train`` reads) or ``"lerobot"`` (v3.0,
+            written from the Minari layout by ``ciflow.convert.to_lerobot``).
     """
     task_id, name = task_entry(task)
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
@@ -126,6 +131,8 @@ def record(
         raise ValueError(f"seed must be an integer in [0, 2^64 - episodes), got {seed!r}")
     if out is None and not publish:
         raise ValueError("nothing to do: no output directory and publishing disabled")
+    if format not in ("minari", "lerobot"):
+        raise ValueError(f"format must be 'minari' or 'lerobot', got {format!r}")
     out = Path(out) if out is not None else None
     if out is not None and out.exists() and not overwrite:
         raise FileExistsError(f"{out} already exists (pass overwrite=True / --overwrite)")
@@ -136,7 +143,11 @@ def record(
     env = gym.make(task_id, engine=engine, zenoh_config=zenoh_config, **kwargs)
     try:
         spec = _native.DatasetSpec(env.unwrapped.task_spec, dataset_id, kwargs=kwargs)
-        writer = _native.DatasetWriter(str(out), spec, overwrite) if out is not None else None
+        # LeRobot is written from the Minari layout, recorded beside the target first.
+        minari = out
+        if out is not None and format == "lerobot":
+            minari = out.with_name(f".{out.name}.minari-{os.getpid()}")
+        writer = _native.DatasetWriter(str(minari), spec, True) if out is not None else None
         publisher = None
         if publish:
             # The client gymnasium.make resolved: the episodes leave through its session.
@@ -156,6 +167,11 @@ def record(
         if bar is not None:
             bar.close()
         path = Path(writer.finish()) if writer is not None else None
+        if path is not None and format == "lerobot":
+            try:
+                path = to_lerobot(path, out, overwrite=overwrite)
+            finally:
+                shutil.rmtree(minari, ignore_errors=True)
     finally:
         env.close()
     return Recorded(
@@ -207,6 +223,9 @@ def main(argv=None) -> int:
     parser.add_argument("--no-publish", action="store_true",
                         help="only write the dataset, publish nothing")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
+    parser.add_argument("--format", choices=("minari", "lerobot"), default="minari",
+                        help="layout of --out: Minari's (what `ciflow train` reads) or "
+                        "LeRobot v3.0")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     if args.out is None and args.no_publish:
@@ -226,6 +245,7 @@ def main(argv=None) -> int:
             dataset_id=args.dataset_id,
             overwrite=args.overwrite,
             progress=not args.quiet,
+            format=args.format,
         )
     except (ValueError, TypeError, FileExistsError, _native.EngineUnreachable) as error:
         print(f"ciflow.record: error: {error}", file=sys.stderr)
