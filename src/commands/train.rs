@@ -33,8 +33,8 @@ pub struct TrainArgs {
     #[arg(long)]
     pub task: String,
     /// Dataset directory written by `ciflow demos` (Minari Arrow layout), or with --state
-    /// one made by another tool; with --from-zenoh, where the collected episodes are
-    /// written.
+    /// a Minari or LeRobot one made by another tool; with --from-zenoh, where the
+    /// collected episodes are written.
     #[arg(long, required_unless_present = "from_zenoh")]
     pub demos: Option<PathBuf>,
     #[command(flatten)]

@@ -12,8 +12,9 @@
 //!
 //! [`Screening`] keeps either on request; [`Screened`] reports the counts.
 //!
-//! A Minari dataset made by another tool is converted first ([`convert_foreign`]), with
-//! [`ForeignFields`] naming which of its fields are the state and the context.
+//! A Minari or LeRobot dataset made by another tool is converted first
+//! ([`convert_foreign`]), with [`ForeignFields`] naming which of its fields are the state
+//! and the context.
 
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -95,15 +96,16 @@ impl fmt::Display for Screened {
     }
 }
 
-/// Which fields of a Minari dataset made by another tool are the policy's state and
-/// context (with the `clap` feature, `ciflow train`'s flags for them).
+/// Which fields of a Minari or LeRobot dataset made by another tool are the policy's state
+/// and context (with the `clap` feature, `ciflow train`'s flags for them).
 #[derive(Clone, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct ForeignFields {
-    /// Train on a Minari dataset made by another tool (HDF5 or Arrow storage, Box or Dict
-    /// spaces) with this field as the state: a path and an optional column range, e.g.
-    /// observations[0:2] or observations/achieved_goal. `python -m ciflow.convert` writes
-    /// it into <out>/demonstrations first; the task names only the training recipe.
+    /// Train on a dataset made by another tool — Minari (HDF5 or Arrow storage, Box or
+    /// Dict spaces) or LeRobot (v3.0, v2.x) — with this field as the state: a path and an
+    /// optional column range, e.g. observations[0:2], observations/achieved_goal,
+    /// observation.state[0:7]. `python -m ciflow.convert` writes it into
+    /// <out>/demonstrations first; the task names only the training recipe.
     #[cfg_attr(feature = "clap", arg(long, value_name = "FIELD"))]
     pub state: Option<String>,
     /// With --state: the field that is the context, one row per observation (e.g.
@@ -111,7 +113,7 @@ pub struct ForeignFields {
     #[cfg_attr(feature = "clap", arg(long, value_name = "FIELD", requires = "state"))]
     pub context: Option<String>,
     /// With --state: seconds between the dataset's observations, when it does not record
-    /// them (given both ways, they must agree).
+    /// them (LeRobot records 1/fps; given both ways, they must agree).
     #[cfg_attr(
         feature = "clap",
         arg(long, value_name = "SECONDS", requires = "state")
@@ -119,9 +121,9 @@ pub struct ForeignFields {
     pub dt: Option<f64>,
 }
 
-/// Converts the Minari dataset at `source`, made by another tool, into `out` (the layout
-/// [`read_foreign`] reads) with `python -m ciflow.convert`, which reads it with Minari's
-/// own loader. Returns `out`.
+/// Converts the dataset at `source`, made by another tool, into `out` (the layout
+/// [`read_foreign`] reads) with `python -m ciflow.convert`, which reads Minari datasets
+/// with Minari's own loader and LeRobot ones with pyarrow. Returns `out`.
 pub fn convert_foreign(source: &Path, out: &Path, fields: &ForeignFields) -> TrainResult<PathBuf> {
     let state = fields.state.as_deref().ok_or_else(|| {
         TrainError::InvalidConfig("a foreign dataset needs the field that is the state".into())
