@@ -17,7 +17,11 @@ use std::time::{Duration, Instant};
 use ciflow_bridge::protocol::keys;
 use ciflow_bridge::zenoh::Wait;
 use ciflow_bridge::zenoh::query::ConsolidationMode;
-use ciflow_bridge::{Client, EngineServer, NetworkOptions, Role, ServerOptions};
+use ciflow_bridge::{Client, EngineServer, Limits, NetworkOptions, Role, ServerOptions};
+
+#[path = "support/timing.rs"]
+mod timing;
+use timing::{micros, time_calls};
 
 const TASK: &str = "ciflow/LimitCycle-v0";
 /// The 2-D tasks whose batched stepping has the 1M env-steps/s target.
@@ -25,30 +29,13 @@ const BATCHED_TASKS: [&str; 2] = ["ciflow/LimitCycle-v0", "ciflow/Obstacle-v0"];
 const WARMUP: usize = 500;
 const SAMPLES: usize = 5000;
 const BATCH_SIZES: [u32; 4] = [1024, 16384, 65536, 262144];
-
-fn percentile(sorted: &[Duration], p: f64) -> Duration {
-    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
-}
-
-/// Median and p99 of `SAMPLES` timed calls of `call` after a warm-up.
-fn time_calls(mut call: impl FnMut()) -> (Duration, Duration) {
-    for _ in 0..WARMUP {
-        call();
-    }
-    let mut samples: Vec<Duration> = (0..SAMPLES)
-        .map(|_| {
-            let start = Instant::now();
-            call();
-            start.elapsed()
-        })
-        .collect();
-    samples.sort();
-    (percentile(&samples, 0.5), percentile(&samples, 0.99))
-}
-
-fn micros(d: Duration) -> f64 {
-    d.as_secs_f64() * 1e6
-}
+/// Room for the largest batch (the default limit is 65 536 environments per session);
+/// `bench/roundtrip.sh` gives `ciflow serve` the same flags.
+const LIMITS: Limits = Limits {
+    max_envs_per_session: 262_144,
+    max_envs_per_client: 262_144,
+    ..Limits::DEFAULT
+};
 
 /// Env-steps per second of the task called directly (what the engine cannot beat per
 /// core), with the same zero action as the batched runs.
@@ -76,6 +63,7 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
             let endpoint = "tcp/127.0.0.1:27499".to_owned();
             let options = ServerOptions {
                 name: Some("bench".into()),
+                limits: LIMITS,
                 ..ServerOptions::default()
             };
             let engine =
@@ -129,8 +117,8 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     // Interleave the two measurements so that both see the same machine load.
     let (mut raw_runs, mut step_runs) = (Vec::new(), Vec::new());
     for _ in 0..3 {
-        raw_runs.push(time_calls(&mut raw));
-        step_runs.push(time_calls(&mut step));
+        raw_runs.push(time_calls(WARMUP, SAMPLES, &mut raw));
+        step_runs.push(time_calls(WARMUP, SAMPLES, &mut step));
     }
     let best = |runs: &[(Duration, Duration)]| *runs.iter().min_by_key(|r| r.0).unwrap();
     let (raw_median, raw_p99) = best(&raw_runs);

@@ -125,7 +125,16 @@ impl CheckpointPolicy {
             });
         }
         let model = Model::from_bytes(&message.config, &message.weights, None)?;
-        if model.task() != message.task {
+        // The message may name the task by its Gymnasium id (as `PolicyInfo.task` does)
+        // or its short name, whichever the configuration holds.
+        let names_task = |task: &str| {
+            task == model.task()
+                || tasks.iter().any(|t| {
+                    (t.name == model.task() || t.id == model.task())
+                        && (t.name == task || t.id == task)
+                })
+        };
+        if !names_task(&message.task) {
             return Err(PolicyLoadError::TaskMismatch {
                 claimed: message.task.clone(),
                 found: model.task().to_owned(),

@@ -22,12 +22,13 @@ use zenoh::sample::Sample;
 use crate::config::{NetworkOptions, Role};
 use crate::control::SessionControl;
 use crate::error::BridgeError;
+use crate::limits::{Limits, Usage};
 use crate::protocol::keys::{self, SessionOp};
 use crate::protocol::{
     AckReply, ActRequest, ActionReply, BatchResetReply, BatchStepReply, BatchStepRequest, F64s,
-    FrameHeader, MakeReply, MakeRequest, PROTOCOL_VERSION, PolicyInfo, RenderReply, RenderRequest,
-    ResetReply, ResetRequest, StepReply, StepRequest, TaskInfo, TasksReply, TasksRequest,
-    decode_reply, encode,
+    FrameHeader, LimitsReply, LimitsRequest, MakeReply, MakeRequest, PROTOCOL_VERSION, PolicyInfo,
+    RenderReply, RenderRequest, ResetReply, ResetRequest, StepReply, StepRequest, TaskInfo,
+    TasksReply, TasksRequest, decode_reply, encode,
 };
 use crate::query::{decode_ok, first_reply, query};
 
@@ -187,6 +188,18 @@ impl Client {
             },
         )?;
         Ok(reply.action.0)
+    }
+
+    /// `engine`'s bounds, and what this client holds of them.
+    pub fn limits(&self, engine: &str) -> Result<(Limits, Usage), BridgeError> {
+        let reply: LimitsReply = self.call(
+            &keys::limits(engine),
+            &LimitsRequest {
+                v: PROTOCOL_VERSION,
+                client: Some(self.id.clone()),
+            },
+        )?;
+        Ok((reply.limits, reply.usage.unwrap_or_default()))
     }
 
     fn call<R: DeserializeOwned>(

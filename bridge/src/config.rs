@@ -1,6 +1,7 @@
 //! Zenoh configuration of engines and clients: standard Zenoh JSON5 files plus the usual
 //! `--mode/--connect/--listen` overrides. With none of them, everything meets on the
-//! well-known loopback endpoint [`DEFAULT_ENDPOINT`] without multicast.
+//! well-known loopback endpoint [`DEFAULT_ENDPOINT`] without multicast, with a
+//! [`LEASE_MS`] link lease.
 
 use std::path::PathBuf;
 
@@ -10,6 +11,12 @@ use crate::error::BridgeError;
 
 /// Where a zero-configuration engine listens and a zero-configuration client connects.
 pub const DEFAULT_ENDPOINT: &str = "tcp/127.0.0.1:7447";
+
+/// The link lease every ciflow process announces (Zenoh's default is 10 s): a peer that
+/// hears nothing from this process for that long drops its link, so an engine reclaims
+/// the sessions of a frozen client (stopped process, dead machine) this long after it
+/// froze. Zenoh sends a keep-alive every quarter lease.
+pub const LEASE_MS: u64 = 3_000;
 
 /// Zenoh's role for this process.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -131,6 +138,11 @@ impl NetworkOptions {
 fn default_config(role: Role) -> Result<Config, BridgeError> {
     let mut config = Config::default();
     insert(&mut config, "scouting/multicast/enabled", "false")?;
+    insert(
+        &mut config,
+        "transport/link/tx/lease",
+        &LEASE_MS.to_string(),
+    )?;
     let endpoint = json_list(&[DEFAULT_ENDPOINT.to_owned()]);
     match role {
         Role::Engine => {
@@ -209,6 +221,12 @@ mod tests {
                 .contains(DEFAULT_ENDPOINT)
         );
         assert_eq!(client.get_json("mode").unwrap(), "\"client\"");
+        for config in [engine, client] {
+            assert_eq!(
+                config.get_json("transport/link/tx/lease").unwrap(),
+                LEASE_MS.to_string()
+            );
+        }
     }
 
     #[test]

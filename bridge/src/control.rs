@@ -20,8 +20,8 @@ use zenoh::sample::Sample;
 use crate::error::BridgeError;
 use crate::protocol::keys::{self, SessionOp};
 use crate::protocol::{
-    AckReply, ContextRequest, ErrorCode, F64s, PROTOCOL_VERSION, PerturbRequest, PerturbationMsg,
-    RunRequest, SessionRequest, Telemetry, decode_reply, encode,
+    AckReply, ContextCheckReply, ContextRequest, ErrorCode, F64s, PROTOCOL_VERSION, PerturbRequest,
+    PerturbationMsg, RunRequest, SessionRequest, Telemetry, decode_reply, encode,
 };
 use crate::query::query_all;
 
@@ -139,16 +139,34 @@ impl SessionControl {
 
     /// Replaces the context of environment `index`; returns the simulated time.
     pub fn set_context(&self, index: u32, context: &[f64]) -> Result<f64, BridgeError> {
-        let reply: AckReply = self.call(
-            SessionOp::Context,
-            &ContextRequest {
-                v: PROTOCOL_VERSION,
-                token: self.token.clone(),
-                index,
-                context: F64s(context.to_vec()),
-            },
-        )?;
+        let reply: AckReply =
+            self.call(SessionOp::Context, &self.context_request(index, context))?;
         Ok(reply.time)
+    }
+
+    /// Whether environment `index`'s task accepts `context`: `None` if it does, else why
+    /// not. Nothing changes.
+    pub fn check_context(
+        &self,
+        index: u32,
+        context: &[f64],
+    ) -> Result<Option<String>, BridgeError> {
+        let request = self.context_request(index, context);
+        let reply: ContextCheckReply = self.call(SessionOp::CheckContext, &request)?;
+        Ok((!reply.valid).then(|| {
+            reply
+                .reason
+                .unwrap_or_else(|| "the engine gave no reason".into())
+        }))
+    }
+
+    fn context_request(&self, index: u32, context: &[f64]) -> ContextRequest {
+        ContextRequest {
+            v: PROTOCOL_VERSION,
+            token: self.token.clone(),
+            index,
+            context: F64s(context.to_vec()),
+        }
     }
 
     /// Lets policy `policy` drive environment `index` (`speed` 1 = real time, 0 = as fast

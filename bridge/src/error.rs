@@ -40,7 +40,7 @@ pub enum BridgeError {
         #[source]
         source: zenoh::Error,
     },
-    #[error("cannot spawn the engine's worker thread")]
+    #[error("cannot spawn the engine's worker threads")]
     Worker(#[source] std::io::Error),
     /// Nobody answered at all: no engine is serving that key.
     #[error(

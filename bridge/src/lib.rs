@@ -8,6 +8,7 @@
 //! - [`server`]: [`EngineServer`], the engine hosting environment sessions;
 //! - [`client`]: [`Client`] and [`RemoteEnv`], the Rust side of a Gymnasium client;
 //! - [`config`]: Zenoh configuration with a zero-configuration loopback default;
+//! - [`limits`]: the bounds an engine enforces per request, session and client;
 //! - [`episodes`]: the episode channel, recorders publishing demonstrations to trainers;
 //! - [`policy`]: the [`Policy`] hook for `act`; [`checkpoint_policy`]: trained
 //!   checkpoints as policies; [`publisher`]: a trainer's checkpoint publications, which
@@ -19,6 +20,7 @@ pub mod config;
 pub mod control;
 pub mod episodes;
 pub mod error;
+pub mod limits;
 pub mod policy;
 pub mod protocol;
 pub mod publisher;
@@ -33,6 +35,7 @@ pub use config::{DEFAULT_ENDPOINT, Mode, NetworkOptions, Role};
 pub use control::{ANY_ENGINE, SessionControl, TelemetryStream};
 pub use episodes::{CollectError, EpisodePublisher, EpisodeSubscriber};
 pub use error::BridgeError;
+pub use limits::{Limits, Usage};
 pub use policy::{Policy, PolicyError};
 pub use publisher::CheckpointPublisher;
 pub use query::query_all;

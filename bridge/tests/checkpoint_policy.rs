@@ -130,6 +130,12 @@ fn publications_that_do_not_fit_are_refused() {
         CheckpointPolicy::from_message("other", &message, &tasks, &Kwargs::new()),
         Err(PolicyLoadError::NameMismatch { .. })
     ));
+    // The task may be named by its Gymnasium id, as `PolicyInfo.task` names it.
+    let by_id = CheckpointMsg {
+        task: obstacle_avoidance::ID.into(),
+        ..message.clone()
+    };
+    assert!(CheckpointPolicy::from_message("avoid", &by_id, &tasks, &Kwargs::new()).is_ok());
     let claims_pouring = CheckpointMsg {
         task: "pouring".into(),
         ..message.clone()

@@ -3,37 +3,16 @@
 
 mod common;
 
-use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::time::Duration;
 
 use ciflow_bridge::protocol::{
-    self, ByteBuf, ErrorCode, ErrorReply, F64s, PerturbationKindMsg, PerturbationMsg, StepRequest,
-    Telemetry, keys,
+    self, ByteBuf, ErrorCode, F64s, PerturbationKindMsg, PerturbationMsg, StepRequest, Telemetry,
+    keys,
 };
-use ciflow_bridge::{BridgeError, query_all};
 use ciflow_envs::ResetOptions;
 use common::*;
 use zenoh::Wait;
-
-fn no_kwargs() -> BTreeMap<String, f64> {
-    BTreeMap::new()
-}
-
-fn remote_code(error: BridgeError) -> ErrorCode {
-    match error {
-        BridgeError::Remote(reply) => reply.code,
-        other => panic!("expected a typed engine error, got {other}"),
-    }
-}
-
-/// Sends raw bytes to `key` and returns its one reply (payload or typed error).
-fn raw_query(session: &zenoh::Session, key: &str, payload: Vec<u8>) -> Result<Vec<u8>, ErrorReply> {
-    let mut replies = query_all(session, key, payload, Duration::from_secs(5)).unwrap();
-    assert_eq!(replies.len(), 1, "exactly one reply to {key}");
-    replies.pop().unwrap()
-}
 
 #[test]
 fn every_operation_round_trips_with_gymnasium_seeding() {

@@ -87,6 +87,13 @@ pub trait Env: Send {
     /// Replaces the context mid-episode.
     fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError>;
 
+    /// Whether the task accepts `context` (as a reset option or in `set_context`), without
+    /// changing anything: inside the context space and, for some tasks, further conditions
+    /// such as obstacles clear of the start and the goal.
+    fn check_context(&self, context: &[f64]) -> Result<(), EnvError> {
+        self.spec().context_space.check("context", context)
+    }
+
     /// Schedules an external perturbation in simulated time.
     fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError>;
 

@@ -19,7 +19,7 @@ pub enum EnvError {
     OutOfBounds { what: &'static str, detail: String },
     #[error("invalid option `{name}`: {detail}")]
     InvalidOption { name: String, detail: String },
-    #[error("`step` called before `reset` or after the episode ended")]
+    #[error("the environment needs a `reset`: it was never reset, or its episode ended")]
     NeedsReset,
     #[error("invalid perturbation")]
     InvalidPerturbation(#[source] SimError),

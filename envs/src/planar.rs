@@ -155,11 +155,6 @@ impl<T: PlanarTask> PlanarEnv<T> {
         outcome.info.insert("time".into(), self.simulator.time());
         outcome
     }
-
-    fn check_context(&self, context: &[f64]) -> Result<(), EnvError> {
-        self.spec.context_space.check("context", context)?;
-        self.task.check_context(context)
-    }
 }
 
 fn vector2(what: &'static str, values: &[f64]) -> Result<Vector2<f64>, EnvError> {
@@ -245,6 +240,11 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         let (x, xd) = self.state();
         let a = tracking_acceleration(self.task.field(), &x, &xd, self.task.velocity_gain());
         Ok(self.spec.action_space.clip(a.as_slice()))
+    }
+
+    fn check_context(&self, context: &[f64]) -> Result<(), EnvError> {
+        self.spec.context_space.check("context", context)?;
+        self.task.check_context(context)
     }
 
     fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {

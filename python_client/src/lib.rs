@@ -472,6 +472,19 @@ impl Control {
             .map_err(to_py)
     }
 
+    /// `None` if environment `index`'s task accepts the context (f64 bytes), else why not.
+    #[pyo3(signature = (context, index=0))]
+    fn check_context(
+        &self,
+        py: Python<'_>,
+        context: &[u8],
+        index: u32,
+    ) -> PyResult<Option<String>> {
+        let context = floats_from_bytes("context", context)?;
+        py.detach(|| self.control.check_context(index, &context))
+            .map_err(to_py)
+    }
+
     /// A feed of the session's telemetry samples.
     fn telemetry(&self, py: Python<'_>) -> PyResult<TelemetryFeed> {
         let stream = py.detach(|| self.control.telemetry()).map_err(to_py)?;

@@ -95,6 +95,24 @@ def test_bad_input_raises_typed_errors_and_the_env_stays_usable(engine):
         env.close()
 
 
+def test_a_context_can_be_checked_before_it_is_used(engine):
+    env = gym.make("ciflow/Obstacle-v0", engine=engine[0], obstacles=1).unwrapped
+    try:
+        observation, _ = env.reset(seed=0)
+        assert env.check_context(observation[-4:]) is None
+        low, high = env.context_space.low, env.context_space.high
+        # Obstacle and target at their regions' nearest edges: inside the box, refused.
+        near = np.array([high[0], 0.0, low[2], 0.0])
+        assert env.context_space.contains(near.astype(env.context_space.dtype))
+        reason = env.check_context(near)
+        assert reason is not None and "safety disc" in reason
+        with pytest.raises(ciflow.CiflowError) as refused:
+            env.reset(options={"context": near})
+        assert refused.value.code == "out_of_bounds"
+    finally:
+        env.close()
+
+
 def test_options_and_perturbations_cross_as_dicts_with_clear_errors(engine):
     env = gym.make("ciflow/LimitCycle-v0", engine=engine[0]).unwrapped
     try:

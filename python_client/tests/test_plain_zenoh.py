@@ -139,3 +139,98 @@ def test_batched_step_and_frames_over_pubsub(plain, engine):
     assert len(sample.payload.to_bytes()) == 32 * 16 * 3
     frames.undeclare()
     plain.query(f"{key}/close", {"v": V, "token": token})
+
+
+def test_every_operation_error_code_and_limit_of_the_page(plain, engine):
+    """The page's operations, error codes and limits, each met from a plain client.
+    Not reachable from outside by design: `internal` (a caught engine bug; the Rust tests
+    provoke it with a task that panics) and `simulation` (a diverging simulation). The
+    policy codes (`act`, `run`, `busy`, `policy`) are met in test_policy_run.py."""
+    _, name = engine
+    base = f"ciflow/v1/engine/{name}"
+
+    def code(key, request):
+        ok, reply = plain.query(key, request)
+        assert not ok, f"{key} accepted {request}"
+        return reply["code"]
+
+    # ping echoes; limits are public and count per client.
+    replies = list(plain.session.get(f"{base}/ping", payload=b"\x01\x02", timeout=10.0))
+    assert replies[0].ok.payload.to_bytes() == b"\x01\x02"
+    ok, limits = plain.query(f"{base}/limits", {"v": V, "client": plain.client})
+    assert ok and limits["usage"] == {"sessions": 0, "envs": 0}
+    bounds = limits["limits"]
+    assert bounds["max_envs_per_session"] >= 1 and bounds["max_request_bytes"] == 64 << 20
+
+    # make: unknown task, no token, bad names, too many environments, past its deadline.
+    make = {"v": V, "client": plain.client, "task": "limit-cycle"}
+    assert code(f"{base}/make", {**make, "task": "juggling"}) == "unknown_task"
+    assert code(f"{base}/make", {**make, "client": "nobody-" + secrets.token_hex(4)}) == "no_liveliness"
+    assert code(f"{base}/make", {**make, "client": ""}) == "invalid_request"
+    assert code(f"{base}/make", {**make, "num_envs": 0}) == "invalid_request"
+    too_many = bounds["max_envs_per_session"] + 1
+    assert code(f"{base}/make", {**make, "num_envs": too_many}) == "limit_exceeded"
+    slow = {**make, "task": "pouring", "num_envs": bounds["max_envs_per_session"], "deadline_ms": 50}
+    assert code(f"{base}/make", slow) == "deadline_exceeded"
+    assert code(f"{base}/make", {**make, "kwargs": {"no_such_argument": 1.0}}) == "invalid_option"
+    ok, limits = plain.query(f"{base}/limits", {"v": V, "client": plain.client})
+    assert limits["usage"] == {"sessions": 0, "envs": 0}, "refusals keep nothing"
+
+    # The decoder: maps only, tokens are bins, payloads up to 64 MiB, keys of the page.
+    assert code(f"{base}/tasks", [V]) == "malformed"
+    ok, made = plain.query(f"{base}/make", {**make, "task": "obstacle-avoidance", "kwargs": {"obstacles": 1}})
+    assert ok, made
+    key = f"{base}/session/{made['session']}"
+    token = made["token"]
+    assert code(f"{key}/step", {"v": V, "token": list(token), "action": f64le([0, 0])}) == "malformed"
+    oversized = list(plain.session.get(f"{key}/step", payload=b"\x80" * ((64 << 20) + 1), timeout=30.0))
+    assert msgpack.unpackb(oversized[0].err.payload.to_bytes())["code"] == "payload_too_large"
+    assert code(f"{key}/fly", {"v": V, "token": token}) == "unknown_operation"
+    assert code(f"{base}/session/0000000000000000/step", {"v": V, "token": token}) == "unknown_session"
+
+    # Before the first reset: the expert, context and perturbations need one.
+    assert code(f"{key}/expert", {"v": V, "token": token}) == "needs_reset"
+    ok, reset = plain.query(f"{key}/reset", {"v": V, "token": token, "seed": 3})
+    assert ok, reset
+    sampled = np.frombuffer(reset["observation"], "<f8")[-4:]
+
+    # check_context: the task's own contexts are valid; one inside the box may not be.
+    ok, check = plain.query(f"{key}/check_context", {"v": V, "token": token, "context": f64le(sampled)})
+    assert ok and check["valid"], check
+    space = made["spec"]["context_space"]
+    near = [space["high"][0], 0.0, space["low"][2], 0.0]
+    ok, check = plain.query(f"{key}/check_context", {"v": V, "token": token, "context": f64le(near)})
+    assert ok and not check["valid"] and "safety disc" in check["reason"]
+    assert code(f"{key}/context", {"v": V, "token": token, "context": f64le(near)}) == "out_of_bounds"
+    assert code(f"{key}/check_context", {"v": V, "token": token, "context": f64le([0.0] * 3)}) == "wrong_dimension"
+    ok, moved = plain.query(f"{key}/context", {"v": V, "token": token, "context": f64le(sampled)})
+    assert ok and moved["time"] == 0.0
+    # Reset options are f64s too: a bin of doubles is one number per 8 bytes.
+    ok, reset = plain.query(f"{key}/reset", {"v": V, "token": token, "options": {"context": f64le(sampled)}})
+    assert ok and np.allclose(np.frombuffer(reset["observation"], "<f8")[-4:], sampled)
+
+    # perturb: typed refusals, then one accepted.
+    push = {"kind": "joint_torque", "torque": [1.0, 0.0], "duration": 0.1}
+    nan_start = {"v": V, "token": token, "perturbation": {**push, "start": float("nan")}}
+    assert code(f"{key}/perturb", nan_start) == "not_finite"
+    negative = {"v": V, "token": token, "perturbation": {**push, "duration": -1.0}}
+    assert code(f"{key}/perturb", negative) == "out_of_bounds"
+    wrong_link = {"kind": "link_wrench", "link": 99, "force": [1.0, 0, 0], "torque": [0, 0, 0], "duration": 0.1}
+    assert code(f"{key}/perturb", {"v": V, "token": token, "perturbation": wrong_link}) == "invalid_perturbation"
+    ok, accepted = plain.query(f"{key}/perturb", {"v": V, "token": token, "perturbation": push})
+    assert ok, accepted
+
+    # Sessions per client are bounded too.
+    ok, limits = plain.query(f"{base}/limits", {"v": V, "client": plain.client})
+    assert limits["usage"] == {"sessions": 1, "envs": 1}
+    opened = [made]
+    for _ in range(bounds["max_sessions_per_client"] - 1):
+        ok, extra = plain.query(f"{base}/make", make)
+        assert ok, extra
+        opened.append(extra)
+    assert code(f"{base}/make", make) == "limit_exceeded"
+    for session in opened:
+        ok, _ = plain.query(f"{base}/session/{session['session']}/close", {"v": V, "token": session["token"]})
+        assert ok
+    ok, limits = plain.query(f"{base}/limits", {"v": V, "client": plain.client})
+    assert limits["usage"] == {"sessions": 0, "envs": 0}

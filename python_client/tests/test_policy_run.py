@@ -99,3 +99,54 @@ def test_run_policy_is_perturbed_from_a_second_process(policy_engine, tmp_path):
         np.allclose(s["state"], by_step[s["step"]]["state"]) for s in before
     ), "before the push both runs coincide"
     env.close()
+
+
+def test_policy_operations_and_their_error_codes_from_a_plain_client(policy_engine):
+    """`act`, `run` and `stop` as the protocol page states them, with its codes and limits:
+    `unknown_policy`, `limit_exceeded`, `policy`, `busy`, `wrong_dimension`."""
+    from test_plain_zenoh import V, Plain, f64le
+
+    endpoint, name = policy_engine
+    plain = Plain(endpoint)
+    base = f"ciflow/v1/engine/{name}"
+    try:
+        ok, tasks = plain.query(f"{base}/tasks", {"v": V})
+        info = next(p for p in tasks["policies"] if p["name"] == "avoid")
+        assert info["task"] == "ciflow/Obstacle-v0"
+        dim = info["observation_dim"]
+        ok, made = plain.query(f"{base}/make", {"v": V, "client": plain.client, "task": info["task"],
+                                                "kwargs": {"obstacles": 1}})
+        assert ok, made
+        key, token = f"{base}/session/{made['session']}", made["token"]
+        ok, reset = plain.query(f"{key}/reset", {"v": V, "token": token, "seed": 1})
+        observation = np.frombuffer(reset["observation"], "<f8")
+
+        ok, acted = plain.query(f"{base}/policy/avoid/act", {"v": V, "observations": f64le(observation)})
+        assert ok and np.frombuffer(acted["action"], "<f8").shape == (info["action_dim"],)
+        ok, error = plain.query(f"{base}/policy/nobody/act", {"v": V, "observations": f64le(observation)})
+        assert not ok and error["code"] == "unknown_policy"
+        ok, error = plain.query(f"{base}/policy/avoid/act", {"v": V, "observations": f64le(observation[:-1])})
+        assert not ok and error["code"] == "wrong_dimension"
+        ok, limits = plain.query(f"{base}/limits", {"v": V})
+        too_many = np.tile(observation, limits["limits"]["max_act_observations"] + 1)
+        ok, error = plain.query(f"{base}/policy/avoid/act", {"v": V, "observations": f64le(too_many)})
+        assert not ok and error["code"] == "limit_exceeded"
+        far = observation.copy()
+        far[:2] = 1e300
+        ok, reply = plain.query(f"{base}/policy/avoid/act", {"v": V, "observations": f64le(far)})
+        if ok:  # clipped to the action space
+            assert np.isfinite(np.frombuffer(reply["action"], "<f8")).all()
+        else:  # never a NaN action: refused instead
+            assert reply["code"] == "policy", reply
+
+        ok, started = plain.query(f"{key}/run", {"v": V, "token": token, "policy": "avoid", "speed": 0.5})
+        assert ok and started["time"] == 0.0
+        ok, error = plain.query(f"{key}/step", {"v": V, "token": token, "action": f64le([0.0, 0.0])})
+        assert not ok and error["code"] == "busy"
+        ok, stopped = plain.query(f"{key}/stop", {"v": V, "token": token})
+        assert ok and stopped["time"] > 0.0
+        ok, stepped = plain.query(f"{key}/step", {"v": V, "token": token, "action": f64le([0.0, 0.0])})
+        assert ok, stepped
+        assert dim == len(observation)
+    finally:
+        plain.close()

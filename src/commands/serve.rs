@@ -36,6 +36,8 @@ pub struct ServeArgs {
     /// when the checkpoint's data was made (e.g. obstacles=1; repeatable).
     #[arg(long = "policy-kwarg", value_name = "NAME=VALUE", value_parser = parse_number_pair)]
     pub policy_kwargs: Vec<(String, f64)>,
+    #[command(flatten)]
+    pub limits: ciflow_bridge::Limits,
 }
 
 fn load_policy(
@@ -54,13 +56,10 @@ fn load_policy(
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let network = args.network.options()?;
-    anyhow::ensure!(
-        args.telemetry_hz.is_finite() && args.telemetry_hz > 0.0,
-        "--telemetry-hz must be a positive number"
-    );
     let mut options = ServerOptions {
         name: args.name,
         telemetry_hz: args.telemetry_hz,
+        limits: args.limits,
         ..ServerOptions::default()
     };
     let kwargs: Kwargs = args.policy_kwargs.into_iter().collect();

@@ -32,6 +32,7 @@ pub struct CheckpointMsg {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RunRequest {
     pub v: u16,
+    #[serde(deserialize_with = "super::wire::bin_only")]
     pub token: ByteBuf,
     #[serde(default)]
     pub index: u32,

@@ -263,7 +263,7 @@ impl EpisodeMsg {
 /// checks its shapes and values (see [`EpisodeMsg::into_dataset`]).
 pub fn decode_episode(payload: &[u8]) -> Result<EpisodeMsg, EpisodeError> {
     match rmp_serde::from_slice::<Header>(payload) {
-        Ok(Header { v }) if v != PROTOCOL_VERSION => {
+        Ok(Header { v, .. }) if v != PROTOCOL_VERSION => {
             return Err(EpisodeError::VersionMismatch { got: v });
         }
         Ok(_) => {}

@@ -14,7 +14,8 @@ pub enum ErrorCode {
     VersionMismatch,
     /// The payload is not a MessagePack map of the operation's request layout.
     Malformed,
-    /// The payload exceeds [`super::MAX_REQUEST_BYTES`].
+    /// The payload exceeds the engine's `max_request_bytes` (at most
+    /// [`super::MAX_REQUEST_BYTES`]).
     PayloadTooLarge,
     /// The key names no operation of this protocol.
     UnknownOperation,
@@ -41,10 +42,14 @@ pub enum ErrorCode {
     Internal,
     /// The session is driven by a policy (`run`): `step`/`reset` wait until it stops.
     Busy,
+    /// The request would exceed one of the engine's bounds (`limits` lists them).
+    LimitExceeded,
+    /// The engine could not answer within the request's time budget; nothing was kept.
+    DeadlineExceeded,
 }
 
 impl ErrorCode {
-    const ALL: [ErrorCode; 20] = [
+    const ALL: [ErrorCode; 22] = [
         ErrorCode::VersionMismatch,
         ErrorCode::Malformed,
         ErrorCode::PayloadTooLarge,
@@ -65,6 +70,8 @@ impl ErrorCode {
         ErrorCode::Policy,
         ErrorCode::Internal,
         ErrorCode::Busy,
+        ErrorCode::LimitExceeded,
+        ErrorCode::DeadlineExceeded,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -89,6 +96,8 @@ impl ErrorCode {
             ErrorCode::Policy => "policy",
             ErrorCode::Internal => "internal",
             ErrorCode::Busy => "busy",
+            ErrorCode::LimitExceeded => "limit_exceeded",
+            ErrorCode::DeadlineExceeded => "deadline_exceeded",
         }
     }
 

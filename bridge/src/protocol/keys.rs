@@ -6,9 +6,12 @@
 //! ciflow/v1/engine/<engine>/tasks                    query: tasks, specs, policies
 //! ciflow/v1/engine/<engine>/make                     query: open a session
 //! ciflow/v1/engine/<engine>/ping                     query: echoes its payload
+//! ciflow/v1/engine/<engine>/limits                   query: the engine's bounds, a
+//!                                                    client's usage
 //! ciflow/v1/engine/<engine>/session/<session>/<op>   query: reset, step, reset_batch,
 //!                                                    step_batch, expert, context,
-//!                                                    perturb, render, close, run, stop
+//!                                                    check_context, perturb, render,
+//!                                                    close, run, stop
 //! ciflow/v1/engine/<engine>/session/<session>/telemetry   publication (engine → viewers)
 //! ciflow/v1/engine/<engine>/session/<session>/frame       publication (rendered frames)
 //! ciflow/v1/engine/<engine>/policy/<policy>/act      query: observation in, action out
@@ -56,6 +59,11 @@ pub fn ping(engine_id: &str) -> String {
     format!("{}/ping", engine(engine_id))
 }
 
+/// The engine's bounds and one client's usage of them.
+pub fn limits(engine_id: &str) -> String {
+    format!("{}/limits", engine(engine_id))
+}
+
 /// A per-session key: an operation, `telemetry` or `frame`.
 pub fn session(engine_id: &str, session: &str, leaf: &str) -> String {
     format!("{}/session/{session}/{leaf}", engine(engine_id))
@@ -91,6 +99,7 @@ pub enum Route<'a> {
     Tasks,
     Make,
     Ping,
+    Limits,
     Session { session: &'a str, op: SessionOp },
     PolicyAct { policy: &'a str },
 }
@@ -104,6 +113,8 @@ pub enum SessionOp {
     StepBatch,
     Expert,
     Context,
+    /// Whether the task accepts a context, without changing anything.
+    CheckContext,
     Perturb,
     Render,
     Close,
@@ -113,13 +124,14 @@ pub enum SessionOp {
 }
 
 impl SessionOp {
-    pub const ALL: [SessionOp; 11] = [
+    pub const ALL: [SessionOp; 12] = [
         SessionOp::Reset,
         SessionOp::Step,
         SessionOp::ResetBatch,
         SessionOp::StepBatch,
         SessionOp::Expert,
         SessionOp::Context,
+        SessionOp::CheckContext,
         SessionOp::Perturb,
         SessionOp::Render,
         SessionOp::Close,
@@ -136,6 +148,7 @@ impl SessionOp {
             SessionOp::StepBatch => "step_batch",
             SessionOp::Expert => "expert",
             SessionOp::Context => "context",
+            SessionOp::CheckContext => "check_context",
             SessionOp::Perturb => "perturb",
             SessionOp::Render => "render",
             SessionOp::Close => "close",
@@ -160,6 +173,7 @@ pub fn parse_route(key: &str) -> Option<Route<'_>> {
         ["tasks"] => Some(Route::Tasks),
         ["make"] => Some(Route::Make),
         ["ping"] => Some(Route::Ping),
+        ["limits"] => Some(Route::Limits),
         ["session", session, op] if is_plain_chunk(session) => Some(Route::Session {
             session,
             op: SessionOp::parse(op)?,
@@ -219,6 +233,7 @@ mod tests {
         assert_eq!(parse_route(ALL_ENGINES_TASKS), Some(Route::Tasks));
         assert_eq!(parse_route(&make("e1")), Some(Route::Make));
         assert_eq!(parse_route(&ping("e1")), Some(Route::Ping));
+        assert_eq!(parse_route(&limits("e1")), Some(Route::Limits));
         for op in SessionOp::ALL {
             assert_eq!(
                 parse_route(&session("e1", "s42", op.as_str())),

@@ -9,12 +9,18 @@ use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
 
 use super::F64s;
+use super::wire::{bin_only, reset_options};
+use crate::limits::{Limits, Usage};
 
-/// The minimal view of any request: only its version. Decoded when the full request is
-/// malformed, to tell a version mismatch from garbage.
+/// The fields every request may carry: its version, and how long the caller will wait.
+/// Decoded before the full request, to tell a version mismatch from garbage.
 #[derive(Debug, Deserialize)]
 pub struct Header {
     pub v: u16,
+    /// Milliseconds the caller will wait for the reply; the engine answers
+    /// `deadline_exceeded` rather than work past it (at most its own budget).
+    #[serde(default)]
+    pub deadline_ms: Option<u32>,
 }
 
 // ---------------------------------------------------------------- engine-level queries
@@ -92,6 +98,24 @@ pub struct MakeReply {
     pub spec: EnvSpec,
 }
 
+/// `…/limits`: the engine's bounds, and `client`'s usage of them when named.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LimitsRequest {
+    pub v: u16,
+    #[serde(default)]
+    pub client: Option<String>,
+}
+
+/// Reply to `…/limits`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LimitsReply {
+    pub v: u16,
+    pub limits: Limits,
+    /// The named client's sessions and environments (zero for an unknown client).
+    #[serde(default)]
+    pub usage: Option<Usage>,
+}
+
 // ---------------------------------------------------------------- session queries
 
 /// `…/reset` (single environment) and `…/reset_batch` (all environments; environment
@@ -99,8 +123,10 @@ pub struct MakeReply {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct ResetRequest {
     pub v: u16,
+    #[serde(deserialize_with = "bin_only")]
     pub token: ByteBuf,
     pub seed: Option<u64>,
+    #[serde(default, deserialize_with = "reset_options")]
     pub options: Option<ResetOptions>,
 }
 
@@ -116,6 +142,7 @@ pub struct ResetReply {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StepRequest {
     pub v: u16,
+    #[serde(deserialize_with = "bin_only")]
     pub token: ByteBuf,
     pub action: F64s,
 }
@@ -146,6 +173,7 @@ pub struct BatchResetReply {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BatchStepRequest {
     pub v: u16,
+    #[serde(deserialize_with = "bin_only")]
     pub token: ByteBuf,
     pub actions: F64s,
 }
@@ -170,6 +198,7 @@ pub struct BatchStepReply {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct SessionRequest {
     pub v: u16,
+    #[serde(deserialize_with = "bin_only")]
     pub token: ByteBuf,
     /// Which environment of the session (default 0).
     #[serde(default)]
@@ -187,16 +216,28 @@ pub struct ActionReply {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ContextRequest {
     pub v: u16,
+    #[serde(deserialize_with = "bin_only")]
     pub token: ByteBuf,
     #[serde(default)]
     pub index: u32,
     pub context: F64s,
 }
 
+/// Reply to `…/check_context` (a [`ContextRequest`]): whether the task accepts the
+/// context, and if not, why.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ContextCheckReply {
+    pub v: u16,
+    pub valid: bool,
+    #[serde(default)]
+    pub reason: Option<String>,
+}
+
 /// `…/perturb`: schedules a perturbation of environment `index`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PerturbRequest {
     pub v: u16,
+    #[serde(deserialize_with = "bin_only")]
     pub token: ByteBuf,
     #[serde(default)]
     pub index: u32,
@@ -241,6 +282,7 @@ pub struct AckReply {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RenderRequest {
     pub v: u16,
+    #[serde(deserialize_with = "bin_only")]
     pub token: ByteBuf,
     #[serde(default)]
     pub index: u32,

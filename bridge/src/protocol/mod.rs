@@ -44,8 +44,14 @@ pub fn decode_request<T: DeserializeOwned>(payload: &[u8]) -> Result<T, ErrorRep
             format!("request has protocol version {v}, this engine speaks {PROTOCOL_VERSION}"),
         )
     };
+    if !wire::is_map(payload) {
+        return Err(ErrorReply::new(
+            ErrorCode::Malformed,
+            "payload is not a MessagePack map",
+        ));
+    }
     match rmp_serde::from_slice::<Header>(payload) {
-        Ok(Header { v }) if v != PROTOCOL_VERSION => return Err(version_error(v)),
+        Ok(Header { v, .. }) if v != PROTOCOL_VERSION => return Err(version_error(v)),
         Ok(_) => {}
         Err(e) => {
             return Err(ErrorReply::new(
@@ -66,6 +72,14 @@ pub fn decode_request<T: DeserializeOwned>(payload: &[u8]) -> Result<T, ErrorRep
             ),
         )
     })
+}
+
+/// The caller's `deadline_ms`, if the payload is a request that carries one.
+pub fn requested_deadline(payload: &[u8]) -> Option<u32> {
+    if !wire::is_map(payload) {
+        return None;
+    }
+    rmp_serde::from_slice::<Header>(payload).ok()?.deadline_ms
 }
 
 /// Decodes a reply payload (client side).

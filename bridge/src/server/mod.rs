@@ -1,11 +1,17 @@
 //! The engine: hosts environment sessions and answers the protocol's queries.
 //!
-//! One queryable on `ciflow/v1/engine/<engine>/**` receives every request. Cheap,
-//! non-blocking operations (step, reset, expert, …) are answered directly in Zenoh's
-//! callback, so a step costs one network round trip and nothing more; `make` (which may
-//! have to ask Zenoh whether the client is alive) and `render` (which publishes a large
-//! frame) go to a worker thread. Every request gets exactly one reply; a panic in a task
-//! is caught, answered with `internal`, and closes only that session.
+//! One queryable on `ciflow/v1/engine/<engine>/**` receives every request. Cheap
+//! operations of bounded cost (step, reset, expert, a small batch or `act`, …) are
+//! answered directly in Zenoh's callback, so a step costs one network round trip and
+//! nothing more. Everything whose cost grows with its payload or may wait (`make`,
+//! `render`, `reset_batch`, large `step_batch` and `act`) goes to a pool of worker
+//! threads ([`workers`]): Zenoh's own threads must never be held for long, or the links
+//! they serve miss their lease and Zenoh drops them, with every session of their clients.
+//!
+//! Every request is answered within its time budget ([`crate::limits`]) and inside the
+//! engine's bounds, or refused with a typed error that leaves nothing allocated. Every
+//! request gets exactly one reply; a panic in a task is caught, answered with `internal`,
+//! and closes only that session.
 
 mod driver;
 mod hot_load;
@@ -13,15 +19,17 @@ mod policy_table;
 mod session;
 mod slot;
 mod telemetry;
+mod usage;
+mod workers;
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::panic::{AssertUnwindSafe, catch_unwind};
-use std::sync::mpsc;
+use std::sync::atomic::AtomicU32;
 use std::sync::{Arc, Mutex, RwLock};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use ciflow_envs::EnvError;
 use ciflow_envs::registry::Kwargs;
+use rayon::prelude::*;
 use zenoh::Wait;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Subscriber;
@@ -29,26 +37,33 @@ use zenoh::qos::CongestionControl;
 use zenoh::query::{Query, Queryable};
 use zenoh::sample::SampleKind;
 
-use self::driver::Driver;
+use self::driver::{Driver, Schedulers};
 use self::hot_load::hot_load;
 pub(crate) use self::policy_table::PolicyTable;
-use self::session::Session;
+use self::session::{RunPermit, Session};
 use self::slot::EnvSlot;
-use self::telemetry::TelemetryPublisher;
+use self::telemetry::TelemetryWatch;
+use self::usage::{ClientTable, Reservation};
+use self::workers::Workers;
 use crate::config::{NetworkOptions, Role};
 use crate::error::{BridgeError, full_message};
+use crate::limits::{Deadline, Limits};
 use crate::policy::Policy;
 use crate::protocol::keys::{self, Route, SessionOp};
 use crate::protocol::{
     AckReply, ActRequest, ActionReply, BatchStepRequest, ContextRequest, ErrorCode, ErrorReply,
-    F64s, MakeReply, MakeRequest, PROTOCOL_VERSION, PerturbRequest, RenderReply, RenderRequest,
-    ResetRequest, RunRequest, SessionRequest, StepRequest, TaskInfo, TasksReply, TasksRequest,
-    decode_request, encode,
+    F64s, LimitsReply, LimitsRequest, MakeReply, MakeRequest, PROTOCOL_VERSION, PerturbRequest,
+    RenderReply, RenderRequest, ResetRequest, RunRequest, SessionRequest, StepRequest, TaskInfo,
+    TasksReply, TasksRequest, decode_request, encode, requested_deadline,
 };
 use crate::task_factory::TaskFactory;
 
-/// Most environments one session may hold.
-pub const MAX_ENVS_PER_SESSION: u32 = 1 << 20;
+/// Payloads up to this size of `step_batch` and `act` are served in Zenoh's callback:
+/// 512 two-dimensional actions, well under a millisecond of work.
+const INLINE_BYTES: usize = 8 << 10;
+
+/// Environments built, or observations evaluated, between two looks at the deadline.
+const DEADLINE_CHUNK: usize = 256;
 
 /// How long `make` waits for Zenoh to confirm a client's liveliness token.
 const LIVELINESS_TIMEOUT: Duration = Duration::from_secs(2);
@@ -62,6 +77,7 @@ pub struct ServerOptions {
     pub telemetry_hz: f64,
     pub tasks: Vec<TaskFactory>,
     pub policies: Vec<Arc<dyn Policy>>,
+    pub limits: Limits,
 }
 
 impl Default for ServerOptions {
@@ -71,6 +87,7 @@ impl Default for ServerOptions {
             telemetry_hz: 60.0,
             tasks: TaskFactory::registry(),
             policies: Vec::new(),
+            limits: Limits::DEFAULT,
         }
     }
 }
@@ -108,6 +125,13 @@ impl EngineServer {
                 "engine name `{name}` must be letters, digits, `-`, `_` or `.`"
             )));
         }
+        options.limits.check()?;
+        if !(options.telemetry_hz.is_finite() && options.telemetry_hz > 0.0) {
+            return Err(BridgeError::InvalidArgument(format!(
+                "the telemetry rate must be a positive number of samples per second, not {}",
+                options.telemetry_hz
+            )));
+        }
         let tasks = options
             .tasks
             .iter()
@@ -127,6 +151,8 @@ impl EngineServer {
         for policy in &options.policies {
             policies.insert(Arc::clone(policy));
         }
+        let telemetry = TelemetryWatch::declare(&zsession, &name)?;
+        let schedulers = Schedulers::spawn(&name).map_err(BridgeError::Worker)?;
         let shared = Arc::new(Shared {
             zsession: zsession.clone(),
             name,
@@ -134,8 +160,12 @@ impl EngineServer {
             factories: options.tasks,
             policies,
             telemetry_hz: options.telemetry_hz,
+            telemetry,
+            limits: options.limits,
             sessions: RwLock::new(HashMap::new()),
-            live_clients: Mutex::new(HashSet::new()),
+            clients: ClientTable::default(),
+            runs: Arc::new(AtomicU32::new(0)),
+            schedulers,
         });
 
         let clients = {
@@ -192,42 +222,31 @@ impl EngineServer {
                 ))?
         };
 
-        let (slow_tx, slow_rx) = mpsc::channel::<Query>();
-        {
+        let workers = {
             let shared = Arc::clone(&shared);
-            std::thread::Builder::new()
-                .name(format!("ciflow-engine-{}", shared.name))
-                .spawn(move || {
-                    for query in slow_rx {
-                        shared.answer(&query);
-                    }
-                })
-                .map_err(BridgeError::Worker)?;
-        }
+            let name = shared.name.clone();
+            Workers::spawn(&name, move |(query, received): (Query, Instant)| {
+                shared.answer(&query, received)
+            })
+            .map_err(BridgeError::Worker)?
+        };
         let queryable = {
             let shared = Arc::clone(&shared);
-            let slow_tx = Mutex::new(slow_tx);
             zsession
                 .declare_queryable(format!("{}/**", keys::engine(&shared.name)))
                 .callback(move |query| {
-                    let needs_worker = matches!(
-                        keys::parse_route(query.key_expr().as_str()),
-                        Some(Route::Make)
-                            | Some(Route::Session {
-                                op: SessionOp::Render,
-                                ..
-                            })
-                    );
-                    if needs_worker {
-                        let sent = slow_tx
-                            .lock()
-                            .unwrap_or_else(|poisoned| poisoned.into_inner())
-                            .send(query);
-                        if let Err(mpsc::SendError(query)) = sent {
-                            shared.answer(&query);
-                        }
-                    } else {
-                        shared.answer(&query);
+                    let received = Instant::now();
+                    if runs_inline(&query) {
+                        shared.answer(&query, received);
+                    } else if let Err((query, _)) = workers.submit((query, received)) {
+                        shared.reply(
+                            &query,
+                            None,
+                            Err(ErrorReply::new(
+                                ErrorCode::LimitExceeded,
+                                "the engine's work queue is full; retry later",
+                            )),
+                        );
                     }
                 })
                 .wait()
@@ -263,6 +282,26 @@ impl EngineServer {
     pub fn session_count(&self) -> usize {
         self.shared.read_sessions().len()
     }
+
+    /// The bounds this engine enforces.
+    pub fn limits(&self) -> Limits {
+        self.shared.limits
+    }
+}
+
+/// Whether a query is cheap enough to answer in Zenoh's callback (see the module doc).
+fn runs_inline(query: &Query) -> bool {
+    let small = || query.payload().is_none_or(|p| p.len() <= INLINE_BYTES);
+    match keys::parse_route(query.key_expr().as_str()) {
+        Some(Route::Make) => false,
+        Some(Route::PolicyAct { .. }) => small(),
+        Some(Route::Session { op, .. }) => match op {
+            SessionOp::Render | SessionOp::ResetBatch => false,
+            SessionOp::StepBatch => small(),
+            _ => true,
+        },
+        _ => true,
+    }
 }
 
 impl Drop for EngineServer {
@@ -278,8 +317,15 @@ struct Shared {
     factories: Vec<TaskFactory>,
     policies: Arc<PolicyTable>,
     telemetry_hz: f64,
+    /// Whether anyone views any session's telemetry.
+    telemetry: TelemetryWatch,
+    limits: Limits,
     sessions: RwLock<HashMap<String, Arc<Mutex<Session>>>>,
-    live_clients: Mutex<HashSet<String>>,
+    /// Who is alive and what each client holds; see [`usage`] for the lock order.
+    clients: ClientTable,
+    /// Policy runs driving a session now.
+    runs: Arc<AtomicU32>,
+    schedulers: Schedulers,
 }
 
 type Answer = Result<Vec<u8>, ErrorReply>;
@@ -297,39 +343,75 @@ impl Shared {
         self.sessions.write().unwrap_or_else(|p| p.into_inner())
     }
 
-    fn live_clients(&self) -> std::sync::MutexGuard<'_, HashSet<String>> {
-        self.live_clients.lock().unwrap_or_else(|p| p.into_inner())
-    }
-
     fn client_appeared(&self, client: &str) {
-        self.live_clients().insert(client.to_owned());
+        self.clients.appeared(client);
     }
 
-    /// Closes every session of a client whose liveliness token went away.
+    /// Closes every session of a client whose liveliness token went away: a lookup of its
+    /// own sessions, not a scan of everyone's.
     fn client_vanished(&self, client: &str) {
-        self.live_clients().remove(client);
-        self.sessions_mut()
-            .retain(|_, session| match session.lock() {
-                Ok(session) => session.owner != client,
-                Err(_) => false,
-            });
+        let ids = self.clients.vanished(client);
+        let closed: Vec<_> = {
+            let mut sessions = self.sessions_mut();
+            ids.iter().filter_map(|id| sessions.remove(id)).collect()
+        };
+        // Freed outside the lock: freeing many environments takes a while, and every
+        // other request needs the map.
+        drop(closed);
     }
 
-    /// Answers one query with exactly one reply.
-    fn answer(&self, query: &Query) {
+    /// Closes one session and returns what it held to its owner's allowance.
+    fn remove_session(&self, id: &str) {
+        let removed = self.sessions_mut().remove(id);
+        if let Some(session) = &removed {
+            let (owner, num_envs) = match session.lock() {
+                Ok(session) => (session.owner.clone(), session.num_envs()),
+                Err(poisoned) => {
+                    let session = poisoned.into_inner();
+                    (session.owner.clone(), session.num_envs())
+                }
+            };
+            self.clients.release(&owner, id, num_envs);
+        }
+        drop(removed);
+    }
+
+    /// Answers one query with exactly one reply, within its deadline.
+    fn answer(&self, query: &Query, received: Instant) {
         let key = query.key_expr().as_str();
         let route = keys::parse_route(key);
         let payload = query.payload().map(|p| p.to_bytes()).unwrap_or_default();
-        let answer = catch_unwind(AssertUnwindSafe(|| self.handle(route, &payload, query)))
+        let deadline = self.limits.deadline(received, requested_deadline(&payload));
+        let answer = if payload.len() > self.limits.max_request_bytes as usize {
+            Err(ErrorReply::new(
+                ErrorCode::PayloadTooLarge,
+                format!(
+                    "request of {} bytes exceeds this engine's limit of {} bytes",
+                    payload.len(),
+                    self.limits.max_request_bytes
+                ),
+            ))
+        } else if deadline.passed() {
+            Err(deadline_exceeded("before the engine could start on it"))
+        } else {
+            catch_unwind(AssertUnwindSafe(|| {
+                self.handle(route, &payload, query, deadline)
+            }))
             .unwrap_or_else(|_| {
                 if let Some(Route::Session { session, .. }) = route {
-                    self.sessions_mut().remove(session);
+                    self.remove_session(session);
                 }
                 Err(ErrorReply::new(
                     ErrorCode::Internal,
                     "the engine hit a bug while serving this request; the session was closed",
                 ))
-            });
+            })
+        };
+        self.reply(query, route, answer);
+    }
+
+    /// Sends the one reply of `query`.
+    fn reply(&self, query: &Query, route: Option<Route<'_>>, answer: Answer) {
         // A failed reply means the querier is gone; there is nobody left to tell.
         let _ = match answer {
             // `tasks` may be asked with a wildcard key: answer with this engine's own key.
@@ -341,7 +423,13 @@ impl Shared {
         };
     }
 
-    fn handle(&self, route: Option<Route<'_>>, payload: &[u8], query: &Query) -> Answer {
+    fn handle(
+        &self,
+        route: Option<Route<'_>>,
+        payload: &[u8],
+        query: &Query,
+        deadline: Deadline,
+    ) -> Answer {
         match route {
             None => Err(ErrorReply::new(
                 ErrorCode::UnknownOperation,
@@ -359,14 +447,24 @@ impl Shared {
                     policies: self.policies.infos(),
                 }))
             }
-            Some(Route::Make) => self.make(decode_request(payload)?),
+            Some(Route::Make) => self.make(decode_request(payload)?, deadline),
             Some(Route::Ping) => Ok(payload.to_vec()),
+            Some(Route::Limits) => {
+                let request: LimitsRequest = decode_request(payload)?;
+                Ok(encode(&LimitsReply {
+                    v: PROTOCOL_VERSION,
+                    limits: self.limits,
+                    usage: request.client.map(|client| self.clients.usage(&client)),
+                }))
+            }
             Some(Route::Session { session, op }) => self.session_op(session, op, payload),
-            Some(Route::PolicyAct { policy }) => self.act(policy, decode_request(payload)?),
+            Some(Route::PolicyAct { policy }) => {
+                self.act(policy, decode_request(payload)?, deadline)
+            }
         }
     }
 
-    fn make(&self, request: MakeRequest) -> Answer {
+    fn make(&self, request: MakeRequest, deadline: Deadline) -> Answer {
         if !keys::is_plain_chunk(&request.client) {
             return Err(ErrorReply::new(
                 ErrorCode::InvalidRequest,
@@ -394,12 +492,18 @@ impl Shared {
                     ),
                 )
             })?;
-        if request.num_envs == 0 || request.num_envs > MAX_ENVS_PER_SESSION {
+        if request.num_envs == 0 {
             return Err(ErrorReply::new(
                 ErrorCode::InvalidRequest,
+                "num_envs must be at least 1",
+            ));
+        }
+        if request.num_envs > self.limits.max_envs_per_session {
+            return Err(ErrorReply::new(
+                ErrorCode::LimitExceeded,
                 format!(
-                    "num_envs {} outside 1..={MAX_ENVS_PER_SESSION}",
-                    request.num_envs
+                    "num_envs {} exceeds this engine's limit of {} environments per session",
+                    request.num_envs, self.limits.max_envs_per_session
                 ),
             ));
         }
@@ -413,30 +517,24 @@ impl Shared {
                 ),
             ));
         }
-        let envs: Vec<EnvSlot> = (0..request.num_envs)
-            .map(|_| (factory.make)(&request.kwargs).map(EnvSlot::new))
-            .collect::<Result<_, EnvError>>()?;
+        let reservation = self
+            .clients
+            .reserve(&request.client, request.num_envs, &self.limits)?;
+        let envs = build_envs(factory, &request.kwargs, request.num_envs, deadline)?;
         let spec = envs[0].env.spec().clone();
         let id = format!("{:016x}", rand::random::<u64>());
         let token: session::Token = rand::random();
-        let telemetry = TelemetryPublisher::declare(
-            &self.zsession,
-            keys::session(&self.name, &id, "telemetry"),
-            self.telemetry_hz,
-        )
-        .map_err(|e| ErrorReply::new(ErrorCode::Internal, full_message(&e)))?;
+        let telemetry = self
+            .telemetry
+            .session(&self.zsession, &self.name, &id, self.telemetry_hz)
+            .map_err(|e| ErrorReply::new(ErrorCode::Internal, full_message(&e)))?;
         let session = Session::new(id.clone(), request.client.clone(), token, envs, telemetry);
-        self.sessions_mut()
-            .insert(id.clone(), Arc::new(Mutex::new(session)));
-        // The client may have vanished while we built the session: then nobody would
-        // ever close it.
-        if !self.live_clients().contains(&request.client) {
-            self.sessions_mut().remove(&id);
-            return Err(ErrorReply::new(
-                ErrorCode::NoLiveliness,
-                format!("client `{}` vanished during `make`", request.client),
-            ));
+        // A deadline passed while building, or a client that vanished meanwhile
+        // (nobody would ever close its session): nothing is kept.
+        if deadline.passed() {
+            return Err(deadline_exceeded("while building the session"));
         }
+        self.commit_session(reservation, Arc::new(Mutex::new(session)))?;
         Ok(encode(&MakeReply {
             v: PROTOCOL_VERSION,
             session: id,
@@ -446,10 +544,22 @@ impl Shared {
         }))
     }
 
+    /// Opens a built session under its reservation (see [`ClientTable::commit`]).
+    fn commit_session(
+        &self,
+        reservation: Reservation<'_>,
+        session: Arc<Mutex<Session>>,
+    ) -> Result<(), ErrorReply> {
+        let id = session.lock().unwrap_or_else(|p| p.into_inner()).id.clone();
+        self.clients.commit(reservation, &id, || {
+            self.sessions_mut().insert(id.clone(), session);
+        })
+    }
+
     /// Whether `client` holds its liveliness token, asking Zenoh if the subscriber has not
     /// seen it yet. Runs on the worker thread: it may block for a round trip.
     fn confirm_alive(&self, client: &str) -> bool {
-        if self.live_clients().contains(client) {
+        if self.clients.is_alive(client) {
             return true;
         }
         let Ok(replies) = self
@@ -479,7 +589,7 @@ impl Shared {
             )
         })?;
         let Ok(mut session) = handle.lock() else {
-            self.sessions_mut().remove(id);
+            self.remove_session(id);
             return Err(ErrorReply::new(
                 ErrorCode::Internal,
                 format!("session `{id}` was closed after an internal error"),
@@ -514,7 +624,17 @@ impl Shared {
                 let request: RunRequest = decode_request(payload)?;
                 session.authorize(&request.token)?;
                 let policy = self.policy(&request.policy)?;
-                let run = session.start_run(&request, policy.as_ref())?;
+                let permit =
+                    RunPermit::take(&self.runs, self.limits.max_runs).ok_or_else(|| {
+                        ErrorReply::new(
+                            ErrorCode::LimitExceeded,
+                            format!(
+                                "{} policy runs are driving sessions, this engine's limit",
+                                self.limits.max_runs
+                            ),
+                        )
+                    })?;
+                let run = session.start_run(&request, policy.as_ref(), permit)?;
                 let time = session.time();
                 let driver = Driver {
                     session: Arc::downgrade(&handle),
@@ -525,11 +645,11 @@ impl Shared {
                     control_dt: session.control_dt(),
                     action_dim: policy.info().action_dim as usize,
                 };
-                if let Err(e) = driver.spawn() {
+                if self.schedulers.start(driver).is_err() {
                     session.stop_run()?;
                     return Err(ErrorReply::new(
                         ErrorCode::Internal,
-                        format!("cannot start the policy driver: {e}"),
+                        "the engine's run schedulers are gone",
                     ));
                 }
                 Ok(encode(&AckReply {
@@ -551,6 +671,11 @@ impl Shared {
                 let request: ContextRequest = decode_request(payload)?;
                 session.authorize(&request.token)?;
                 session.set_context(&request)
+            }
+            SessionOp::CheckContext => {
+                let request: ContextRequest = decode_request(payload)?;
+                session.authorize(&request.token)?;
+                session.check_context(&request)
             }
             SessionOp::Perturb => {
                 let request: PerturbRequest = decode_request(payload)?;
@@ -583,7 +708,7 @@ impl Shared {
                 session.authorize(&request.token)?;
                 let time = session.time();
                 drop(session);
-                self.sessions_mut().remove(id);
+                self.remove_session(id);
                 Ok(encode(&AckReply {
                     v: PROTOCOL_VERSION,
                     time,
@@ -604,11 +729,21 @@ impl Shared {
         })
     }
 
-    fn act(&self, name: &str, request: ActRequest) -> Answer {
+    fn act(&self, name: &str, request: ActRequest, deadline: Deadline) -> Answer {
         let policy = self.policy(name)?;
         let info = policy.info();
         let observation_dim = info.observation_dim as usize;
         let observations = &request.observations.0;
+        let count = observations.len() / observation_dim.max(1);
+        if count > self.limits.max_act_observations as usize {
+            return Err(ErrorReply::new(
+                ErrorCode::LimitExceeded,
+                format!(
+                    "{count} observations exceed this engine's limit of {} per `act`",
+                    self.limits.max_act_observations
+                ),
+            ));
+        }
         if observation_dim == 0
             || observations.is_empty()
             || !observations.len().is_multiple_of(observation_dim)
@@ -628,18 +763,64 @@ impl Shared {
             ));
         }
         let action_dim = info.action_dim as usize;
-        let mut actions = vec![0.0; observations.len() / observation_dim * action_dim];
-        for (observation, action) in observations
+        let mut actions = vec![0.0; count * action_dim];
+        for (index, (observation, action)) in observations
             .chunks_exact(observation_dim)
             .zip(actions.chunks_exact_mut(action_dim))
+            .enumerate()
         {
+            if index % DEADLINE_CHUNK == 0 && deadline.passed() {
+                return Err(deadline_exceeded(&format!(
+                    "after {index} of {count} observations; send smaller batches"
+                )));
+            }
             policy
                 .act_into(observation, action)
                 .map_err(|e| ErrorReply::new(ErrorCode::Policy, full_message(&e)))?;
+            if action.iter().any(|a| !a.is_finite()) {
+                return Err(ErrorReply::new(
+                    ErrorCode::Policy,
+                    format!(
+                        "the policy's action for observation {index} is not finite (an \
+                         observation far outside what it was trained on?)"
+                    ),
+                ));
+            }
         }
         Ok(encode(&ActionReply {
             v: PROTOCOL_VERSION,
             action: F64s(actions),
         }))
     }
+}
+
+fn deadline_exceeded(when: &str) -> ErrorReply {
+    ErrorReply::new(
+        ErrorCode::DeadlineExceeded,
+        format!("the request's time budget ran out {when}; nothing was kept"),
+    )
+}
+
+/// `num_envs` environments of `factory`'s task, built in parallel; refused with nothing
+/// kept if the deadline passes first.
+fn build_envs(
+    factory: &TaskFactory,
+    kwargs: &Kwargs,
+    num_envs: u32,
+    deadline: Deadline,
+) -> Result<Vec<EnvSlot>, ErrorReply> {
+    (0..num_envs)
+        .into_par_iter()
+        .with_min_len(DEADLINE_CHUNK)
+        .map(|_| {
+            if deadline.passed() {
+                return Err(deadline_exceeded(&format!(
+                    "while building {num_envs} environments"
+                )));
+            }
+            (factory.make)(kwargs)
+                .map(EnvSlot::new)
+                .map_err(ErrorReply::from)
+        })
+        .collect()
 }

@@ -2,6 +2,8 @@
 //! secret token. Each method implements one operation and returns the encoded reply.
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, Ordering};
 
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use ciflow_envs::{EnvError, EnvSpec, Info, ResetOptions};
@@ -13,9 +15,9 @@ use super::telemetry::TelemetryPublisher;
 use crate::error::full_message;
 use crate::policy::Policy;
 use crate::protocol::{
-    AckReply, ActionReply, BatchResetReply, BatchStepReply, ContextRequest, ErrorCode, ErrorReply,
-    F64s, FrameHeader, PROTOCOL_VERSION, PerturbRequest, PerturbationKindMsg, ResetReply,
-    ResetRequest, RunRequest, StepReply, TOKEN_BYTES, encode,
+    AckReply, ActionReply, BatchResetReply, BatchStepReply, ContextCheckReply, ContextRequest,
+    ErrorCode, ErrorReply, F64s, FrameHeader, PROTOCOL_VERSION, PerturbRequest,
+    PerturbationKindMsg, ResetReply, ResetRequest, RunRequest, StepReply, TOKEN_BYTES, encode,
 };
 
 /// Environments per rayon task in `step_batch`: below this, threads cost more than they
@@ -34,10 +36,33 @@ pub(crate) struct Session {
     reset_options: ResetOptions,
     telemetry: TelemetryPublisher,
     frames: u64,
-    /// The policy run driving the session, if any (see [`super::driver`]).
-    run: Option<Run>,
+    /// The policy run driving the session, if any (see [`super::driver`]), and its place
+    /// among the engine's runs, given back the moment the run ends.
+    run: Option<(Run, RunPermit)>,
     /// Runs started so far: each run's id, so a stopped driver never steps a later run.
     runs: u64,
+}
+
+/// One of the engine's `max_runs` places for a running policy, held by the session while
+/// the run lasts; freed when dropped.
+pub(crate) struct RunPermit(Arc<AtomicU32>);
+
+impl RunPermit {
+    /// A place, unless `max` runs hold one already.
+    pub fn take(running: &Arc<AtomicU32>, max: u32) -> Option<Self> {
+        running
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+                (n < max).then_some(n + 1)
+            })
+            .ok()
+            .map(|_| Self(Arc::clone(running)))
+    }
+}
+
+impl Drop for RunPermit {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
 }
 
 /// A policy driving one environment of the session.
@@ -94,7 +119,7 @@ impl Session {
     pub fn ensure_idle(&self, op: &str) -> Result<(), ErrorReply> {
         match &self.run {
             None => Ok(()),
-            Some(run) => Err(ErrorReply::new(
+            Some((run, _)) => Err(ErrorReply::new(
                 ErrorCode::Busy,
                 format!(
                     "`{op}` refused: policy `{}` drives session {}; send `stop` first",
@@ -104,12 +129,13 @@ impl Session {
         }
     }
 
-    /// Starts a run of `policy` (already looked up under `request.policy`); the caller
-    /// spawns its driver.
+    /// Starts a run of `policy` (already looked up under `request.policy`) holding
+    /// `permit`; the caller hands its driver to a scheduler.
     pub fn start_run(
         &mut self,
         request: &RunRequest,
         policy: &dyn Policy,
+        permit: RunPermit,
     ) -> Result<Run, ErrorReply> {
         self.ensure_idle("run")?;
         if !(request.speed.is_finite() && request.speed >= 0.0) {
@@ -141,7 +167,7 @@ impl Session {
             index: request.index as usize,
             policy: request.policy.clone(),
         };
-        self.run = Some(run.clone());
+        self.run = Some((run.clone(), permit));
         Ok(run)
     }
 
@@ -149,7 +175,7 @@ impl Session {
     pub fn is_running(&self, run: &Run) -> bool {
         self.run
             .as_ref()
-            .is_some_and(|current| current.id == run.id)
+            .is_some_and(|(current, _)| current.id == run.id)
     }
 
     /// One control period of `run` with the action `policy` takes in the current
@@ -177,12 +203,16 @@ impl Session {
 
     /// Stops the run, if any; returns the simulated time of the driven environment.
     pub fn stop_run(&mut self) -> Result<Vec<u8>, ErrorReply> {
-        let index = self.run.take().map_or(0, |run| run.index);
+        let index = self.run.take().map_or(0, |(run, _)| run.index);
         self.telemetry.offer_run(&self.id, &self.envs[index], false);
         Ok(encode(&AckReply {
             v: PROTOCOL_VERSION,
             time: self.envs[index].time(),
         }))
+    }
+
+    pub fn num_envs(&self) -> u32 {
+        self.envs.len() as u32
     }
 
     /// Seconds of simulated time per step.
@@ -355,15 +385,41 @@ impl Session {
         }))
     }
 
+    /// Whether environment `index`'s task accepts the context: a vector of the wrong size
+    /// or with NaN is an error, a context the task refuses is `valid: false`.
+    pub fn check_context(&mut self, request: &ContextRequest) -> Result<Vec<u8>, ErrorReply> {
+        check_vector("context", &request.context.0, self.spec.context_space.dim())?;
+        let reason = match self
+            .slot(request.index)?
+            .env
+            .check_context(&request.context.0)
+        {
+            Ok(()) => None,
+            Err(error @ EnvError::OutOfBounds { .. }) => Some(full_message(&error)),
+            Err(error) => return Err(error.into()),
+        };
+        Ok(encode(&ContextCheckReply {
+            v: PROTOCOL_VERSION,
+            valid: reason.is_none(),
+            reason,
+        }))
+    }
+
     pub fn perturb(&mut self, request: PerturbRequest) -> Result<Vec<u8>, ErrorReply> {
         let slot = self.slot(request.index)?;
         let now = slot.time();
         let message = request.perturbation;
         let start = message.start.unwrap_or(now);
-        if !(start.is_finite() && message.duration.is_finite() && message.duration >= 0.0) {
+        if !(start.is_finite() && message.duration.is_finite()) {
+            return Err(EnvError::NotFinite {
+                what: "perturbation start and duration",
+            }
+            .into());
+        }
+        if message.duration < 0.0 {
             return Err(ErrorReply::new(
                 ErrorCode::OutOfBounds,
-                "perturbation start and duration must be finite, duration ≥ 0",
+                format!("perturbation duration {} must be ≥ 0", message.duration),
             ));
         }
         let kind = match message.kind {

@@ -1,36 +1,43 @@
-//! Telemetry of one session: published only while a subscriber matches, and at most
-//! `hz` times per wall-clock second, with congestion control `Drop` so that a slow viewer
-//! never slows stepping.
+//! Telemetry of the engine's sessions: published only while a viewer subscribes, at most
+//! `hz` times per wall-clock second and session, with congestion control `Drop` so that a
+//! slow viewer never slows stepping.
+//!
+//! Sessions declare nothing in Zenoh. Zenoh's session keeps its publishers and matching
+//! listeners in lists it scans on every declaration and subscription change, so one
+//! publisher per session made every `make` and `close` — and every step, through the
+//! interest traffic — cost more the more sessions were open. Instead one engine-wide
+//! publisher on `…/session/*/telemetry` tells, through its matching listener, whether any
+//! viewer listens to any session; while one does, each session puts its samples on its
+//! own key and Zenoh delivers them to whoever subscribed there.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use zenoh::Wait;
+use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 
 use super::slot::EnvSlot;
 use crate::error::BridgeError;
-use crate::protocol::{F64s, PROTOCOL_VERSION, Telemetry, encode};
+use crate::protocol::{F64s, PROTOCOL_VERSION, Telemetry, encode, keys};
 
-pub(crate) struct TelemetryPublisher {
-    publisher: Publisher<'static>,
-    /// Set by the matching listener; read on every step, so an atomic and no query.
-    matching: Arc<AtomicBool>,
-    min_interval: Duration,
-    last_sent: Option<Instant>,
+/// Whether any viewer subscribes to the telemetry of any of an engine's sessions.
+pub(crate) struct TelemetryWatch {
+    /// Declared for its matching listener only; nothing is put on it.
+    _publisher: Publisher<'static>,
+    viewers: Arc<AtomicBool>,
 }
 
-impl TelemetryPublisher {
-    pub fn declare(session: &zenoh::Session, key: String, hz: f64) -> Result<Self, BridgeError> {
+impl TelemetryWatch {
+    pub fn declare(session: &zenoh::Session, engine: &str) -> Result<Self, BridgeError> {
         let publisher = session
-            .declare_publisher(key)
-            .congestion_control(CongestionControl::Drop)
+            .declare_publisher(keys::session(engine, "*", "telemetry"))
             .wait()
             .map_err(BridgeError::zenoh("declaring the telemetry publisher"))?;
-        let matching = Arc::new(AtomicBool::new(false));
-        let flag = Arc::clone(&matching);
+        let viewers = Arc::new(AtomicBool::new(false));
+        let flag = Arc::clone(&viewers);
         publisher
             .matching_listener()
             .callback(move |status| flag.store(status.matching(), Ordering::Relaxed))
@@ -40,13 +47,45 @@ impl TelemetryPublisher {
                 "declaring the telemetry matching listener",
             ))?;
         Ok(Self {
-            publisher,
-            matching,
+            _publisher: publisher,
+            viewers,
+        })
+    }
+
+    /// The telemetry of session `id`.
+    pub fn session(
+        &self,
+        zsession: &zenoh::Session,
+        engine: &str,
+        id: &str,
+        hz: f64,
+    ) -> Result<TelemetryPublisher, BridgeError> {
+        let key = KeyExpr::try_from(keys::session(engine, id, "telemetry")).map_err(|source| {
+            BridgeError::Zenoh {
+                action: "building the telemetry key",
+                source,
+            }
+        })?;
+        Ok(TelemetryPublisher {
+            zsession: zsession.clone(),
+            key,
+            viewers: Arc::clone(&self.viewers),
             min_interval: Duration::from_secs_f64(1.0 / hz.max(1e-3)),
             last_sent: None,
         })
     }
+}
 
+pub(crate) struct TelemetryPublisher {
+    zsession: zenoh::Session,
+    key: KeyExpr<'static>,
+    /// Set by the engine's matching listener; read on every step, so an atomic.
+    viewers: Arc<AtomicBool>,
+    min_interval: Duration,
+    last_sent: Option<Instant>,
+}
+
+impl TelemetryPublisher {
     /// Publishes the state of `slot` if a viewer listens and the rate limit allows.
     pub fn offer(&mut self, session: &str, slot: &EnvSlot) {
         self.publish(session, slot, false, false);
@@ -60,7 +99,7 @@ impl TelemetryPublisher {
     }
 
     fn publish(&mut self, session: &str, slot: &EnvSlot, running: bool, always: bool) {
-        if !self.matching.load(Ordering::Relaxed) {
+        if !self.viewers.load(Ordering::Relaxed) {
             return;
         }
         let now = Instant::now();
@@ -85,6 +124,10 @@ impl TelemetryPublisher {
             episode_done: slot.episode_over,
         };
         // A dropped telemetry sample is harmless; the next step sends a fresh one.
-        let _ = self.publisher.put(encode(&message)).wait();
+        let _ = self
+            .zsession
+            .put(&self.key, encode(&message))
+            .congestion_control(CongestionControl::Drop)
+            .wait();
     }
 }

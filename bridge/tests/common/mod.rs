@@ -6,7 +6,13 @@
 
 use std::sync::Arc;
 
-use ciflow_bridge::{Client, EngineServer, NetworkOptions, Role, ServerOptions, TaskFactory};
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use ciflow_bridge::protocol::{ErrorCode, ErrorReply};
+use ciflow_bridge::{
+    BridgeError, Client, EngineServer, NetworkOptions, Role, ServerOptions, TaskFactory, query_all,
+};
 use ciflow_engine::sim::Perturbation;
 use ciflow_envs::{BoxSpace, Dtype, Env, EnvError, EnvSpec, Info, ResetOptions, Step};
 use rand::{RngExt, SeedableRng};
@@ -156,4 +162,27 @@ pub fn eventually(seconds: f64, mut condition: impl FnMut() -> bool) -> bool {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
     condition()
+}
+
+pub fn no_kwargs() -> BTreeMap<String, f64> {
+    BTreeMap::new()
+}
+
+/// The code of a typed engine error; panics on any other error.
+pub fn remote_code(error: BridgeError) -> ErrorCode {
+    match error {
+        BridgeError::Remote(reply) => reply.code,
+        other => panic!("expected a typed engine error, got {other}"),
+    }
+}
+
+/// Sends raw bytes to `key` and returns its one reply (payload or typed error).
+pub fn raw_query(
+    session: &zenoh::Session,
+    key: &str,
+    payload: Vec<u8>,
+) -> Result<Vec<u8>, ErrorReply> {
+    let mut replies = query_all(session, key, payload, Duration::from_secs(15)).unwrap();
+    assert_eq!(replies.len(), 1, "exactly one reply to {key}");
+    replies.pop().unwrap()
 }

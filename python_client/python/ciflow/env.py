@@ -144,6 +144,11 @@ class CiflowEnv(gym.Env):
         """Replaces the context mid-episode; returns the simulated time it took effect."""
         return self.attach().set_context(context)
 
+    def check_context(self, context) -> str | None:
+        """``None`` if the task accepts ``context`` (the context space is a box; some tasks
+        accept only part of it), else the reason. Nothing changes."""
+        return self.attach().check_context(context)
+
     def perturb_joint_torque(self, torque, duration: float, start: float | None = None) -> float:
         """Adds joint torques during ``[start, start + duration)`` simulated seconds
         (``start`` default: now). Returns the simulated time of acceptance."""

@@ -67,6 +67,11 @@ class Attached:
         """Replaces the context now; returns the simulated time it took effect."""
         return self._control.set_context(np.asarray(context, dtype="<f8").tobytes(), int(index))
 
+    def check_context(self, context, index: int = 0) -> str | None:
+        """Whether the task accepts ``context`` (as a reset option or in
+        :meth:`set_context`), changing nothing: ``None`` if it does, else the reason."""
+        return self._control.check_context(np.asarray(context, dtype="<f8").tobytes(), int(index))
+
     def telemetry(self, timeout: float | None = None) -> TelemetryFeed:
         """A :class:`TelemetryFeed` of this session's samples (subscribe before starting
         what you want to record)."""
