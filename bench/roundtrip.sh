@@ -15,7 +15,7 @@ cargo build --release --quiet --bin ciflow -p ciflow
 cargo build --release --quiet -p ciflow-bridge --example roundtrip
 # Room for the largest batch of the example (the default limit is 65 536 per session).
 "$CARGO_TARGET_DIR/release/ciflow" serve --listen "$ENDPOINT" --name bench \
-    --max-envs-per-session 262144 --max-envs-per-client 262144 > /tmp/ciflow-bench-serve.log &
+    --max-envs-per-session 262144 --max-envs-per-client 524288 > /tmp/ciflow-bench-serve.log &
 server=$!
 trap 'kill $server 2>/dev/null; wait $server 2>/dev/null || true' EXIT
 for _ in $(seq 100); do grep -q ready /tmp/ciflow-bench-serve.log && break; sleep 0.1; done

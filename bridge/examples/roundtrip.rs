@@ -33,7 +33,7 @@ const BATCH_SIZES: [u32; 4] = [1024, 16384, 65536, 262144];
 /// `bench/roundtrip.sh` gives `ciflow serve` the same flags.
 const LIMITS: Limits = Limits {
     max_envs_per_session: 262_144,
-    max_envs_per_client: 262_144,
+    max_envs_per_client: 524_288,
     ..Limits::DEFAULT
 };
 

@@ -13,8 +13,8 @@ use crate::error::BridgeError;
 use crate::protocol::MAX_REQUEST_BYTES;
 
 /// Bounds an engine enforces. The defaults keep one client's environments under about
-/// 1.5 GB for the heaviest task (a Panda pouring environment holds about 12 kB) and answer
-/// every request well inside Zenoh's default 10 s query timeout.
+/// 2.3 GB for the heaviest task (a reset Panda pouring environment takes about 17 kB) and
+/// answer every request well inside Zenoh's default 10 s query timeout.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct Limits {

@@ -20,7 +20,9 @@
 //! from `c ≈ 1.15` on it is no longer star-shaped about the centre (some ray from it
 //! crosses the outline three times, from `c ≈ 1.8` five), so no polar radius describes it.
 
+use std::collections::HashMap;
 use std::f64::consts::{FRAC_PI_2, PI};
+use std::sync::{Arc, Mutex, OnceLock, Weak};
 
 use nalgebra::Vector2;
 
@@ -68,6 +70,28 @@ pub struct Outline {
 }
 
 impl Outline {
+    /// The outline at `c`, shared with every holder of the same context in this process.
+    /// An outline holds [`DISTANCE_POINTS`] dense points (32 kB) and takes a few hundred
+    /// microseconds to build: a batch of environments on the task's few scheduled
+    /// contexts would otherwise hold a copy each and rebuild it on every reset.
+    pub fn shared(c: f64) -> Arc<Outline> {
+        static CACHE: OnceLock<Mutex<HashMap<u64, Weak<Outline>>>> = OnceLock::new();
+        let mut cache = CACHE
+            .get_or_init(Mutex::default)
+            .lock()
+            .unwrap_or_else(|p| p.into_inner());
+        if let Some(outline) = cache.get(&c.to_bits()).and_then(Weak::upgrade) {
+            return outline;
+        }
+        // Continuous contexts leave dead entries behind: sweep them now and then.
+        if cache.len() >= 1024 {
+            cache.retain(|_, outline| outline.strong_count() > 0);
+        }
+        let outline = Arc::new(Outline::new(c));
+        cache.insert(c.to_bits(), Arc::downgrade(&outline));
+        outline
+    }
+
     /// The outline at `c`; `c` outside `[0, 2]` extrapolates the same formulas.
     pub fn new(c: f64) -> Self {
         let phase = c.min(1.0);
@@ -203,6 +227,20 @@ fn segment_distance(x: &Vector2<f64>, a: &Vector2<f64>, b: &Vector2<f64>) -> f64
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn shared_outlines_are_one_per_context_and_equal_to_a_fresh_one() {
+        let a = Outline::shared(1.2345);
+        let b = Outline::shared(1.2345);
+        assert!(Arc::ptr_eq(&a, &b), "one outline per context");
+        assert_eq!(*a, Outline::new(1.2345));
+        assert!(!Arc::ptr_eq(&a, &Outline::shared(1.5432)));
+        // Once every holder let go, the context is built afresh.
+        let weak = Arc::downgrade(&a);
+        drop((a, b));
+        assert!(weak.upgrade().is_none());
+        assert_eq!(*Outline::shared(1.2345), Outline::new(1.2345));
+    }
 
     #[test]
     fn radius_derivative_matches_finite_differences() {

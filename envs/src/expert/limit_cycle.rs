@@ -13,6 +13,8 @@
 //! rescaled to the star field's speed `|v★(y)|`: its orbits are those of the star field
 //! mapped by `T`, so its limit cycle is the curled outline, traced at the speed `V`.
 
+use std::sync::Arc;
+
 use nalgebra::Vector2;
 
 use crate::expert::tracking::VelocityField;
@@ -26,7 +28,7 @@ pub const RADIAL_GAIN: f64 = 3.0;
 /// The velocity field of the limit cycle for one outline.
 #[derive(Clone, Debug)]
 pub struct LimitCycleField {
-    pub outline: Outline,
+    pub outline: Arc<Outline>,
 }
 
 impl VelocityField for LimitCycleField {
@@ -65,7 +67,7 @@ mod tests {
     #[test]
     fn on_the_outline_the_field_is_tangent_with_the_cruise_speed() {
         let field = LimitCycleField {
-            outline: Outline::new(0.5),
+            outline: Outline::shared(0.5),
         };
         for i in 0..72 {
             let theta = (i as f64 * 5.0).to_radians();
@@ -83,7 +85,7 @@ mod tests {
     fn the_distance_to_the_outline_decays_along_the_flow() {
         for c in [0.2, 2.0] {
             let field = LimitCycleField {
-                outline: Outline::new(c),
+                outline: Outline::shared(c),
             };
             let mut x = Vector2::new(1.5, -1.2);
             let dt = 1e-3;
@@ -97,7 +99,7 @@ mod tests {
     #[test]
     fn on_a_curled_outline_the_field_is_tangent() {
         let field = LimitCycleField {
-            outline: Outline::new(1.7),
+            outline: Outline::shared(1.7),
         };
         for i in 0..72 {
             let theta = (i as f64 * 5.0).to_radians();

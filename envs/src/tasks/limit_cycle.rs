@@ -115,7 +115,7 @@ impl Default for LimitCycle {
             context_set: ContextSet::Training,
             next_in_schedule: 0,
             field: LimitCycleField {
-                outline: Outline::new(0.0),
+                outline: Outline::shared(0.0),
             },
         }
     }
@@ -196,7 +196,7 @@ impl PlanarTask for LimitCycle {
     }
 
     fn set_context(&mut self, context: &[f64]) {
-        self.field.outline = Outline::new(context[0]);
+        self.field.outline = Outline::shared(context[0]);
     }
 
     fn sample_start(&self, rng: &mut ChaCha8Rng) -> Vector2<f64> {
