@@ -140,7 +140,9 @@ fn schedule(arrivals: &Receiver<Driver>) {
                 let since_start = f64::from(pending.taken) * driver.control_dt / driver.speed;
                 pending.started + Duration::from_secs_f64(since_start)
             } else {
-                now
+                // As fast as possible, but after everything already due: an instant past
+                // this pass's puts it behind them and lets new runs in before its next step.
+                Instant::now().max(now + Duration::from_nanos(1))
             };
             order += 1;
             pending.order = order;
