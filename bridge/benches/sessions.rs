@@ -71,6 +71,7 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
         task: TASK.into(),
         num_envs: 1,
         kwargs: kwargs.clone(),
+        deadline_ms: None,
     });
     let make_key = keys::make(engine.name());
     let mut open: Vec<MakeReply> = Vec::with_capacity(largest);

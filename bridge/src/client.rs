@@ -168,6 +168,7 @@ impl Client {
                 task: task.to_owned(),
                 num_envs,
                 kwargs: kwargs.clone(),
+                deadline_ms: Some(self.deadline_ms()),
             },
         )?;
         RemoteEnv::new(self.zsession.clone(), engine, reply, self.timeout)
@@ -185,9 +186,17 @@ impl Client {
             &ActRequest {
                 v: PROTOCOL_VERSION,
                 observations: F64s(observations.to_vec()),
+                deadline_ms: Some(self.deadline_ms()),
             },
         )?;
         Ok(reply.action.0)
+    }
+
+    /// The deadline the requests that build or compute in bulk carry: nine tenths of this
+    /// client's timeout, so that the engine stops working before nobody waits for the
+    /// answer, and its refusal still arrives.
+    fn deadline_ms(&self) -> u32 {
+        u32::try_from(self.timeout.as_millis() * 9 / 10).unwrap_or(u32::MAX)
     }
 
     /// `engine`'s bounds, and what this client holds of them.

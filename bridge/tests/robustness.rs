@@ -200,24 +200,16 @@ fn a_make_past_its_deadline_is_refused_and_keeps_nothing() {
     let engine = engine_with(27432, Limits::DEFAULT, Duration::ZERO);
     let client = connect(27432);
     // 2000 environments at 5 ms each take 5 s on two cores; the caller allows 300 ms.
-    let request = |deadline_ms: u32| {
-        let mut bytes = protocol::encode(&MakeRequest {
-            v: protocol::PROTOCOL_VERSION,
-            client: client.id().to_owned(),
-            task: "slow".into(),
-            num_envs: 2000,
-            kwargs: no_kwargs(),
-        });
-        append_field(&mut bytes, "deadline_ms", deadline_ms);
-        bytes
-    };
+    let request = protocol::encode(&MakeRequest {
+        v: protocol::PROTOCOL_VERSION,
+        client: client.id().to_owned(),
+        task: "slow".into(),
+        num_envs: 2000,
+        kwargs: no_kwargs(),
+        deadline_ms: Some(300),
+    });
     let started = Instant::now();
-    let error = raw_query(
-        client.zenoh_session(),
-        &keys::make(engine.name()),
-        request(300),
-    )
-    .unwrap_err();
+    let error = raw_query(client.zenoh_session(), &keys::make(engine.name()), request).unwrap_err();
     let waited = started.elapsed();
     assert_eq!(error.code, ErrorCode::DeadlineExceeded, "{}", error.message);
     assert!(waited < Duration::from_secs(2), "answered after {waited:?}");
@@ -227,17 +219,18 @@ fn a_make_past_its_deadline_is_refused_and_keeps_nothing() {
             == Usage::default()),
         "the reservation is given back"
     );
+    // A client sends its own timeout's deadline: the refusal arrives before it gives up.
+    let mut impatient = connect(27432);
+    impatient.set_timeout(Duration::from_millis(600));
+    let refused = impatient
+        .make(engine.name(), "slow", 2000, &no_kwargs())
+        .err()
+        .unwrap();
+    assert_eq!(remote_code(refused), ErrorCode::DeadlineExceeded);
+    assert_eq!(engine.session_count(), 0);
     // The same request with time to spare succeeds.
     let small = client.make(engine.name(), "slow", 2, &no_kwargs()).unwrap();
     small.reset_batch(Some(0), None).unwrap();
-}
-
-/// Adds `key: value` to an encoded MessagePack map (a fixmap of fewer than 15 entries).
-fn append_field(map: &mut Vec<u8>, key: &str, value: u32) {
-    assert!((0x80..0x8f).contains(&map[0]), "a small fixmap");
-    map[0] += 1;
-    map.extend(rmp_serde::to_vec(key).unwrap());
-    map.extend(rmp_serde::to_vec(&value).unwrap());
 }
 
 #[test]
@@ -493,6 +486,7 @@ fn requests_are_read_as_the_protocol_page_writes_them() {
         task: "fixture".into(),
         num_envs: 1,
         kwargs: no_kwargs(),
+        deadline_ms: None,
     });
     let error = raw_query(zs, &keys::make(engine.name()), make).unwrap_err();
     assert_eq!(error.code, ErrorCode::InvalidRequest);

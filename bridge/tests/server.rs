@@ -351,6 +351,7 @@ fn make_needs_a_liveliness_token() {
         task: "fixture".into(),
         num_envs: 1,
         kwargs: no_kwargs(),
+        deadline_ms: None,
     };
     let error = raw_query(
         client.zenoh_session(),

@@ -80,6 +80,10 @@ pub struct MakeRequest {
     /// Construction arguments of the task (numbers), e.g. `{"obstacles": 2}`.
     #[serde(default)]
     pub kwargs: BTreeMap<String, f64>,
+    /// How long the caller waits, in milliseconds (see [`Header::deadline_ms`]): a `make`
+    /// that would outlive the caller builds nothing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deadline_ms: Option<u32>,
 }
 
 fn one() -> u32 {
@@ -314,6 +318,9 @@ pub struct FrameHeader {
 pub struct ActRequest {
     pub v: u16,
     pub observations: F64s,
+    /// How long the caller waits, in milliseconds (see [`Header::deadline_ms`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deadline_ms: Option<u32>,
 }
 
 // ---------------------------------------------------------------- publications
