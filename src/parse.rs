@@ -8,6 +8,14 @@ pub fn parse_key_value(text: &str) -> Result<(String, String), String> {
     Ok((key.to_string(), value.to_string()))
 }
 
+/// `[NAME=]DIR`: a checkpoint directory, optionally named.
+pub fn parse_named_dir(text: &str) -> Result<(Option<String>, std::path::PathBuf), String> {
+    Ok(match text.split_once('=') {
+        Some((name, dir)) => (Some(name.to_owned()), dir.into()),
+        None => (None, text.into()),
+    })
+}
+
 /// `NAME=VALUE` with a number for VALUE.
 pub fn parse_number_pair(text: &str) -> Result<(String, f64), String> {
     let (key, value) = parse_key_value(text)?;

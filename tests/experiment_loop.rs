@@ -158,7 +158,18 @@ fn demonstrations_over_a_router_train_a_stable_policy_the_engine_runs_through_pu
         .expect("open the router");
     let config = client_config(&scratch);
 
-    let (_engine, engine_lines) = spawn_ciflow(&["serve", "--config", &config, "--name", "loop"]);
+    // The trainer signs its publications; the engine loads only what its key signed.
+    let key = |file: &str| format!("{}/bridge/tests/keys/{file}", env!("CARGO_MANIFEST_DIR"));
+    let (trusted_key, signing_key) = (key("trainer.pub.pem"), key("trainer.pem"));
+    let (_engine, engine_lines) = spawn_ciflow(&[
+        "serve",
+        "--config",
+        &config,
+        "--name",
+        "loop",
+        "--trusted-key",
+        &trusted_key,
+    ]);
     line_with(&engine_lines, "ready", Duration::from_secs(20));
     let (policy, demos) = (scratch.arg("policy"), scratch.arg("demos"));
     let (trainer, trainer_lines) = spawn_ciflow(&[
@@ -173,6 +184,8 @@ fn demonstrations_over_a_router_train_a_stable_policy_the_engine_runs_through_pu
         &policy,
         "--publish",
         POLICY,
+        "--signing-key",
+        &signing_key,
         "--kwarg",
         "obstacles=1",
         "--config",

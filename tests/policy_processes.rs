@@ -16,13 +16,15 @@ use ciflow_bridge::protocol::{
     Telemetry, encode, keys,
 };
 use ciflow_bridge::zenoh::Wait;
-use ciflow_bridge::{CheckpointPublisher, Client, NetworkOptions, RemoteEnv, Role};
+use ciflow_bridge::{
+    CheckpointPublisher, CheckpointSigner, Client, NetworkOptions, RemoteEnv, Role,
+};
 use ciflow_engine::flow::CheckpointConfig;
 use ciflow_engine::flow::checkpoint::{self, CONFIG_FILE, WEIGHTS_FILE};
 use ciflow_envs::ResetOptions;
 use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::tasks::obstacle_avoidance;
-use common::{Scratch, ciflow, code, connect, endpoint, serve};
+use common::{Scratch, ciflow, code, connect, endpoint, line_with, serve, spawn_ciflow};
 
 const OBSTACLE: &str = "ciflow/Obstacle-v0";
 
@@ -190,6 +192,7 @@ fn published_checkpoints_replace_the_policy_without_restart_and_bad_ones_are_ign
         epoch: 8,
         validation_nll: 0.0,
         kwargs: BTreeMap::new(),
+        signature: None,
     };
     let config = std::fs::read_to_string(a.join(CONFIG_FILE)).unwrap();
     let weights = std::fs::read(a.join(WEIGHTS_FILE)).unwrap();
@@ -207,6 +210,61 @@ fn published_checkpoints_replace_the_policy_without_restart_and_bad_ones_are_ign
     assert_eq!(
         client.act("policy-hot", "avoid", &OBSERVATIONS).unwrap(),
         actions_a
+    );
+}
+
+/// The tests' throwaway trainer key pair (`bridge/tests/keys`).
+fn test_key(file: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("bridge/tests/keys")
+        .join(file)
+        .to_string_lossy()
+        .into_owned()
+}
+
+#[test]
+fn an_engine_with_a_trusted_key_refuses_unsigned_checkpoints_and_says_so_once() {
+    let scratch = Scratch::new("policy-signed");
+    let (a, b) = (scratch.join("a"), scratch.join("b"));
+    write_flow(&a, 1);
+    write_flow(&b, 2);
+    let a_arg = format!("avoid={}", a.display());
+    let (trusted, engine) = ("--trusted-key", "policy-signed");
+    let (mut server, lines) = spawn_ciflow(&[
+        "serve",
+        "--listen",
+        &endpoint(27534),
+        "--name",
+        engine,
+        "--policy",
+        &a_arg,
+        "--policy-kwarg",
+        "obstacles=1",
+        trusted,
+        &test_key("trainer.pub.pem"),
+    ]);
+    line_with(&lines, "ready", Duration::from_secs(20));
+    let client = connect(27534);
+    let network = NetworkOptions::endpoint(Role::Client, &endpoint(27534));
+    let rogue = CheckpointPublisher::open(&network, "avoid").unwrap();
+    let signer = CheckpointSigner::from_pem_file(Path::new(&test_key("trainer.pem"))).unwrap();
+    let trainer = CheckpointPublisher::open(&network, "avoid")
+        .unwrap()
+        .with_signer(Some(signer));
+    std::thread::sleep(Duration::from_millis(300));
+    for epoch in 2..7 {
+        rogue.publish(&b, epoch, 0.0).unwrap();
+    }
+    trainer.publish(&b, 7, -1.0).unwrap();
+    wait_for_epoch(&client, engine, "avoid", 7);
+
+    let _ = server.0.kill();
+    let _ = server.0.wait();
+    let log = server.stderr();
+    let refusals = log.matches("not signed").count();
+    assert_eq!(
+        refusals, 1,
+        "five unsigned publications, one report:\n{log}"
     );
 }
 

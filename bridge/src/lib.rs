@@ -12,7 +12,7 @@
 //! - [`episodes`]: the episode channel, recorders publishing demonstrations to trainers;
 //! - [`policy`]: the [`Policy`] hook for `act`; [`checkpoint_policy`]: trained
 //!   checkpoints as policies; [`publisher`]: a trainer's checkpoint publications, which
-//!   engines hot-load.
+//!   engines hot-load; [`signing`]: who may publish them.
 
 pub mod checkpoint_policy;
 pub mod client;
@@ -26,6 +26,7 @@ pub mod protocol;
 pub mod publisher;
 pub mod query;
 pub mod server;
+pub mod signing;
 pub mod task_factory;
 
 pub use checkpoint_policy::{CheckpointPolicy, PolicyLoadError};
@@ -40,6 +41,7 @@ pub use policy::{Policy, PolicyError};
 pub use publisher::CheckpointPublisher;
 pub use query::query_all;
 pub use server::{EngineServer, ServerOptions};
+pub use signing::{CheckpointSigner, KeyError, SignatureRefused, TrustedKeys};
 pub use task_factory::TaskFactory;
 /// The Zenoh crate this bridge is built with, for callers that need its types.
 pub use zenoh;

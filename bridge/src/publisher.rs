@@ -12,6 +12,7 @@ use crate::config::{NetworkOptions, Role};
 use crate::error::BridgeError;
 use crate::protocol::keys;
 use crate::protocol::{ByteBuf, CheckpointMsg, PROTOCOL_VERSION, encode};
+use crate::signing::CheckpointSigner;
 use ciflow_envs::registry::Kwargs;
 
 /// Publishes the checkpoints of one policy name.
@@ -20,6 +21,7 @@ pub struct CheckpointPublisher {
     _session: zenoh::Session,
     name: String,
     kwargs: Kwargs,
+    signer: Option<CheckpointSigner>,
     publisher: Publisher<'static>,
 }
 
@@ -52,6 +54,7 @@ impl CheckpointPublisher {
             _session: session.clone(),
             name: name.to_owned(),
             kwargs: Kwargs::new(),
+            signer: None,
             publisher,
         })
     }
@@ -61,6 +64,12 @@ impl CheckpointPublisher {
     /// arguments of the policy being replaced, or uses the task's defaults.
     pub fn with_kwargs(mut self, kwargs: Kwargs) -> Self {
         self.kwargs = kwargs;
+        self
+    }
+
+    /// Signs every publication with `signer`, for engines that load only signed ones.
+    pub fn with_signer(mut self, signer: Option<CheckpointSigner>) -> Self {
+        self.signer = signer;
         self
     }
 
@@ -88,7 +97,7 @@ impl CheckpointPublisher {
             })?
             .task()
             .to_owned();
-        let message = CheckpointMsg {
+        let mut message = CheckpointMsg {
             v: PROTOCOL_VERSION,
             name: self.name.clone(),
             task,
@@ -97,7 +106,11 @@ impl CheckpointPublisher {
             epoch,
             validation_nll,
             kwargs: self.kwargs.clone(),
+            signature: None,
         };
+        if let Some(signer) = &self.signer {
+            signer.sign(&mut message);
+        }
         self.publisher
             .put(encode(&message))
             .wait()

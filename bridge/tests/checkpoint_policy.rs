@@ -1,46 +1,17 @@
 //! A checkpoint served as a policy: concurrent callers get the in-process actor's
 //! actions, and publications that do not fit are refused with typed errors.
 
-use std::collections::BTreeMap;
-use std::path::PathBuf;
+mod common;
+
 use std::sync::Arc;
 
 use ciflow_bridge::protocol::{ByteBuf, CheckpointMsg, PROTOCOL_VERSION};
 use ciflow_bridge::{CheckpointPolicy, Kwargs, Policy, PolicyLoadError, TaskFactory};
-use ciflow_engine::flow::checkpoint::{self, CONFIG_FILE, WEIGHTS_FILE};
-use ciflow_engine::flow::{
-    CheckpointConfig, CouplingKind, FlowConfig, FlowError, LatentKind, Weights,
-};
+use ciflow_engine::flow::FlowError;
+use ciflow_engine::flow::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
 use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::tasks::obstacle_avoidance;
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-
-/// A random one-obstacle go-to flow checkpoint in a fresh directory.
-fn write_checkpoint(tag: &str) -> PathBuf {
-    let mut config = FlowConfig::new(
-        "obstacle-avoidance",
-        2,
-        4,
-        LatentKind::GoTo,
-        CouplingKind::Affine { scale_bound: 2.0 },
-        4,
-        vec![16, 16],
-    );
-    config.goal_context_indices = Some(vec![2, 3]);
-    let weights = Weights::random(
-        &config.parameter_shapes(),
-        0.1,
-        &mut ChaCha8Rng::seed_from_u64(5),
-    );
-    let dir = std::env::temp_dir().join(format!("ciflow-{tag}-{}", std::process::id()));
-    checkpoint::write(&dir, &CheckpointConfig::Flow(config), &weights).unwrap();
-    dir
-}
-
-fn one_obstacle() -> Kwargs {
-    BTreeMap::from([("obstacles".to_owned(), 1.0)])
-}
+use common::{one_obstacle, write_checkpoint};
 
 #[test]
 fn concurrent_callers_get_the_actors_actions() {
@@ -116,6 +87,7 @@ fn publications_that_do_not_fit_are_refused() {
         epoch: 3,
         validation_nll: -1.0,
         kwargs: one_obstacle(),
+        signature: None,
     };
     let loaded = CheckpointPolicy::from_message("avoid", &message, &tasks, &Kwargs::new()).unwrap();
     assert_eq!(loaded.info().epoch, Some(3));

@@ -1,13 +1,13 @@
 //! `ciflow serve`: host every task as Gymnasium environments over Zenoh.
 
-use std::path::Path;
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
-use ciflow_bridge::{CheckpointPolicy, EngineServer, Kwargs, Policy, ServerOptions, TaskFactory};
+use ciflow_bridge::{CheckpointPolicy, EngineServer, Kwargs, Policy, ServerOptions};
 
 use super::network::NetworkArgs;
-use crate::parse::parse_number_pair;
+use crate::parse::{parse_named_dir, parse_number_pair};
 
 /// Start an engine that hosts environment sessions for Zenoh clients (Python
 /// `gymnasium.make("ciflow/...")`, or any Zenoh client following bridge/PROTOCOL.md).
@@ -30,28 +30,16 @@ pub struct ServeArgs {
     /// A trained checkpoint to serve, `[NAME=]DIR` (repeatable; NAME defaults to the
     /// checkpoint's task). Clients evaluate it with `act` and let it drive sessions with
     /// `run`; a trainer's publications under the same name replace it without a restart.
-    #[arg(long = "policy", value_name = "[NAME=]DIR")]
-    pub policies: Vec<String>,
+    #[arg(long = "policy", value_name = "[NAME=]DIR", value_parser = parse_named_dir)]
+    pub policies: Vec<(Option<String>, PathBuf)>,
     /// Construction argument of the policies' task, as given to `ciflow demos --kwarg`
     /// when the checkpoint's data was made (e.g. obstacles=1; repeatable).
     #[arg(long = "policy-kwarg", value_name = "NAME=VALUE", value_parser = parse_number_pair)]
     pub policy_kwargs: Vec<(String, f64)>,
     #[command(flatten)]
     pub limits: ciflow_bridge::Limits,
-}
-
-fn load_policy(
-    spec: &str,
-    tasks: &[TaskFactory],
-    kwargs: &Kwargs,
-) -> anyhow::Result<Arc<dyn Policy>> {
-    let (name, dir) = match spec.split_once('=') {
-        Some((name, dir)) => (Some(name), dir),
-        None => (None, spec),
-    };
-    let policy = CheckpointPolicy::load(name, Path::new(dir), tasks, kwargs)
-        .with_context(|| format!("loading the policy --policy {spec}"))?;
-    Ok(Arc::new(policy))
+    #[command(flatten)]
+    pub trust: ciflow_bridge::signing::TrustArgs,
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
@@ -60,13 +48,18 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         name: args.name,
         telemetry_hz: args.telemetry_hz,
         limits: args.limits,
+        trusted_keys: args.trust.load()?,
         ..ServerOptions::default()
     };
     let kwargs: Kwargs = args.policy_kwargs.into_iter().collect();
     options.policies = args
         .policies
         .iter()
-        .map(|spec| load_policy(spec, &options.tasks, &kwargs))
+        .map(|(name, dir)| {
+            let policy = CheckpointPolicy::load(name.as_deref(), dir, &options.tasks, &kwargs)
+                .with_context(|| format!("loading the policy --policy {}", dir.display()))?;
+            anyhow::Ok(Arc::new(policy) as Arc<dyn Policy>)
+        })
         .collect::<anyhow::Result<_>>()?;
     let policy_names: Vec<String> = options.policies.iter().map(|p| p.info().name).collect();
     let task_ids: Vec<String> = options.tasks.iter().map(|t| t.id.clone()).collect();

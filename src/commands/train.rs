@@ -70,6 +70,8 @@ pub struct TrainArgs {
     /// in; repeatable.
     #[arg(long = "kwarg", value_name = "NAME=VALUE", value_parser = parse_key_value, requires = "publish")]
     pub kwargs: Vec<(String, String)>,
+    #[command(flatten)]
+    pub signing: ciflow_bridge::signing::SigningArgs,
 }
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
@@ -112,7 +114,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .map(|name| {
             let kwargs = task.values(&args.kwargs)?;
             let network = args.zenoh.network.options()?;
-            anyhow::Ok(CheckpointPublisher::open(&network, name)?.with_kwargs(kwargs))
+            let publisher = CheckpointPublisher::open(&network, name)?.with_kwargs(kwargs);
+            anyhow::Ok(publisher.with_signer(args.signing.load()?))
         })
         .transpose()
         .context("--publish")?;

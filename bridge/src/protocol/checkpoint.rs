@@ -25,6 +25,17 @@ pub struct CheckpointMsg {
     /// of the policy it replaces, else the task's defaults.
     #[serde(default)]
     pub kwargs: BTreeMap<String, f64>,
+    /// The trainer's signature (see [`crate::signing`]); absent: unsigned.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub signature: Option<CheckpointSignature>,
+}
+
+/// `{key: bin(32), signature: bin(64)}`: an ed25519 public key and its signature of the
+/// message (see [`crate::signing`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointSignature {
+    pub key: ByteBuf,
+    pub signature: ByteBuf,
 }
 
 /// `…/session/<session>/run`: the engine steps environment `index` with `policy`'s action

@@ -11,7 +11,7 @@ pub mod keys;
 pub mod messages;
 pub mod wire;
 
-pub use checkpoint::{CheckpointMsg, RunRequest};
+pub use checkpoint::{CheckpointMsg, CheckpointSignature, RunRequest};
 pub use episodes::{EpisodeError, EpisodeMsg, decode_episode};
 pub use error::{ErrorCode, ErrorReply};
 pub use f64le::F64s;

@@ -1,15 +1,21 @@
 //! Hot-loading: a checkpoint published on `ciflow/v1/policies/<policy>/checkpoint`
-//! replaces the policy served under that name, if it fits a task this engine serves and
-//! keeps the policy's task.
+//! replaces the policy served under that name, if it fits a task this engine serves,
+//! keeps the policy's task and, on an engine that trusts keys, is signed by one of them.
 
-use std::sync::Arc;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use super::policy_table::PolicyTable;
 use crate::checkpoint_policy::{CheckpointPolicy, PolicyLoadError};
 use crate::policy::Policy;
 use crate::protocol::keys;
 use crate::protocol::{CheckpointMsg, ErrorReply, PolicyInfo, decode_request};
+use crate::signing::{SignatureRefused, TrustedKeys};
 use crate::task_factory::TaskFactory;
+
+/// How often one kind of refusal on one key is reported at most.
+pub const REPORT_INTERVAL: Duration = Duration::from_secs(60);
 
 /// Why a publication was not served.
 #[derive(Debug, thiserror::Error)]
@@ -18,6 +24,8 @@ pub enum HotLoadError {
     NotCheckpointKey(String),
     #[error("undecodable publication")]
     Decode(#[source] ErrorReply),
+    #[error("refused")]
+    Signature(#[source] SignatureRefused),
     #[error(transparent)]
     Load(#[from] PolicyLoadError),
     #[error("policy `{name}` acts in {serving}, the checkpoint in {published}")]
@@ -28,16 +36,34 @@ pub enum HotLoadError {
     },
 }
 
+impl HotLoadError {
+    /// The kind of refusal, for rate-limited reporting.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            HotLoadError::NotCheckpointKey(_) => "key",
+            HotLoadError::Decode(_) => "decode",
+            HotLoadError::Signature(_) => "signature",
+            HotLoadError::Load(_) => "load",
+            HotLoadError::TaskChanged { .. } => "task",
+        }
+    }
+}
+
 /// Swaps the checkpoint published on `key` into `policies`; returns what is now served.
+/// With `trusted` keys, only a checkpoint one of them signed is considered.
 pub fn hot_load(
     policies: &PolicyTable,
     factories: &[TaskFactory],
+    trusted: Option<&TrustedKeys>,
     key: &str,
     payload: &[u8],
 ) -> Result<PolicyInfo, HotLoadError> {
     let name = keys::parse_policy_checkpoint(key)
         .ok_or_else(|| HotLoadError::NotCheckpointKey(key.to_owned()))?;
     let message: CheckpointMsg = decode_request(payload).map_err(HotLoadError::Decode)?;
+    if let Some(trusted) = trusted {
+        trusted.verify(&message).map_err(HotLoadError::Signature)?;
+    }
     let current = policies.get(name);
     let kwargs = current
         .as_ref()
@@ -56,4 +82,72 @@ pub fn hot_load(
     }
     policies.insert(Arc::new(policy));
     Ok(info)
+}
+
+/// Refusals reported at most once per checkpoint key and kind per [`REPORT_INTERVAL`]:
+/// a flood of rogue publications must not flood the engine's log.
+#[derive(Default)]
+pub(crate) struct RefusalLog(Mutex<HashMap<(String, &'static str), Report>>);
+
+struct Report {
+    at: Instant,
+    suppressed: u64,
+}
+
+impl RefusalLog {
+    /// `Some(n)` if this refusal is to be reported now, `n` being how many like it were
+    /// suppressed since the last report; `None` to suppress it.
+    pub fn admit(&self, key: &str, kind: &'static str, now: Instant) -> Option<u64> {
+        let mut reports = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(report) = reports.get_mut(&(key.to_owned(), kind)) {
+            if now.duration_since(report.at) < REPORT_INTERVAL {
+                report.suppressed += 1;
+                return None;
+            }
+            let suppressed = report.suppressed;
+            *report = Report {
+                at: now,
+                suppressed: 0,
+            };
+            return Some(suppressed);
+        }
+        // Many keys (an attacker may invent names): forget those reported long ago.
+        if reports.len() >= 1024 {
+            reports.retain(|_, report| now.duration_since(report.at) < REPORT_INTERVAL);
+        }
+        reports.insert(
+            (key.to_owned(), kind),
+            Report {
+                at: now,
+                suppressed: 0,
+            },
+        );
+        Some(0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_refusal_is_reported_once_per_interval_with_the_count_it_suppressed() {
+        let log = RefusalLog::default();
+        let start = Instant::now();
+        assert_eq!(log.admit("k", "signature", start), Some(0));
+        for i in 1..=100 {
+            assert_eq!(
+                log.admit("k", "signature", start + Duration::from_millis(i)),
+                None
+            );
+        }
+        // Another key or kind is its own report.
+        assert_eq!(log.admit("k", "decode", start), Some(0));
+        assert_eq!(log.admit("other", "signature", start), Some(0));
+        assert_eq!(
+            log.admit("k", "signature", start + REPORT_INTERVAL),
+            Some(100)
+        );
+        assert_eq!(log.admit("k", "signature", start + REPORT_INTERVAL), None);
+    }
 }

@@ -38,7 +38,7 @@ use zenoh::query::{Query, Queryable};
 use zenoh::sample::SampleKind;
 
 use self::driver::{Driver, Schedulers};
-use self::hot_load::hot_load;
+use self::hot_load::{RefusalLog, hot_load};
 pub(crate) use self::policy_table::PolicyTable;
 use self::session::{RunPermit, Session};
 use self::slot::EnvSlot;
@@ -56,6 +56,7 @@ use crate::protocol::{
     RenderReply, RenderRequest, ResetRequest, RunRequest, SessionRequest, StepRequest, TaskInfo,
     TasksReply, TasksRequest, decode_request, encode, requested_deadline,
 };
+use crate::signing::TrustedKeys;
 use crate::task_factory::TaskFactory;
 
 /// Payloads up to this size of `step_batch` and `act` are served in Zenoh's callback:
@@ -78,6 +79,9 @@ pub struct ServerOptions {
     pub tasks: Vec<TaskFactory>,
     pub policies: Vec<Arc<dyn Policy>>,
     pub limits: Limits,
+    /// Keys whose signature a published checkpoint needs to be hot-loaded; `None` loads
+    /// unsigned publications too (the zero-configuration default).
+    pub trusted_keys: Option<TrustedKeys>,
 }
 
 impl Default for ServerOptions {
@@ -88,6 +92,7 @@ impl Default for ServerOptions {
             tasks: TaskFactory::registry(),
             policies: Vec::new(),
             limits: Limits::DEFAULT,
+            trusted_keys: None,
         }
     }
 }
@@ -159,6 +164,8 @@ impl EngineServer {
             task_infos: tasks,
             factories: options.tasks,
             policies,
+            trusted_keys: options.trusted_keys,
+            refusals: RefusalLog::default(),
             telemetry_hz: options.telemetry_hz,
             telemetry,
             limits: options.limits,
@@ -196,6 +203,7 @@ impl EngineServer {
                     match hot_load(
                         &shared.policies,
                         &shared.factories,
+                        shared.trusted_keys.as_ref(),
                         key,
                         &sample.payload().to_bytes(),
                     ) {
@@ -208,12 +216,23 @@ impl EngineServer {
                             info.epoch.unwrap_or(0),
                             info.validation_nll.unwrap_or(f64::NAN)
                         ),
-                        // A bad publication must not disturb serving: report and go on.
-                        Err(error) => eprintln!(
-                            "ciflow engine `{}`: ignored checkpoint on `{key}`: {}",
-                            shared.name,
-                            full_message(&error)
-                        ),
+                        // A bad publication must not disturb serving: report (at most once
+                        // a minute for each key and kind) and go on.
+                        Err(error) => {
+                            if let Some(suppressed) =
+                                shared.refusals.admit(key, error.kind(), Instant::now())
+                            {
+                                let more = match suppressed {
+                                    0 => String::new(),
+                                    n => format!(" ({n} more like it since the last report)"),
+                                };
+                                eprintln!(
+                                    "ciflow engine `{}`: ignored checkpoint on `{key}`: {}{more}",
+                                    shared.name,
+                                    full_message(&error)
+                                );
+                            }
+                        }
                     }
                 })
                 .wait()
@@ -316,6 +335,8 @@ struct Shared {
     task_infos: Vec<TaskInfo>,
     factories: Vec<TaskFactory>,
     policies: Arc<PolicyTable>,
+    trusted_keys: Option<TrustedKeys>,
+    refusals: RefusalLog,
     telemetry_hz: f64,
     /// Whether anyone views any session's telemetry.
     telemetry: TelemetryWatch,

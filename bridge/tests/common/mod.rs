@@ -7,12 +7,15 @@
 use std::sync::Arc;
 
 use std::collections::BTreeMap;
+use std::path::PathBuf;
 use std::time::Duration;
 
 use ciflow_bridge::protocol::{ErrorCode, ErrorReply};
 use ciflow_bridge::{
     BridgeError, Client, EngineServer, NetworkOptions, Role, ServerOptions, TaskFactory, query_all,
 };
+use ciflow_engine::flow::checkpoint;
+use ciflow_engine::flow::{CheckpointConfig, CouplingKind, FlowConfig, LatentKind, Weights};
 use ciflow_engine::sim::Perturbation;
 use ciflow_envs::{BoxSpace, Dtype, Env, EnvError, EnvSpec, Info, ResetOptions, Step};
 use rand::{RngExt, SeedableRng};
@@ -185,4 +188,31 @@ pub fn raw_query(
     let mut replies = query_all(session, key, payload, Duration::from_secs(15)).unwrap();
     assert_eq!(replies.len(), 1, "exactly one reply to {key}");
     replies.pop().unwrap()
+}
+
+/// A random one-obstacle go-to flow checkpoint in a fresh directory.
+pub fn write_checkpoint(tag: &str) -> PathBuf {
+    let mut config = FlowConfig::new(
+        "obstacle-avoidance",
+        2,
+        4,
+        LatentKind::GoTo,
+        CouplingKind::Affine { scale_bound: 2.0 },
+        4,
+        vec![16, 16],
+    );
+    config.goal_context_indices = Some(vec![2, 3]);
+    let weights = Weights::random(
+        &config.parameter_shapes(),
+        0.1,
+        &mut ChaCha8Rng::seed_from_u64(5),
+    );
+    let dir = std::env::temp_dir().join(format!("ciflow-{tag}-{}", std::process::id()));
+    checkpoint::write(&dir, &CheckpointConfig::Flow(config), &weights).unwrap();
+    dir
+}
+
+/// The construction arguments of [`write_checkpoint`]'s task.
+pub fn one_obstacle() -> ciflow_bridge::Kwargs {
+    BTreeMap::from([("obstacles".to_owned(), 1.0)])
 }
