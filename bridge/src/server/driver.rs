@@ -124,8 +124,12 @@ fn schedule(arrivals: &Receiver<Driver>) {
                 }));
             }
             Err(RecvTimeoutError::Timeout) => {}
-            Err(RecvTimeoutError::Disconnected) if queue.is_empty() => return,
-            Err(RecvTimeoutError::Disconnected) => {}
+            // The engine is gone: finish the runs still queued (their sessions are gone
+            // too, so each ends at its next step), sleeping rather than spinning.
+            Err(RecvTimeoutError::Disconnected) => match wait {
+                None => return,
+                Some(wait) => thread::sleep(wait),
+            },
         }
         let now = Instant::now();
         while queue.peek().is_some_and(|Reverse(next)| next.due <= now) {
