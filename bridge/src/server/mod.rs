@@ -156,7 +156,7 @@ impl EngineServer {
         for policy in &options.policies {
             policies.insert(Arc::clone(policy));
         }
-        let telemetry = TelemetryWatch::declare(&zsession, &name)?;
+        let telemetry = TelemetryWatch::declare(&zsession, &name, options.telemetry_hz)?;
         let schedulers = Schedulers::spawn(&name).map_err(BridgeError::Worker)?;
         let shared = Arc::new(Shared {
             zsession: zsession.clone(),
@@ -166,7 +166,6 @@ impl EngineServer {
             policies,
             trusted_keys: options.trusted_keys,
             refusals: RefusalLog::default(),
-            telemetry_hz: options.telemetry_hz,
             telemetry,
             limits: options.limits,
             sessions: RwLock::new(HashMap::new()),
@@ -245,7 +244,8 @@ impl EngineServer {
             let shared = Arc::clone(&shared);
             let name = shared.name.clone();
             Workers::spawn(&name, move |(query, received): (Query, Instant)| {
-                shared.answer(&query, received)
+                let route = keys::parse_route(query.key_expr().as_str());
+                shared.answer(&query, route, received)
             })
             .map_err(BridgeError::Worker)?
         };
@@ -255,8 +255,9 @@ impl EngineServer {
                 .declare_queryable(format!("{}/**", keys::engine(&shared.name)))
                 .callback(move |query| {
                     let received = Instant::now();
-                    if runs_inline(&query) {
-                        shared.answer(&query, received);
+                    let route = keys::parse_route(query.key_expr().as_str());
+                    if runs_inline(route, &query) {
+                        shared.answer(&query, route, received);
                     } else if let Err((query, _)) = workers.submit((query, received)) {
                         shared.reply(
                             &query,
@@ -308,10 +309,11 @@ impl EngineServer {
     }
 }
 
-/// Whether a query is cheap enough to answer in Zenoh's callback (see the module doc).
-fn runs_inline(query: &Query) -> bool {
+/// Whether a query on `route` is cheap enough to answer in Zenoh's callback (see the
+/// module doc).
+fn runs_inline(route: Option<Route<'_>>, query: &Query) -> bool {
     let small = || query.payload().is_none_or(|p| p.len() <= INLINE_BYTES);
-    match keys::parse_route(query.key_expr().as_str()) {
+    match route {
         Some(Route::Make) => false,
         Some(Route::PolicyAct { .. }) => small(),
         Some(Route::Session { op, .. }) => match op {
@@ -337,8 +339,7 @@ struct Shared {
     policies: Arc<PolicyTable>,
     trusted_keys: Option<TrustedKeys>,
     refusals: RefusalLog,
-    telemetry_hz: f64,
-    /// Whether anyone views any session's telemetry.
+    /// Whether anyone views any session's telemetry; each session's publisher.
     telemetry: TelemetryWatch,
     limits: Limits,
     sessions: RwLock<HashMap<String, Arc<Mutex<Session>>>>,
@@ -397,10 +398,8 @@ impl Shared {
         drop(removed);
     }
 
-    /// Answers one query with exactly one reply, within its deadline.
-    fn answer(&self, query: &Query, received: Instant) {
-        let key = query.key_expr().as_str();
-        let route = keys::parse_route(key);
+    /// Answers one query on `route` with exactly one reply, within its deadline.
+    fn answer(&self, query: &Query, route: Option<Route<'_>>, received: Instant) {
         let payload = query.payload().map(|p| p.to_bytes()).unwrap_or_default();
         let deadline = self.limits.deadline(received, requested_deadline(&payload));
         let answer = if payload.len() > self.limits.max_request_bytes as usize {
@@ -547,7 +546,7 @@ impl Shared {
         let token: session::Token = rand::random();
         let telemetry = self
             .telemetry
-            .session(&self.zsession, &self.name, &id, self.telemetry_hz)
+            .session(&id)
             .map_err(|e| ErrorReply::new(ErrorCode::Internal, full_message(&e)))?;
         let session = Session::new(id.clone(), request.client.clone(), token, envs, telemetry);
         // A deadline passed while building, or a client that vanished meanwhile
@@ -555,7 +554,7 @@ impl Shared {
         if deadline.passed() {
             return Err(deadline_exceeded("while building the session"));
         }
-        self.commit_session(reservation, Arc::new(Mutex::new(session)))?;
+        self.commit_session(reservation, &id, session)?;
         Ok(encode(&MakeReply {
             v: PROTOCOL_VERSION,
             session: id,
@@ -569,11 +568,12 @@ impl Shared {
     fn commit_session(
         &self,
         reservation: Reservation<'_>,
-        session: Arc<Mutex<Session>>,
+        id: &str,
+        session: Session,
     ) -> Result<(), ErrorReply> {
-        let id = session.lock().unwrap_or_else(|p| p.into_inner()).id.clone();
-        self.clients.commit(reservation, &id, || {
-            self.sessions_mut().insert(id.clone(), session);
+        self.clients.commit(reservation, id, || {
+            self.sessions_mut()
+                .insert(id.to_owned(), Arc::new(Mutex::new(session)));
         })
     }
 

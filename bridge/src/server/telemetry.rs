@@ -23,15 +23,21 @@ use super::slot::EnvSlot;
 use crate::error::BridgeError;
 use crate::protocol::{F64s, PROTOCOL_VERSION, Telemetry, encode, keys};
 
-/// Whether any viewer subscribes to the telemetry of any of an engine's sessions.
+/// Whether any viewer subscribes to the telemetry of any of an engine's sessions, and the
+/// publisher of each session's samples.
 pub(crate) struct TelemetryWatch {
     /// Declared for its matching listener only; nothing is put on it.
     _publisher: Publisher<'static>,
     viewers: Arc<AtomicBool>,
+    zsession: zenoh::Session,
+    engine: String,
+    min_interval: Duration,
 }
 
 impl TelemetryWatch {
-    pub fn declare(session: &zenoh::Session, engine: &str) -> Result<Self, BridgeError> {
+    /// Watches `engine`'s telemetry keys; its sessions publish at most `hz` samples per
+    /// second each.
+    pub fn declare(session: &zenoh::Session, engine: &str, hz: f64) -> Result<Self, BridgeError> {
         let publisher = session
             .declare_publisher(keys::session(engine, "*", "telemetry"))
             .wait()
@@ -49,28 +55,26 @@ impl TelemetryWatch {
         Ok(Self {
             _publisher: publisher,
             viewers,
+            zsession: session.clone(),
+            engine: engine.to_owned(),
+            min_interval: Duration::from_secs_f64(1.0 / hz.max(1e-3)),
         })
     }
 
     /// The telemetry of session `id`.
-    pub fn session(
-        &self,
-        zsession: &zenoh::Session,
-        engine: &str,
-        id: &str,
-        hz: f64,
-    ) -> Result<TelemetryPublisher, BridgeError> {
-        let key = KeyExpr::try_from(keys::session(engine, id, "telemetry")).map_err(|source| {
-            BridgeError::Zenoh {
-                action: "building the telemetry key",
-                source,
-            }
-        })?;
+    pub fn session(&self, id: &str) -> Result<TelemetryPublisher, BridgeError> {
+        let key =
+            KeyExpr::try_from(keys::session(&self.engine, id, "telemetry")).map_err(|source| {
+                BridgeError::Zenoh {
+                    action: "building the telemetry key",
+                    source,
+                }
+            })?;
         Ok(TelemetryPublisher {
-            zsession: zsession.clone(),
+            zsession: self.zsession.clone(),
             key,
             viewers: Arc::clone(&self.viewers),
-            min_interval: Duration::from_secs_f64(1.0 / hz.max(1e-3)),
+            min_interval: self.min_interval,
             last_sent: None,
         })
     }
