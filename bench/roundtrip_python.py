@@ -47,7 +47,7 @@ def main(endpoint: str) -> None:
     config.insert_json5("connect/endpoints", f'["{endpoint}"]')
     session = zenoh.open(config)
     ping = session.declare_querier(
-        f"ciflow/v1/engine/{engine}/ping", consolidation=zenoh.ConsolidationMode.NONE
+        f"ciflow/v2/engine/{engine}/ping", consolidation=zenoh.ConsolidationMode.NONE
     )
     payload = bytes(60)
 

@@ -26,7 +26,7 @@ import msgpack
 import numpy as np
 import zenoh
 
-V = 1
+V = 2
 ROOT = Path(__file__).resolve().parent.parent
 TASK = "limit-cycle"
 STALL_SECONDS = 1.0
@@ -40,14 +40,20 @@ def open_session(endpoint: str) -> zenoh.Session:
     return zenoh.open(config)
 
 
+def engine_prefix(engine: str, op: str) -> str:
+    """Where `op` lives: what a client owns is under its identity (`soak`)."""
+    owned = op in ("make", "limits") or op.startswith("session/")
+    return f"ciflow/v2/engine/{engine}" + ("/client/soak" if owned else "")
+
+
 class Plain:
     """A client from the protocol page: one Zenoh session, one liveliness token."""
 
     def __init__(self, endpoint: str, engine: str):
         self.session = open_session(endpoint)
         self.engine = engine
-        self.name = "soak-" + secrets.token_hex(6)
-        self.token = self.session.liveliness().declare_token(f"ciflow/v1/alive/client/{self.name}")
+        self.instance = secrets.token_hex(6)
+        self.token = self.session.liveliness().declare_token(f"ciflow/v2/alive/client/soak/{self.instance}")
 
     def raw(self, key: str, payload: bytes, timeout: float = 10.0):
         """Replies to one request: a list of (ok, payload bytes)."""
@@ -60,14 +66,14 @@ class Plain:
         ]
 
     def query(self, key: str, request: dict):
-        replies = self.raw(f"ciflow/v1/engine/{self.engine}/{key}", msgpack.packb(request, use_bin_type=True))
+        replies = self.raw(f"{engine_prefix(self.engine, key)}/{key}", msgpack.packb(request, use_bin_type=True))
         if len(replies) != 1:
             raise RuntimeError(f"{len(replies)} replies on {key}")
         ok, payload = replies[0]
         return ok, msgpack.unpackb(payload, raw=False)
 
     def make(self, num_envs: int = 1) -> dict:
-        ok, reply = self.query("make", {"v": V, "client": self.name, "task": TASK, "num_envs": num_envs})
+        ok, reply = self.query("make", {"v": V, "instance": self.instance, "task": TASK, "num_envs": num_envs})
         if not ok:
             raise RuntimeError(f"make refused: {reply}")
         return reply
@@ -124,8 +130,8 @@ def hostile_payload(rng: random.Random, token: bytes) -> bytes:
     if kind == 2:  # a length prefix far beyond the payload
         return b"\xdb\xff\xff\xff\xf0abc"
     if kind == 3:  # a big string
-        return msgpack.packb({"v": V, "client": "x" * rng.randrange(1, 1_000_000)})
-    fields = ["v", "token", "action", "actions", "seed", "options", "context", "index", "client", "task",
+        return msgpack.packb({"v": V, "instance": "x" * rng.randrange(1, 1_000_000)})
+    fields = ["v", "token", "action", "actions", "seed", "options", "context", "index", "instance", "task",
               "num_envs", "kwargs", "observations", "policy", "speed", "steps", "width", "height",
               "perturbation", "deadline_ms"]
     values = [None, True, -1, 0, 1, 2**32, 2**63, float("nan"), float("inf"), -1e308, "", "*", "a/b",
@@ -149,7 +155,8 @@ def attacker(endpoint: str, engine: str, tally: Tally, stop: threading.Event, se
                    "perturb", "render", "run", "stop")
     ]
     while not stop.is_set():
-        key = f"ciflow/v1/engine/{engine}/{rng.choice(ops)}"
+        op = rng.choice(ops)
+        key = f"{engine_prefix(engine, op)}/{op}"
         payload = hostile_payload(rng, made["token"])
         started = time.monotonic()
         try:

@@ -30,4 +30,6 @@ pub enum Command {
     Lasa(commands::lasa::LasaArgs),
     /// Start an engine that serves every task as a Gymnasium environment over Zenoh.
     Serve(commands::serve::ServeArgs),
+    /// Run the Zenoh router that joins machines, optionally with access control.
+    Router(commands::router::RouterArgs),
 }

@@ -18,5 +18,6 @@ fn main() -> anyhow::Result<()> {
         Command::Evaluate(args) => commands::evaluate::run(args),
         Command::Lasa(args) => commands::lasa::run(args),
         Command::Serve(args) => commands::serve::run(args),
+        Command::Router(args) => commands::router::run(args),
     }
 }

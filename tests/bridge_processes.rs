@@ -140,7 +140,7 @@ fn killed_client_sessions_are_reclaimed() {
             seed: Some(1),
             options: None,
         };
-        let key = keys::session("reclaim", session, "reset");
+        let key = keys::session("reclaim", keys::ANONYMOUS, session, "reset");
         let mut replies = query_all(
             observer.zenoh_session(),
             &key,
@@ -201,7 +201,7 @@ fn hostile_payloads_get_errors_while_a_parallel_session_keeps_stepping() {
     };
 
     let hostile = connect(27433);
-    let key = |op: &str| keys::session("hostile", target.session_id(), op);
+    let key = |op: &str| keys::session("hostile", keys::ANONYMOUS, target.session_id(), op);
     let step = |token: Vec<u8>, action: Vec<f64>| {
         protocol::encode(&StepRequest {
             v: protocol::PROTOCOL_VERSION,
@@ -240,7 +240,7 @@ fn hostile_payloads_get_errors_while_a_parallel_session_keeps_stepping() {
             ErrorCode::PayloadTooLarge,
         ),
         (
-            keys::session("hostile", "ffffffffffffffff", "step"),
+            keys::session("hostile", keys::ANONYMOUS, "ffffffffffffffff", "step"),
             vec![],
             ErrorCode::UnknownSession,
         ),

@@ -74,7 +74,7 @@ fn recorder_episodes_reach_a_trainer_over_zenoh_and_train_a_policy() {
         Duration::from_secs(60),
     );
     assert!(
-        waiting.contains("ciflow/v1/episodes/obstacle-avoidance/*"),
+        waiting.contains("ciflow/v2/episodes/obstacle-avoidance/*"),
         "{waiting}"
     );
 

@@ -67,13 +67,13 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     // the client's, not the engine's.
     let make = protocol::encode(&MakeRequest {
         v: protocol::PROTOCOL_VERSION,
-        client: crowd.id().to_owned(),
+        instance: crowd.instance().to_owned(),
         task: TASK.into(),
         num_envs: 1,
         kwargs: kwargs.clone(),
         deadline_ms: None,
     });
-    let make_key = keys::make(engine.name());
+    let make_key = keys::make(engine.name(), keys::ANONYMOUS);
     let mut open: Vec<MakeReply> = Vec::with_capacity(largest);
     let mut medians = Vec::new();
     let mut opening = Duration::ZERO;
@@ -123,7 +123,7 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
             token: made.token,
             index: 0,
         });
-        let key = keys::session(engine.name(), &made.session, "close");
+        let key = keys::session(engine.name(), keys::ANONYMOUS, &made.session, "close");
         let reply = query_all(crowd.zenoh_session(), &key, close, Duration::from_secs(10))?;
         assert!(matches!(reply.as_slice(), [Ok(_)]), "close succeeds");
     }

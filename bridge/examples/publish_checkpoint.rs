@@ -1,5 +1,5 @@
 //! Hand a checkpoint to every running engine: the engines hot-load it under the policy's
-//! name (`ciflow/v1/policies/<name>/checkpoint`) and serve it on `…/policy/<name>/act`,
+//! name (`ciflow/v2/policies/<name>/checkpoint`) and serve it on `…/policy/<name>/act`,
 //! without a restart. `ciflow train --publish NAME` does this after every better epoch.
 //!
 //! ```text

@@ -20,7 +20,7 @@ use zenoh::query::{ConsolidationMode, Querier, QueryTarget};
 use zenoh::sample::Sample;
 
 use crate::config::{NetworkOptions, Role};
-use crate::control::SessionControl;
+use crate::control::{SessionAddress, SessionControl};
 use crate::error::BridgeError;
 use crate::limits::{Limits, Usage};
 use crate::protocol::keys::{self, SessionOp};
@@ -57,7 +57,10 @@ impl From<TasksReply> for EngineInfo {
 /// which its sessions live (they are closed when the token goes away).
 pub struct Client {
     zsession: zenoh::Session,
-    id: String,
+    /// Who this process is; the `<identity>` chunk of the keys of its sessions.
+    identity: String,
+    /// `<identity>/<instance>`, which owns this process's sessions.
+    name: String,
     timeout: Duration,
     _token: LivelinessToken,
 }
@@ -71,30 +74,54 @@ impl Client {
             "join Zenoh",
             "is an engine or router running there? Start one with `ciflow serve`",
         )?;
-        Self::with_session(zsession)
+        Self::with_identity(zsession, network.identity()?)
     }
 
-    /// Uses an open Zenoh session (e.g. the one of an engine in the same process).
+    /// Uses an open Zenoh session (e.g. the one of an engine in the same process), as
+    /// [`keys::ANONYMOUS`].
     pub fn with_session(zsession: zenoh::Session) -> Result<Self, BridgeError> {
-        let id = format!("c{:016x}", rand::random::<u64>());
+        Self::with_identity(zsession, keys::ANONYMOUS)
+    }
+
+    /// Uses an open Zenoh session as `identity` (see [`NetworkOptions::identity`]).
+    pub fn with_identity(zsession: zenoh::Session, identity: &str) -> Result<Self, BridgeError> {
+        if !keys::is_plain_chunk(identity) {
+            return Err(BridgeError::InvalidArgument(format!(
+                "identity `{identity}` must be letters, digits, `-`, `_` or `.`"
+            )));
+        }
+        let name = keys::client(identity, &format!("c{:016x}", rand::random::<u64>()));
         let token = zsession
             .liveliness()
-            .declare_token(keys::client_alive(&id))
+            .declare_token(keys::client_alive(&name))
             .wait()
             .map_err(BridgeError::zenoh(
                 "declaring the client's liveliness token",
             ))?;
         Ok(Self {
             zsession,
-            id,
+            identity: identity.to_owned(),
+            name,
             timeout: DEFAULT_TIMEOUT,
             _token: token,
         })
     }
 
-    /// The `<client>` name under which this client's sessions are owned.
+    /// `<identity>/<instance>`: the name under which this process's sessions are owned.
     pub fn id(&self) -> &str {
-        &self.id
+        &self.name
+    }
+
+    /// Who this process is: the `<identity>` chunk of its sessions' keys.
+    pub fn identity(&self) -> &str {
+        &self.identity
+    }
+
+    /// The `<instance>` chunk of [`Client::id`].
+    pub fn instance(&self) -> &str {
+        self.name
+            .split_once('/')
+            .map_or("", |(_, instance)| instance)
     }
 
     pub fn zenoh_session(&self) -> &zenoh::Session {
@@ -148,7 +175,12 @@ impl Client {
         session: &str,
         token: &[u8],
     ) -> Result<SessionControl, BridgeError> {
-        SessionControl::new(self.zsession.clone(), engine, session, token, self.timeout)
+        SessionControl::new(
+            self.zsession.clone(),
+            SessionAddress::new(engine, &self.identity, session),
+            token,
+            self.timeout,
+        )
     }
 
     /// Opens a session of `num_envs` environments of `task` on `engine`, built with the
@@ -161,17 +193,18 @@ impl Client {
         kwargs: &BTreeMap<String, f64>,
     ) -> Result<RemoteEnv, BridgeError> {
         let reply: MakeReply = self.call(
-            &keys::make(engine),
+            &keys::make(engine, &self.identity),
             &MakeRequest {
                 v: PROTOCOL_VERSION,
-                client: self.id.clone(),
+                instance: self.instance().to_owned(),
                 task: task.to_owned(),
                 num_envs,
                 kwargs: kwargs.clone(),
                 deadline_ms: Some(self.deadline_ms()),
             },
         )?;
-        RemoteEnv::new(self.zsession.clone(), engine, reply, self.timeout)
+        let address = SessionAddress::new(engine, &self.identity, &reply.session);
+        RemoteEnv::new(self.zsession.clone(), address, reply, self.timeout)
     }
 
     /// Asks policy `policy` of `engine` for the actions of `n` observations (row-major).
@@ -202,10 +235,10 @@ impl Client {
     /// `engine`'s bounds, and what this client holds of them.
     pub fn limits(&self, engine: &str) -> Result<(Limits, Usage), BridgeError> {
         let reply: LimitsReply = self.call(
-            &keys::limits(engine),
+            &keys::limits(engine, &self.identity),
             &LimitsRequest {
                 v: PROTOCOL_VERSION,
-                client: Some(self.id.clone()),
+                instance: Some(self.instance().to_owned()),
             },
         )?;
         Ok((reply.limits, reply.usage.unwrap_or_default()))
@@ -260,7 +293,7 @@ pub struct RemoteEnv {
 impl RemoteEnv {
     fn new(
         zsession: zenoh::Session,
-        engine: &str,
+        address: SessionAddress,
         reply: MakeReply,
         timeout: Duration,
     ) -> Result<Self, BridgeError> {
@@ -270,12 +303,12 @@ impl RemoteEnv {
             SessionOp::StepBatch
         };
         let stepper = zsession
-            .declare_querier(keys::session(engine, &reply.session, step_op.as_str()))
+            .declare_querier(address.key(step_op.as_str()))
             .consolidation(ConsolidationMode::None)
             .timeout(timeout)
             .wait()
             .map_err(BridgeError::zenoh("declaring the session's step querier"))?;
-        let control = SessionControl::new(zsession, engine, &reply.session, &reply.token, timeout)?;
+        let control = SessionControl::new(zsession, address, &reply.token, timeout)?;
         Ok(Self {
             control,
             spec: reply.spec,

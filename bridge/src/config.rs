@@ -8,6 +8,7 @@ use std::path::PathBuf;
 use zenoh::{Config, Wait};
 
 use crate::error::BridgeError;
+use crate::protocol::keys;
 
 /// Where a zero-configuration engine listens and a zero-configuration client connects.
 pub const DEFAULT_ENDPOINT: &str = "tcp/127.0.0.1:7447";
@@ -59,6 +60,11 @@ pub struct NetworkOptions {
     pub connect: Vec<String>,
     /// Endpoints to listen on.
     pub listen: Vec<String>,
+    /// Who a client process is: the `<identity>` chunk of its keys (default
+    /// [`keys::ANONYMOUS`](crate::protocol::keys::ANONYMOUS)). Behind a router with access
+    /// control it must be the name the router authenticates, e.g. the common name of the
+    /// process's TLS certificate.
+    pub identity: Option<String>,
 }
 
 /// Which side of the protocol a configuration is for: it decides the defaults.
@@ -68,6 +74,8 @@ pub enum Role {
     Engine,
     /// Connects to [`DEFAULT_ENDPOINT`] in client mode and fails fast when nobody listens.
     Client,
+    /// Listens on [`DEFAULT_ENDPOINT`] in router mode (the mode holds even with a file).
+    Router,
 }
 
 impl NetworkOptions {
@@ -75,7 +83,7 @@ impl NetworkOptions {
     pub fn endpoint(role: Role, endpoint: &str) -> Self {
         let mut options = Self::default();
         match role {
-            Role::Engine => options.listen.push(endpoint.to_owned()),
+            Role::Engine | Role::Router => options.listen.push(endpoint.to_owned()),
             Role::Client => options.connect.push(endpoint.to_owned()),
         }
         options
@@ -88,6 +96,18 @@ impl NetworkOptions {
         match (self.listen.is_empty(), &self.config_file) {
             (true, None) => vec![DEFAULT_ENDPOINT.to_owned()],
             _ => self.listen.clone(),
+        }
+    }
+
+    /// The `<identity>` of a client with these options, checked to be one key chunk.
+    pub fn identity(&self) -> Result<&str, BridgeError> {
+        let identity = self.identity.as_deref().unwrap_or(keys::ANONYMOUS);
+        if keys::is_plain_chunk(identity) {
+            Ok(identity)
+        } else {
+            Err(BridgeError::InvalidArgument(format!(
+                "identity `{identity}` must be letters, digits, `-`, `_` or `.`"
+            )))
         }
     }
 
@@ -125,6 +145,9 @@ impl NetworkOptions {
         if let Some(mode) = self.mode {
             insert(&mut config, "mode", &json_string(mode.as_str()))?;
         }
+        if role == Role::Router {
+            insert(&mut config, "mode", &json_string(Mode::Router.as_str()))?;
+        }
         if !self.connect.is_empty() {
             insert(&mut config, "connect/endpoints", &json_list(&self.connect))?;
         }
@@ -145,7 +168,7 @@ fn default_config(role: Role) -> Result<Config, BridgeError> {
     )?;
     let endpoint = json_list(&[DEFAULT_ENDPOINT.to_owned()]);
     match role {
-        Role::Engine => {
+        Role::Engine | Role::Router => {
             insert(&mut config, "mode", &json_string(Mode::Peer.as_str()))?;
             insert(&mut config, "listen/endpoints", &endpoint)?;
         }

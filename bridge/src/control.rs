@@ -28,12 +28,34 @@ use crate::query::query_all;
 /// Any engine: the session's keys with a wildcard in place of the engine's name.
 pub const ANY_ENGINE: &str = "*";
 
+/// Where a session lives: its engine (or [`ANY_ENGINE`]), its owner's identity and its id.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(crate) struct SessionAddress {
+    engine: String,
+    identity: String,
+    session: String,
+}
+
+impl SessionAddress {
+    pub(crate) fn new(engine: &str, identity: &str, session: &str) -> Self {
+        Self {
+            engine: engine.to_owned(),
+            identity: identity.to_owned(),
+            session: session.to_owned(),
+        }
+    }
+
+    /// The key of the session's `leaf` (an operation, `telemetry`, `frame`).
+    pub(crate) fn key(&self, leaf: &str) -> String {
+        keys::session(&self.engine, &self.identity, &self.session, leaf)
+    }
+}
+
 /// The controls of one session (module docs).
 #[derive(Clone)]
 pub struct SessionControl {
     zsession: zenoh::Session,
-    engine: String,
-    session: String,
+    address: SessionAddress,
     token: ByteBuf,
     timeout: Duration,
 }
@@ -41,11 +63,20 @@ pub struct SessionControl {
 impl SessionControl {
     pub(crate) fn new(
         zsession: zenoh::Session,
-        engine: &str,
-        session: &str,
+        address: SessionAddress,
         token: &[u8],
         timeout: Duration,
     ) -> Result<Self, BridgeError> {
+        let SessionAddress {
+            engine,
+            identity,
+            session,
+        } = &address;
+        if !keys::is_plain_chunk(identity) {
+            return Err(BridgeError::InvalidArgument(format!(
+                "identity `{identity}` must be letters, digits, `-`, `_` or `.`"
+            )));
+        }
         for (what, chunk) in [("engine", engine), ("session", session)] {
             if chunk != ANY_ENGINE && !keys::is_plain_chunk(chunk) {
                 return Err(BridgeError::InvalidArgument(format!(
@@ -60,8 +91,7 @@ impl SessionControl {
         }
         Ok(Self {
             zsession,
-            engine: engine.to_owned(),
-            session: session.to_owned(),
+            address,
             token: ByteBuf::from(token.to_vec()),
             timeout,
         })
@@ -69,11 +99,11 @@ impl SessionControl {
 
     /// The engine's name, or [`ANY_ENGINE`].
     pub fn engine(&self) -> &str {
-        &self.engine
+        &self.address.engine
     }
 
     pub fn session_id(&self) -> &str {
-        &self.session
+        &self.address.session
     }
 
     /// The session's secret; whoever holds it may control the session.
@@ -91,7 +121,7 @@ impl SessionControl {
 
     /// The key of the session's `leaf` (an operation, `telemetry`, `frame`).
     pub(crate) fn key(&self, leaf: &str) -> String {
-        keys::session(&self.engine, &self.session, leaf)
+        self.address.key(leaf)
     }
 
     /// A request that only names environment `index`, with the token.
@@ -217,7 +247,7 @@ impl SessionControl {
     /// Subscribes to this session's telemetry (subscribe before starting what you want
     /// to record).
     pub fn telemetry(&self) -> Result<TelemetryStream, BridgeError> {
-        TelemetryStream::subscribe(&self.zsession, &self.engine, &self.session)
+        TelemetryStream::subscribe(&self.zsession, &self.address)
     }
 }
 
@@ -227,15 +257,11 @@ pub struct TelemetryStream {
 }
 
 impl TelemetryStream {
-    /// Subscribes to `…/session/<session>/telemetry` of `engine` (anyone may: telemetry
-    /// needs no token).
-    pub fn subscribe(
-        zsession: &zenoh::Session,
-        engine: &str,
-        session: &str,
-    ) -> Result<Self, BridgeError> {
+    /// Subscribes to `…/session/<session>/telemetry` at `address` (telemetry needs no
+    /// token; behind access control, only the owner's identity may subscribe).
+    fn subscribe(zsession: &zenoh::Session, address: &SessionAddress) -> Result<Self, BridgeError> {
         let subscriber = zsession
-            .declare_subscriber(keys::session(engine, session, "telemetry"))
+            .declare_subscriber(address.key("telemetry"))
             .wait()
             .map_err(BridgeError::zenoh("subscribing to the telemetry"))?;
         Ok(Self { subscriber })

@@ -1,6 +1,6 @@
 //! The episode channel: recorders publish each finished demonstration episode on
-//! `ciflow/v1/episodes/<task>/<recorder>` ([`EpisodePublisher`]); trainers subscribe to
-//! `ciflow/v1/episodes/<task>/*` and collect a number of them ([`EpisodeSubscriber`],
+//! `ciflow/v2/episodes/<task>/<recorder>` ([`EpisodePublisher`]); trainers subscribe to
+//! `ciflow/v2/episodes/<task>/*` and collect a number of them ([`EpisodeSubscriber`],
 //! [`collect`]). Pub/sub, reliable (Zenoh's default) and blocking under congestion, so that no episode of a
 //! connected subscriber is dropped; episodes published before a subscriber joined are not
 //! replayed (start the trainer first).
@@ -281,9 +281,9 @@ mod tests {
             .unwrap();
 
         let subscriber = EpisodeSubscriber::declare(&trainer, "ciflow/LimitCycle-v0").unwrap();
-        assert_eq!(subscriber.key(), "ciflow/v1/episodes/limit-cycle/*");
+        assert_eq!(subscriber.key(), "ciflow/v2/episodes/limit-cycle/*");
         let publisher = EpisodePublisher::declare(&recorder, "limit-cycle", "rec-a").unwrap();
-        assert_eq!(publisher.key(), "ciflow/v1/episodes/limit-cycle/rec-a");
+        assert_eq!(publisher.key(), "ciflow/v2/episodes/limit-cycle/rec-a");
         std::thread::sleep(Duration::from_millis(300));
         for (index, episode) in episodes.iter().enumerate() {
             publisher.publish(index as u64, &spec, episode).unwrap();

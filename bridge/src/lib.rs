@@ -12,8 +12,11 @@
 //! - [`episodes`]: the episode channel, recorders publishing demonstrations to trainers;
 //! - [`policy`]: the [`Policy`] hook for `act`; [`checkpoint_policy`]: trained
 //!   checkpoints as policies; [`publisher`]: a trainer's checkpoint publications, which
-//!   engines hot-load; [`signing`]: who may publish them.
+//!   engines hot-load; [`signing`]: who may publish them;
+//! - [`router`]: a Zenoh router in this process; [`access`]: the access-control rules it
+//!   enforces (who may serve, own sessions and publish policies).
 
+pub mod access;
 pub mod checkpoint_policy;
 pub mod client;
 pub mod config;
@@ -25,10 +28,12 @@ pub mod policy;
 pub mod protocol;
 pub mod publisher;
 pub mod query;
+pub mod router;
 pub mod server;
 pub mod signing;
 pub mod task_factory;
 
+pub use access::AccessPolicy;
 pub use checkpoint_policy::{CheckpointPolicy, PolicyLoadError};
 pub use ciflow_envs::registry::Kwargs;
 pub use client::{BatchStep, Client, EngineInfo, RemoteEnv, StepResult};
@@ -40,6 +45,7 @@ pub use limits::{Limits, Usage};
 pub use policy::{Policy, PolicyError};
 pub use publisher::CheckpointPublisher;
 pub use query::query_all;
+pub use router::Router;
 pub use server::{EngineServer, ServerOptions};
 pub use signing::{CheckpointSigner, KeyError, SignatureRefused, TrustedKeys};
 pub use task_factory::TaskFactory;

@@ -1,5 +1,5 @@
 //! [`CheckpointPublisher`]: how a trainer hands each new checkpoint to running engines,
-//! which hot-load it without a restart (`ciflow/v1/policies/<name>/checkpoint`).
+//! which hot-load it without a restart (`ciflow/v2/policies/<name>/checkpoint`).
 
 use std::path::Path;
 

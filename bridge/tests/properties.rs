@@ -83,7 +83,7 @@ const FIELDS: &[&str] = &[
     "duration",
     "width",
     "height",
-    "client",
+    "instance",
     "task",
     "num_envs",
     "kwargs",
@@ -138,10 +138,10 @@ fn value() -> impl Strategy<Value = Value> {
     })
 }
 
-/// A request-shaped map: mostly `v: 1` and the protocol's field names.
+/// A request-shaped map: mostly the protocol's version and the protocol's field names.
 fn request() -> impl Strategy<Value = Value> {
     (
-        prop_oneof![4 => Just(Value::Int(1)), 1 => value()],
+        prop_oneof![4 => Just(Value::Int(i64::from(ciflow_bridge::protocol::PROTOCOL_VERSION))), 1 => value()],
         prop::collection::vec((prop::sample::select(FIELDS), value()), 0..8),
     )
         .prop_map(|(v, entries)| {
@@ -222,8 +222,8 @@ fn every_operation_answers_anything_once_and_the_engine_keeps_serving() {
     };
     let engine_keys = [
         keys::tasks(engine.name()),
-        keys::make(engine.name()),
-        keys::limits(engine.name()),
+        keys::make(engine.name(), keys::ANONYMOUS),
+        keys::limits(engine.name(), keys::ANONYMOUS),
         keys::policy_act(engine.name(), "none"),
     ];
     // The session under test; a generated `close` that succeeds gets a fresh one.
@@ -245,9 +245,12 @@ fn every_operation_answers_anything_once_and_the_engine_keeps_serving() {
             .run(&prop_oneof![payload(), owned_request(token)], |bytes| {
                 let key = match (engine_key, op) {
                     (Some(key), _) => key.clone(),
-                    (None, Some(op)) => {
-                        keys::session(engine.name(), target.borrow().session_id(), op.as_str())
-                    }
+                    (None, Some(op)) => keys::session(
+                        engine.name(),
+                        keys::ANONYMOUS,
+                        target.borrow().session_id(),
+                        op.as_str(),
+                    ),
                     (None, None) => unreachable!("every case names a key or an operation"),
                 };
                 let replies = query_all(&zs, &key, bytes, Duration::from_secs(10)).unwrap();

@@ -183,10 +183,10 @@ fn bounds_are_refused_with_typed_errors_and_counted_per_client() {
     // The limits query works without naming a client, from any Zenoh participant.
     let reply = raw_query(
         other.zenoh_session(),
-        &keys::limits(engine.name()),
+        &keys::limits(engine.name(), keys::ANONYMOUS),
         protocol::encode(&LimitsRequest {
             v: protocol::PROTOCOL_VERSION,
-            client: None,
+            instance: None,
         }),
     )
     .unwrap();
@@ -202,14 +202,19 @@ fn a_make_past_its_deadline_is_refused_and_keeps_nothing() {
     // 2000 environments at 5 ms each take 5 s on two cores; the caller allows 300 ms.
     let request = protocol::encode(&MakeRequest {
         v: protocol::PROTOCOL_VERSION,
-        client: client.id().to_owned(),
+        instance: client.instance().to_owned(),
         task: "slow".into(),
         num_envs: 2000,
         kwargs: no_kwargs(),
         deadline_ms: Some(300),
     });
     let started = Instant::now();
-    let error = raw_query(client.zenoh_session(), &keys::make(engine.name()), request).unwrap_err();
+    let error = raw_query(
+        client.zenoh_session(),
+        &keys::make(engine.name(), keys::ANONYMOUS),
+        request,
+    )
+    .unwrap_err();
     let waited = started.elapsed();
     assert_eq!(error.code, ErrorCode::DeadlineExceeded, "{}", error.message);
     assert!(waited < Duration::from_secs(2), "answered after {waited:?}");
@@ -412,7 +417,7 @@ fn requests_are_read_as_the_protocol_page_writes_them() {
         .make(engine.name(), "fixture", 1, &no_kwargs())
         .unwrap();
     let zs = client.zenoh_session();
-    let key = |op: &str| keys::session(engine.name(), env.session_id(), op);
+    let key = |op: &str| keys::session(engine.name(), keys::ANONYMOUS, env.session_id(), op);
     let token = || protocol::ByteBuf::from(env.token().to_vec());
 
     // A token is a `bin`, not an array of integers.
@@ -433,9 +438,9 @@ fn requests_are_read_as_the_protocol_page_writes_them() {
         ErrorCode::Malformed
     );
 
-    // `[1]` decodes as `{v: 1}` for serde; the protocol wants a map.
+    // `[2]` decodes as `{v: 2}` for serde; the protocol wants a map.
     let tasks = keys::tasks(engine.name());
-    for array in [[1u16], [9u16]] {
+    for array in [[protocol::PROTOCOL_VERSION], [9u16]] {
         let error = raw_query(zs, &tasks, rmp_serde::to_vec(&array).unwrap()).unwrap_err();
         assert_eq!(error.code, ErrorCode::Malformed, "{array:?}");
     }
@@ -482,13 +487,13 @@ fn requests_are_read_as_the_protocol_page_writes_them() {
     // An empty client name is no name.
     let make = protocol::encode(&MakeRequest {
         v: protocol::PROTOCOL_VERSION,
-        client: String::new(),
+        instance: String::new(),
         task: "fixture".into(),
         num_envs: 1,
         kwargs: no_kwargs(),
         deadline_ms: None,
     });
-    let error = raw_query(zs, &keys::make(engine.name()), make).unwrap_err();
+    let error = raw_query(zs, &keys::make(engine.name(), keys::ANONYMOUS), make).unwrap_err();
     assert_eq!(error.code, ErrorCode::InvalidRequest);
 
     // Contexts inside the advertised box that the task refuses can be told in advance:

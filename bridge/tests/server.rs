@@ -169,7 +169,7 @@ fn a_foreign_client_cannot_control_a_session() {
     env.reset(Some(0), None).unwrap();
 
     let intruder = connect(27413);
-    let key = keys::session(engine.name(), env.session_id(), "step");
+    let key = keys::session(engine.name(), keys::ANONYMOUS, env.session_id(), "step");
     for token in [vec![], vec![0u8; 16], env.token()[..15].to_vec()] {
         let request = StepRequest {
             v: protocol::PROTOCOL_VERSION,
@@ -214,7 +214,8 @@ fn hostile_payloads_get_typed_errors_while_another_session_keeps_stepping() {
 
     let hostile = connect(27414);
     let zs = hostile.zenoh_session();
-    let session_key = |op: &str| keys::session(engine.name(), victim.session_id(), op);
+    let session_key =
+        |op: &str| keys::session(engine.name(), keys::ANONYMOUS, victim.session_id(), op);
     let token = ByteBuf::from(victim.token().to_vec());
     let step = |action: Vec<f64>| {
         protocol::encode(&StepRequest {
@@ -224,7 +225,7 @@ fn hostile_payloads_get_typed_errors_while_another_session_keeps_stepping() {
         })
     };
     let mut wrong_version = step(vec![0.0]);
-    // The map's first entry is `v: 1` (positive fixint after the key "v").
+    // The map's first entry is `v: 2` (positive fixint after the key "v").
     let v_at = wrong_version
         .windows(2)
         .position(|w| w == [0xa1, b'v'])
@@ -275,7 +276,7 @@ fn hostile_payloads_get_typed_errors_while_another_session_keeps_stepping() {
             ErrorCode::UnknownOperation,
         ),
         (
-            keys::session(engine.name(), "0000000000000000", "step"),
+            keys::session(engine.name(), keys::ANONYMOUS, "0000000000000000", "step"),
             step(vec![0.0]),
             ErrorCode::UnknownSession,
         ),
@@ -285,7 +286,7 @@ fn hostile_payloads_get_typed_errors_while_another_session_keeps_stepping() {
             ErrorCode::Malformed,
         ),
         (
-            keys::make(engine.name()),
+            keys::make(engine.name(), keys::ANONYMOUS),
             b"{\"v\":1}".to_vec(),
             ErrorCode::Malformed,
         ),
@@ -347,7 +348,7 @@ fn make_needs_a_liveliness_token() {
     let client = connect(27416);
     let request = protocol::MakeRequest {
         v: protocol::PROTOCOL_VERSION,
-        client: "nobody-declared-me".into(),
+        instance: "nobody-declared-me".into(),
         task: "fixture".into(),
         num_envs: 1,
         kwargs: no_kwargs(),
@@ -355,7 +356,7 @@ fn make_needs_a_liveliness_token() {
     };
     let error = raw_query(
         client.zenoh_session(),
-        &keys::make(engine.name()),
+        &keys::make(engine.name(), keys::ANONYMOUS),
         protocol::encode(&request),
     )
     .unwrap_err();
@@ -382,7 +383,12 @@ fn telemetry_flows_while_a_viewer_subscribes() {
     let viewer = connect(27417);
     let samples = viewer
         .zenoh_session()
-        .declare_subscriber(keys::session(engine.name(), env.session_id(), "telemetry"))
+        .declare_subscriber(keys::session(
+            engine.name(),
+            keys::ANONYMOUS,
+            env.session_id(),
+            "telemetry",
+        ))
         .wait()
         .unwrap();
     let mut received = None;

@@ -18,6 +18,8 @@ pub enum EvaluationError {
     RobotLoop(#[from] crate::robot_loop::RobotLoopError),
     #[error("invalid evaluation setting: {0}")]
     InvalidConfig(String),
+    #[error(transparent)]
+    Subset(#[from] ciflow_envs::learning_curve::TooFewEpisodes),
     #[error("no valid new context found for the episode of seed {seed} in {tries} draws")]
     NoValidContext { seed: u64, tries: usize },
 }

@@ -14,6 +14,7 @@ use ciflow_engine::flow::Policy;
 use serde::Serialize;
 
 use ciflow_envs::dataset::Episode;
+use ciflow_envs::learning_curve::subset;
 
 use crate::{EvaluationError, EvaluationResult};
 
@@ -37,6 +38,22 @@ impl std::fmt::Display for LogLikelihood {
             self.per_transition, self.transitions, self.episodes, self.initial_per_episode
         )
     }
+}
+
+/// The episodes of a dataset that `ciflow train` fits by default, those that achieved
+/// their task, and how many did not; with `count = Some((n, seed))` only `n` of them, as
+/// a learning curve picks them ([`subset`]).
+pub fn scored_episodes(
+    mut episodes: Vec<Episode>,
+    count: Option<(usize, u64)>,
+) -> EvaluationResult<(Vec<Episode>, usize)> {
+    let recorded = episodes.len();
+    episodes.retain(|e| !e.failed());
+    let failed = recorded - episodes.len();
+    if let Some((count, seed)) = count {
+        episodes = subset(episodes, count, seed, |e| &e.contexts[0])?;
+    }
+    Ok((episodes, failed))
 }
 
 /// `ℓ` of `policy` on `episodes` (module docs).

@@ -241,7 +241,7 @@ impl PyDatasetWriter {
     }
 }
 
-/// Publishes finished episodes on `ciflow/v1/episodes/<task>/<recorder>` (make it with
+/// Publishes finished episodes on `ciflow/v2/episodes/<task>/<recorder>` (make it with
 /// `ClientHandle.episode_publisher`).
 #[pyclass(name = "EpisodePublisher", module = "ciflow._native")]
 pub struct PyEpisodePublisher {

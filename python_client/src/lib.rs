@@ -30,8 +30,10 @@ fn network_options(
     mode: Option<&str>,
     connect: Option<Vec<String>>,
     listen: Option<Vec<String>>,
+    identity: Option<String>,
 ) -> PyResult<NetworkOptions> {
     Ok(NetworkOptions {
+        identity,
         config_file: config.map(Into::into),
         mode: mode
             .map(|m| m.parse::<Mode>())
@@ -62,7 +64,7 @@ impl Engine {
         listen: Option<Vec<String>>,
         name: Option<String>,
     ) -> PyResult<Self> {
-        let network = network_options(config, mode, connect, listen)?;
+        let network = network_options(config, mode, connect, listen, None)?;
         let options = ServerOptions {
             name,
             ..ServerOptions::default()
@@ -107,19 +109,21 @@ struct ClientHandle {
 
 #[pymethods]
 impl ClientHandle {
-    /// Joins Zenoh as a client (default: connect to `tcp/127.0.0.1:7447`). Raises
-    /// `EngineUnreachable` when nothing listens.
+    /// Joins Zenoh as a client (default: connect to `tcp/127.0.0.1:7447`) named
+    /// `identity` (default `anonymous`; behind a router with access control, the name it
+    /// authenticates). Raises `EngineUnreachable` when nothing listens.
     #[staticmethod]
-    #[pyo3(signature = (*, config=None, mode=None, connect=None, listen=None, timeout=10.0))]
+    #[pyo3(signature = (*, config=None, mode=None, connect=None, listen=None, identity=None, timeout=10.0))]
     fn open(
         py: Python<'_>,
         config: Option<String>,
         mode: Option<&str>,
         connect: Option<Vec<String>>,
         listen: Option<Vec<String>>,
+        identity: Option<String>,
         timeout: f64,
     ) -> PyResult<Self> {
-        let network = network_options(config, mode, connect, listen)?;
+        let network = network_options(config, mode, connect, listen, identity)?;
         let mut client = py.detach(|| Client::open(&network)).map_err(to_py)?;
         client.set_timeout(seconds(timeout)?);
         Ok(Self { client })
@@ -139,7 +143,7 @@ impl ClientHandle {
         Ok(Self { client })
     }
 
-    /// The client's name (its liveliness token is `ciflow/v1/alive/client/<id>`).
+    /// The client's name (its liveliness token is `ciflow/v2/alive/client/<id>`).
     #[getter]
     fn id(&self) -> &str {
         self.client.id()
@@ -189,7 +193,7 @@ impl ClientHandle {
     }
 
     /// A publisher of finished episodes of `task` on
-    /// `ciflow/v1/episodes/<task name>/<recorder>`, through this client's Zenoh session.
+    /// `ciflow/v2/episodes/<task name>/<recorder>`, through this client's Zenoh session.
     fn episode_publisher(
         &self,
         py: Python<'_>,

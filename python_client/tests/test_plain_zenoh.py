@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import zenoh
 
-V = 1
+V = 2
 
 
 def f64le(values) -> bytes:
@@ -25,8 +25,15 @@ class Plain:
         config.insert_json5("connect/endpoints", f'["{endpoint}"]')
         config.insert_json5("scouting/multicast/enabled", "false")
         self.session = zenoh.open(config)
-        self.client = "plain-" + secrets.token_hex(8)
-        self.token = self.session.liveliness().declare_token(f"ciflow/v1/alive/client/{self.client}")
+        self.identity = "plain"
+        self.instance = secrets.token_hex(8)
+        self.token = self.session.liveliness().declare_token(
+            f"ciflow/v2/alive/client/{self.identity}/{self.instance}"
+        )
+
+    def owned(self, engine: str) -> str:
+        """The prefix of what this client owns on ``engine``."""
+        return f"ciflow/v2/engine/{engine}/client/{self.identity}"
 
     def query(self, key: str, request: dict):
         """One request, one reply: (True, payload dict) or (False, error dict)."""
@@ -58,16 +65,17 @@ def plain(engine):
 
 def test_a_plain_zenoh_client_drives_an_environment(plain, engine):
     _, name = engine
-    ok, tasks = plain.query("ciflow/v1/engine/*/tasks", {"v": V})
+    ok, tasks = plain.query("ciflow/v2/engine/*/tasks", {"v": V})
     assert ok and tasks["engine"] == name
     spec = next(t["spec"] for t in tasks["tasks"] if t["spec"]["id"] == "ciflow/LimitCycle-v0")
 
-    base = f"ciflow/v1/engine/{name}"
-    ok, made = plain.query(f"{base}/make", {"v": V, "client": plain.client, "task": "ciflow/LimitCycle-v0"})
+    base = f"ciflow/v2/engine/{name}"
+    owned = plain.owned(name)
+    ok, made = plain.query(f"{owned}/make", {"v": V, "instance": plain.instance, "task": "ciflow/LimitCycle-v0"})
     assert ok, made
     session, token = made["session"], made["token"]
     assert len(token) == 16
-    key = f"{base}/session/{session}"
+    key = f"{owned}/session/{session}"
 
     ok, reset = plain.query(f"{key}/reset", {"v": V, "token": token, "seed": 42})
     assert ok, reset
@@ -90,7 +98,7 @@ def test_a_plain_zenoh_client_drives_an_environment(plain, engine):
     assert not ok and error["code"] == "forbidden"
     ok, error = plain.query(f"{key}/step", {"v": V, "token": token, "action": f64le([np.nan] * action_dim)})
     assert not ok and error["code"] == "not_finite"
-    ok, error = plain.query(f"{key}/step", {"v": 2, "token": token, "action": f64le([0.0] * action_dim)})
+    ok, error = plain.query(f"{key}/step", {"v": 1, "token": token, "action": f64le([0.0] * action_dim)})
     assert not ok and error["code"] == "version_mismatch"
     ok, error = plain.query(f"{key}/step", {"v": V})
     assert not ok and error["code"] == "malformed"
@@ -103,12 +111,13 @@ def test_a_plain_zenoh_client_drives_an_environment(plain, engine):
 
 def test_batched_step_and_frames_over_pubsub(plain, engine):
     _, name = engine
-    base = f"ciflow/v1/engine/{name}"
+    base = f"ciflow/v2/engine/{name}"
+    owned = plain.owned(name)
     n = 4
-    ok, made = plain.query(f"{base}/make", {"v": V, "client": plain.client, "task": "limit-cycle", "num_envs": n})
+    ok, made = plain.query(f"{owned}/make", {"v": V, "instance": plain.instance, "task": "limit-cycle", "num_envs": n})
     assert ok, made
     spec = made["spec"]
-    key = f"{base}/session/{made['session']}"
+    key = f"{owned}/session/{made['session']}"
     token = made["token"]
     ok, reset = plain.query(f"{key}/reset_batch", {"v": V, "token": token, "seed": 0})
     assert ok, reset
@@ -147,7 +156,8 @@ def test_every_operation_error_code_and_limit_of_the_page(plain, engine):
     provoke it with a task that panics) and `simulation` (a diverging simulation). The
     policy codes (`act`, `run`, `busy`, `policy`) are met in test_policy_run.py."""
     _, name = engine
-    base = f"ciflow/v1/engine/{name}"
+    base = f"ciflow/v2/engine/{name}"
+    owned = plain.owned(name)
 
     def code(key, request):
         ok, reply = plain.query(key, request)
@@ -157,36 +167,36 @@ def test_every_operation_error_code_and_limit_of_the_page(plain, engine):
     # ping echoes; limits are public and count per client.
     replies = list(plain.session.get(f"{base}/ping", payload=b"\x01\x02", timeout=10.0))
     assert replies[0].ok.payload.to_bytes() == b"\x01\x02"
-    ok, limits = plain.query(f"{base}/limits", {"v": V, "client": plain.client})
+    ok, limits = plain.query(f"{owned}/limits", {"v": V, "instance": plain.instance})
     assert ok and limits["usage"] == {"sessions": 0, "envs": 0}
     bounds = limits["limits"]
     assert bounds["max_envs_per_session"] >= 1 and bounds["max_request_bytes"] == 64 << 20
 
     # make: unknown task, no token, bad names, too many environments, past its deadline.
-    make = {"v": V, "client": plain.client, "task": "limit-cycle"}
-    assert code(f"{base}/make", {**make, "task": "juggling"}) == "unknown_task"
-    assert code(f"{base}/make", {**make, "client": "nobody-" + secrets.token_hex(4)}) == "no_liveliness"
-    assert code(f"{base}/make", {**make, "client": ""}) == "invalid_request"
-    assert code(f"{base}/make", {**make, "num_envs": 0}) == "invalid_request"
+    make = {"v": V, "instance": plain.instance, "task": "limit-cycle"}
+    assert code(f"{owned}/make", {**make, "task": "juggling"}) == "unknown_task"
+    assert code(f"{owned}/make", {**make, "instance": "nobody-" + secrets.token_hex(4)}) == "no_liveliness"
+    assert code(f"{owned}/make", {**make, "instance": ""}) == "invalid_request"
+    assert code(f"{owned}/make", {**make, "num_envs": 0}) == "invalid_request"
     too_many = bounds["max_envs_per_session"] + 1
-    assert code(f"{base}/make", {**make, "num_envs": too_many}) == "limit_exceeded"
+    assert code(f"{owned}/make", {**make, "num_envs": too_many}) == "limit_exceeded"
     slow = {**make, "task": "pouring", "num_envs": bounds["max_envs_per_session"], "deadline_ms": 50}
-    assert code(f"{base}/make", slow) == "deadline_exceeded"
-    assert code(f"{base}/make", {**make, "kwargs": {"no_such_argument": 1.0}}) == "invalid_option"
-    ok, limits = plain.query(f"{base}/limits", {"v": V, "client": plain.client})
+    assert code(f"{owned}/make", slow) == "deadline_exceeded"
+    assert code(f"{owned}/make", {**make, "kwargs": {"no_such_argument": 1.0}}) == "invalid_option"
+    ok, limits = plain.query(f"{owned}/limits", {"v": V, "instance": plain.instance})
     assert limits["usage"] == {"sessions": 0, "envs": 0}, "refusals keep nothing"
 
     # The decoder: maps only, tokens are bins, payloads up to 64 MiB, keys of the page.
     assert code(f"{base}/tasks", [V]) == "malformed"
-    ok, made = plain.query(f"{base}/make", {**make, "task": "obstacle-avoidance", "kwargs": {"obstacles": 1}})
+    ok, made = plain.query(f"{owned}/make", {**make, "task": "obstacle-avoidance", "kwargs": {"obstacles": 1}})
     assert ok, made
-    key = f"{base}/session/{made['session']}"
+    key = f"{owned}/session/{made['session']}"
     token = made["token"]
     assert code(f"{key}/step", {"v": V, "token": list(token), "action": f64le([0, 0])}) == "malformed"
     oversized = list(plain.session.get(f"{key}/step", payload=b"\x80" * ((64 << 20) + 1), timeout=30.0))
     assert msgpack.unpackb(oversized[0].err.payload.to_bytes())["code"] == "payload_too_large"
     assert code(f"{key}/fly", {"v": V, "token": token}) == "unknown_operation"
-    assert code(f"{base}/session/0000000000000000/step", {"v": V, "token": token}) == "unknown_session"
+    assert code(f"{owned}/session/0000000000000000/step", {"v": V, "token": token}) == "unknown_session"
 
     # Before the first reset: the expert, context and perturbations need one.
     assert code(f"{key}/expert", {"v": V, "token": token}) == "needs_reset"
@@ -221,16 +231,16 @@ def test_every_operation_error_code_and_limit_of_the_page(plain, engine):
     assert ok, accepted
 
     # Sessions per client are bounded too.
-    ok, limits = plain.query(f"{base}/limits", {"v": V, "client": plain.client})
+    ok, limits = plain.query(f"{owned}/limits", {"v": V, "instance": plain.instance})
     assert limits["usage"] == {"sessions": 1, "envs": 1}
     opened = [made]
     for _ in range(bounds["max_sessions_per_client"] - 1):
-        ok, extra = plain.query(f"{base}/make", make)
+        ok, extra = plain.query(f"{owned}/make", make)
         assert ok, extra
         opened.append(extra)
-    assert code(f"{base}/make", make) == "limit_exceeded"
+    assert code(f"{owned}/make", make) == "limit_exceeded"
     for session in opened:
-        ok, _ = plain.query(f"{base}/session/{session['session']}/close", {"v": V, "token": session["token"]})
+        ok, _ = plain.query(f"{owned}/session/{session['session']}/close", {"v": V, "token": session["token"]})
         assert ok
-    ok, limits = plain.query(f"{base}/limits", {"v": V, "client": plain.client})
+    ok, limits = plain.query(f"{owned}/limits", {"v": V, "instance": plain.instance})
     assert limits["usage"] == {"sessions": 0, "envs": 0}

@@ -108,16 +108,17 @@ def test_policy_operations_and_their_error_codes_from_a_plain_client(policy_engi
 
     endpoint, name = policy_engine
     plain = Plain(endpoint)
-    base = f"ciflow/v1/engine/{name}"
+    base = f"ciflow/v2/engine/{name}"
+    owned = plain.owned(name)
     try:
         ok, tasks = plain.query(f"{base}/tasks", {"v": V})
         info = next(p for p in tasks["policies"] if p["name"] == "avoid")
         assert info["task"] == "ciflow/Obstacle-v0"
         dim = info["observation_dim"]
-        ok, made = plain.query(f"{base}/make", {"v": V, "client": plain.client, "task": info["task"],
+        ok, made = plain.query(f"{owned}/make", {"v": V, "instance": plain.instance, "task": info["task"],
                                                 "kwargs": {"obstacles": 1}})
         assert ok, made
-        key, token = f"{base}/session/{made['session']}", made["token"]
+        key, token = f"{owned}/session/{made['session']}", made["token"]
         ok, reset = plain.query(f"{key}/reset", {"v": V, "token": token, "seed": 1})
         observation = np.frombuffer(reset["observation"], "<f8")
 
@@ -127,7 +128,7 @@ def test_policy_operations_and_their_error_codes_from_a_plain_client(policy_engi
         assert not ok and error["code"] == "unknown_policy"
         ok, error = plain.query(f"{base}/policy/avoid/act", {"v": V, "observations": f64le(observation[:-1])})
         assert not ok and error["code"] == "wrong_dimension"
-        ok, limits = plain.query(f"{base}/limits", {"v": V})
+        ok, limits = plain.query(f"{owned}/limits", {"v": V})
         too_many = np.tile(observation, limits["limits"]["max_act_observations"] + 1)
         ok, error = plain.query(f"{base}/policy/avoid/act", {"v": V, "observations": f64le(too_many)})
         assert not ok and error["code"] == "limit_exceeded"

@@ -57,8 +57,8 @@ def plain_reset(endpoint: str, engine: str, session: str, token: bytes):
     with zenoh.open(config) as z:
         replies = list(
             z.get(
-                f"ciflow/v1/engine/{engine}/session/{session}/reset",
-                payload=msgpack.packb({"v": 1, "token": token, "seed": 1}),
+                f"ciflow/v2/engine/{engine}/client/anonymous/session/{session}/reset",
+                payload=msgpack.packb({"v": 2, "token": token, "seed": 1}),
                 timeout=5.0,
             )
         )

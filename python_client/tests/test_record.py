@@ -25,7 +25,7 @@ KWARGS = {"obstacles": 1}
 
 
 class EpisodeListener:
-    """A plain Zenoh client subscribed to ``ciflow/v1/episodes/<task>/*``."""
+    """A plain Zenoh client subscribed to ``ciflow/v2/episodes/<task>/*``."""
 
     def __init__(self, endpoint: str, task: str):
         config = zenoh.Config()
@@ -35,7 +35,7 @@ class EpisodeListener:
         self.messages = []
         self.arrived = threading.Condition()
         self.subscriber = self.session.declare_subscriber(
-            f"ciflow/v1/episodes/{task}/*", self._on_sample
+            f"ciflow/v2/episodes/{task}/*", self._on_sample
         )
 
     def _on_sample(self, sample):
@@ -69,7 +69,7 @@ def test_recorder_matches_ciflow_demos_publishes_episodes_and_opens_in_minari(en
     finally:
         listener.close()
     assert result.path == tmp_path / "py"
-    assert result.key == f"ciflow/v1/episodes/{TASK}/test-rec"
+    assert result.key == f"ciflow/v2/episodes/{TASK}/test-rec"
     _native.record_expert(TASK, str(tmp_path / "rust"), 3, seed=5, kwargs=KWARGS)
 
     for name in ("data/metadata.json", *(f"data/{i}/metadata.json" for i in range(3))):

@@ -16,7 +16,7 @@ use ciflow_envs::actor::{DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::dataset::{self, Episode};
 use ciflow_envs::registry::{self, TaskEntry};
 use ciflow_evaluation::field::{FieldConfig, field};
-use ciflow_evaluation::likelihood::log_likelihood;
+use ciflow_evaluation::likelihood::{log_likelihood, scored_episodes};
 use ciflow_evaluation::{
     Acting, ContextSwitch, Disturbance, EvaluationConfig, PushConfig, evaluate,
 };
@@ -25,7 +25,6 @@ use serde::Serialize;
 
 use crate::parse::{parse_contexts, parse_key_value};
 use crate::progress;
-use ciflow_envs::learning_curve::subset;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum PerturbArg {
@@ -184,20 +183,10 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
     let model = Model::load(dir, args.task.as_deref())
         .with_context(|| format!("loading {}", dir.display()))?;
     if let Some(dir) = &args.nll {
-        // What `ciflow train` fits by default: the episodes that achieved their task.
-        let mut episodes = read_dataset(dir)?;
-        let recorded = episodes.len();
-        episodes.retain(|e| !e.failed());
-        if episodes.len() < recorded {
-            let failed = recorded - episodes.len();
-            println!(
-                "{}: {failed} of {recorded} episodes failed their task and are not scored",
-                dir.display()
-            );
-        }
-        if let Some(count) = args.nll_subset {
-            episodes =
-                subset(episodes, count, args.seed, |e| &e.contexts[0]).context("--nll-subset")?;
+        let count = args.nll_subset.map(|n| (n, args.seed));
+        let (episodes, failed) = scored_episodes(read_dataset(dir)?, count)?;
+        if failed > 0 {
+            println!("{}: {failed} failed episodes are not scored", dir.display());
         }
         let nll = log_likelihood(flow(&model)?, &episodes)?;
         println!("{}: {nll}", dir.display());

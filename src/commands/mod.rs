@@ -5,6 +5,7 @@ pub mod evaluate;
 pub mod lasa;
 pub mod network;
 pub mod robot;
+pub mod router;
 pub mod serve;
 pub mod stability;
 pub mod train;

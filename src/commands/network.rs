@@ -20,6 +20,10 @@ pub struct NetworkArgs {
     /// Endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable).
     #[arg(long)]
     pub listen: Vec<String>,
+    /// Who this process is (default anonymous); behind a router with access control, the
+    /// name the router authenticates (deploy/secure/README.md).
+    #[arg(long, env = "CIFLOW_IDENTITY")]
+    pub identity: Option<String>,
 }
 
 impl NetworkArgs {
@@ -29,6 +33,7 @@ impl NetworkArgs {
             mode: self.mode.as_deref().map(str::parse::<Mode>).transpose()?,
             connect: self.connect.clone(),
             listen: self.listen.clone(),
+            identity: self.identity.clone(),
         })
     }
 }

@@ -59,7 +59,7 @@ pub struct TrainArgs {
     /// Also train the behaviour-cloning baseline into `<out>/baseline`.
     #[arg(long)]
     pub baseline: bool,
-    /// Publish each better checkpoint as policy NAME on ciflow/v1/policies/NAME/checkpoint
+    /// Publish each better checkpoint as policy NAME on ciflow/v2/policies/NAME/checkpoint
     /// (through the Zenoh flags above): engines hot-load it and serve it under NAME without
     /// a restart. Nobody listening is not an error; an engine started later loads the
     /// final checkpoint with `ciflow serve --policy NAME=<out>`.

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
 
-/// Published on `ciflow/v1/policies/<name>/checkpoint`: a whole checkpoint directory in
+/// Published on `ciflow/v2/policies/<name>/checkpoint`: a whole checkpoint directory in
 /// one message (the `config.json` text and the `weights.safetensors` bytes).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CheckpointMsg {

@@ -1,8 +1,8 @@
 //! Finished demonstration episodes on the wire: one MessagePack map per episode, published
 //! (never queried: an episode can be megabytes) on
-//! [`keys::episodes`](super::keys::episodes) `ciflow/v1/episodes/<task>/<recorder>` by
+//! [`keys::episodes`](super::keys::episodes) `ciflow/v2/episodes/<task>/<recorder>` by
 //! recorders as each episode ends, and collected by trainers subscribed to
-//! `ciflow/v1/episodes/<task>/*`.
+//! `ciflow/v2/episodes/<task>/*`.
 //!
 //! An episode of `T` steps carries, row-major, `T + 1` observations and contexts (the reset
 //! row first) and `T` actions and rewards, exactly the rows of a dataset episode
@@ -20,7 +20,7 @@ use super::{F64s, Header, PROTOCOL_VERSION};
 /// `algorithm_name` of datasets rebuilt from the channel: recorders publish expert rollouts.
 pub const EPISODE_ALGORITHM: &str = "expert";
 
-/// One finished episode, published on `ciflow/v1/episodes/<task>/<recorder>`.
+/// One finished episode, published on `ciflow/v2/episodes/<task>/<recorder>`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EpisodeMsg {
     pub v: u16,
@@ -317,15 +317,17 @@ mod tests {
         let cause = std::error::Error::source(&garbage).expect("the decode error is the source");
         assert!(cause.is::<rmp_serde::decode::Error>());
         assert!(matches!(
-            decode_episode(&encode(&crate::protocol::TasksRequest { v: 1 })),
+            decode_episode(&encode(&crate::protocol::TasksRequest {
+                v: PROTOCOL_VERSION
+            })),
             Err(EpisodeError::Malformed(_))
         ));
         assert!(matches!(
             decode(&EpisodeMsg {
-                v: 2,
+                v: 9,
                 ..good.clone()
             }),
-            EpisodeError::VersionMismatch { got: 2 }
+            EpisodeError::VersionMismatch { got: 9 }
         ));
 
         let mut short = good.clone();

@@ -1,26 +1,33 @@
-//! Key expressions of protocol version 1. See `PROTOCOL.md` for the full table.
+//! Key expressions of protocol version 2. See `PROTOCOL.md` for the full table.
 //!
 //! ```text
-//! ciflow/v1/alive/engine/<engine>                    liveliness token of an engine
-//! ciflow/v1/alive/client/<client>                    liveliness token of a client
-//! ciflow/v1/engine/<engine>/tasks                    query: tasks, specs, policies
-//! ciflow/v1/engine/<engine>/make                     query: open a session
-//! ciflow/v1/engine/<engine>/ping                     query: echoes its payload
-//! ciflow/v1/engine/<engine>/limits                   query: the engine's bounds, a
+//! ciflow/v2/alive/engine/<engine>                    liveliness token of an engine
+//! ciflow/v2/alive/client/<identity>/<instance>       liveliness token of a client process
+//! ciflow/v2/engine/<engine>/tasks                    query: tasks, specs, policies
+//! ciflow/v2/engine/<engine>/ping                     query: echoes its payload
+//! ciflow/v2/engine/<engine>/policy/<policy>/act      query: observation in, action out
+//! ciflow/v2/engine/<engine>/client/<identity>/make   query: open a session
+//! ciflow/v2/engine/<engine>/client/<identity>/limits query: the engine's bounds, a
 //!                                                    client's usage
-//! ciflow/v1/engine/<engine>/session/<session>/<op>   query: reset, step, reset_batch,
+//! …/client/<identity>/session/<session>/<op>         query: reset, step, reset_batch,
 //!                                                    step_batch, expert, context,
 //!                                                    check_context, perturb, render,
 //!                                                    close, run, stop
-//! ciflow/v1/engine/<engine>/session/<session>/telemetry   publication (engine → viewers)
-//! ciflow/v1/engine/<engine>/session/<session>/frame       publication (rendered frames)
-//! ciflow/v1/engine/<engine>/policy/<policy>/act      query: observation in, action out
-//! ciflow/v1/policies/<policy>/checkpoint             publication (trainer → engines)
-//! ciflow/v1/episodes/<task>/<recorder>               publication: finished episodes
+//! …/client/<identity>/session/<session>/telemetry    publication (engine → viewers)
+//! …/client/<identity>/session/<session>/frame        publication (rendered frames)
+//! ciflow/v2/policies/<policy>/checkpoint             publication (trainer → engines)
+//! ciflow/v2/episodes/<task>/<recorder>               publication: finished episodes
 //! ```
+//!
+//! `<identity>` says who a client is; everything it owns lives under its
+//! `…/client/<identity>/` prefix, so a Zenoh router's access control, which sees keys and
+//! authenticated identities but not payloads, can confine each identity to its own
+//! sessions (see `deploy/secure/`). Without access control every process is
+//! [`ANONYMOUS`] unless it says otherwise. `<instance>` tells the processes of one
+//! identity apart: each owns its sessions, closed when its token goes away.
 
 /// Root of every key of this protocol version.
-pub const ROOT: &str = "ciflow/v1";
+pub const ROOT: &str = "ciflow/v2";
 
 /// Liveliness key of an engine.
 pub fn engine_alive(engine: &str) -> String {
@@ -28,15 +35,37 @@ pub fn engine_alive(engine: &str) -> String {
 }
 
 /// Liveliness keys of all engines (for discovery).
-pub const ALL_ENGINES_ALIVE: &str = "ciflow/v1/alive/engine/*";
+pub const ALL_ENGINES_ALIVE: &str = "ciflow/v2/alive/engine/*";
 
-/// Liveliness key of a client.
+/// The identity of a process that does not say who it is.
+pub const ANONYMOUS: &str = "anonymous";
+
+/// The name of one client process, `<identity>/<instance>`: what owns sessions.
+pub fn client(identity: &str, instance: &str) -> String {
+    format!("{identity}/{instance}")
+}
+
+/// The `<identity>` of a client name made by [`client`].
+pub fn identity_of(client: &str) -> &str {
+    client
+        .split_once('/')
+        .map_or(client, |(identity, _)| identity)
+}
+
+/// Liveliness key of a client process; `client` is `<identity>/<instance>`.
 pub fn client_alive(client: &str) -> String {
     format!("{ROOT}/alive/client/{client}")
 }
 
-/// Liveliness keys of all clients (the engine watches them to reclaim sessions).
-pub const ALL_CLIENTS_ALIVE: &str = "ciflow/v1/alive/client/*";
+/// Liveliness keys of all client processes (the engine watches them to reclaim sessions).
+pub const ALL_CLIENTS_ALIVE: &str = "ciflow/v2/alive/client/*/*";
+
+/// The `<identity>/<instance>` of a client's liveliness key.
+pub fn parse_client_alive(key: &str) -> Option<&str> {
+    let client = key.strip_prefix(ROOT)?.strip_prefix("/alive/client/")?;
+    let (identity, instance) = client.split_once('/')?;
+    (is_plain_chunk(identity) && is_plain_chunk(instance)).then_some(client)
+}
 
 /// Prefix of everything an engine serves.
 pub fn engine(engine: &str) -> String {
@@ -44,14 +73,19 @@ pub fn engine(engine: &str) -> String {
 }
 
 /// The `tasks` query of every engine at once (for discovery).
-pub const ALL_ENGINES_TASKS: &str = "ciflow/v1/engine/*/tasks";
+pub const ALL_ENGINES_TASKS: &str = "ciflow/v2/engine/*/tasks";
 
 pub fn tasks(engine_id: &str) -> String {
     format!("{}/tasks", engine(engine_id))
 }
 
-pub fn make(engine_id: &str) -> String {
-    format!("{}/make", engine(engine_id))
+/// Prefix of everything `identity` owns on an engine.
+pub fn client_prefix(engine_id: &str, identity: &str) -> String {
+    format!("{}/client/{identity}", engine(engine_id))
+}
+
+pub fn make(engine_id: &str, identity: &str) -> String {
+    format!("{}/make", client_prefix(engine_id, identity))
 }
 
 /// Echo: the raw Zenoh round trip to an engine, without the protocol's decoding.
@@ -60,13 +94,16 @@ pub fn ping(engine_id: &str) -> String {
 }
 
 /// The engine's bounds and one client's usage of them.
-pub fn limits(engine_id: &str) -> String {
-    format!("{}/limits", engine(engine_id))
+pub fn limits(engine_id: &str, identity: &str) -> String {
+    format!("{}/limits", client_prefix(engine_id, identity))
 }
 
-/// A per-session key: an operation, `telemetry` or `frame`.
-pub fn session(engine_id: &str, session: &str, leaf: &str) -> String {
-    format!("{}/session/{session}/{leaf}", engine(engine_id))
+/// A per-session key of a session `identity` owns: an operation, `telemetry` or `frame`.
+pub fn session(engine_id: &str, identity: &str, session: &str, leaf: &str) -> String {
+    format!(
+        "{}/session/{session}/{leaf}",
+        client_prefix(engine_id, identity)
+    )
 }
 
 pub fn policy_act(engine_id: &str, policy: &str) -> String {
@@ -81,7 +118,7 @@ pub fn policy_checkpoint(policy: &str) -> String {
 }
 
 /// Every policy's checkpoint publications (engines subscribe to hot-load).
-pub const ALL_POLICY_CHECKPOINTS: &str = "ciflow/v1/policies/*/checkpoint";
+pub const ALL_POLICY_CHECKPOINTS: &str = "ciflow/v2/policies/*/checkpoint";
 
 /// Whether `chunk` can be one chunk of a key expression: non-empty, no `/`, no wildcard
 /// or reserved character. Engine, client, session and policy names must satisfy it.
@@ -93,15 +130,25 @@ pub fn is_plain_chunk(chunk: &str) -> bool {
 }
 
 /// What a query addressed to one engine asks for, parsed from the key after
-/// `ciflow/v1/engine/<engine>/`.
+/// `ciflow/v2/engine/<engine>/`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Route<'a> {
     Tasks,
-    Make,
     Ping,
-    Limits,
-    Session { session: &'a str, op: SessionOp },
-    PolicyAct { policy: &'a str },
+    PolicyAct {
+        policy: &'a str,
+    },
+    Make {
+        identity: &'a str,
+    },
+    Limits {
+        identity: &'a str,
+    },
+    Session {
+        identity: &'a str,
+        session: &'a str,
+        op: SessionOp,
+    },
 }
 
 /// Operations on one session.
@@ -163,7 +210,7 @@ impl SessionOp {
 }
 
 /// Parses the full key of a query received by the queryable on
-/// `ciflow/v1/engine/<engine>/**`. `None` for keys outside the protocol (including
+/// `ciflow/v2/engine/<engine>/**`. `None` for keys outside the protocol (including
 /// wildcard chunks where a name is expected).
 pub fn parse_route(key: &str) -> Option<Route<'_>> {
     let rest = key.strip_prefix(ROOT)?.strip_prefix("/engine/")?;
@@ -171,14 +218,18 @@ pub fn parse_route(key: &str) -> Option<Route<'_>> {
     let chunks: Vec<&str> = rest.split('/').collect();
     match chunks.as_slice() {
         ["tasks"] => Some(Route::Tasks),
-        ["make"] => Some(Route::Make),
         ["ping"] => Some(Route::Ping),
-        ["limits"] => Some(Route::Limits),
-        ["session", session, op] if is_plain_chunk(session) => Some(Route::Session {
-            session,
-            op: SessionOp::parse(op)?,
-        }),
         ["policy", policy, "act"] if is_plain_chunk(policy) => Some(Route::PolicyAct { policy }),
+        ["client", identity, owned @ ..] if is_plain_chunk(identity) => match owned {
+            ["make"] => Some(Route::Make { identity }),
+            ["limits"] => Some(Route::Limits { identity }),
+            ["session", session, op] if is_plain_chunk(session) => Some(Route::Session {
+                identity,
+                session,
+                op: SessionOp::parse(op)?,
+            }),
+            _ => None,
+        },
         _ => None,
     }
 }
@@ -194,7 +245,7 @@ pub fn all_episodes(task: &str) -> String {
     episodes(task, "*")
 }
 
-/// The policy of a checkpoint key; `None` outside `ciflow/v1/policies/<policy>/checkpoint`.
+/// The policy of a checkpoint key; `None` outside `ciflow/v2/policies/<policy>/checkpoint`.
 /// The name is returned as published: whether it is a valid policy name is the loader's
 /// to say.
 pub fn parse_policy_checkpoint(key: &str) -> Option<&str> {
@@ -203,7 +254,7 @@ pub fn parse_policy_checkpoint(key: &str) -> Option<&str> {
         .strip_suffix("/checkpoint")
 }
 
-/// `(task, recorder)` of an episode key; `None` outside `ciflow/v1/episodes/<task>/<recorder>`.
+/// `(task, recorder)` of an episode key; `None` outside `ciflow/v2/episodes/<task>/<recorder>`.
 pub fn parse_episodes(key: &str) -> Option<(&str, &str)> {
     let rest = key.strip_prefix(ROOT)?.strip_prefix("/episodes/")?;
     match rest.split_once('/')? {
@@ -224,20 +275,30 @@ mod tests {
             parse_policy_checkpoint(&policy_checkpoint("p-1")),
             Some("p-1")
         );
-        assert_eq!(parse_policy_checkpoint("ciflow/v1/policies/p/act"), None);
+        assert_eq!(parse_policy_checkpoint("ciflow/v2/policies/p/act"), None);
     }
 
     #[test]
     fn every_built_key_parses_back_to_its_route() {
         assert_eq!(parse_route(&tasks("e1")), Some(Route::Tasks));
         assert_eq!(parse_route(ALL_ENGINES_TASKS), Some(Route::Tasks));
-        assert_eq!(parse_route(&make("e1")), Some(Route::Make));
+        assert_eq!(
+            parse_route(&make("e1", "alice")),
+            Some(Route::Make { identity: "alice" })
+        );
         assert_eq!(parse_route(&ping("e1")), Some(Route::Ping));
-        assert_eq!(parse_route(&limits("e1")), Some(Route::Limits));
+        assert_eq!(
+            parse_route(&limits("e1", "alice")),
+            Some(Route::Limits { identity: "alice" })
+        );
         for op in SessionOp::ALL {
             assert_eq!(
-                parse_route(&session("e1", "s42", op.as_str())),
-                Some(Route::Session { session: "s42", op })
+                parse_route(&session("e1", "alice", "s42", op.as_str())),
+                Some(Route::Session {
+                    identity: "alice",
+                    session: "s42",
+                    op
+                })
             );
         }
         assert_eq!(
@@ -249,14 +310,33 @@ mod tests {
     #[test]
     fn foreign_and_wildcard_keys_are_rejected() {
         for key in [
-            "ciflow/v1/engine/e1",
-            "ciflow/v1/engine/e1/session/*/step",
-            "ciflow/v1/engine/e1/session/s1/fly",
-            "ciflow/v1/engine/e1/session/s1/step/more",
-            "ciflow/v2/engine/e1/tasks",
+            "ciflow/v2/engine/e1",
+            "ciflow/v2/engine/e1/make",
+            "ciflow/v2/engine/e1/session/s1/step",
+            "ciflow/v2/engine/e1/client/*/make",
+            "ciflow/v2/engine/e1/client/a/session/*/step",
+            "ciflow/v2/engine/e1/client/a/session/s1/fly",
+            "ciflow/v2/engine/e1/client/a/session/s1/step/more",
+            "ciflow/v2/engine/e1/client/a/tasks",
+            "ciflow/v1/engine/e1/tasks",
             "other/engine/e1/tasks",
         ] {
             assert_eq!(parse_route(key), None, "{key}");
+        }
+    }
+
+    #[test]
+    fn client_tokens_name_an_identity_and_an_instance() {
+        let client = client("alice", "c1");
+        assert_eq!(identity_of(&client), "alice");
+        assert_eq!(parse_client_alive(&client_alive(&client)), Some("alice/c1"));
+        for key in [
+            "ciflow/v2/alive/client/alice",
+            "ciflow/v2/alive/client/alice/*",
+            "ciflow/v2/alive/client/alice/c1/x",
+            "ciflow/v2/alive/engine/e1",
+        ] {
+            assert_eq!(parse_client_alive(key), None, "{key}");
         }
     }
 
@@ -276,13 +356,13 @@ mod tests {
         );
         assert_eq!(
             all_episodes("limit-cycle"),
-            "ciflow/v1/episodes/limit-cycle/*"
+            "ciflow/v2/episodes/limit-cycle/*"
         );
         for key in [
             all_episodes("pouring").as_str(),
-            "ciflow/v1/episodes/pouring",
-            "ciflow/v1/episodes/pouring/rec/extra",
-            "ciflow/v1/engine/e1/tasks",
+            "ciflow/v2/episodes/pouring",
+            "ciflow/v2/episodes/pouring/rec/extra",
+            "ciflow/v2/engine/e1/tasks",
         ] {
             assert_eq!(parse_episodes(key), None, "{key}");
         }

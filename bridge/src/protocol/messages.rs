@@ -65,13 +65,15 @@ pub struct PolicyInfo {
     pub validation_nll: Option<f64>,
 }
 
-/// `…/make`: opens a session of `num_envs` copies of `task`, owned by `client`.
+/// `…/client/<identity>/make`: opens a session of `num_envs` copies of `task`, owned by
+/// the client process `<identity>/<instance>`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MakeRequest {
     pub v: u16,
-    /// The client's name; its liveliness token `ciflow/v1/alive/client/<client>` must be
-    /// declared first. When the token goes away the session is closed.
-    pub client: String,
+    /// Which process of `<identity>` owns the session; its liveliness token
+    /// `ciflow/v2/alive/client/<identity>/<instance>` must be declared first. When the
+    /// token goes away the session is closed.
+    pub instance: String,
     /// Gymnasium id or short name.
     pub task: String,
     /// Number of environments stepped together by `step_batch` (default 1).
@@ -102,12 +104,13 @@ pub struct MakeReply {
     pub spec: EnvSpec,
 }
 
-/// `…/limits`: the engine's bounds, and `client`'s usage of them when named.
+/// `…/client/<identity>/limits`: the engine's bounds, and the usage of them by the process
+/// `<identity>/<instance>` when named.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LimitsRequest {
     pub v: u16,
     #[serde(default)]
-    pub client: Option<String>,
+    pub instance: Option<String>,
 }
 
 /// Reply to `…/limits`.

@@ -105,7 +105,12 @@ mod tests {
         let code = |payload: &[u8]| decode_request::<StepRequest>(payload).unwrap_err().code;
         assert_eq!(code(b"\xff\x00garbage"), ErrorCode::Malformed);
         assert_eq!(code(&[]), ErrorCode::Malformed);
-        assert_eq!(code(&encode(&TasksRequest { v: 1 })), ErrorCode::Malformed);
+        assert_eq!(
+            code(&encode(&TasksRequest {
+                v: PROTOCOL_VERSION
+            })),
+            ErrorCode::Malformed
+        );
         assert_eq!(
             code(&encode(&TasksRequest { v: 99 })),
             ErrorCode::VersionMismatch

@@ -12,7 +12,7 @@ use serde_bytes::ByteBuf;
 use super::F64s;
 
 /// Bumped on every incompatible change; requests with another `v` get `version_mismatch`.
-pub const PROTOCOL_VERSION: u16 = 1;
+pub const PROTOCOL_VERSION: u16 = 2;
 
 /// Largest request payload the engine decodes (64 MiB, e.g. a `step_batch` of 1M
 /// two-dimensional actions is 16 MiB).

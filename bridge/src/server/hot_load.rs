@@ -1,4 +1,4 @@
-//! Hot-loading: a checkpoint published on `ciflow/v1/policies/<policy>/checkpoint`
+//! Hot-loading: a checkpoint published on `ciflow/v2/policies/<policy>/checkpoint`
 //! replaces the policy served under that name, if it fits a task this engine serves,
 //! keeps the policy's task and, on an engine that trusts keys, is signed by one of them.
 

@@ -1,6 +1,6 @@
 //! The engine: hosts environment sessions and answers the protocol's queries.
 //!
-//! One queryable on `ciflow/v1/engine/<engine>/**` receives every request. Cheap
+//! One queryable on `ciflow/v2/engine/<engine>/**` receives every request. Cheap
 //! operations of bounded cost (step, reset, expert, a small batch or `act`, …) are
 //! answered directly in Zenoh's callback, so a step costs one network round trip and
 //! nothing more. Everything whose cost grows with its payload or may wait (`make`,
@@ -181,7 +181,9 @@ impl EngineServer {
                 .declare_subscriber(keys::ALL_CLIENTS_ALIVE)
                 .history(true)
                 .callback(move |sample| {
-                    let client = sample.key_expr().as_str().rsplit('/').next().unwrap_or("");
+                    let Some(client) = keys::parse_client_alive(sample.key_expr().as_str()) else {
+                        return;
+                    };
                     match sample.kind() {
                         SampleKind::Put => shared.client_appeared(client),
                         SampleKind::Delete => shared.client_vanished(client),
@@ -314,7 +316,7 @@ impl EngineServer {
 fn runs_inline(route: Option<Route<'_>>, query: &Query) -> bool {
     let small = || query.payload().is_none_or(|p| p.len() <= INLINE_BYTES);
     match route {
-        Some(Route::Make) => false,
+        Some(Route::Make { .. }) => false,
         Some(Route::PolicyAct { .. }) => small(),
         Some(Route::Session { op, .. }) => match op {
             SessionOp::Render | SessionOp::ResetBatch => false,
@@ -342,6 +344,7 @@ struct Shared {
     /// Whether anyone views any session's telemetry; each session's publisher.
     telemetry: TelemetryWatch,
     limits: Limits,
+    /// Every open session by [`slot`].
     sessions: RwLock<HashMap<String, Arc<Mutex<Session>>>>,
     /// Who is alive and what each client holds; see [`usage`] for the lock order.
     clients: ClientTable,
@@ -351,6 +354,12 @@ struct Shared {
 }
 
 type Answer = Result<Vec<u8>, ErrorReply>;
+
+/// Where the engine keeps session `id` of `identity`: sessions are found by their owner's
+/// identity and id together, so a key under one identity never reaches another's session.
+fn slot(identity: &str, id: &str) -> String {
+    format!("{identity}/{id}")
+}
 
 impl Shared {
     fn read_sessions(
@@ -382,9 +391,9 @@ impl Shared {
         drop(closed);
     }
 
-    /// Closes one session and returns what it held to its owner's allowance.
-    fn remove_session(&self, id: &str) {
-        let removed = self.sessions_mut().remove(id);
+    /// Closes the session in `slot` and returns what it held to its owner's allowance.
+    fn remove_session(&self, slot: &str) {
+        let removed = self.sessions_mut().remove(slot);
         if let Some(session) = &removed {
             let (owner, num_envs) = match session.lock() {
                 Ok(session) => (session.owner.clone(), session.num_envs()),
@@ -393,7 +402,7 @@ impl Shared {
                     (session.owner.clone(), session.num_envs())
                 }
             };
-            self.clients.release(&owner, id, num_envs);
+            self.clients.release(&owner, slot, num_envs);
         }
         drop(removed);
     }
@@ -418,8 +427,11 @@ impl Shared {
                 self.handle(route, &payload, query, deadline)
             }))
             .unwrap_or_else(|_| {
-                if let Some(Route::Session { session, .. }) = route {
-                    self.remove_session(session);
+                if let Some(Route::Session {
+                    identity, session, ..
+                }) = route
+                {
+                    self.remove_session(&slot(identity, session));
                 }
                 Err(ErrorReply::new(
                     ErrorCode::Internal,
@@ -467,33 +479,45 @@ impl Shared {
                     policies: self.policies.infos(),
                 }))
             }
-            Some(Route::Make) => self.make(decode_request(payload)?, deadline),
+            Some(Route::Make { identity }) => {
+                self.make(identity, decode_request(payload)?, deadline)
+            }
             Some(Route::Ping) => Ok(payload.to_vec()),
-            Some(Route::Limits) => {
+            Some(Route::Limits { identity }) => {
                 let request: LimitsRequest = decode_request(payload)?;
                 Ok(encode(&LimitsReply {
                     v: PROTOCOL_VERSION,
                     limits: self.limits,
-                    usage: request.client.map(|client| self.clients.usage(&client)),
+                    usage: request
+                        .instance
+                        .map(|instance| self.clients.usage(&keys::client(identity, &instance))),
                 }))
             }
-            Some(Route::Session { session, op }) => self.session_op(session, op, payload),
+            Some(Route::Session {
+                identity,
+                session,
+                op,
+            }) => self.session_op(identity, session, op, payload),
             Some(Route::PolicyAct { policy }) => {
                 self.act(policy, decode_request(payload)?, deadline)
             }
         }
     }
 
-    fn make(&self, request: MakeRequest, deadline: Deadline) -> Answer {
-        if !keys::is_plain_chunk(&request.client) {
+    /// Opens a session for the process `<identity>/<instance>`. The identity comes from
+    /// the key, which a router's access control can tie to an authenticated peer; the
+    /// payload only says which of the identity's processes owns the session.
+    fn make(&self, identity: &str, request: MakeRequest, deadline: Deadline) -> Answer {
+        if !keys::is_plain_chunk(&request.instance) {
             return Err(ErrorReply::new(
                 ErrorCode::InvalidRequest,
                 format!(
-                    "client name `{}` must be letters, digits, `-`, `_` or `.`",
-                    request.client
+                    "instance name `{}` must be letters, digits, `-`, `_` or `.`",
+                    request.instance
                 ),
             ));
         }
+        let client = keys::client(identity, &request.instance);
         let factory = self
             .factories
             .iter()
@@ -527,34 +551,33 @@ impl Shared {
                 ),
             ));
         }
-        if !self.confirm_alive(&request.client) {
+        if !self.confirm_alive(&client) {
             return Err(ErrorReply::new(
                 ErrorCode::NoLiveliness,
                 format!(
-                    "client `{0}` has no liveliness token; declare `{1}` before `make`",
-                    request.client,
-                    keys::client_alive(&request.client)
+                    "client `{client}` has no liveliness token; declare `{}` before `make`",
+                    keys::client_alive(&client)
                 ),
             ));
         }
         let reservation = self
             .clients
-            .reserve(&request.client, request.num_envs, &self.limits)?;
+            .reserve(&client, request.num_envs, &self.limits)?;
         let envs = build_envs(factory, &request.kwargs, request.num_envs, deadline)?;
         let spec = envs[0].env.spec().clone();
         let id = format!("{:016x}", rand::random::<u64>());
         let token: session::Token = rand::random();
         let telemetry = self
             .telemetry
-            .session(&id)
+            .session(identity, &id)
             .map_err(|e| ErrorReply::new(ErrorCode::Internal, full_message(&e)))?;
-        let session = Session::new(id.clone(), request.client.clone(), token, envs, telemetry);
+        let session = Session::new(id.clone(), client, token, envs, telemetry);
         // A deadline passed while building, or a client that vanished meanwhile
         // (nobody would ever close its session): nothing is kept.
         if deadline.passed() {
             return Err(deadline_exceeded("while building the session"));
         }
-        self.commit_session(reservation, &id, session)?;
+        self.commit_session(reservation, &slot(identity, &id), session)?;
         Ok(encode(&MakeReply {
             v: PROTOCOL_VERSION,
             session: id,
@@ -564,16 +587,16 @@ impl Shared {
         }))
     }
 
-    /// Opens a built session under its reservation (see [`ClientTable::commit`]).
+    /// Opens a built session in `slot` under its reservation (see [`ClientTable::commit`]).
     fn commit_session(
         &self,
         reservation: Reservation<'_>,
-        id: &str,
+        slot: &str,
         session: Session,
     ) -> Result<(), ErrorReply> {
-        self.clients.commit(reservation, id, || {
+        self.clients.commit(reservation, slot, || {
             self.sessions_mut()
-                .insert(id.to_owned(), Arc::new(Mutex::new(session)));
+                .insert(slot.to_owned(), Arc::new(Mutex::new(session)));
         })
     }
 
@@ -599,18 +622,22 @@ impl Shared {
         alive
     }
 
-    fn session_op(&self, id: &str, op: SessionOp, payload: &[u8]) -> Answer {
-        let handle = self.read_sessions().get(id).cloned().ok_or_else(|| {
+    /// Serves `op` on session `id`, which must be `identity`'s: a session of another
+    /// identity is as unknown as one never made, so keys say nothing about other owners.
+    fn session_op(&self, identity: &str, id: &str, op: SessionOp, payload: &[u8]) -> Answer {
+        let slot = slot(identity, id);
+        let handle = self.read_sessions().get(&slot).cloned().ok_or_else(|| {
             ErrorReply::new(
                 ErrorCode::UnknownSession,
                 format!(
-                    "no session `{id}` on engine `{}` (closed, reclaimed or never made)",
+                    "no session `{id}` of `{identity}` on engine `{}` (closed, reclaimed or \
+                     never made)",
                     self.name
                 ),
             )
         })?;
         let Ok(mut session) = handle.lock() else {
-            self.remove_session(id);
+            self.remove_session(&slot);
             return Err(ErrorReply::new(
                 ErrorCode::Internal,
                 format!("session `{id}` was closed after an internal error"),
@@ -709,7 +736,7 @@ impl Shared {
                 let (frame, pixels) =
                     session.render(request.index, request.width, request.height)?;
                 self.zsession
-                    .put(keys::session(&self.name, id, "frame"), pixels)
+                    .put(keys::session(&self.name, identity, id, "frame"), pixels)
                     .attachment(encode(&frame))
                     .congestion_control(CongestionControl::Block)
                     .wait()
@@ -729,7 +756,7 @@ impl Shared {
                 session.authorize(&request.token)?;
                 let time = session.time();
                 drop(session);
-                self.remove_session(id);
+                self.remove_session(&slot);
                 Ok(encode(&AckReply {
                     v: PROTOCOL_VERSION,
                     time,

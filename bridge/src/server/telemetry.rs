@@ -39,7 +39,7 @@ impl TelemetryWatch {
     /// second each.
     pub fn declare(session: &zenoh::Session, engine: &str, hz: f64) -> Result<Self, BridgeError> {
         let publisher = session
-            .declare_publisher(keys::session(engine, "*", "telemetry"))
+            .declare_publisher(keys::session(engine, "*", "*", "telemetry"))
             .wait()
             .map_err(BridgeError::zenoh("declaring the telemetry publisher"))?;
         let viewers = Arc::new(AtomicBool::new(false));
@@ -62,13 +62,11 @@ impl TelemetryWatch {
     }
 
     /// The telemetry of session `id`.
-    pub fn session(&self, id: &str) -> Result<TelemetryPublisher, BridgeError> {
-        let key =
-            KeyExpr::try_from(keys::session(&self.engine, id, "telemetry")).map_err(|source| {
-                BridgeError::Zenoh {
-                    action: "building the telemetry key",
-                    source,
-                }
+    pub fn session(&self, identity: &str, id: &str) -> Result<TelemetryPublisher, BridgeError> {
+        let key = KeyExpr::try_from(keys::session(&self.engine, identity, id, "telemetry"))
+            .map_err(|source| BridgeError::Zenoh {
+                action: "building the telemetry key",
+                source,
             })?;
         Ok(TelemetryPublisher {
             zsession: self.zsession.clone(),

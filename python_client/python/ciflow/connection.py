@@ -11,6 +11,8 @@ from ciflow import _native
 _lock = threading.Lock()
 _clients: dict[tuple, _native.ClientHandle] = {}
 _embedded: _native.Engine | None = None
+# The key of the embedded engine's client among those of `_client`.
+_EMBEDDED = ("embedded", None, None)
 
 _HOW_TO_START = (
     "Start an engine with `ciflow serve --listen tcp/0.0.0.0:7447` on that machine "
@@ -29,13 +31,15 @@ def default_endpoint() -> str:
 
 
 def _client(connect: str | None, zenoh_config: str | None) -> _native.ClientHandle:
-    key = (connect, zenoh_config)
+    # Who this process is behind a router with access control (see deploy/secure).
+    identity = os.environ.get("CIFLOW_IDENTITY") or None
+    key = (connect, zenoh_config, identity)
     client = _clients.get(key)
     if client is None:
         if connect is None and zenoh_config is None:
             connect = default_endpoint()
         client = _native.ClientHandle.open(
-            config=zenoh_config, connect=[connect] if connect else None
+            config=zenoh_config, connect=[connect] if connect else None, identity=identity
         )
         _clients[key] = client
     return client
@@ -44,7 +48,7 @@ def _client(connect: str | None, zenoh_config: str | None) -> _native.ClientHand
 def _embedded_client() -> _native.ClientHandle:
     """A client of the engine embedded in this process, starting it if needed."""
     global _embedded
-    key = ("embedded", None)
+    key = _EMBEDDED
     if key in _clients:
         return _clients[key]
     _embedded = _native.Engine(listen=[default_endpoint()])
@@ -90,8 +94,8 @@ def resolve(
 
 
 def _default(task: str | None) -> tuple[_native.ClientHandle, str]:
-    if ("embedded", None) in _clients:
-        return _clients[("embedded", None)], _embedded.name
+    if _EMBEDDED in _clients:
+        return _clients[_EMBEDDED], _embedded.name
     try:
         client = _client(None, None)
         name = _pick(client, task)
@@ -117,8 +121,8 @@ def client(engine: str | None, zenoh_config: str | None) -> _native.ClientHandle
     neither is given."""
     connect = engine if engine and _looks_like_endpoint(engine) else None
     with _lock:
-        if connect is None and zenoh_config is None and ("embedded", None) in _clients:
-            return _clients[("embedded", None)]
+        if connect is None and zenoh_config is None and _EMBEDDED in _clients:
+            return _clients[_EMBEDDED]
         return _client(connect, zenoh_config)
 
 
@@ -134,8 +138,8 @@ def discover(engine: str | None = None, zenoh_config: str | None = None) -> list
     with _lock:
         found: dict[str, dict] = {}
         candidates = []
-        if ("embedded", None) in _clients:
-            candidates.append(_clients[("embedded", None)])
+        if _EMBEDDED in _clients:
+            candidates.append(_clients[_EMBEDDED])
         try:
             candidates.append(_client(connect, zenoh_config))
         except _native.EngineUnreachable:
@@ -150,7 +154,7 @@ def shutdown_embedded_engine() -> None:
     """Stops the engine embedded in this process (its sessions close)."""
     global _embedded
     with _lock:
-        _clients.pop(("embedded", None), None)
+        _clients.pop(_EMBEDDED, None)
         if _embedded is not None:
             _embedded.close()
             _embedded = None

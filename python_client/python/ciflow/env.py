@@ -68,7 +68,7 @@ class CiflowEnv(gym.Env):
     @property
     def session_id(self) -> str:
         """The ``<session>`` chunk of the session's keys (telemetry:
-        ``ciflow/v1/engine/<engine>/session/<session>/telemetry``)."""
+        ``ciflow/v2/engine/<engine>/session/<session>/telemetry``)."""
         return self._session.session_id
 
     @property

@@ -3,7 +3,7 @@
 Rolls out a task's expert through ``gymnasium.make`` and the environment's
 ``expert_action`` (episode ``i`` reset with seed ``seed + i``), writes the episodes as a
 dataset in exactly the Minari layout ``ciflow demos`` writes (the same Rust writer, atomic),
-and publishes each episode as it finishes on ``ciflow/v1/episodes/<task>/<recorder>``, where
+and publishes each episode as it finishes on ``ciflow/v2/episodes/<task>/<recorder>``, where
 ``ciflow train --from-zenoh N`` collects them::
 
     python -m ciflow.record --task pouring --episodes 220 --seed 0 --out data/pouring
@@ -116,7 +116,7 @@ def record(
         kwargs: the task's construction arguments (``{"obstacles": 3}``).
         options: reset options for every episode (``{"context_set": 2}``).
         engine, zenoh_config: which engine, as for ``gymnasium.make``.
-        publish: publish each finished episode on ``ciflow/v1/episodes/<task>/<recorder>``.
+        publish: publish each finished episode on ``ciflow/v2/episodes/<task>/<recorder>``.
         recorder: the ``<recorder>`` chunk (default: ``rec-<pid>-<random>``).
         dataset_id: Minari id (default ``ciflow/<task>-expert-v0``, as ``ciflow demos``).
         overwrite: replace an existing dataset at ``out``.
@@ -204,7 +204,7 @@ def main(argv=None) -> int:
         prog="python -m ciflow.record",
         description="Record expert demonstrations through gymnasium.make: write a Minari "
         "dataset (as `ciflow demos`) and publish each episode on "
-        "ciflow/v1/episodes/<task>/<recorder> for `ciflow train --from-zenoh`.",
+        "ciflow/v2/episodes/<task>/<recorder> for `ciflow train --from-zenoh`.",
     )
     parser.add_argument("--task", required=True, help="task name or Gymnasium id")
     parser.add_argument("--episodes", type=int, default=100, help="number of episodes")
