@@ -96,7 +96,7 @@ def test_recorder_matches_ciflow_demos_publishes_episodes_and_opens_in_minari(en
 
     assert [key for key, _ in messages] == [result.key] * 3
     for index, ((_, message), want) in enumerate(zip(messages, expected)):
-        assert message["v"] == 1
+        assert message["v"] == 2
         assert message["task"] == "ciflow/Obstacle-v0"
         assert (message["recorder"], message["index"], message["seed"]) == ("test-rec", index, 5 + index)
         assert message["dataset_id"] == result.dataset_id
