@@ -22,8 +22,8 @@
 
 use serde::Serialize;
 
-use crate::error::BridgeError;
-use crate::protocol::keys::{self, ROOT};
+use crate::error::{BridgeError, check_name};
+use crate::protocol::keys::ROOT;
 
 /// The names of the processes a router lets take part, by role; each is the common name
 /// of that process's certificate, and for engines and clients also the name it uses in
@@ -68,11 +68,7 @@ impl AccessPolicy {
             ("client", &self.clients, client_grants),
         ] {
             for name in names {
-                if !keys::is_plain_chunk(name) {
-                    return Err(BridgeError::InvalidArgument(format!(
-                        "{role} name `{name}` must be letters, digits, `-`, `_` or `.`"
-                    )));
-                }
+                check_name(&format!("{role} name"), name)?;
                 config.grant(&format!("{role}-{name}"), name, grants(name));
             }
         }

@@ -21,7 +21,7 @@ use zenoh::sample::Sample;
 
 use crate::config::{NetworkOptions, Role};
 use crate::control::{SessionAddress, SessionControl};
-use crate::error::BridgeError;
+use crate::error::{BridgeError, check_name};
 use crate::limits::{Limits, Usage};
 use crate::protocol::keys::{self, SessionOp};
 use crate::protocol::{
@@ -74,7 +74,8 @@ impl Client {
             "join Zenoh",
             "is an engine or router running there? Start one with `ciflow serve`",
         )?;
-        Self::with_identity(zsession, network.identity()?)
+        let identity = network.identity.as_deref().unwrap_or(keys::ANONYMOUS);
+        Self::with_identity(zsession, identity)
     }
 
     /// Uses an open Zenoh session (e.g. the one of an engine in the same process), as
@@ -85,11 +86,7 @@ impl Client {
 
     /// Uses an open Zenoh session as `identity` (see [`NetworkOptions::identity`]).
     pub fn with_identity(zsession: zenoh::Session, identity: &str) -> Result<Self, BridgeError> {
-        if !keys::is_plain_chunk(identity) {
-            return Err(BridgeError::InvalidArgument(format!(
-                "identity `{identity}` must be letters, digits, `-`, `_` or `.`"
-            )));
-        }
+        check_name("identity", identity)?;
         let name = keys::client(identity, &format!("c{:016x}", rand::random::<u64>()));
         let token = zsession
             .liveliness()

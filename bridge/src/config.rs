@@ -8,7 +8,6 @@ use std::path::PathBuf;
 use zenoh::{Config, Wait};
 
 use crate::error::BridgeError;
-use crate::protocol::keys;
 
 /// Where a zero-configuration engine listens and a zero-configuration client connects.
 pub const DEFAULT_ENDPOINT: &str = "tcp/127.0.0.1:7447";
@@ -61,7 +60,7 @@ pub struct NetworkOptions {
     /// Endpoints to listen on.
     pub listen: Vec<String>,
     /// Who a client process is: the `<identity>` chunk of its keys (default
-    /// [`keys::ANONYMOUS`](crate::protocol::keys::ANONYMOUS)). Behind a router with access
+    /// [`ANONYMOUS`](crate::protocol::keys::ANONYMOUS)). Behind a router with access
     /// control it must be the name the router authenticates, e.g. the common name of the
     /// process's TLS certificate.
     pub identity: Option<String>,
@@ -96,18 +95,6 @@ impl NetworkOptions {
         match (self.listen.is_empty(), &self.config_file) {
             (true, None) => vec![DEFAULT_ENDPOINT.to_owned()],
             _ => self.listen.clone(),
-        }
-    }
-
-    /// The `<identity>` of a client with these options, checked to be one key chunk.
-    pub fn identity(&self) -> Result<&str, BridgeError> {
-        let identity = self.identity.as_deref().unwrap_or(keys::ANONYMOUS);
-        if keys::is_plain_chunk(identity) {
-            Ok(identity)
-        } else {
-            Err(BridgeError::InvalidArgument(format!(
-                "identity `{identity}` must be letters, digits, `-`, `_` or `.`"
-            )))
         }
     }
 
@@ -168,10 +155,12 @@ fn default_config(role: Role) -> Result<Config, BridgeError> {
     )?;
     let endpoint = json_list(&[DEFAULT_ENDPOINT.to_owned()]);
     match role {
-        Role::Engine | Role::Router => {
+        Role::Engine => {
             insert(&mut config, "mode", &json_string(Mode::Peer.as_str()))?;
             insert(&mut config, "listen/endpoints", &endpoint)?;
         }
+        // The mode is set by `to_zenoh_config`, with or without a file.
+        Role::Router => insert(&mut config, "listen/endpoints", &endpoint)?,
         Role::Client => {
             insert(&mut config, "mode", &json_string(Mode::Client.as_str()))?;
             insert(&mut config, "connect/endpoints", &endpoint)?;

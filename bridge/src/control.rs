@@ -17,7 +17,7 @@ use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 
-use crate::error::BridgeError;
+use crate::error::{BridgeError, check_name};
 use crate::protocol::keys::{self, SessionOp};
 use crate::protocol::{
     AckReply, ContextCheckReply, ContextRequest, ErrorCode, F64s, PROTOCOL_VERSION, PerturbRequest,
@@ -72,16 +72,10 @@ impl SessionControl {
             identity,
             session,
         } = &address;
-        if !keys::is_plain_chunk(identity) {
-            return Err(BridgeError::InvalidArgument(format!(
-                "identity `{identity}` must be letters, digits, `-`, `_` or `.`"
-            )));
-        }
+        check_name("identity", identity)?;
         for (what, chunk) in [("engine", engine), ("session", session)] {
-            if chunk != ANY_ENGINE && !keys::is_plain_chunk(chunk) {
-                return Err(BridgeError::InvalidArgument(format!(
-                    "{what} `{chunk}` must be letters, digits, `-`, `_` or `.`"
-                )));
+            if chunk != ANY_ENGINE {
+                check_name(what, chunk)?;
             }
         }
         if session == ANY_ENGINE {

@@ -8,6 +8,18 @@ use ciflow_envs::EnvError;
 use crate::protocol::ErrorReply;
 pub use crate::protocol::error::full_message;
 
+/// `Ok` when `name` can be one chunk of a key expression (engine, identity, session and
+/// policy names must); otherwise the error says which `what` it is and what is allowed.
+pub(crate) fn check_name(what: &str, name: &str) -> Result<(), BridgeError> {
+    if crate::protocol::keys::is_plain_chunk(name) {
+        Ok(())
+    } else {
+        Err(BridgeError::InvalidArgument(format!(
+            "{what} `{name}` must be letters, digits, `-`, `_` or `.`"
+        )))
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum BridgeError {
     #[error("cannot read Zenoh config {}", path.display())]

@@ -9,7 +9,7 @@ use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 
 use crate::config::{NetworkOptions, Role};
-use crate::error::BridgeError;
+use crate::error::{BridgeError, check_name};
 use crate::protocol::keys;
 use crate::protocol::{ByteBuf, CheckpointMsg, PROTOCOL_VERSION, encode};
 use crate::signing::CheckpointSigner;
@@ -39,11 +39,7 @@ impl CheckpointPublisher {
 
     /// A publisher on an open Zenoh session.
     pub fn new(session: &zenoh::Session, name: &str) -> Result<Self, BridgeError> {
-        if !keys::is_plain_chunk(name) {
-            return Err(BridgeError::InvalidArgument(format!(
-                "policy name `{name}` must be letters, digits, `-`, `_` or `.`"
-            )));
-        }
+        check_name("policy name", name)?;
         let publisher = session
             .declare_publisher(keys::policy_checkpoint(name))
             // Every checkpoint matters: wait for the network rather than drop one.

@@ -155,6 +155,18 @@ fn replies(zsession: &zenoh::Session, key: &str, payload: Vec<u8>) -> Vec<Vec<u8
         .collect()
 }
 
+/// A `make` of one fixture environment owned by `owner`'s process.
+fn make_for(owner: &Client) -> Vec<u8> {
+    encode(&MakeRequest {
+        v: PROTOCOL_VERSION,
+        instance: owner.instance().to_owned(),
+        task: FIXTURE_ID.into(),
+        num_envs: 1,
+        kwargs: no_kwargs(),
+        deadline_ms: None,
+    })
+}
+
 fn close_request(token: &[u8]) -> Vec<u8> {
     encode(&SessionRequest {
         v: PROTOCOL_VERSION,
@@ -247,14 +259,7 @@ fn behind_the_secure_router_every_attack_is_refused_while_alice_keeps_stepping()
     // 3. Owning a session as alice: a `make` under her identity is dropped; one naming her
     //    process under mallory's identity finds no such process of mallory's; a token in
     //    alice's name never reaches the engine.
-    let as_alice = encode(&MakeRequest {
-        v: PROTOCOL_VERSION,
-        instance: alice.instance().to_owned(),
-        task: FIXTURE_ID.into(),
-        num_envs: 1,
-        kwargs: no_kwargs(),
-        deadline_ms: None,
-    });
+    let as_alice = make_for(&alice);
     assert!(replies(zm, &keys::make(ENGINE, "alice"), as_alice.clone()).is_empty());
     let error = raw_query(zm, &keys::make(ENGINE, "mallory"), as_alice).unwrap_err();
     assert_eq!(error.code, ErrorCode::NoLiveliness);
@@ -387,13 +392,6 @@ fn on_the_open_network_the_same_attacks_succeed() {
     assert_eq!(closed.len(), 1);
     assert!(env.step(&[0.0]).is_err(), "alice's session survived");
 
-    let in_her_name = encode(&MakeRequest {
-        v: PROTOCOL_VERSION,
-        instance: alice.instance().to_owned(),
-        task: FIXTURE_ID.into(),
-        num_envs: 1,
-        kwargs: no_kwargs(),
-        deadline_ms: None,
-    });
+    let in_her_name = make_for(&alice);
     assert!(raw_query(zm, &keys::make(engine.name(), "alice"), in_her_name).is_ok());
 }

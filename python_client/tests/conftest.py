@@ -21,23 +21,23 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def start_engine(endpoint: str, name: str) -> subprocess.Popen:
-    """``python -m ciflow serve`` on ``endpoint``; returns once it announced itself."""
-    process = subprocess.Popen(
-        [sys.executable, "-m", "ciflow", "serve", "--listen", endpoint, "--name", name],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+def start_process(argv: list[str], ready: str = "ready") -> subprocess.Popen:
+    """Starts ``argv``; returns once a line of its output contains ``ready``."""
+    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         line = process.stdout.readline()
-        if "ready" in line:
+        if ready in line:
             return process
         if process.poll() is not None:
             break
     process.kill()
-    raise RuntimeError(f"engine on {endpoint} did not start: {process.stdout.read()}")
+    raise RuntimeError(f"`{' '.join(map(str, argv))}` did not start: {process.stdout.read()}")
+
+
+def start_engine(endpoint: str, name: str) -> subprocess.Popen:
+    """``python -m ciflow serve`` on ``endpoint``; returns once it announced itself."""
+    return start_process([sys.executable, "-m", "ciflow", "serve", "--listen", endpoint, "--name", name])
 
 
 @pytest.fixture(scope="session")

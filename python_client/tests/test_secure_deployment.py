@@ -7,7 +7,6 @@ cannot join. (The attacks themselves are tried in bridge/tests/access_control.rs
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import gymnasium as gym
@@ -18,25 +17,14 @@ import ciflow
 
 # pytest runs with --import-mode=importlib: conftest is not on sys.path by itself.
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from conftest import BINARY, ROOT, free_port  # noqa: E402
+from conftest import BINARY, ROOT, free_port, start_process  # noqa: E402
 
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs openssl")
 
 
 def start(args: list[str], ready: str) -> subprocess.Popen:
     """``ciflow ARGS``; returns once it printed ``ready``."""
-    process = subprocess.Popen(
-        [str(BINARY), *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
-    )
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        line = process.stdout.readline()
-        if ready in line:
-            return process
-        if process.poll() is not None:
-            break
-    process.kill()
-    raise AssertionError(f"`ciflow {' '.join(args)}` did not start: {process.stdout.read()}")
+    return start_process([str(BINARY), *args], ready)
 
 
 @pytest.fixture(scope="module")

@@ -45,13 +45,6 @@ pub fn client(identity: &str, instance: &str) -> String {
     format!("{identity}/{instance}")
 }
 
-/// The `<identity>` of a client name made by [`client`].
-pub fn identity_of(client: &str) -> &str {
-    client
-        .split_once('/')
-        .map_or(client, |(identity, _)| identity)
-}
-
 /// Liveliness key of a client process; `client` is `<identity>/<instance>`.
 pub fn client_alive(client: &str) -> String {
     format!("{ROOT}/alive/client/{client}")
@@ -328,7 +321,6 @@ mod tests {
     #[test]
     fn client_tokens_name_an_identity_and_an_instance() {
         let client = client("alice", "c1");
-        assert_eq!(identity_of(&client), "alice");
         assert_eq!(parse_client_alive(&client_alive(&client)), Some("alice/c1"));
         for key in [
             "ciflow/v2/alive/client/alice",

@@ -46,7 +46,7 @@ use self::telemetry::TelemetryWatch;
 use self::usage::{ClientTable, Reservation};
 use self::workers::Workers;
 use crate::config::{NetworkOptions, Role};
-use crate::error::{BridgeError, full_message};
+use crate::error::{BridgeError, check_name, full_message};
 use crate::limits::{Deadline, Limits};
 use crate::policy::Policy;
 use crate::protocol::keys::{self, Route, SessionOp};
@@ -125,11 +125,7 @@ impl EngineServer {
             .name
             .clone()
             .unwrap_or_else(|| zsession.zid().to_string());
-        if !keys::is_plain_chunk(&name) {
-            return Err(BridgeError::InvalidArgument(format!(
-                "engine name `{name}` must be letters, digits, `-`, `_` or `.`"
-            )));
-        }
+        check_name("engine name", &name)?;
         options.limits.check()?;
         if !(options.telemetry_hz.is_finite() && options.telemetry_hz > 0.0) {
             return Err(BridgeError::InvalidArgument(format!(
