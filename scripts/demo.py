@@ -213,7 +213,7 @@ def plan(out: pathlib.Path) -> list[Job]:
     """The experiments as jobs; out/experiments has the layout scripts/report.py reads."""
     data, policies, exp = out / "data", out / "policies", out / "experiments"
     for d in (data, policies, exp / "pouring" / "nll", exp / "pouring" / "seeds",
-              exp / "stability", out / "figures"):
+              exp / "stability", exp / "robot_loop", out / "figures"):
         d.mkdir(parents=True, exist_ok=True)
 
     def record(name, task, episodes, seed, dataset, *extra):
@@ -276,6 +276,24 @@ def plan(out: pathlib.Path) -> list[Job]:
             exp / "pouring" / f"expert-{mode}.json"]]))
     jobs.append(stability("pouring-flow", pouring, "pouring-record-train", "--robot-loop",
                           "--negative-control"))
+    # Joint limits (README "Joint limits"): the demo's policy beside the same recipe with
+    # the Panda's limits built in (`--joint-range true`), through the computed-torque loop
+    # from 100 starts drawn over the joint ranges, without and with a 40 N push on the hand.
+    limited = policies / "pouring-joint-range"
+    jobs.append(Job("pouring-joint-range", [[
+        CIFLOW, "train", "--task", "pouring", "--demos", pouring_data, "--joint-range",
+        "true", "--out", limited]], after=["pouring-record-train"]))
+    for mode, extra in pouring_modes:
+        jobs.append(Job(f"pouring-joint-range-{mode}", [evaluate(
+            limited, *held_out, *extra, "--out", exp / "pouring" / f"joint-range-{mode}.json")],
+            after=["pouring-joint-range"]))
+    for name, checkpoint, after in (("flow", pouring, "pouring-record-train"),
+                                    ("joint-range", limited, "pouring-joint-range")):
+        for suffix, extra in (("", []), ("-pushed", ["--robot-push", "40"])):
+            jobs.append(Job(f"robot-loop-{name}{suffix}", [[
+                CIFLOW, "stability", "--checkpoint", checkpoint, "--json", "--starts", "100",
+                "--robot-loop", "--robot-traces", "4", *extra]], after=[after],
+                stdout=exp / "robot_loop" / f"{name}{suffix}.json"))
     # The pouring policy and the learning curve's models are the task's recipe (`ciflow
     # train`): every successful episode of their subset fitted, none held out for early
     # stopping, the last epoch kept, so n on the curve is n episodes fitted and the

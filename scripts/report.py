@@ -497,6 +497,64 @@ def plot_script_run(report, script):
                f"({len(samples)} telemetry samples) and {ended}.", "")
 
 
+def joint_limits(report, root):
+    report.add("## Joint limits", "")
+    folder = root / "robot_loop"
+    runs = {p.stem: load(p) for p in sorted(folder.glob("*.json"))} if folder.is_dir() else {}
+    if not runs:
+        report.not_run("joint limits", folder)
+        return
+    report.add("The pouring policy driving the Panda through computed torque (`ciflow "
+               "stability --robot-loop`): 100 rollouts from rest at joint positions drawn "
+               "uniformly over the joint ranges, contexts from the training box, 60 s each "
+               "at most. *flow* is the demo's policy; *joint-range* the same recipe trained "
+               "with `--joint-range true` (the position ranges as the flow's last layer, the "
+               "velocity time-scaled into the speed limits and braking distance, the "
+               "acceleration scaled into its bounds; README \"Joint limits\"). Targets of "
+               "issue 16: 100 % converged, 0 end-stop hits, ≤ 1 % saturated steps.", "",
+               "| policy | push | converged | rollouts at an end stop | control steps with "
+               "torque or rate saturated | steps over a speed limit |",
+               "|---|---|---|---|---|---|")
+    for name, run in runs.items():
+        loop = run["robot_loop"]
+        push = loop.get("push")
+        described = "—" if push is None else (
+            f"{push['force']:g} N for {push['duration']:g} s on the hand at {push['at']:g} s")
+        report.add(f"| {name.removesuffix('-pushed')} | {described} | "
+                   f"{loop['converged']} of {loop['rollouts']} | {loop['hit_end_stops']} | "
+                   f"{percent(loop['saturated_step_fraction'])} of {loop['steps']} | "
+                   f"{loop['over_speed_steps']} |")
+    shown = [(name, run["robot_loop"]) for name, run in runs.items()
+             if not name.endswith("-pushed") and run["robot_loop"].get("traces")]
+    if shown:
+        joints = len(shown[0][1]["position_min"])
+        fig, axes = plt.subplots(len(shown), joints, figsize=(2.2 * joints, 2.4 * len(shown)),
+                                 squeeze=False, sharex=True)
+        for row, (name, loop) in zip(axes, shown):
+            for j, ax in enumerate(row):
+                for trace in loop["traces"]:
+                    q = np.array(trace["positions"])[:, j]
+                    ax.plot(np.arange(len(q)) * trace["period"], q, lw=1)
+                for limit in (loop["position_min"][j], loop["position_max"][j]):
+                    ax.axhline(limit, color="tab:red", lw=1, ls="--")
+                ax.set_title(f"{name}: joint {j + 1}", fontsize=8)
+                ax.tick_params(labelsize=7)
+        for ax in axes[-1]:
+            ax.set_xlabel("s", fontsize=8)
+        report.figure(fig, "joint_limits.png", "Joint positions of the first rollouts against "
+                      "the Panda's limits (dashed)")
+    evaluations = {mode: load(root / "pouring" / f"joint-range-{mode}.json")
+                   for mode in ("eval", "push", "context")}
+    if all(evaluations.values()):
+        push = evaluations["push"].get("push") or {}
+        report.add("", "The joint-range policy on the pouring evaluation's 100 held-out "
+                   f"contexts: success {percent(evaluations['eval']['success_rate'])}, under "
+                   f"≥ 5 cm pushes {percent(evaluations['push']['success_rate'])}, back on "
+                   f"the path within 2 s {percent(push.get('recovered_within_deadline_fraction'))}"
+                   f", pot moved at 1 s {percent(evaluations['context']['success_rate'])} "
+                   "(the demo's policy: section Pouring).")
+
+
 def stability(report, root):
     report.add("## Stability", "")
     folder = root / "stability"
@@ -564,7 +622,7 @@ def build(root, output):
     output.parent.mkdir(parents=True, exist_ok=True)
     report = Report(output.parent / "figures")
     report.add("# C-IFlows experiments", "", f"Measured from `{root}` by `scripts/report.py`.", "")
-    for section in (limit_cycle, obstacles, pouring, stability):
+    for section in (limit_cycle, obstacles, pouring, joint_limits, stability):
         try:
             section(report, root)
         except (KeyError, ValueError, TypeError, IndexError, json.JSONDecodeError) as error:

@@ -60,6 +60,7 @@ def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
     names = {job.name for job in jobs}
     for name in ("pouring-record-train", "pouring-perturb", "pouring-push", "pouring-context",
                  "obstacles-3", "stability-obstacles-3-baseline", "limit-cycle-field",
-                 "limit-cycle-10-seed2", "pouring-0.1-seed2"):
+                 "limit-cycle-10-seed2", "pouring-0.1-seed2", "pouring-joint-range-push",
+                 "robot-loop-flow", "robot-loop-joint-range-pushed"):
         assert name in names
     assert all(set(job.after) <= names for job in jobs)

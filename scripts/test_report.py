@@ -118,6 +118,16 @@ def experiments(tmp_path):
         "observation_space": {"fraction": 0.4, "rollouts": 50, "diverged_to_non_finite": 3,
                               "stalled_away": 5, "within": within(0.4, 0.5, 0.6, 0.7)},
     })
+    def robot_loop(hits, saturated, traced, push=None):
+        trace = {"period": 0.1, "positions": [[0.1 * k, -0.2] for k in range(5)]}
+        return {"robot_loop": {"rollouts": 100, "converged": 100, "hit_end_stops": hits,
+                               "push": push,
+                               "steps": 1000, "saturated_step_fraction": saturated,
+                               "over_speed_steps": 7, "position_min": [-1.0, -1.0],
+                               "position_max": [1.0, 1.0], "traces": [trace] * traced}}
+    write(root / "robot_loop" / "flow.json", robot_loop(42, 0.065, 2))
+    write(root / "robot_loop" / "joint-range-pushed.json",
+          robot_loop(3, 0.012, 0, {"force": 40.0, "at": 1.0, "duration": 0.2}))
     samples = [{"time": 0.01 * k, "state": [0.1 * k] * 7, "command": [1.0] * 7,
                 "reward": -0.5 + 0.005 * k, "running": True, "episode_done": k == 99}
                for k in range(100)]
@@ -156,13 +166,17 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
             "|  |  |") in text
     assert ("| pouring-baseline | training box | 40.0% | 50.0% / 60.0% / 70.0% | 50 | 3 | 5 | "
             "— | not run |") in text
+    assert "| flow | — | 100 of 100 | 42 | 6.5% of 1000 | 7 |" in text
+    assert ("| joint-range | 40 N for 0.2 s on the hand at 1 s | 100 of 100 | 3 | 1.2% of 1000 | 7 |"
+            in text)
     assert ("session ran 0.99 simulated s (100 telemetry samples) and ended with the spout "
             "0.5 cm from the pour point") in text
     figures = tmp_path / "out" / "figures"
     for name in ("limit_cycle_field.png", "limit_cycle_nll.png", "limit_cycle_curled_nll.png",
                  "obstacles_rollouts.png",
                  "obstacles_generic_rollouts.png", "obstacles_3_generic_field.png",
-                 "pouring_push.png", "pouring_script_run.png", "stability.png"):
+                 "pouring_push.png", "pouring_script_run.png", "stability.png",
+                 "joint_limits.png"):
         assert (figures / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
         assert f"(figures/{name})" in text
 

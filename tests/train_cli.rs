@@ -278,3 +278,82 @@ fn train_leaves_out_pushed_steps_and_failed_episodes() {
         "{line}"
     );
 }
+
+/// `--joint-range true` builds the task's robot's limits into the policy, which
+/// `ciflow stability --robot-loop` then drives through the Panda; a task without a robot
+/// refuses it.
+#[test]
+fn train_builds_the_robots_limits_into_the_policy_on_request() {
+    let stderr = refused_training(
+        "train-cli-range-refused",
+        &["--task", "limit-cycle", "--joint-range", "true"],
+    );
+    assert!(stderr.contains("--joint-range"), "{stderr}");
+
+    let scratch = Scratch::new("train-cli-range");
+    let (demos, policy) = (scratch.arg("demos"), scratch.arg("policy"));
+    succeed(&[
+        "demos",
+        "--task",
+        "pouring",
+        "--episodes",
+        "2",
+        "--out",
+        &demos,
+    ]);
+    succeed(&[
+        "train",
+        "--task",
+        "pouring",
+        "--demos",
+        &demos,
+        "--out",
+        &policy,
+        "--epochs",
+        "1",
+        "--layers",
+        "2",
+        "--hidden",
+        "16",
+        "--joint-range",
+        "true",
+    ]);
+    let config: Value = serde_json::from_str(
+        &std::fs::read_to_string(Path::new(&policy).join("config.json")).unwrap(),
+    )
+    .unwrap();
+    let limits = ciflow_engine::robot::panda_limits();
+    let range = &config["joint_range"];
+    for (key, expected) in [
+        ("position_min", &limits.q_min),
+        ("position_max", &limits.q_max),
+        ("speed_max", &limits.qd_max),
+        ("acceleration_max", &limits.qdd_max),
+    ] {
+        let values: Vec<f64> = serde_json::from_value(range[key].clone()).unwrap();
+        assert_eq!(values, expected.as_slice(), "{key}");
+    }
+    let output = succeed(&[
+        "stability",
+        "--checkpoint",
+        &policy,
+        "--starts",
+        "10",
+        "--robot-loop",
+        "--robot-starts",
+        "2",
+        "--robot-duration",
+        "2",
+        "--robot-traces",
+        "1",
+        "--robot-push",
+        "20",
+        "--json",
+    ]);
+    let report: Value = serde_json::from_slice(&output.stdout).unwrap();
+    let robot_loop = &report["robot_loop"];
+    assert_eq!(robot_loop["rollouts"], 2, "{robot_loop}");
+    assert!(robot_loop["steps"].as_u64().unwrap() > 0, "{robot_loop}");
+    assert_eq!(robot_loop["traces"].as_array().unwrap().len(), 1);
+    assert_eq!(robot_loop["push"]["force"], 20.0, "{robot_loop}");
+}

@@ -6,7 +6,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::flow::{ContextSet, ContractionConfig, CouplingKind, LatentKind, SetEncoderConfig};
+use crate::flow::{
+    ContextSet, ContractionConfig, CouplingKind, JointRange, LatentKind, SetEncoderConfig,
+};
 
 /// Default [`TrainConfig::state_noise`].
 pub const DEFAULT_STATE_NOISE: f64 = 0.1;
@@ -34,6 +36,9 @@ pub struct TrainConfig {
     /// network ([`crate::flow::layers::radial`]).
     #[serde(default)]
     pub contractions: Option<ContractionConfig>,
+    /// A robot's limits built into the policy ([`crate::flow::layers::joint_range`]).
+    #[serde(default)]
+    pub joint_range: Option<JointRange>,
     /// Longest modelled transition: each minibatch row spans `k ~ U{1, …, horizon}` steps
     /// and enters the loss with the exact `k`-step density (1 = the paper's one-step
     /// transitions).
@@ -74,6 +79,7 @@ impl TrainConfig {
             context_sets: Vec::new(),
             set_encoder: SetEncoderConfig::default(),
             contractions: None,
+            joint_range: None,
             horizon: 1,
             arrival: 0.0,
             state_noise: DEFAULT_STATE_NOISE,

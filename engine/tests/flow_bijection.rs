@@ -9,7 +9,7 @@ use nalgebra::DMatrix;
 
 #[test]
 fn inverse_round_trips_inside_and_far_outside_the_data() {
-    for (k, config) in variants().iter().enumerate() {
+    for (k, config) in all_variants().iter().enumerate() {
         let policy = random_policy(config, k as u64);
         let mut ws = policy.workspace();
         let mut r = rng(100 + k as u64);
@@ -83,7 +83,7 @@ fn dual_jacobian(policy: &ciflow_engine::flow::Policy, z: &[f64], c: &[f64]) -> 
 
 #[test]
 fn log_determinant_matches_the_dual_number_jacobian() {
-    for (k, config) in variants().iter().enumerate() {
+    for (k, config) in all_variants().iter().enumerate() {
         let policy = random_policy(config, k as u64);
         let mut ws = policy.workspace();
         let mut r = rng(200 + k as u64);
@@ -108,7 +108,7 @@ fn log_determinant_matches_the_dual_number_jacobian() {
 
 #[test]
 fn velocity_is_the_jacobian_times_the_latent_field() {
-    for (k, config) in variants().iter().enumerate() {
+    for (k, config) in all_variants().iter().enumerate() {
         let policy = random_policy(config, k as u64);
         let mut ws = policy.workspace();
         let mut r = rng(300 + k as u64);
@@ -135,7 +135,7 @@ fn velocity_is_the_jacobian_times_the_latent_field() {
 
 #[test]
 fn acceleration_feedforward_is_the_time_derivative_of_the_desired_velocity() {
-    for (k, config) in variants().iter().enumerate() {
+    for (k, config) in all_variants().iter().enumerate() {
         let policy = random_policy(config, k as u64);
         let mut ws = policy.workspace();
         let mut r = rng(400 + k as u64);

@@ -6,14 +6,15 @@
 //!
 //! A rollout converges when, within `duration`, the joint state reaches the attractor:
 //! `‖q - q*‖ ≤ tolerance` and `‖q̇‖ ≤ tolerance`/s for go-to policies, distance to the
-//! orbit `≤ tolerance` for limit cycles.
+//! orbit `≤ tolerance` for limit cycles. A rollout ends when it converges, so the share of
+//! saturated control steps is over the steps it took to get there.
 
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use ciflow_engine::flow::{FlowError, Policy};
-use ciflow_engine::sim::{SimError, Simulator};
+use ciflow_engine::sim::{Perturbation, PerturbationKind, SimError, Simulator};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RobotLoopError {
@@ -38,6 +39,22 @@ pub struct RobotLoopConfig {
     /// Convergence is checked every this many control periods.
     pub check_every: usize,
     pub seed: u64,
+    /// The first this many rollouts' joint positions are kept in the report (sampled every
+    /// `check_every` periods), for plots against the limits.
+    pub traced: usize,
+    /// A push on the last link of every rollout, in a random horizontal direction.
+    pub push: Option<RobotPush>,
+}
+
+/// A horizontal force on the robot's last link.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct RobotPush {
+    /// N.
+    pub force: f64,
+    /// Start, simulated s after the rollout's start.
+    pub at: f64,
+    /// s.
+    pub duration: f64,
 }
 
 impl Default for RobotLoopConfig {
@@ -49,6 +66,8 @@ impl Default for RobotLoopConfig {
             tolerance: 1e-3,
             check_every: 10,
             seed: 0,
+            traced: 0,
+            push: None,
         }
     }
 }
@@ -63,6 +82,27 @@ pub struct RobotLoopReport {
     pub saturated: usize,
     /// Rollouts in which a joint hit an end stop.
     pub hit_end_stops: usize,
+    /// Control periods simulated, over all rollouts (each until it converged).
+    pub steps: usize,
+    /// Control periods in which the torque or rate limits changed the computed torque.
+    pub saturated_steps: usize,
+    /// `saturated_steps / steps`.
+    pub saturated_step_fraction: f64,
+    /// Control periods that ended with a joint faster than its speed limit.
+    pub over_speed_steps: usize,
+    /// The push every rollout took, if any.
+    pub push: Option<RobotPush>,
+    /// The robot's position limits and the traced rollouts ([`RobotLoopConfig::traced`]).
+    pub position_min: Vec<f64>,
+    pub position_max: Vec<f64>,
+    pub traces: Vec<JointTrace>,
+}
+
+/// One rollout's joint positions, `positions[k]` at `k · period` seconds.
+#[derive(Clone, Debug, Serialize)]
+pub struct JointTrace {
+    pub period: f64,
+    pub positions: Vec<Vec<f64>>,
 }
 
 /// Runs the closed-loop check on `simulator` (whose robot has `policy`'s state dimension
@@ -112,7 +152,16 @@ pub fn measure_robot_loop(
         fraction: 0.0,
         saturated: 0,
         hit_end_stops: 0,
+        steps: 0,
+        saturated_steps: 0,
+        saturated_step_fraction: 0.0,
+        over_speed_steps: 0,
+        push: config.push,
+        position_min: limits.q_min.as_slice().to_vec(),
+        position_max: limits.q_max.as_slice().to_vec(),
+        traces: Vec::new(),
     };
+    let trace_period = config.check_every as f64 * simulator.config().control_dt;
     for trial in 0..config.starts {
         let q0: Vec<f64> = (0..d)
             .map(|i| rng.random_range(limits.q_min[i]..=limits.q_max[i]))
@@ -124,7 +173,23 @@ pub fn measure_robot_loop(
             *c = rng.random_range(*lo..=*hi);
         }
         simulator.reset(&q0, &vec![0.0; d])?;
+        if let Some(push) = config.push {
+            let heading = rng.random_range(0.0..std::f64::consts::TAU);
+            simulator.perturb(Perturbation {
+                kind: PerturbationKind::LinkWrench {
+                    link: simulator.robot().link_count() - 1,
+                    force: [push.force * heading.cos(), push.force * heading.sin(), 0.0],
+                    torque: [0.0; 3],
+                },
+                start: push.at,
+                duration: push.duration,
+            })?;
+        }
         let (mut saturated, mut end_stop) = (false, false);
+        let mut trace = (trial < config.traced).then(|| JointTrace {
+            period: trace_period,
+            positions: vec![q0.clone()],
+        });
         for period in 1..=periods {
             let (q, qd) = (simulator.q().as_slice(), simulator.qd().as_slice());
             policy.acceleration(
@@ -137,10 +202,16 @@ pub fn measure_robot_loop(
                 &mut velocity,
             )?;
             let step = simulator.step(&acceleration)?;
+            report.steps += 1;
+            report.saturated_steps += usize::from(step.saturation.is_active());
+            report.over_speed_steps += usize::from(!step.over_speed.is_empty());
             saturated |= step.saturation.is_active();
             end_stop |= !step.end_stops.is_empty();
             if period % config.check_every == 0 {
                 let (q, qd) = (simulator.q().as_slice(), simulator.qd().as_slice());
+                if let Some(trace) = trace.as_mut() {
+                    trace.positions.push(q.to_vec());
+                }
                 let distance = policy.attractor_distance(q, &context, &mut ws, &mut scratch)?;
                 let speed = qd.iter().map(|v| v * v).sum::<f64>().sqrt();
                 if distance <= config.tolerance && (!go_to || speed <= config.tolerance) {
@@ -151,8 +222,10 @@ pub fn measure_robot_loop(
         }
         report.saturated += usize::from(saturated);
         report.hit_end_stops += usize::from(end_stop);
+        report.traces.extend(trace);
         progress(trial + 1);
     }
     report.fraction = report.converged as f64 / report.rollouts as f64;
+    report.saturated_step_fraction = report.saturated_steps as f64 / report.steps.max(1) as f64;
     Ok(report)
 }

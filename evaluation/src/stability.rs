@@ -3,7 +3,8 @@
 //! the demonstrations, for random contexts.
 //!
 //! Starts are drawn uniformly from the demonstrations' state bounding box scaled by
-//! `scale` about its centre (`scale = 100`: up to 100× outside), contexts uniformly from
+//! `scale` about its centre (`scale = 100`: up to 100× outside), cut to the joint range
+//! of a policy built on a robot's limits (no state of it lies outside), contexts uniformly from
 //! the context bounding box scaled by `context_scale` (angles and phases, listed in
 //! `bounded_context`, stay in the box). A rollout converges when its distance to the
 //! attractor — the fixed point for go-to, the orbit point of the same phase for limit
@@ -273,6 +274,7 @@ impl<'a, M: MeanDynamics> Rollout<'a, M> {
             &bounds.state_min,
             &bounds.state_max,
             config.scale,
+            self.model.state_range(),
             &mut rng,
             self.stepper.state_mut(),
         );
@@ -280,6 +282,7 @@ impl<'a, M: MeanDynamics> Rollout<'a, M> {
             &bounds.context_min,
             &bounds.context_max,
             config.context_scale,
+            None,
             &mut rng,
             &mut self.context,
         );
@@ -319,10 +322,23 @@ impl<'a, M: MeanDynamics> Rollout<'a, M> {
     }
 }
 
-/// Uniform sample from the box `[lo, hi]` scaled by `scale` about its centre.
-fn sample_box(lo: &[f64], hi: &[f64], scale: f64, rng: &mut impl Rng, out: &mut [f64]) {
-    for ((o, a), b) in out.iter_mut().zip(lo).zip(hi) {
-        let (centre, half) = (0.5 * (a + b), 0.5 * (b - a) * scale);
-        *o = centre + half * rng.random_range(-1.0..=1.0);
+/// Uniform sample from the box `[lo, hi]` scaled by `scale` about its centre, cut to
+/// `range` when given.
+fn sample_box(
+    lo: &[f64],
+    hi: &[f64],
+    scale: f64,
+    range: Option<(&[f64], &[f64])>,
+    rng: &mut impl Rng,
+    out: &mut [f64],
+) {
+    for (i, o) in out.iter_mut().enumerate() {
+        let (centre, half) = (0.5 * (lo[i] + hi[i]), 0.5 * (hi[i] - lo[i]) * scale);
+        let (mut from, mut to) = (centre - half, centre + half);
+        if let Some((min, max)) = range {
+            from = from.max(min[i]);
+            to = to.min(max[i]).max(from);
+        }
+        *o = rng.random_range(from..=to);
     }
 }

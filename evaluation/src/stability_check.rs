@@ -255,14 +255,18 @@ impl fmt::Display for StabilityCheckReport {
             writeln!(
                 f,
                 "robot loop: {:.1}% ({}/{} computed-torque rollouts converged within {:.3e} in \
-                 {} s; {} saturated the torques, {} hit end stops)",
+                 {} s; {} hit end stops; {} saturated the torques, in {:.2}% of {} control \
+                 steps; {} steps over a speed limit)",
                 100.0 * report.fraction,
                 report.converged,
                 report.rollouts,
                 config.tolerance,
                 config.duration,
-                report.saturated,
                 report.hit_end_stops,
+                report.saturated,
+                100.0 * report.saturated_step_fraction,
+                report.steps,
+                report.over_speed_steps,
             )?;
         }
         Ok(())

@@ -7,16 +7,25 @@
 #[path = "../../engine/tests/flow_common/mod.rs"]
 mod flow_common;
 
-use ciflow_engine::flow::{FlowConfig, LatentKind, Policy, Weights};
+use ciflow_engine::flow::{FlowConfig, JointRange, LatentKind, Policy, Weights};
 use ciflow_engine::math::DVector;
 use ciflow_engine::robot::{JointLimits, PointMass2d, panda, panda_limits};
 use ciflow_engine::sim::{SimConfig, Simulator};
-use ciflow_evaluation::robot_loop::{RobotLoopConfig, measure_robot_loop};
+use ciflow_evaluation::robot_loop::{RobotLoopConfig, RobotPush, measure_robot_loop};
 use flow_common::*;
 
 /// A goal-conditioned go-to flow whose targets (the context) lie inside `[lo, hi]` shrunk
 /// to its middle half.
 fn goal_policy(lo: &[f64], hi: &[f64], seed: u64) -> Policy {
+    let config = goal_config(lo, hi);
+    Policy::new(&config, goal_weights(&config, seed)).unwrap()
+}
+
+fn goal_weights(config: &FlowConfig, seed: u64) -> Weights {
+    Weights::random(&config.parameter_shapes(), 0.3, &mut rng(seed))
+}
+
+fn goal_config(lo: &[f64], hi: &[f64]) -> FlowConfig {
     let d = lo.len();
     let mut config: FlowConfig = config(d, d, LatentKind::GoTo, SPLINE);
     config.min_rate = 1.0;
@@ -25,8 +34,7 @@ fn goal_policy(lo: &[f64], hi: &[f64], seed: u64) -> Policy {
     config.bounds.state_max = hi.to_vec();
     config.bounds.context_min = lo.iter().zip(hi).map(|(a, b)| a + 0.25 * (b - a)).collect();
     config.bounds.context_max = lo.iter().zip(hi).map(|(a, b)| b - 0.25 * (b - a)).collect();
-    let weights = Weights::random(&config.parameter_shapes(), 0.3, &mut rng(seed));
-    Policy::new(&config, weights).unwrap()
+    config
 }
 
 fn check(starts: usize) -> RobotLoopConfig {
@@ -76,4 +84,38 @@ fn panda_converges_without_torque_limits_and_reports_saturation_with_them() {
     };
     let report = measure_robot_loop(&policy, &mut sim, &aggressive, |_| {}).unwrap();
     assert!(report.saturated > 0, "{report:?}");
+}
+
+#[test]
+fn a_joint_range_keeps_the_panda_off_its_end_stops_where_the_same_weights_hit_them() {
+    let real = panda_limits();
+    let (lo, hi): (Vec<f64>, Vec<f64>) = (
+        real.q_min.iter().copied().collect(),
+        real.q_max.iter().copied().collect(),
+    );
+    let mut config = goal_config(&lo, &hi);
+    let weights = goal_weights(&config, 3);
+    let free = Policy::new(&config, weights.clone()).unwrap();
+    config.joint_range = Some(JointRange::from_limits(&real));
+    let ranged = Policy::new(&config, weights).unwrap();
+    let report = |policy: &Policy, push: Option<RobotPush>| {
+        let mut sim = Simulator::new(Box::new(panda()), SimConfig::default()).unwrap();
+        let config = RobotLoopConfig { push, ..check(10) };
+        measure_robot_loop(policy, &mut sim, &config, |_| {}).unwrap()
+    };
+    let (with_range, without) = (report(&ranged, None), report(&free, None));
+    assert_eq!(with_range.hit_end_stops, 0, "{with_range:?}");
+    assert_eq!(with_range.over_speed_steps, 0, "{with_range:?}");
+    assert_eq!(with_range.fraction, 1.0, "{with_range:?}");
+    assert!(without.hit_end_stops > 0, "{without:?}");
+    assert!(without.over_speed_steps > 0, "{without:?}");
+    // A 40 N push on the hand of every rollout moves it: more steps, still converging.
+    let push = RobotPush {
+        force: 40.0,
+        at: 1.0,
+        duration: 0.2,
+    };
+    let pushed = report(&ranged, Some(push));
+    assert_eq!(pushed.fraction, 1.0, "{pushed:?}");
+    assert!(pushed.steps != with_range.steps, "{pushed:?}");
 }

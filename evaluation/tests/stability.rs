@@ -47,6 +47,27 @@ fn the_check_flags_every_rollout_of_the_time_reversed_flows() {
     }
 }
 
+/// A flow on a robot's joint range starts inside it (no state of it lies outside) and, at
+/// random weights, converges from everywhere there; its time-reversed twin is flagged.
+#[test]
+fn flows_on_a_joint_range_converge_from_across_it() {
+    for (k, coupling) in [AFFINE, SPLINE].into_iter().enumerate() {
+        let config = ranged(
+            config(3, 2, ciflow_engine::flow::LatentKind::GoTo, coupling),
+            UNBOUNDED,
+        );
+        let weights = Weights::random(&config.parameter_shapes(), 0.3, &mut rng(k as u64));
+        let policy = ciflow_engine::flow::Policy::new(&config, weights).unwrap();
+        let (lo, hi) = policy.state_range().expect("a joint range");
+        // Narrower than the start box (100× the unit data box), so the cut acts.
+        assert!(lo.iter().zip(hi).all(|(a, b)| b - a < 200.0));
+        let report = measure(&policy, &check(), |_| {}).unwrap();
+        assert_eq!(report.fraction, 1.0, "coupling {k}: {report:?}");
+        let reversed = measure(&policy.time_reversed(), &check(), |_| {}).unwrap();
+        assert_eq!(reversed.converged, 0, "coupling {k}: {reversed:?}");
+    }
+}
+
 /// A behaviour-cloning MLP at random weights, in the unit box around its goal.
 fn random_baseline() -> BehaviourCloning {
     let (d, m) = (2, 2);

@@ -35,7 +35,7 @@ pub struct LasaArgs {
 pub fn run(args: LasaArgs) -> anyhow::Result<()> {
     // `ciflow train`'s configuration for `ciflow/Lasa-v0`: the goal as context.
     let recipe = ciflow_envs::registry::entry(TASK)?.training_recipe(GOAL.len())?;
-    let config = args.model.apply(recipe)?;
+    let config = args.model.apply(recipe, None)?;
     let default = match args.ablation {
         true => REFERENCE_SHAPES.map(String::from).to_vec(),
         false => lasa::shape_names()?,

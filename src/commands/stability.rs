@@ -17,7 +17,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use ciflow_envs::actor::Model;
 use ciflow_envs::registry;
-use ciflow_evaluation::robot_loop::RobotLoopConfig;
+use ciflow_evaluation::robot_loop::{RobotLoopConfig, RobotPush};
 use ciflow_evaluation::stability::StabilityConfig;
 use ciflow_evaluation::stability_check::{StabilityCheck, check_stability};
 
@@ -63,9 +63,16 @@ pub struct StabilityArgs {
     /// Also drive the robot through the computed-torque layer (flows only).
     #[arg(long)]
     pub robot_loop: bool,
-    /// Robot-loop rollouts.
-    #[arg(long, default_value_t = 20)]
+    /// Robot-loop rollouts, from rest at joint positions drawn uniformly over the limits.
+    #[arg(long, default_value_t = 100)]
     pub robot_starts: usize,
+    /// Robot-loop rollouts whose joint positions the JSON report keeps (for plots).
+    #[arg(long, default_value_t = 0)]
+    pub robot_traces: usize,
+    /// Push every robot-loop rollout's last link with this force (N) for 0.2 s, 1 s after
+    /// its start, in a random horizontal direction.
+    #[arg(long)]
+    pub robot_push: Option<f64>,
     /// Simulated seconds per robot-loop rollout.
     #[arg(long, default_value_t = 60.0)]
     pub robot_duration: f64,
@@ -97,6 +104,12 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
             duration: args.robot_duration,
             tolerance: args.tolerance * policy.config().bounds.state_diagonal(),
             seed: args.seed,
+            traced: args.robot_traces,
+            push: args.robot_push.map(|force| RobotPush {
+                force,
+                at: 1.0,
+                duration: 0.2,
+            }),
             ..RobotLoopConfig::default()
         }),
         (Model::Baseline(_), true) => {

@@ -15,6 +15,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use ciflow_bridge::CheckpointPublisher;
 use ciflow_bridge::error::full_message;
+use ciflow_engine::flow::JointRange;
 use ciflow_envs::learning_curve::subset;
 use ciflow_envs::registry;
 use ciflow_train::dataset::ForeignFields;
@@ -95,7 +96,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .context("--subset")?;
     }
     let recipe = task.training_recipe(spec.context_space.dim())?;
-    let config = args.model.apply(args.context.apply(recipe)?)?;
+    let robot = task
+        .robot
+        .map(|robot| JointRange::from_limits(robot().limits()));
+    let config = args.model.apply(args.context.apply(recipe)?, robot)?;
     let (latent, goal_context_indices) = (config.latent, &config.goal_context_indices);
     println!(
         "{}: {} episodes, state {}-D, context {}-D, dt = {} s; latent {latent:?}, target in \

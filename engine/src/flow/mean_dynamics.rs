@@ -19,6 +19,11 @@ pub trait MeanDynamics {
     type Workspace;
     fn workspace(&self) -> Self::Workspace;
     fn bounds(&self) -> &Bounds;
+    /// The joint range the dynamics keeps its states in, `(min, max)`, for a policy built
+    /// on a robot's limits ([`crate::flow::layers::joint_range`]); no state lies outside.
+    fn state_range(&self) -> Option<(&[f64], &[f64])> {
+        None
+    }
     fn mean_next(
         &self,
         y: &[f64],
@@ -51,6 +56,10 @@ impl MeanDynamics for Policy {
     }
     fn bounds(&self) -> &Bounds {
         &self.config().bounds
+    }
+    fn state_range(&self) -> Option<(&[f64], &[f64])> {
+        let range = self.config().joint_range.as_ref()?;
+        Some((&range.position_min, &range.position_max))
     }
     fn mean_next(
         &self,

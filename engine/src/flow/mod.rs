@@ -73,6 +73,7 @@ pub use checkpoint::config::{
 pub use checkpoint::weights::{Tensor, Weights};
 pub use error::{FlowError, FlowResult};
 pub use layers::context_set::{ContextSet, LocalConfig, SetEncoderConfig};
+pub use layers::joint_range::JointRange;
 pub use layers::radial::ContractionConfig;
 pub use mean_dynamics::MeanDynamics;
 pub use policy::{Policy, PolicyWorkspace};

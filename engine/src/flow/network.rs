@@ -1,18 +1,19 @@
 //! The conditioned invertible network `y = f(z, c)` in observation units:
 //!
-//! `f(z, c) = P_c⁻¹(μ_y + σ_y ⊙ g(z + a(c), ĉ))`, `ĉ = E((c - μ_c) ⊘ σ_c)`,
+//! `f(z, c) = R(P_c⁻¹(μ_y + σ_y ⊙ g(z + a(c), ĉ)))`, `ĉ = E((c - μ_c) ⊘ σ_c)`,
 //!
 //! where `E` encodes the context's unordered sets into permutation-invariant summaries
 //! ([`crate::flow::layers::context_set`]; the identity when there are none), `g` is the stack of
 //! (LU mixing, coupling) blocks,
 //! `P_c` the radial contractions about context points ([`crate::flow::layers::radial`]; the identity
-//! when there are none) and the anchor is
-//! `a(c) = g⁻¹((P_c(target(c)) - μ_y) ⊘ σ_y, ĉ)` for go-to tasks whose target is part
+//! when there are none), `R` the map onto a robot's joint ranges
+//! ([`crate::flow::layers::joint_range`]; the identity without one) and the anchor is
+//! `a(c) = g⁻¹((P_c(R⁻¹(target(c))) - μ_y) ⊘ σ_y, ĉ)` for go-to tasks whose target is part
 //! of the context (so `f(0, c) = target(c)` exactly, for every `c`) and `a = 0` otherwise.
 //! The anchor shifts the latent rather than the output so that a trainer finds it by
 //! inverting the target in the same batch (and direction) as the demonstrations.
 //! For each `c`, `f(·, c)` is a bijection with
-//! `log|det ∂f/∂z| = Σ log σ_y + log|det ∂g/∂z| + log|det ∂P_c⁻¹/∂u|`.
+//! `log|det ∂f/∂z| = Σ log σ_y + log|det ∂g/∂z| + log|det ∂P_c⁻¹/∂u| + log|det ∂R/∂w|`.
 
 use crate::flow::checkpoint::config::FlowConfig;
 use crate::flow::checkpoint::names::{self, LAYERS, MIXING};
@@ -71,6 +72,8 @@ impl Conditioning {
 pub struct FlowTape {
     couplings: Vec<CouplingRecord>,
     contraction: ContractionTape,
+    /// `tanh w` of the joint range's input, one per state dimension.
+    joint_range: Vec<f64>,
 }
 
 impl ConditionalFlow {
@@ -164,6 +167,7 @@ impl ConditionalFlow {
                 .map(|(_, c)| CouplingRecord::new(c))
                 .collect(),
             contraction: ContractionTape::default(),
+            joint_range: vec![0.0; self.config.state_dim],
         }
     }
 
@@ -270,16 +274,20 @@ impl ConditionalFlow {
         self.leave(y, conditioning) + log_det + self.log_state_scale
     }
 
-    /// `y ← P_c⁻¹(μ_y + σ_y ⊙ x)`, the output of `g` to the observation; returns
-    /// `log|det ∂P_c⁻¹/∂u|`.
+    /// `y ← R(P_c⁻¹(μ_y + σ_y ⊙ x))`, the output of `g` to the observation; returns
+    /// `log|det ∂(R ∘ P_c⁻¹)/∂u|`.
     fn leave<S: Scalar>(&self, x: &mut [S], conditioning: &Conditioning) -> S {
         let norm = &self.config.normalisation;
         for (i, xi) in x.iter_mut().enumerate() {
             *xi = *xi * norm.state_std[i] + norm.state_mean[i];
         }
-        match &self.contractions {
+        let log_det = match &self.contractions {
             Some(contractions) => contractions.invert(&conditioning.centres, x),
             None => S::constant(0.0),
+        };
+        match &self.config.joint_range {
+            Some(range) => log_det + range.apply(x),
+            None => log_det,
         }
     }
 
@@ -309,6 +317,9 @@ impl ConditionalFlow {
         tape: &mut FlowTape,
     ) {
         z.copy_from_slice(y);
+        if let Some(range) = &self.config.joint_range {
+            range.invert(z, Some(&mut tape.joint_range));
+        }
         if let Some(contractions) = &self.contractions {
             contractions.apply_recorded(&conditioning.centres, z, &mut tape.contraction);
         }
@@ -317,12 +328,16 @@ impl ConditionalFlow {
         self.unanchor(z, conditioning);
     }
 
-    /// `x ← (P_c(x) - μ_y) ⊘ σ_y`, an observation to the input of `g⁻¹`; returns
-    /// `log|det ∂P_c/∂y|`.
+    /// `x ← (P_c(R⁻¹(x)) - μ_y) ⊘ σ_y`, an observation to the input of `g⁻¹`; returns
+    /// `log|det ∂(P_c ∘ R⁻¹)/∂y|`.
     fn enter<S: Scalar>(&self, x: &mut [S], conditioning: &Conditioning) -> S {
-        let log_det = match &self.contractions {
-            Some(contractions) => contractions.apply(&conditioning.centres, x),
+        let log_det = match &self.config.joint_range {
+            Some(range) => range.invert(x, None),
             None => S::constant(0.0),
+        };
+        let log_det = match &self.contractions {
+            Some(contractions) => log_det + contractions.apply(&conditioning.centres, x),
+            None => log_det,
         };
         self.normalise_state(x);
         log_det
@@ -345,7 +360,8 @@ impl ConditionalFlow {
 
     /// The Jacobian-vector product `dy = ∂f(z, c)/∂z · dz` at the `z` of the
     /// [`inverse_recorded`](Self::inverse_recorded) call that filled `tape`:
-    /// `dy = J_{P⁻¹} (σ_y ⊙ J_g dz)`, one tangent sweep through the blocks in forward order.
+    /// `dy = J_R J_{P⁻¹} (σ_y ⊙ J_g dz)`, one tangent sweep through the blocks in forward
+    /// order.
     pub fn tangent(
         &self,
         tape: &FlowTape,
@@ -377,7 +393,7 @@ impl ConditionalFlow {
         self.leave(y_other, conditioning);
     }
 
-    /// `dy ← J_{P⁻¹} (σ_y ⊙ J_g dz)` and, when given, `x ← g(x, c̃)`.
+    /// `dy ← J_R J_{P⁻¹} (σ_y ⊙ J_g dz)` and, when given, `x ← g(x, c̃)`.
     fn sweep(
         &self,
         tape: &FlowTape,
@@ -407,6 +423,9 @@ impl ConditionalFlow {
         }
         if let Some(contractions) = &self.contractions {
             contractions.tangent(&tape.contraction, dy);
+        }
+        if let Some(range) = &self.config.joint_range {
+            range.tangent(&tape.joint_range, dy);
         }
     }
 }

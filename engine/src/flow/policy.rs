@@ -16,7 +16,7 @@ use crate::flow::error::{FlowError, FlowResult, check_input};
 use crate::flow::latent::LatentDynamics;
 use crate::flow::layers::coupling::{CouplingScratch, TangentScratch};
 use crate::flow::network::{ConditionalFlow, Conditioning, FlowTape};
-use crate::nn::scalar::Dual;
+use crate::nn::scalar::{Dual, Scalar};
 
 type Dual2 = Dual<Dual<f64>>;
 
@@ -220,7 +220,8 @@ impl Policy {
     /// Desired velocity `ẏ_des = J_f(z) v(z)` at `z = f⁻¹(y, c)`: the inverse pass keeps
     /// its conditioner activations, and one tangent sweep through `f` seeded with the
     /// latent velocity reuses them (the forward pass at `z` meets the same coupling
-    /// inputs the inverse pass saw).
+    /// inputs the inverse pass saw). Under a joint range it is time-scaled, `s(y, v) v`
+    /// ([`crate::flow::layers::joint_range`]).
     pub fn velocity(
         &self,
         y: &[f64],
@@ -232,7 +233,17 @@ impl Policy {
         self.invert_recorded(y, context, ws)?;
         self.flow
             .tangent(&ws.tape, &ws.latent_velocity, &mut ws.tangent, out);
+        self.limit_speed(y, out);
         Ok(())
+    }
+
+    /// `v ← s(y, v) v` under a joint range (its time scaling,
+    /// [`crate::flow::layers::joint_range`]).
+    fn limit_speed<S: Scalar>(&self, y: &[S], velocity: &mut [S]) {
+        if let Some(range) = &self.config().joint_range {
+            let s = range.speed_scale(y, velocity);
+            velocity.iter_mut().for_each(|v| *v = *v * s);
+        }
     }
 
     /// The full policy action of the benchmark: writes the mean next state
@@ -262,6 +273,7 @@ impl Policy {
             next,
             velocity,
         );
+        self.limit_speed(y, velocity);
         Ok(())
     }
 
@@ -274,6 +286,10 @@ impl Policy {
     /// Computed with nested dual numbers: the inverse is differentiated along `q̇`, the
     /// forward pass along `v(z)` and along that time direction at once.
     /// Writes `q̈_des` to `acceleration` and `v_des(q)` to `velocity`.
+    ///
+    /// Under a joint range, `v_des` is the time-scaled `s(q, v) v` (its `d/dt` through `s`
+    /// included) and `q̈_des` is scaled into the acceleration bounds
+    /// ([`crate::flow::layers::joint_range`]).
     #[allow(clippy::too_many_arguments)]
     pub fn acceleration(
         &self,
@@ -316,10 +332,18 @@ impl Policy {
             &mut ws.scratch_dual2,
             &mut ws.dual2_y,
         );
-        for i in 0..d {
-            let v_des = ws.dual2_y[i].du;
+        // `(v_des, d/dt v_des)` per joint, in `dual_velocity` (free once the forward pass
+        // is done); `dual` still holds `(q, q̇)`.
+        for (v, y) in ws.dual_velocity.iter_mut().zip(&ws.dual2_y) {
+            *v = y.du;
+        }
+        self.limit_speed(&ws.dual, &mut ws.dual_velocity);
+        for (i, v_des) in ws.dual_velocity.iter().enumerate() {
             velocity[i] = v_des.re;
             acceleration[i] = v_des.du + velocity_gain * (v_des.re - qd[i]);
+        }
+        if let Some(range) = &self.config().joint_range {
+            range.scale_acceleration(acceleration);
         }
         Ok(())
     }

@@ -2,8 +2,8 @@
 #![allow(dead_code)]
 
 use ciflow_engine::flow::{
-    ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind, LocalConfig, Policy,
-    SetEncoderConfig, Weights,
+    ContextSet, ContractionConfig, CouplingKind, FlowConfig, JointRange, LatentKind, LocalConfig,
+    Policy, SetEncoderConfig, Weights,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -59,6 +59,44 @@ pub fn variants() -> Vec<FlowConfig> {
         out.push(summary_only);
     }
     out
+}
+
+/// [`variants`] and, after them, the ones with a robot's joint range as the last layer.
+/// Apart: random weights at full scale send some of their far latent states where `tanh`
+/// rounds to ±1 (a checked rollout then crawls along a limit), so the rollout checks
+/// exercise the range with tamer weights of their own.
+pub fn all_variants() -> Vec<FlowConfig> {
+    let mut out = variants();
+    for coupling in [AFFINE, SPLINE] {
+        out.push(ranged(
+            config(3, 2, LatentKind::GoTo, coupling.clone()),
+            UNBOUNDED,
+        ));
+        let mut goal = config(2, 3, LatentKind::SaturatedGoTo, coupling);
+        goal.goal_context_indices = Some(vec![2, 0]);
+        out.push(ranged(goal, UNBOUNDED));
+    }
+    out
+}
+
+/// A speed or acceleration bound no random test field comes near: the command unscaled.
+pub const UNBOUNDED: f64 = 1e12;
+
+/// `config` with joint ranges (asymmetric about 0, wider than the ±50 the tests draw
+/// states from) as its last layer, commands bounded by `speed_max` per joint and the
+/// acceleration [`UNBOUNDED`]. The network's output is scaled by 0.005 so that random
+/// weights, whose outputs reach the hundreds, keep it where `tanh` is invertible in `f64`
+/// (`|u| < 13`, `R`'s input), attractor and far latent states included.
+pub fn ranged(mut config: FlowConfig, speed_max: f64) -> FlowConfig {
+    let d = config.state_dim;
+    config.normalisation.state_std = vec![0.005; d];
+    config.joint_range = Some(JointRange {
+        position_min: (0..d).map(|i| -55.0 - 5.0 * i as f64).collect(),
+        position_max: (0..d).map(|i| 55.0 + 7.0 * i as f64).collect(),
+        speed_max: vec![speed_max; d],
+        acceleration_max: vec![UNBOUNDED; d],
+    });
+    config
 }
 
 /// Go-to in the plane among two context points `[o₁, o₂, g]` (a set, seen through the

@@ -11,8 +11,8 @@ use tch::{Kind, Tensor, nn};
 use crate::data::{Demonstrations, Transitions};
 use crate::error::TrainResult;
 use crate::nn::mlp::Mlp;
+use crate::nn::row;
 use crate::optimise::{OptimConfig, Progress, mean_value, optimise};
-use crate::policy::row;
 use crate::trainer::{TrainConfig, double_var_store, save_checkpoint, split};
 use ciflow_engine::flow::checkpoint::names::NET;
 
@@ -95,7 +95,7 @@ pub fn train_baseline(
         dt: data.dt,
         hidden: train.hidden.clone(),
         goal: train.goal.clone(),
-        normalisation: data.normalisation(&[]),
+        normalisation: data.normalisation(&[], None),
         bounds: data.bounds(),
     };
     config.validate()?;

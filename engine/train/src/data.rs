@@ -1,7 +1,7 @@
 //! Demonstrations: episodes of states `[T × d]` with contexts `[T × m]` or one per
 //! episode, sampled every `dt` seconds.
 
-use ciflow_engine::flow::{Bounds, ContextSet, Normalisation};
+use ciflow_engine::flow::{Bounds, ContextSet, JointRange, Normalisation};
 use tch::{Kind, Tensor};
 
 use crate::error::{TrainError, TrainResult};
@@ -145,11 +145,21 @@ impl Demonstrations {
             .flat_map(|e| (0..e.states.len()).map(move |t| (e.states[t].as_slice(), e.context(t))))
     }
 
-    /// Per-coordinate mean and standard deviation of all states and contexts; the slots of
-    /// each of `sets` share the statistics of all their elements (so the normalisation does
-    /// not depend on the elements' order).
-    pub fn normalisation(&self, sets: &[ContextSet]) -> Normalisation {
-        let (state_mean, state_std) = moments(self.rows().map(|(y, _)| y));
+    /// Per-coordinate mean and standard deviation of all states (as the network sees them:
+    /// through `R⁻¹` under a joint range) and contexts; the slots of each of `sets` share
+    /// the statistics of all their elements (so the normalisation does not depend on the
+    /// elements' order).
+    pub fn normalisation(&self, sets: &[ContextSet], range: Option<&JointRange>) -> Normalisation {
+        let (state_mean, state_std) = match range {
+            Some(range) => {
+                let unbounded: Vec<Vec<f64>> = self
+                    .rows()
+                    .map(|(y, _)| (0..y.len()).map(|i| range.unbounded(i, y[i])).collect())
+                    .collect();
+                moments(unbounded.iter().map(Vec::as_slice))
+            }
+            None => moments(self.rows().map(|(y, _)| y)),
+        };
         let (mut context_mean, mut context_std) = moments(self.rows().map(|(_, c)| c));
         for set in sets {
             pool_slots(set, &mut context_mean, &mut context_std);

@@ -7,7 +7,8 @@
 //! unordered sets, the radial contractions about obstacle centres).
 
 use ciflow_engine::flow::{
-    ContextSet, ContractionConfig, CouplingKind, LatentKind, LocalConfig, SetEncoderConfig,
+    ContextSet, ContractionConfig, CouplingKind, JointRange, LatentKind, LocalConfig,
+    SetEncoderConfig,
 };
 
 use crate::{Keep, OptimConfig, TrainConfig};
@@ -22,6 +23,8 @@ pub enum OverrideError {
     SplineSettingsOnAffine,
     #[error("--contraction-layers: task `{task}` has no centres to contract about")]
     NoCentres { task: String },
+    #[error("--joint-range: task `{task}` drives no robot whose limits it could respect")]
+    NoJointRange { task: String },
 }
 
 /// The coupling layers, by name.
@@ -149,13 +152,23 @@ pub struct RecipeOverrides {
     /// libtorch threads [default: 1].
     #[cfg_attr(feature = "clap", arg(long))]
     pub threads: Option<i32>,
+    /// Build the task's robot's joint limits into the policy: its last layer maps onto
+    /// the position ranges, its velocity is time-scaled into the speed limits and
+    /// braking distance, its acceleration scaled into bounds [default: false; README
+    /// "Joint limits" has why].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub joint_range: Option<bool>,
 }
 
 impl RecipeOverrides {
     /// `recipe` with the settings given in its place. The spline settings apply to
     /// whichever spline the coupling is; with an affine one they are an error rather than
-    /// silently ignored.
-    pub fn apply(&self, recipe: TrainConfig) -> Result<TrainConfig, OverrideError> {
+    /// silently ignored. `robot` is the range of the task's robot, if it drives one.
+    pub fn apply(
+        &self,
+        recipe: TrainConfig,
+        robot: Option<JointRange>,
+    ) -> Result<TrainConfig, OverrideError> {
         let (bins, tail_bound) = match recipe.coupling {
             CouplingKind::Spline { bins, tail_bound } => (bins, tail_bound),
             CouplingKind::Affine { .. } => (8, 4.0),
@@ -171,7 +184,14 @@ impl RecipeOverrides {
             (Some(CouplingChoice::Affine), _) => CouplingKind::AFFINE,
             (None, affine) => affine,
         };
+        let joint_range = match (self.joint_range, robot) {
+            (Some(false), _) => None,
+            (Some(true), Some(range)) => Some(range),
+            (Some(true), None) => return Err(OverrideError::NoJointRange { task: recipe.task }),
+            (None, _) => recipe.joint_range,
+        };
         Ok(TrainConfig {
+            joint_range,
             latent: self.latent.map_or(recipe.latent, LatentKind::from),
             coupling,
             layers: self.layers.unwrap_or(recipe.layers),
@@ -297,7 +317,9 @@ mod tests {
     #[test]
     fn nothing_given_keeps_the_recipe() {
         let recipe = recipe(CouplingKind::AFFINE);
-        let kept = RecipeOverrides::default().apply(recipe.clone()).unwrap();
+        let kept = RecipeOverrides::default()
+            .apply(recipe.clone(), None)
+            .unwrap();
         assert_eq!(kept, recipe);
         assert_eq!(
             ContextOverrides::default().apply(recipe.clone()).unwrap(),
@@ -316,7 +338,7 @@ mod tests {
             latent: Some(LatentChoice::LimitCycle),
             ..RecipeOverrides::default()
         };
-        let config = overrides.apply(recipe(CouplingKind::AFFINE)).unwrap();
+        let config = overrides.apply(recipe(CouplingKind::AFFINE), None).unwrap();
         assert_eq!((config.optim.batch_size, config.optim.epochs), (64, 2));
         assert_eq!(config.validation_fraction, 0.1);
         assert_eq!(config.optim.learning_rate, 1e-4);
@@ -335,14 +357,14 @@ mod tests {
             tail_bound: 3.0,
         });
         assert_eq!(
-            bins.apply(spline).unwrap().coupling,
+            bins.apply(spline, None).unwrap().coupling,
             CouplingKind::Spline {
                 bins: 12,
                 tail_bound: 3.0
             }
         );
         assert!(matches!(
-            bins.apply(recipe(CouplingKind::AFFINE)),
+            bins.apply(recipe(CouplingKind::AFFINE), None),
             Err(OverrideError::SplineSettingsOnAffine)
         ));
         let switched = RecipeOverrides {
@@ -351,10 +373,48 @@ mod tests {
         };
         assert!(matches!(
             switched
-                .apply(recipe(CouplingKind::AFFINE))
+                .apply(recipe(CouplingKind::AFFINE), None)
                 .unwrap()
                 .coupling,
             CouplingKind::Spline { bins: 12, .. }
+        ));
+    }
+
+    #[test]
+    fn joint_range_comes_from_the_robot_and_is_refused_without_one() {
+        let range = JointRange {
+            position_min: vec![-1.0; 2],
+            position_max: vec![1.0; 2],
+            speed_max: vec![1.0; 2],
+            acceleration_max: vec![5.0; 2],
+        };
+        let given = |on| RecipeOverrides {
+            joint_range: Some(on),
+            ..RecipeOverrides::default()
+        };
+        let plain = recipe(CouplingKind::AFFINE);
+        let on = given(true)
+            .apply(plain.clone(), Some(range.clone()))
+            .unwrap();
+        assert_eq!(on.joint_range, Some(range.clone()));
+        assert_eq!(
+            given(false)
+                .apply(on, Some(range.clone()))
+                .unwrap()
+                .joint_range,
+            None
+        );
+        let unsaid = RecipeOverrides::default();
+        assert_eq!(
+            unsaid
+                .apply(plain.clone(), Some(range))
+                .unwrap()
+                .joint_range,
+            None
+        );
+        assert!(matches!(
+            given(true).apply(plain, None),
+            Err(OverrideError::NoJointRange { .. })
         ));
     }
 

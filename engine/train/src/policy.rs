@@ -1,4 +1,4 @@
-//! The conditioned ImitationFlow in tch: `y = P_c⁻¹(μ_y + σ_y ⊙ g(z + a(c), ĉ))`,
+//! The conditioned ImitationFlow in tch: `y = R(P_c⁻¹(μ_y + σ_y ⊙ g(z + a(c), ĉ)))`,
 //! `ĉ = E((c - μ_c) ⊘ σ_c)`, with the
 //! latent dynamics of [`LatentModel`], mirroring `ciflow_engine::flow` parameter for
 //! parameter, so `VarStore::save("weights.safetensors")` loads in the pure-Rust policy.
@@ -11,9 +11,11 @@ use tch::{Device, Kind, Tensor};
 use crate::data::Pairs;
 use crate::latent::{LatentInit, LatentModel};
 use crate::layers::coupling::{Coupling, CouplingContext};
+use crate::layers::joint_range::JointRangeMap;
 use crate::layers::mixing::LuMixing;
 use crate::layers::radial::Contractions;
 use crate::nn::mlp::Mlp;
+use crate::nn::row;
 use ciflow_engine::flow::checkpoint::names::{LATENT, LAYERS, MIXING};
 
 #[derive(Debug)]
@@ -30,6 +32,7 @@ pub struct FlowModel {
     rest: Option<Tensor>,
     set_encoders: Vec<(ContextSet, Mlp)>,
     contractions: Option<Contractions>,
+    joint_range: Option<JointRangeMap>,
 }
 
 /// A batch of contexts prepared for the network: what the couplings see and the
@@ -37,12 +40,6 @@ pub struct FlowModel {
 struct Conditioned {
     couplings: CouplingContext,
     centres: Option<Tensor>,
-}
-
-pub(crate) fn row(values: &[f64]) -> Tensor {
-    Tensor::from_slice(values)
-        .to_kind(Kind::Double)
-        .reshape([1, -1])
 }
 
 impl FlowModel {
@@ -91,6 +88,7 @@ impl FlowModel {
                 .contractions
                 .as_ref()
                 .map(|c| Contractions::new(path, c)),
+            joint_range: config.joint_range.as_ref().map(JointRangeMap::new),
         }
     }
 
@@ -175,13 +173,21 @@ impl FlowModel {
         }
     }
 
-    /// `x̃ = (P_c(y) - μ_y) ⊘ σ_y` and `log|det ∂P_c/∂y|` per row.
+    /// `x̃ = (P_c(R⁻¹(y)) - μ_y) ⊘ σ_y` and `log|det ∂(P_c ∘ R⁻¹)/∂y|` per row.
     fn enter(&self, y: &Tensor, conditioned: &Conditioned) -> (Tensor, Tensor) {
-        let (u, contraction_log_det) = self.contract(y, &conditioned.centres);
-        (
-            (u - &self.state_mean) / &self.state_std,
-            contraction_log_det,
-        )
+        let (w, range_log_det) = match &self.joint_range {
+            Some(range) => {
+                let (w, log_det) = range.invert(y);
+                (w, Some(log_det))
+            }
+            None => (y.shallow_clone(), None),
+        };
+        let (u, log_det) = self.contract(&w, &conditioned.centres);
+        let log_det = match range_log_det {
+            Some(range_log_det) => log_det + range_log_det,
+            None => log_det,
+        };
+        ((u - &self.state_mean) / &self.state_std, log_det)
     }
 
     /// `y = f(z, c)` and `log|det ∂f/∂z|` per row; through the contractions without
@@ -195,13 +201,20 @@ impl FlowModel {
         let (x, log_det) = self.g_forward(&shifted, &conditioned.couplings);
         let u = x * &self.state_std + &self.state_mean;
         let log_det = log_det + self.log_state_scale();
-        match (&self.contractions, &conditioned.centres) {
+        let (w, log_det) = match (&self.contractions, &conditioned.centres) {
             (Some(p), Some(centres)) => {
-                let y = p.invert(&u, centres);
-                let contraction_log_det = p.apply(&y, centres).1;
-                (y, log_det - contraction_log_det)
+                let w = p.invert(&u, centres);
+                let contraction_log_det = p.apply(&w, centres).1;
+                (w, log_det - contraction_log_det)
             }
             _ => (u, log_det),
+        };
+        match &self.joint_range {
+            Some(range) => {
+                let (y, range_log_det) = range.apply(&w);
+                (y, log_det + range_log_det)
+            }
+            None => (w, log_det),
         }
     }
 

@@ -135,7 +135,8 @@ pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<Fl
         context_sets: train.context_sets.clone(),
         set_encoder: (!train.context_sets.is_empty()).then(|| train.set_encoder.clone()),
         contractions: train.contractions,
-        normalisation: data.normalisation(&train.context_sets),
+        joint_range: train.joint_range.clone(),
+        normalisation: data.normalisation(&train.context_sets, train.joint_range.as_ref()),
         bounds: data.bounds(),
     };
     config.validate()?;
@@ -148,7 +149,12 @@ pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<Fl
 /// motions, about where each demonstration ends.
 fn latent_init(data: &Demonstrations, config: &FlowConfig) -> (f64, LatentInit) {
     let norm = &config.normalisation;
-    let normalised = |y: &[f64], i: usize| (y[i] - norm.state_mean[i]) / norm.state_std[i];
+    let unbounded = |y: &[f64], i: usize| match &config.joint_range {
+        Some(range) => range.unbounded(i, y[i]),
+        None => y[i],
+    };
+    let normalised =
+        |y: &[f64], i: usize| (unbounded(y, i) - norm.state_mean[i]) / norm.state_std[i];
     let (mut squares, mut angle, mut n) = (0.0, 0.0, 0.0);
     for e in &data.episodes {
         let end = e.states.last().expect("validated episodes are not empty");

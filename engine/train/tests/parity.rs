@@ -3,8 +3,8 @@
 //! tch's log-determinant equals that of its own autograd Jacobian.
 
 use ciflow_engine::flow::{
-    CheckpointConfig, ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind,
-    LocalConfig, Policy, SetEncoderConfig,
+    CheckpointConfig, ContextSet, ContractionConfig, CouplingKind, FlowConfig, JointRange,
+    LatentKind, LocalConfig, Policy, SetEncoderConfig,
 };
 use ciflow_train::latent::LatentInit;
 use ciflow_train::policy::FlowModel;
@@ -40,24 +40,9 @@ fn configs() -> Vec<FlowConfig> {
             LatentKind::SaturatedGoTo,
             LatentKind::LimitCycle,
         ] {
-            let mut c = FlowConfig::new("parity", 3, 2, latent, coupling.clone(), 3, vec![12, 12]);
-            c.normalisation.state_mean = vec![0.2, -0.4, 1.0];
-            c.normalisation.state_std = vec![0.7, 1.8, 0.4];
-            c.normalisation.context_mean = vec![0.5, 0.1];
-            c.normalisation.context_std = vec![2.0, 0.3];
-            out.push(c);
+            out.push(normalised(latent, coupling.clone()));
         }
-        let mut goal = FlowConfig::new(
-            "parity",
-            2,
-            3,
-            LatentKind::GoTo,
-            coupling.clone(),
-            3,
-            vec![12],
-        );
-        goal.goal_context_indices = Some(vec![2, 1]);
-        out.push(goal);
+        out.push(goal_config(coupling.clone()));
         out.push(with_obstacle_set(coupling.clone(), vec![0, 3]));
         out.push(contracted(with_obstacle_set(coupling.clone(), vec![5, 6])));
         // The default set encoder: the pooled summary alone, no local features.
@@ -66,8 +51,40 @@ fn configs() -> Vec<FlowConfig> {
             encoder.local = None;
         }
         out.push(summary_only);
+        // A robot's joint range last, with and without the target in the context (ranges
+        // wide enough that the N(0, 2²) test states are inside).
+        let mut ranged = normalised(LatentKind::GoTo, coupling.clone());
+        let mut ranged_goal = goal_config(coupling.clone());
+        for config in [&mut ranged, &mut ranged_goal] {
+            let d = config.state_dim;
+            config.joint_range = Some(JointRange {
+                position_min: (0..d).map(|i| -7.0 - 0.5 * i as f64).collect(),
+                position_max: (0..d).map(|i| 8.5 - i as f64).collect(),
+                speed_max: vec![1.0; d],
+                acceleration_max: vec![1.0; d],
+            });
+        }
+        out.push(ranged);
+        out.push(ranged_goal);
     }
     out
+}
+
+/// A 3-D flow with a 2-D context and non-trivial normalisation.
+fn normalised(latent: LatentKind, coupling: CouplingKind) -> FlowConfig {
+    let mut c = FlowConfig::new("parity", 3, 2, latent, coupling, 3, vec![12, 12]);
+    c.normalisation.state_mean = vec![0.2, -0.4, 1.0];
+    c.normalisation.state_std = vec![0.7, 1.8, 0.4];
+    c.normalisation.context_mean = vec![0.5, 0.1];
+    c.normalisation.context_std = vec![2.0, 0.3];
+    c
+}
+
+/// A go-to flow in the plane whose target is the context's entries 2 and 1.
+fn goal_config(coupling: CouplingKind) -> FlowConfig {
+    let mut goal = FlowConfig::new("parity", 2, 3, LatentKind::GoTo, coupling, 3, vec![12]);
+    goal.goal_context_indices = Some(vec![2, 1]);
+    goal
 }
 
 /// A go-to flow whose context `[a, o₁, o₂, o₃]` holds an unordered set of three 2-D

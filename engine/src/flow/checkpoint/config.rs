@@ -15,6 +15,7 @@ use crate::flow::layers::context_set::{
     ContextSet, LocalConfig, SetEncoderConfig, encoder_parameter_shapes, local_prefix, local_sizes,
     rest_indices,
 };
+use crate::flow::layers::joint_range::JointRange;
 use crate::flow::layers::radial::ContractionConfig;
 use crate::nn::mlp::mlp_parameter_shapes;
 
@@ -196,6 +197,10 @@ pub struct FlowConfig {
     /// ([`crate::flow::layers::radial`]); checkpoints without the key have none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contractions: Option<ContractionConfig>,
+    /// A robot's joint limits, as the last layer of `f` and bounds of the commands
+    /// ([`crate::flow::layers::joint_range`]); checkpoints without the key have none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joint_range: Option<JointRange>,
     /// Statistics of the states and of the contexts (a set's slots share theirs).
     pub normalisation: Normalisation,
     /// Box of the states and of the raw contexts.
@@ -228,6 +233,7 @@ impl FlowConfig {
             context_sets: Vec::new(),
             set_encoder: None,
             contractions: None,
+            joint_range: None,
             normalisation: Normalisation::identity(state_dim, context_dim),
             bounds: Bounds {
                 state_min: vec![-1.0; state_dim],
@@ -429,6 +435,15 @@ impl FlowConfig {
         if let Some(contractions) = &self.contractions {
             contractions.validate(d, m)?;
         }
+        if let Some(range) = &self.joint_range {
+            if self.contractions.is_some() {
+                // The contractions' centres are raw positions, in front of the network.
+                return Err(invalid(
+                    "joint_range and contractions cannot be combined".into(),
+                ));
+            }
+            range.validate(d)?;
+        }
         self.normalisation.validate(d, m)?;
         self.bounds.validate(d, m)
     }
@@ -523,6 +538,9 @@ impl BaselineConfig {
 /// What `config.json` holds: one of the two model families.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "model", rename_all = "snake_case")]
+// Read once per checkpoint load and never stored in bulk: boxing the larger variant would
+// save nothing that matters.
+#[allow(clippy::large_enum_variant)]
 pub enum CheckpointConfig {
     Flow(FlowConfig),
     MlpBaseline(BaselineConfig),

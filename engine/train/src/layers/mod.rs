@@ -2,6 +2,7 @@
 
 pub mod affine;
 pub mod coupling;
+pub mod joint_range;
 pub mod mixing;
 pub mod radial;
 pub mod spline;
