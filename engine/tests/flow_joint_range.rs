@@ -2,8 +2,8 @@
 //! the noise-free policy stays inside the position limits from every start, its desired
 //! velocity is the field slowed by a common factor into the speed bounds (with the exact
 //! time derivative) and within braking distance of the limits, and its desired
-//! acceleration is scaled into its bounds along its own direction. The same weights without the range are the negative control: they leave
-//! the limits.
+//! acceleration is scaled into its bounds along its own direction. The same weights
+//! without the range are the negative control: they leave the limits.
 
 mod flow_common;
 

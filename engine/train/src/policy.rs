@@ -92,9 +92,19 @@ impl FlowModel {
         }
     }
 
-    /// Per-coordinate standard deviation of the states, `σ_y` as a `[1, d]` row.
+    /// Per-coordinate standard deviation of the states, `σ_y` as a `[1, d]` row (in the
+    /// network's coordinates `R⁻¹(y)` under a joint range).
     pub fn state_std(&self) -> &Tensor {
         &self.state_std
+    }
+
+    /// `noise` (in the network's coordinates) as a step in observation units at `y`: the
+    /// joint range's slope times it, or itself without one.
+    pub fn to_observation_step(&self, y: &Tensor, noise: Tensor) -> Tensor {
+        match &self.joint_range {
+            Some(range) => noise * range.slope(y),
+            None => noise,
+        }
     }
 
     pub fn config(&self) -> &FlowConfig {

@@ -218,7 +218,7 @@ pub fn train_flow(
     let jitter_std = model.state_std() * (train.state_noise * rms_step);
     let jitter = |states: Tensor| match train.state_noise > 0.0 {
         true => {
-            let noise = states.randn_like() * &jitter_std;
+            let noise = model.to_observation_step(&states, states.randn_like() * &jitter_std);
             states + noise
         }
         false => states,
