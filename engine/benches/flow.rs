@@ -2,7 +2,8 @@
 //! 2×64 hidden): inverse, latent step, forward and the Jacobian-vector product of the
 //! desired velocity (`Policy::act`), plus the second-order `Policy::acceleration`.
 //! Target: `act` < 20 µs. The tch eager figure is printed beside it by
-//! `cargo bench -p ciflow-train --bench flow_tch`.
+//! `cargo bench -p ciflow-train --bench flow_tch`. The affine network also with the
+//! Panda's joint range as its last layer (`--joint-range true`).
 //!
 //! Also `act` at the obstacle-avoidance size (d = 2, 3 obstacles + target, 6 spline
 //! layers) with and without the radial contractions about the obstacles, side by side:
@@ -12,9 +13,10 @@
 use std::hint::black_box;
 
 use ciflow_engine::flow::{
-    ContextSet, ContractionConfig, CouplingKind, FlowConfig, LatentKind, Policy, SetEncoderConfig,
-    Weights,
+    ContextSet, ContractionConfig, CouplingKind, FlowConfig, JointRange, LatentKind, Policy,
+    SetEncoderConfig, Weights,
 };
+use ciflow_engine::robot::panda_limits;
 use criterion::{Criterion, criterion_group, criterion_main};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -33,8 +35,8 @@ fn random_policy(config: &FlowConfig) -> Policy {
     Policy::new(config, weights).expect("valid policy")
 }
 
-fn pouring_policy(coupling: CouplingKind) -> Policy {
-    random_policy(&FlowConfig::new(
+fn pouring_policy(coupling: CouplingKind, joint_range: bool) -> Policy {
+    let mut config = FlowConfig::new(
         "pouring",
         7,
         6,
@@ -42,7 +44,9 @@ fn pouring_policy(coupling: CouplingKind) -> Policy {
         coupling,
         10,
         vec![64, 64],
-    ))
+    );
+    config.joint_range = joint_range.then(|| JointRange::from_limits(&panda_limits()));
+    random_policy(&config)
 }
 
 /// The obstacle-avoidance architecture of `ciflow train` (3 obstacles).
@@ -77,11 +81,13 @@ fn bench(c: &mut Criterion) {
     let y = [0.1, -0.3, 0.2, -1.5, 0.05, 1.2, 0.4];
     let qd = [0.01, 0.02, -0.03, 0.0, 0.1, -0.05, 0.02];
     let context = [0.5, 0.2, 0.3, 0.0, 0.1, -0.2];
-    for (name, coupling) in [
-        ("affine", CouplingKind::Affine { scale_bound: 2.0 }),
-        ("spline", SPLINE),
+    let affine = CouplingKind::Affine { scale_bound: 2.0 };
+    for (name, coupling, joint_range) in [
+        ("affine", affine.clone(), false),
+        ("affine-joint-range", affine, true),
+        ("spline", SPLINE, false),
     ] {
-        let policy = pouring_policy(coupling);
+        let policy = pouring_policy(coupling, joint_range);
         bench_act(c, &format!("flow/act/{name}"), &policy, &y, &context);
         let mut ws = policy.workspace();
         let (mut velocity, mut acceleration) = ([0.0; 7], [0.0; 7]);
