@@ -157,3 +157,136 @@ fn bad_input_exits_non_zero_with_a_message() {
     assert!(!output.status.success());
     assert!(String::from_utf8_lossy(&output.stderr).contains("invalid point mass"));
 }
+
+/// The shipped Panda URDF, given as a user's file.
+fn panda_urdf() -> String {
+    concat!(env!("CARGO_MANIFEST_DIR"), "/engine/assets/panda.urdf").to_owned()
+}
+
+#[test]
+fn a_urdf_with_tool_and_armature_is_the_robot_the_library_builds() {
+    let armature = ciflow_engine::robot::PANDA_ARMATURE
+        .map(|a| a.to_string())
+        .join(",");
+    let urdf = panda_urdf();
+    let robot = panda();
+    for query in ["mass-matrix", "jacobian"] {
+        let args = [
+            "robot",
+            "--urdf",
+            &urdf,
+            "--tool",
+            "panda_hand",
+            "--armature",
+            &armature,
+            query,
+            "--q",
+            &home(),
+        ];
+        let from_file = json(&args);
+        let shipped = json(&["robot", "panda", query, "--q", &home()]);
+        assert_eq!(
+            from_file[query.replace('-', "_")],
+            shipped[query.replace('-', "_")],
+            "{query}"
+        );
+    }
+    // A locked joint: 6 joints remain, and the tool's Jacobian loses the locked column.
+    let six = &home()[..home().rfind(',').unwrap()];
+    let output = json(&[
+        "robot",
+        "--urdf",
+        &urdf,
+        "--tool",
+        "panda_hand",
+        "--lock-joints",
+        "panda_joint7=0.7853981633974483",
+        "jacobian",
+        "--q",
+        six,
+    ]);
+    let mut jacobian = ciflow_engine::math::DMatrix::zeros(6, 7);
+    robot
+        .frame_jacobian(
+            &PANDA_HOME,
+            robot.end_effector(),
+            &ciflow_engine::math::Vector3::zeros(),
+            &mut jacobian,
+        )
+        .unwrap();
+    let rows = output["jacobian"].as_array().unwrap();
+    for (r, row) in rows.iter().enumerate() {
+        let expected: Vec<f64> = (0..6).map(|c| jacobian[(r, c)]).collect();
+        assert_close(&numbers(row), &expected);
+    }
+}
+
+#[test]
+fn a_urdf_the_engine_cannot_model_is_a_clear_error() {
+    let dir = std::env::temp_dir().join(format!("ciflow-cli-urdf-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let floating = dir.join("floating.urdf");
+    std::fs::write(
+        &floating,
+        r#"<robot name="drone"><link name="world"/><link name="body"><inertial><mass value="1"/><inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link>
+        <joint name="free" type="floating"><parent link="world"/><child link="body"/></joint></robot>"#,
+    )
+    .unwrap();
+    let floating = floating.to_string_lossy().into_owned();
+    let urdf = panda_urdf();
+    for (args, message) in [
+        (
+            vec!["robot", "--urdf", &floating, "gravity", "--q", "0"],
+            "joint `free` is floating",
+        ),
+        (
+            vec![
+                "robot",
+                "--urdf",
+                "/nonexistent.urdf",
+                "gravity",
+                "--q",
+                "0",
+            ],
+            "cannot read /nonexistent.urdf",
+        ),
+        (
+            vec![
+                "robot",
+                "--urdf",
+                &urdf,
+                "--lock-joints",
+                "elbow",
+                "gravity",
+                "--q",
+                "0",
+            ],
+            "cannot lock joint `elbow`",
+        ),
+        (
+            vec![
+                "robot",
+                "--urdf",
+                &urdf,
+                "--armature",
+                "1,2",
+                "gravity",
+                "--q",
+                "0",
+            ],
+            "armature: expected 7 entries, got 2",
+        ),
+        (
+            vec!["robot", "--urdf", &urdf, "panda", "gravity", "--q", "0"],
+            "--urdf gives the robot",
+        ),
+        (vec!["robot", "gravity", "--q", "0"], "--urdf FILE"),
+    ] {
+        let output = ciflow(&args);
+        assert!(!output.status.success(), "{args:?} succeeded");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(stderr.contains(message), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

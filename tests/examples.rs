@@ -1,7 +1,8 @@
 //! The runnable examples (`bridge/examples`, `envs/examples`) run and do what their docs
 //! say: `cargo test` builds them, and this test runs the quick ones as separate
 //! processes — stepping a served task, pushing a session, acting from a checkpoint
-//! without Zenoh, and publishing a checkpoint that a running `ciflow serve` hot-loads.
+//! without Zenoh, publishing a checkpoint that a running `ciflow serve` hot-loads, and
+//! the 1 kHz control loops over Zenoh and in process.
 
 mod common;
 
@@ -106,4 +107,54 @@ fn publish_checkpoint_makes_a_running_engine_serve_the_policy() {
         out.contains("serves policy `published` for ciflow/LimitCycle-v0"),
         "{out}"
     );
+}
+
+/// `(calls, missed, periods)` of a control-loop report line starting with `prefix`.
+fn loop_report(out: &str, prefix: &str) -> (usize, usize, usize) {
+    let line = out
+        .lines()
+        .find(|l| l.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no `{prefix}` line in {out}"));
+    let number = |after: &str, before: &str| -> usize {
+        let rest = &line[line.find(after).unwrap() + after.len()..];
+        rest[..rest.find(before).unwrap()].trim().parse().unwrap()
+    };
+    (
+        number(": ", " calls"),
+        number("missed ", " of "),
+        number(" of ", " deadlines"),
+    )
+}
+
+#[test]
+fn control_loops_call_a_policy_once_per_millisecond_over_zenoh_and_in_process() {
+    let scratch = Scratch::new("example-control-loop");
+    limit_cycle_checkpoint(&scratch.join("policy"));
+    let port = 27444;
+    let policy = format!("cycle={}", scratch.arg("policy"));
+    let _engine = serve(port, "loop", &["--policy", &policy]);
+    let out = run(
+        "control_loop",
+        &[&endpoint(port), "loop", "cycle", "--seconds", "0.3"],
+    );
+    for prefix in ["raw Zenoh query", "act over Zenoh"] {
+        let (calls, missed, periods) = loop_report(&out, prefix);
+        assert_eq!(periods, 300, "{out}");
+        // Every period is answered in time, or missed (late answers skip periods).
+        assert!(calls > 0 && calls <= periods && missed <= periods, "{out}");
+    }
+    assert!(out.contains("act / raw: median"), "{out}");
+    let out = run(
+        "control_loop_in_process",
+        &[&scratch.arg("policy"), "--seconds", "0.3"],
+    );
+    let (calls, _, periods) = loop_report(&out, "act in process");
+    assert_eq!(periods, 300, "{out}");
+    assert!(calls > 0 && calls <= periods, "{out}");
+    let bad = Command::new(example("control_loop"))
+        .args([&endpoint(port), "loop", "nobody", "--seconds", "0.1"])
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("serves no policy `nobody`"));
 }

@@ -132,7 +132,7 @@ fn unknown_frames_and_links_are_typed_errors() {
 
 #[test]
 fn joint_rotation_matches_axis_angle_for_any_axis() {
-    use ciflow_engine::model::RevoluteJoint;
+    use ciflow_engine::model::Joint;
     use ciflow_engine::spatial::Se3;
     use nalgebra::{Rotation3, Unit};
     let placement = Se3::new(
@@ -144,11 +144,7 @@ fn joint_rotation_matches_axis_angle_for_any_axis() {
         Vector3::x(),
         Vector3::new(0.3, -0.5, 0.8).normalize(),
     ] {
-        let joint = RevoluteJoint {
-            name: "j".into(),
-            placement,
-            axis,
-        };
+        let joint = Joint::revolute("j", placement, axis);
         for q in [-2.0, 0.0, 0.7, 3.0] {
             let expected = placement.rotation
                 * Rotation3::from_axis_angle(&Unit::new_normalize(axis), q).into_inner();

@@ -3,7 +3,7 @@
 mod common;
 
 use ciflow_engine::math::{DMatrix, DVector};
-use ciflow_engine::model::{Model, ModelError};
+use ciflow_engine::model::Model;
 use ciflow_engine::robot::{PANDA_ARMATURE, PANDA_HOME, Robot, panda, panda_from_dh, panda_limits};
 use common::*;
 
@@ -103,31 +103,4 @@ fn hand_mass_is_lumped_into_link_7() {
     let expected =
         4.970684 + 0.646926 + 3.228604 + 3.587895 + 1.225946 + 1.666555 + 0.735522 + 0.73;
     assert!((total(panda().model()) - expected).abs() < 1e-12);
-}
-
-#[test]
-fn malformed_urdf_is_a_typed_error() {
-    assert!(matches!(
-        Model::from_urdf_str("<robot"),
-        Err(ModelError::Urdf(_))
-    ));
-    let prismatic = r#"<robot name="r">
-        <link name="a"/><link name="b"/>
-        <joint name="j" type="prismatic"><parent link="a"/><child link="b"/>
-        <axis xyz="0 0 1"/><limit lower="0" upper="1" effort="1" velocity="1"/></joint>
-    </robot>"#;
-    assert!(matches!(
-        Model::from_urdf_str(prismatic),
-        Err(ModelError::UnsupportedJoint { .. })
-    ));
-    let branching = r#"<robot name="r">
-        <link name="a"/><link name="b"><inertial><mass value="1"/><inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link>
-        <link name="c"><inertial><mass value="1"/><inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link>
-        <joint name="j1" type="continuous"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/></joint>
-        <joint name="j2" type="continuous"><parent link="a"/><child link="c"/><axis xyz="0 0 1"/></joint>
-    </robot>"#;
-    assert!(matches!(
-        Model::from_urdf_str(branching),
-        Err(ModelError::NotSerialChain(_))
-    ));
 }

@@ -1,6 +1,9 @@
-//! Agreement with Pinocchio (an independent rigid-body library) on the shipped Panda URDF:
-//! RNEA, CRBA and generalized gravity over random states, to 1e-9, with the Panda's
-//! armature (reflected rotor inertias) given to Pinocchio's `model.armature`.
+//! Agreement with Pinocchio (an independent rigid-body library) on four URDF arms: the
+//! shipped Panda, a UR5e, a KUKA LBR iiwa 14 and the Panda with its gripper's fingers
+//! (prismatic; one finger locked, as Pinocchio's `buildReducedModel` locks it). Over random
+//! states, to 1e-9 relative: RNEA, CRBA, generalized gravity, forward dynamics (ABA), the
+//! tool frame's placement and its world-aligned Jacobian, with rotor inertias given to
+//! Pinocchio's `model.armature`.
 //!
 //! Needs the project's Python environment (`make test` or `scripts/setup-python.sh`);
 //! `$CIFLOW_PYTHON` overrides `<workspace>/.venv/bin/python`.
@@ -10,14 +13,16 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use ciflow_engine::math::{DMatrix, DVector, Real};
-use ciflow_engine::robot::{Robot, panda};
+use ciflow_engine::math::{DMatrix, DVector, Real, Vector3};
+use ciflow_engine::robot::{LockedJoint, PANDA_ARMATURE, Robot, SerialChain, UrdfOptions};
 use common::{
-    assert_close, assert_matrix_close, gravity, inverse_dynamics, mass_matrix, random_state, rng,
+    assert_close, assert_matrix_close, forward_dynamics, gravity, inverse_dynamics, mass_matrix,
+    random_state, rng,
 };
+use rand::RngExt;
 use serde_json::{Value, json};
 
-const STATES: usize = 128;
+const STATES: usize = 64;
 const TOLERANCE: Real = 1e-9;
 
 fn python() -> PathBuf {
@@ -47,65 +52,162 @@ fn numbers(value: &Value) -> Vec<Real> {
         .collect()
 }
 
-#[test]
-fn panda_rnea_crba_gravity_match_pinocchio() {
-    let mut robot = panda();
+/// Loads `urdf` (relative to the engine crate) with `options` here and in Pinocchio, and
+/// compares the two over random states.
+fn compare_with_pinocchio(urdf: &str, options: UrdfOptions, seed: u64) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(urdf);
+    let mut robot = SerialChain::from_urdf_file(&path, &options).expect("the URDF loads");
     let n = robot.dof();
-    let mut rng = rng(7);
+    let mut rng = rng(seed);
     let states: Vec<_> = (0..STATES)
-        .map(|_| random_state(&robot, &mut rng))
+        .map(|_| {
+            let state = random_state(&robot, &mut rng);
+            let tau = DVector::from_fn(n, |i, _| {
+                let bound = robot.limits().tau_max[i].min(50.0);
+                rng.random_range(-bound..=bound)
+            });
+            (state, tau)
+        })
         .collect();
+    let tool = robot.end_effector();
     let request = json!({
         "armature": robot.model().armature().as_slice(),
-        "states": states.iter().map(|s| json!({
-            "q": s.q.as_slice(), "qd": s.qd.as_slice(), "qdd": s.qdd.as_slice()
+        "lock": options.locked.iter().map(|l| (l.name.clone(), json!(l.position))).collect::<serde_json::Map<_, _>>(),
+        "tool": robot.frames()[tool].name,
+        "states": states.iter().map(|(s, tau)| json!({
+            "q": s.q.as_slice(), "qd": s.qd.as_slice(), "qdd": s.qdd.as_slice(), "tau": tau.as_slice()
         })).collect::<Vec<_>>()
     });
-    let dir = std::env::temp_dir().join(format!("ciflow-pinocchio-{}", std::process::id()));
+    let dir = std::env::temp_dir().join(format!("ciflow-pinocchio-{}-{seed}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let states_path = dir.join("states.json");
+    let request_path = dir.join("request.json");
     let out_path = dir.join("reference.json");
-    std::fs::write(&states_path, request.to_string()).unwrap();
-    let manifest = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    std::fs::write(&request_path, request.to_string()).unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/pinocchio_reference.py");
     let output = Command::new(python())
-        .arg(manifest.join("tests/pinocchio_reference.py"))
-        .arg(manifest.join("assets/panda.urdf"))
-        .arg(&states_path)
+        .arg(script)
+        .arg(&path)
+        .arg(&request_path)
         .arg(&out_path)
         .output()
         .expect("run the Pinocchio reference script");
     assert!(
         output.status.success(),
-        "pinocchio_reference.py failed: {}",
+        "pinocchio_reference.py failed on {urdf}: {}",
         String::from_utf8_lossy(&output.stderr)
     );
     let reference: Value =
         serde_json::from_str(&std::fs::read_to_string(&out_path).unwrap()).unwrap();
     std::fs::remove_dir_all(&dir).ok();
-    assert_eq!(reference["nq"].as_u64(), Some(n as u64), "Pinocchio's nq");
+    let joints: Vec<_> = robot
+        .model()
+        .bodies()
+        .iter()
+        .map(|b| b.joint.name.as_str())
+        .collect();
+    let pinocchio_joints: Vec<_> = reference["joints"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|j| j.as_str().unwrap())
+        .collect();
+    assert_eq!(
+        joints, pinocchio_joints,
+        "{urdf}: the moving joints, in order"
+    );
     let results = reference["results"].as_array().unwrap();
     assert_eq!(results.len(), STATES);
-    for (i, (state, expected)) in states.iter().zip(results).enumerate() {
-        let tau = inverse_dynamics(&mut robot, &state.q, &state.qd, &state.qdd);
+    for (i, ((state, tau), expected)) in states.iter().zip(results).enumerate() {
+        let what = |quantity: &str| format!("{urdf}: {quantity}, state {i}");
+        let rnea = inverse_dynamics(&mut robot, &state.q, &state.qd, &state.qdd);
         assert_close(
-            tau.as_slice(),
+            rnea.as_slice(),
             &numbers(&expected["tau"]),
             TOLERANCE,
-            &format!("rnea, state {i}"),
+            &what("rnea"),
         );
         let m = mass_matrix(&mut robot, &state.q);
         let m_expected = DMatrix::from_row_slice(n, n, &numbers(&expected["m"]));
-        assert_matrix_close(&m, &m_expected, TOLERANCE, &format!("crba, state {i}"));
+        assert_matrix_close(&m, &m_expected, TOLERANCE, &what("crba"));
         let g = gravity(&mut robot, &state.q);
         assert_close(
             g.as_slice(),
             &numbers(&expected["g"]),
             TOLERANCE,
-            &format!("gravity, state {i}"),
+            &what("gravity"),
         );
         assert!(
             DVector::from(numbers(&expected["g"])).norm() > 1.0,
             "gravity is not trivially zero"
         );
+        let qdd = forward_dynamics(&mut robot, &state.q, &state.qd, tau);
+        assert_close(
+            qdd.as_slice(),
+            &numbers(&expected["qdd"]),
+            TOLERANCE,
+            &what("aba"),
+        );
+        let placement = robot.frame_placement(state.q.as_slice(), tool).unwrap();
+        assert_close(
+            placement.translation.vector.as_slice(),
+            &numbers(&expected["tool_translation"]),
+            TOLERANCE,
+            &what("tool position"),
+        );
+        let rotation = placement.rotation.to_rotation_matrix().into_inner();
+        assert_matrix_close(
+            &DMatrix::from_iterator(3, 3, rotation.iter().copied()),
+            &DMatrix::from_row_slice(3, 3, &numbers(&expected["tool_rotation"])),
+            TOLERANCE,
+            &what("tool rotation"),
+        );
+        let mut jacobian = DMatrix::zeros(6, n);
+        robot
+            .frame_jacobian(state.q.as_slice(), tool, &Vector3::zeros(), &mut jacobian)
+            .unwrap();
+        assert_matrix_close(
+            &jacobian,
+            &DMatrix::from_row_slice(6, n, &numbers(&expected["tool_jacobian"])),
+            TOLERANCE,
+            &what("tool Jacobian"),
+        );
     }
+}
+
+#[test]
+fn panda_matches_pinocchio() {
+    let options = UrdfOptions {
+        tool: Some("panda_hand".into()),
+        armature: Some(PANDA_ARMATURE.to_vec()),
+        ..UrdfOptions::default()
+    };
+    compare_with_pinocchio("assets/panda.urdf", options, 7);
+}
+
+#[test]
+fn ur5e_matches_pinocchio() {
+    let options = UrdfOptions {
+        tool: Some("tool0".into()),
+        armature: Some(vec![0.4, 0.4, 0.2, 0.05, 0.05, 0.05]),
+        ..UrdfOptions::default()
+    };
+    compare_with_pinocchio("tests/assets/ur5e.urdf", options, 8);
+}
+
+#[test]
+fn iiwa14_matches_pinocchio() {
+    compare_with_pinocchio("tests/assets/iiwa14.urdf", UrdfOptions::default(), 9);
+}
+
+#[test]
+fn a_gripper_finger_moves_as_a_prismatic_joint_as_in_pinocchio() {
+    let options = UrdfOptions {
+        locked: vec![LockedJoint {
+            name: "panda_finger_joint2".into(),
+            position: 0.02,
+        }],
+        tool: Some("panda_leftfinger".into()),
+        armature: Some([PANDA_ARMATURE.as_slice(), &[0.01]].concat()),
+    };
+    compare_with_pinocchio("tests/assets/panda_gripper.urdf", options, 10);
 }

@@ -151,3 +151,38 @@ def test_policy_operations_and_their_error_codes_from_a_plain_client(policy_engi
         assert dim == len(observation)
     finally:
         plain.close()
+
+
+def test_a_served_policy_acts_for_a_plain_loop_without_gymnasium(policy_engine):
+    endpoint, name = policy_engine
+    policy = ciflow.Policy("avoid", engine=endpoint)
+    assert (policy.engine, policy.task) == (name, "ciflow/Obstacle-v0")
+    assert (policy.observation_dim, policy.action_dim) == (8, 2)
+    observation = np.array([-0.8, 0.3, 0.1, -0.2, 0.0, -0.7, 0.8, 0.1])
+    action = policy.act(observation)
+    assert action.shape == (2,) and np.all(np.isfinite(action)) and np.any(action != 0.0)
+    # A batch is acted row by row: the same rows give the same actions.
+    batch = policy.act(np.stack([observation, observation * 0.5, observation]))
+    assert batch.shape == (3, 2)
+    np.testing.assert_array_equal(batch[0], action)
+    np.testing.assert_array_equal(batch[2], action)
+    assert not np.array_equal(batch[1], action)
+    with pytest.raises(ValueError, match=r"\(8,\) or \(n, 8\)"):
+        policy.act(observation[:-1])
+    with pytest.raises(ciflow.EngineUnreachable, match="serves a policy named 'nobody'"):
+        ciflow.Policy("nobody", engine=endpoint)
+
+
+def test_the_1khz_control_loop_example_calls_a_served_policy(policy_engine):
+    endpoint, _ = policy_engine
+    example = Path(__file__).resolve().parent.parent / "examples" / "control_loop.py"
+    result = subprocess.run(
+        [sys.executable, str(example), endpoint, "avoid", "--seconds", "0.5"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    line = next(l for l in result.stdout.splitlines() if l.startswith("act over Zenoh"))
+    calls = int(line.split(": ")[1].split(" calls")[0])
+    missed, periods = (int(x) for x in line.split("missed ")[1].split(" deadlines")[0].split(" of "))
+    # 500 periods of 1 ms: each was either answered in time or missed.
+    assert periods == 500 and 0 < calls <= periods and missed <= periods

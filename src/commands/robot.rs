@@ -1,15 +1,47 @@
 //! `ciflow robot`: kinematics and dynamics of a robot model at a given state, as JSON.
 
-use anyhow::{Context, Result};
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
 use ciflow_engine::math::{DMatrix, DVector, Real, Vector3};
-use ciflow_engine::robot::{PointMass2d, Robot, panda};
+use ciflow_engine::robot::{LockedJoint, PointMass2d, Robot, SerialChain, UrdfOptions, panda};
 use clap::{Args, Subcommand};
 use serde_json::{Value, json};
 
+use crate::parse::parse_locked_joint;
+
 #[derive(Args, Debug)]
 pub struct RobotArgs {
+    #[command(flatten)]
+    urdf: UrdfArgs,
     #[command(subcommand)]
     robot: RobotChoice,
+}
+
+/// A serial arm from a URDF file: `ciflow robot --urdf FILE <query>`.
+#[derive(Args, Debug)]
+struct UrdfArgs {
+    /// The robot's URDF (a fixed-base chain of revolute, continuous, prismatic and fixed
+    /// joints).
+    #[arg(long, value_name = "FILE")]
+    urdf: Option<PathBuf>,
+    /// The tool frame, a link name (default: the last link).
+    #[arg(long, value_name = "LINK", requires = "urdf")]
+    tool: Option<String>,
+    /// Joints held fixed, as NAME (at 0) or NAME=POSITION, comma-separated; e.g. one
+    /// finger of a gripper.
+    #[arg(
+        long,
+        value_name = "NAMES",
+        value_delimiter = ',',
+        value_parser = parse_locked_joint,
+        requires = "urdf"
+    )]
+    lock_joints: Vec<LockedJoint>,
+    /// Reflected rotor inertias of the moving joints in chain order, comma-separated
+    /// (kg·m², kg for a prismatic joint); URDF cannot carry them (default: zero).
+    #[arg(long, value_name = "VALUES", value_delimiter = ',', requires = "urdf")]
+    armature: Option<Vec<Real>>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -27,6 +59,9 @@ enum RobotChoice {
         #[command(subcommand)]
         query: Query,
     },
+    /// A query on the robot given by --urdf.
+    #[command(flatten)]
+    Urdf(Query),
 }
 
 /// Joint values as a comma-separated list, e.g. `0,-0.78,0,-2.35,0,1.57,0.78`.
@@ -107,12 +142,26 @@ enum Query {
 }
 
 pub fn run(args: RobotArgs) -> Result<()> {
-    let (mut robot, query): (Box<dyn Robot>, Query) = match args.robot {
-        RobotChoice::Panda { query } => (Box::new(panda()), query),
-        RobotChoice::PointMass { mass, query } => (
+    let (mut robot, query): (Box<dyn Robot>, Query) = match (args.urdf.urdf, args.robot) {
+        (None, RobotChoice::Panda { query }) => (Box::new(panda()), query),
+        (None, RobotChoice::PointMass { mass, query }) => (
             Box::new(PointMass2d::new(mass).context("invalid point mass")?),
             query,
         ),
+        (Some(path), RobotChoice::Urdf(query)) => {
+            let options = UrdfOptions {
+                locked: args.urdf.lock_joints,
+                tool: args.urdf.tool,
+                armature: args.urdf.armature,
+            };
+            let chain = SerialChain::from_urdf_file(&path, &options)
+                .with_context(|| format!("loading the robot from {}", path.display()))?;
+            (Box::new(chain), query)
+        }
+        (Some(_), _) => bail!("--urdf gives the robot: leave out `panda` / `point-mass`"),
+        (None, RobotChoice::Urdf(_)) => {
+            bail!("name the robot: `panda`, `point-mass`, or --urdf FILE")
+        }
     };
     let output = evaluate(robot.as_mut(), query)?;
     println!("{}", serde_json::to_string_pretty(&output)?);

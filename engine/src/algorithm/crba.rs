@@ -30,10 +30,10 @@ pub(crate) fn composite_rigid_body(model: &Model, data: &mut Data) {
     }
     for i in (0..bodies.len()).rev() {
         let mut force = data.ycrb[i] * bodies[i].joint.motion_subspace();
-        data.m[(i, i)] = bodies[i].joint.axis.dot(&force.angular) + model.armature()[i];
+        data.m[(i, i)] = bodies[i].joint.project(&force) + model.armature()[i];
         for j in (0..i).rev() {
             force = data.li_m_i[j + 1].act_force(&force);
-            let m_ij = bodies[j].joint.axis.dot(&force.angular);
+            let m_ij = bodies[j].joint.project(&force);
             data.m[(i, j)] = m_ij;
             data.m[(j, i)] = m_ij;
         }

@@ -4,12 +4,12 @@ use super::kinematics::body_placement;
 use super::{DynamicsError, check_len, check_matrix_shape, check_vector};
 use crate::math::{DMatrix, DVector, Real, Vector3};
 use crate::model::Model;
-use crate::spatial::Se3;
+use crate::spatial::{Force, Motion, Se3};
 
 /// The geometric Jacobian `J(q)` (6 × n, world-aligned, rows `[linear; angular]`) of the
-/// point `point` (coordinates in frame `frame`): `[ṗ; ω] = J(q) q̇`, with column `j`
-/// `[zⱼ × (p − oⱼ); zⱼ]` for the joints that move the frame (`zⱼ`, `oⱼ` the world axis and
-/// origin of joint `j`) and zero otherwise.
+/// point `point` (coordinates in frame `frame`): `[ṗ; ω] = J(q) q̇`. Column `j` is
+/// `[zⱼ × (p − oⱼ); zⱼ]` for a revolute joint and `[zⱼ; 0]` for a prismatic one that moves
+/// the frame (`zⱼ`, `oⱼ` the world axis and origin of joint `j`), zero otherwise.
 pub fn frame_jacobian(
     model: &Model,
     q: &[Real],
@@ -21,17 +21,18 @@ pub fn frame_jacobian(
     let target = super::frame_placement(model, q, frame)?.act_point(point);
     jacobian.fill(0.0);
     let body = model.frames()[frame].body;
-    for_each_joint_axis(model, q, body, |j, axis, origin| {
-        let linear = axis.cross(&(target - origin));
+    for_each_joint_motion(model, q, body, |j, s| {
+        let linear = s.linear + s.angular.cross(&target);
         jacobian.fixed_view_mut::<3, 1>(0, j).copy_from(&linear);
-        jacobian.fixed_view_mut::<3, 1>(3, j).copy_from(&axis);
+        jacobian.fixed_view_mut::<3, 1>(3, j).copy_from(&s.angular);
     });
     Ok(())
 }
 
 /// The joint torques `τ = J(q)ᵀ w` of a wrench `w = (force, torque)` (world-aligned)
-/// applied at the origin of movable link `link`: `τⱼ = zⱼ · (torque + (p − oⱼ) × force)`
-/// for the joints that move the link, zero otherwise.
+/// applied at the origin `p` of movable link `link`: `τⱼ = zⱼ · (torque + (p − oⱼ) × force)`
+/// for a revolute joint and `zⱼ · force` for a prismatic one that moves the link, zero
+/// otherwise.
 pub fn wrench_to_joint_torque(
     model: &Model,
     q: &[Real],
@@ -51,24 +52,25 @@ pub fn wrench_to_joint_torque(
         });
     }
     let point = body_placement(model, q, Some(link)).translation;
+    // The wrench about the world origin, paired with each joint's world motion subspace.
+    let wrench = Force::new(*force, torque + point.cross(force));
     tau.fill(0.0);
-    for_each_joint_axis(model, q, Some(link), |j, axis, origin| {
-        tau[j] = axis.dot(&(torque + (point - origin).cross(force)));
-    });
+    for_each_joint_motion(model, q, Some(link), |j, s| tau[j] = wrench.dot(&s));
     Ok(())
 }
 
-/// Calls `visit(j, zⱼ, oⱼ)` with the world axis and origin of each joint moving `body`.
-fn for_each_joint_axis(
+/// Calls `visit(j, Sⱼ)` with the motion subspace of each joint moving `body`, expressed
+/// in the world frame about the world origin (so a point `p` moves at `v + ω × p`).
+fn for_each_joint_motion(
     model: &Model,
     q: &[Real],
     body: Option<usize>,
-    mut visit: impl FnMut(usize, Vector3, Vector3),
+    mut visit: impl FnMut(usize, Motion),
 ) {
     let count = body.map_or(0, |b| b + 1);
     let mut o_m = Se3::identity();
     for (j, (body, &qj)) in model.bodies()[..count].iter().zip(q).enumerate() {
         o_m = o_m * body.joint.transform(qj);
-        visit(j, o_m.rotation * body.joint.axis, o_m.translation);
+        visit(j, o_m.act_motion(&body.joint.motion_subspace()));
     }
 }

@@ -5,7 +5,7 @@ use crate::math::Real;
 use crate::model::{Data, Model};
 use crate::spatial::Se3;
 
-/// Places every body: `ᵖMᵢ = placementᵢ · Rot(axisᵢ, qᵢ)` into `data.li_m_i` and
+/// Places every body: `ᵖMᵢ(qᵢ)` ([`Joint::transform`](crate::model::Joint::transform)) into `data.li_m_i` and
 /// `⁰Mᵢ = ⁰Mₚ ᵖMᵢ` into `data.o_m_i`.
 pub fn forward_kinematics(model: &Model, data: &mut Data, q: &[Real]) -> Result<(), DynamicsError> {
     check_vector("q", q, model.nv())?;

@@ -86,7 +86,7 @@ fn newton_euler(
         data.a[i] = a;
     }
     for i in (0..bodies.len()).rev() {
-        data.tau[i] = bodies[i].joint.axis.dot(&data.f[i].angular);
+        data.tau[i] = bodies[i].joint.project(&data.f[i]);
         if let Some(qdd) = qdd {
             data.tau[i] += model.armature()[i] * qdd[i];
         }

@@ -1,6 +1,6 @@
 //! Chains from modified (Craig) Denavit–Hartenberg parameters.
 
-use super::{Body, Frame, Model, ModelError, RevoluteJoint};
+use super::{Body, Frame, Joint, Model, ModelError};
 use crate::math::{Real, Vector3};
 use crate::spatial::{Inertia, Se3};
 
@@ -41,11 +41,7 @@ impl Model {
             .iter()
             .map(|(link, dh, inertia)| Body {
                 name: (*link).to_owned(),
-                joint: RevoluteJoint {
-                    name: format!("{link}_joint"),
-                    placement: dh.placement(),
-                    axis: Vector3::z(),
-                },
+                joint: Joint::revolute(format!("{link}_joint"), dh.placement(), Vector3::z()),
                 inertia: *inertia,
             })
             .collect();

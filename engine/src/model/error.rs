@@ -6,15 +6,28 @@ use thiserror::Error;
 pub enum ModelError {
     #[error("cannot parse URDF: {0}")]
     Urdf(#[from] urdf_rs::UrdfError),
+    #[error("cannot read {path}")]
+    Read {
+        path: std::path::PathBuf,
+        source: std::io::Error,
+    },
     #[error(
-        "joint `{joint}` has type {kind}; only revolute, continuous and fixed joints are supported"
+        "joint `{joint}` is {kind}; a model is a fixed-base chain of revolute, continuous, \
+         prismatic and fixed joints"
     )]
     UnsupportedJoint { joint: String, kind: String },
+    #[error("cannot lock joint `{joint}`: {reason}")]
+    Lock { joint: String, reason: String },
+    #[error(
+        "joint `{joint}` moves no mass: link `{link}` and every link after it have zero mass \
+         and inertia (a URDF link without <inertial> is massless)"
+    )]
+    Massless { joint: String, link: String },
     #[error("the URDF is not a serial chain: {0}")]
     NotSerialChain(String),
     #[error("{what} is not finite")]
     NonFinite { what: String },
-    #[error("joint `{joint}` has a zero rotation axis")]
+    #[error("joint `{joint}` has a zero axis")]
     ZeroAxis { joint: String },
     #[error("body `{body}` has an invalid inertia: {reason}")]
     InvalidInertia { body: String, reason: &'static str },

@@ -20,6 +20,7 @@ pub use data::Data;
 pub use dh::ModifiedDh;
 pub use error::ModelError;
 pub use frame::Frame;
-pub use joint::RevoluteJoint;
+pub use joint::{Joint, JointKind};
 pub use limits::JointLimits;
 pub use model::{Body, Model};
+pub use urdf::LockedJoint;

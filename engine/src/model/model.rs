@@ -1,6 +1,6 @@
 //! The read-only description of a serial chain.
 
-use super::{Frame, JointLimits, ModelError, RevoluteJoint};
+use super::{Frame, Joint, JointLimits, ModelError};
 use crate::math::{DVector, Real, Vector3};
 use crate::spatial::{Inertia, Se3};
 
@@ -11,11 +11,11 @@ pub const STANDARD_GRAVITY: Real = 9.81;
 #[derive(Clone, Debug, PartialEq)]
 pub struct Body {
     pub name: String,
-    pub joint: RevoluteJoint,
+    pub joint: Joint,
     pub inertia: Inertia,
 }
 
-/// A serial chain `base → body 0 → … → body n−1` of revolute joints.
+/// A serial chain `base → body 0 → … → body n−1` of revolute and prismatic joints.
 ///
 /// Frames: index 0 is the base, index `i + 1` the frame of body `i`, then the extra frames
 /// given to [`Model::new`] (flange, hand, …).

@@ -5,9 +5,21 @@ use std::path::Path;
 use super::{DynamicsError, Frame, JointLimits, Robot};
 use crate::algorithm;
 use crate::math::{DMatrix, DVector, Isometry3, Real, Vector3};
-use crate::model::{Data, Model, ModelError};
+use crate::model::{Data, LockedJoint, Model, ModelError};
 
-/// A serial chain of revolute joints; [`Robot`] methods run the RNEA / CRBA / Coriolis /
+/// What a URDF does not say about a robot.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct UrdfOptions {
+    /// Joints held fixed (e.g. all but one finger of a gripper).
+    pub locked: Vec<LockedJoint>,
+    /// The tool frame, a link name; default: the last frame of the model.
+    pub tool: Option<String>,
+    /// Reflected rotor inertias of the moving joints in chain order (kg·m², or kg for a
+    /// prismatic joint), which URDF cannot carry; default: zero.
+    pub armature: Option<Vec<Real>>,
+}
+
+/// A serial chain of revolute and prismatic joints; [`Robot`] methods run the RNEA / CRBA / Coriolis /
 /// forward-dynamics algorithms in a preallocated workspace.
 #[derive(Clone, Debug)]
 pub struct SerialChain {
@@ -30,12 +42,31 @@ impl SerialChain {
     }
 
     pub fn from_urdf_str(urdf: &str) -> Result<Self, ModelError> {
-        Ok(Self::new(Model::from_urdf_str(urdf)?))
+        Self::from_urdf(urdf, &UrdfOptions::default())
     }
 
-    pub fn from_urdf_file(path: impl AsRef<Path>) -> Result<Self, ModelError> {
-        let urdf = std::fs::read_to_string(path).map_err(urdf_rs::UrdfError::from)?;
-        Self::from_urdf_str(&urdf)
+    /// A URDF document completed by `options`.
+    pub fn from_urdf(urdf: &str, options: &UrdfOptions) -> Result<Self, ModelError> {
+        let mut chain = Self::new(Model::from_urdf_str_locked(urdf, &options.locked)?);
+        if let Some(tool) = &options.tool {
+            chain.set_end_effector(tool)?;
+        }
+        if let Some(armature) = &options.armature {
+            chain.set_armature(DVector::from_column_slice(armature))?;
+        }
+        Ok(chain)
+    }
+
+    pub fn from_urdf_file(
+        path: impl AsRef<Path>,
+        options: &UrdfOptions,
+    ) -> Result<Self, ModelError> {
+        let path = path.as_ref();
+        let urdf = std::fs::read_to_string(path).map_err(|source| ModelError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::from_urdf(&urdf, options)
     }
 
     pub fn model(&self) -> &Model {

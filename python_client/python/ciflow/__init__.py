@@ -14,6 +14,11 @@ an endpoint such as ``"tcp/10.0.0.5:7447"`` or an engine name. Without it, the e
 ``tcp/127.0.0.1:7447`` is used, and if none runs there, one is started inside this
 process and announced on Zenoh so that other processes can reach its sessions.
 ``zenoh_config=`` (or ``CIFLOW_ZENOH_CONFIG``) points at a standard Zenoh JSON5 file.
+
+A served policy can also be called from any control loop, without Gymnasium::
+
+    policy = ciflow.Policy("pour", engine="tcp/10.0.0.5:7447")
+    qdd_des = policy.act(np.concatenate([q, qd, context]))
 """
 
 from ciflow._native import (
@@ -24,6 +29,7 @@ from ciflow._native import (
 )
 from ciflow.connection import discover, shutdown_embedded_engine
 from ciflow.env import CiflowEnv
+from ciflow.policy import Policy
 from ciflow.registration import TASK_IDS, register_tasks
 from ciflow.remote import Attached, attach
 from ciflow.vector import CiflowVectorEnv
@@ -37,6 +43,7 @@ __all__ = [
     "CiflowError",
     "CiflowVectorEnv",
     "EngineUnreachable",
+    "Policy",
     "attach",
     "discover",
     "register_tasks",
