@@ -25,18 +25,6 @@ pub fn parse_number_pair(text: &str) -> Result<(String, f64), String> {
     Ok((key, number))
 }
 
-/// `NAME` (held at 0) or `NAME=POSITION`: a joint to lock.
-pub fn parse_locked_joint(text: &str) -> Result<ciflow_engine::robot::LockedJoint, String> {
-    let (name, position) = match text.split_once('=') {
-        Some(_) => parse_number_pair(text)?,
-        None => (text.to_owned(), 0.0),
-    };
-    if name.is_empty() {
-        return Err(format!("`{text}` names no joint"));
-    }
-    Ok(ciflow_engine::robot::LockedJoint { name, position })
-}
-
 /// `;`-separated contexts, each comma-separated.
 pub fn parse_contexts(text: &str) -> Result<Vec<Vec<f64>>, String> {
     text.split(';')
@@ -65,21 +53,6 @@ mod tests {
             Ok(("obstacles".into(), 2.0))
         );
         assert!(parse_number_pair("obstacles=two").is_err());
-    }
-
-    #[test]
-    fn a_locked_joint_is_held_at_zero_unless_given_a_position() {
-        let locked = |name: &str, position| ciflow_engine::robot::LockedJoint {
-            name: name.into(),
-            position,
-        };
-        assert_eq!(parse_locked_joint("finger"), Ok(locked("finger", 0.0)));
-        assert_eq!(
-            parse_locked_joint("finger=0.02"),
-            Ok(locked("finger", 0.02))
-        );
-        assert!(parse_locked_joint("finger=wide").is_err());
-        assert!(parse_locked_joint("=0.1").is_err());
     }
 
     #[test]

@@ -199,7 +199,7 @@ fn published_checkpoints_replace_the_policy_without_restart_and_bad_ones_are_ign
     let truncated = message(config.clone(), weights[..weights.len() / 2].to_vec());
     zenoh.put(&key, encode(&truncated)).wait().unwrap();
     let three_obstacles = CheckpointMsg {
-        kwargs: BTreeMap::from([("obstacles".to_owned(), 3.0)]),
+        kwargs: BTreeMap::from([("obstacles".to_owned(), 3.0.into())]),
         ..message(config, weights)
     };
     zenoh.put(&key, encode(&three_obstacles)).wait().unwrap();
@@ -321,7 +321,7 @@ fn policy_driven_session_recovers_from_a_push_and_refuses_client_steps() {
         ],
     );
     let client = connect(27535);
-    let kwargs = BTreeMap::from([("obstacles".to_owned(), 1.0)]);
+    let kwargs = BTreeMap::from([("obstacles".to_owned(), 1.0.into())]);
     let env = client.make("policy-run", OBSTACLE, 1, &kwargs).unwrap();
     let telemetry = env.control().telemetry().unwrap();
     std::thread::sleep(Duration::from_millis(300));

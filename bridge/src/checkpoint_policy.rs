@@ -52,7 +52,8 @@ pub struct CheckpointPolicy {
 
 impl CheckpointPolicy {
     /// Serves `model` as `name` (default: the checkpoint's task name) in the task of
-    /// `tasks` it was trained for, built with the construction arguments `kwargs`.
+    /// `tasks` it was trained for, built with the construction arguments `kwargs` (none:
+    /// those the checkpoint recorded).
     pub fn new(
         name: Option<&str>,
         model: Model,
@@ -74,13 +75,15 @@ impl CheckpointPolicy {
                     .collect::<Vec<_>>()
                     .join(", "),
             })?;
-        let spec = (factory.make)(kwargs)
-            .map_err(|source| PolicyLoadError::Task {
-                task: factory.id.clone(),
-                source,
-            })?
-            .spec()
-            .clone();
+        let task_error = |source| PolicyLoadError::Task {
+            task: factory.id.clone(),
+            source,
+        };
+        let kwargs = match kwargs.is_empty() {
+            true => model.task_kwargs().map_err(task_error)?,
+            false => kwargs.clone(),
+        };
+        let spec = (factory.make)(&kwargs).map_err(task_error)?.spec().clone();
         // Building the first actor checks the shapes; it then seeds the pool.
         let actor = Actor::new(&model, &spec, DEFAULT_VELOCITY_GAIN)?;
         Ok(Self {
@@ -92,7 +95,7 @@ impl CheckpointPolicy {
                 epoch: None,
                 validation_nll: None,
             },
-            kwargs: kwargs.clone(),
+            kwargs,
             model,
             spec,
             actors: Mutex::new(vec![actor]),

@@ -9,6 +9,7 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use ciflow_envs::registry::Kwargs;
 use ciflow_envs::{EnvSpec, Info, ResetOptions};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
@@ -187,7 +188,7 @@ impl Client {
         engine: &str,
         task: &str,
         num_envs: u32,
-        kwargs: &BTreeMap<String, f64>,
+        kwargs: &Kwargs,
     ) -> Result<RemoteEnv, BridgeError> {
         let reply: MakeReply = self.call(
             &keys::make(engine, &self.identity),

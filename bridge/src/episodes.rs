@@ -328,7 +328,7 @@ mod tests {
         let publisher =
             EpisodePublisher::declare(&recorder, "obstacle-avoidance", "rec-b").unwrap();
         for obstacles in [1.0, 3.0] {
-            let kwargs = [("obstacles".to_owned(), obstacles)].into();
+            let kwargs = [("obstacles".to_owned(), obstacles.into())].into();
             let mut env = ciflow_envs::make_with("obstacle-avoidance", &kwargs).unwrap();
             let spec =
                 expert_dataset_spec(env.as_ref(), &kwargs, "ciflow/obstacle-avoidance-expert-v0");

@@ -197,7 +197,7 @@ mod tests {
             weights: ByteBuf::from(vec![1, 2, 3]),
             epoch: 4,
             validation_nll: -1.5,
-            kwargs: BTreeMap::from([("obstacles".to_owned(), 1.0)]),
+            kwargs: BTreeMap::from([("obstacles".to_owned(), 1.0.into())]),
             signature: None,
         }
     }
@@ -231,7 +231,7 @@ mod tests {
             |m| m.config.push(' '),
             |m| m.task = "pouring".into(),
             |m| {
-                m.kwargs.insert("obstacles".into(), 3.0);
+                m.kwargs.insert("obstacles".into(), 3.0.into());
             },
         ];
         for tamper in tampered {

@@ -498,7 +498,7 @@ fn requests_are_read_as_the_protocol_page_writes_them() {
 
     // Contexts inside the advertised box that the task refuses can be told in advance:
     // here an obstacle at its region's edge nearest the target, the target at its own.
-    let one_obstacle = BTreeMap::from([("obstacles".to_owned(), 1.0)]);
+    let one_obstacle = BTreeMap::from([("obstacles".to_owned(), 1.0.into())]);
     let obstacles = client
         .make(engine.name(), "obstacle-avoidance", 1, &one_obstacle)
         .unwrap();

@@ -4,6 +4,8 @@
 //! settings live here so that the task registry (`ciflow-envs`) can carry each task's
 //! recipe, and a checkpoint's reader can name them, without linking libtorch.
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 
 use crate::flow::{
@@ -17,6 +19,10 @@ pub const DEFAULT_STATE_NOISE: f64 = 0.1;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TrainConfig {
     pub task: String,
+    /// The task's construction arguments, as the demonstrations' dataset recorded them
+    /// (e.g. the reach task's URDF document), carried into the checkpoint.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub task_kwargs: BTreeMap<String, serde_json::Value>,
     pub latent: LatentKind,
     pub coupling: CouplingKind,
     pub layers: usize,
@@ -67,6 +73,7 @@ impl TrainConfig {
     pub fn new(task: &str, latent: LatentKind) -> Self {
         Self {
             task: task.to_owned(),
+            task_kwargs: BTreeMap::new(),
             latent,
             coupling: CouplingKind::Spline {
                 bins: 8,

@@ -114,6 +114,15 @@ impl Model {
         }
     }
 
+    /// The task's construction arguments recorded in the checkpoint (none for the
+    /// baseline and for checkpoints trained on the task's defaults).
+    pub fn task_kwargs(&self) -> Result<crate::registry::Kwargs, crate::env::EnvError> {
+        match self {
+            Self::Flow(policy) => crate::kwargs::from_json(&policy.config().task_kwargs),
+            Self::Baseline(_) => Ok(crate::registry::Kwargs::new()),
+        }
+    }
+
     pub fn state_dim(&self) -> usize {
         match self {
             Self::Flow(policy) => policy.config().state_dim,

@@ -32,7 +32,7 @@ use arrow_schema::{DataType, Field, Fields, Schema};
 use serde_json::{Value, json};
 
 use crate::env::{PERTURBED_INFO, SUCCESS_INFO};
-use crate::registry::Kwargs;
+use crate::registry::{Kwarg, Kwargs};
 use crate::space::{BoxSpace, Dtype};
 
 /// The Minari release whose layout this module writes.
@@ -707,11 +707,13 @@ fn dataset_metadata(spec: &DatasetSpec, total_episodes: usize, total_steps: usiz
 /// tasks truncate their episodes themselves, as registered.
 fn gymnasium_env_spec(spec: &DatasetSpec) -> String {
     let mut kwargs = serde_json::Map::from_iter([("task".to_string(), json!(spec.env_id))]);
-    kwargs.extend(
-        spec.env_kwargs
-            .iter()
-            .map(|(name, &value)| (name.clone(), json_number(value))),
-    );
+    kwargs.extend(spec.env_kwargs.iter().map(|(name, value)| {
+        let value = match value {
+            Kwarg::Number(number) => json_number(*number),
+            Kwarg::Text(text) => json!(text),
+        };
+        (name.clone(), value)
+    }));
     json!({
         "id": spec.env_id,
         "entry_point": GYMNASIUM_ENTRY_POINT,
@@ -816,14 +818,20 @@ fn spec_from_metadata(metadata: &Value) -> std::result::Result<DatasetSpec, Meta
         env_id: text(ciflow, "env_id")
             .or_else(|_| text(&env_spec, "id"))
             .unwrap_or_default(),
-        // The numbers among the construction arguments, which are what ciflow's take;
-        // `task` only repeats the id.
+        // The numbers and texts among the construction arguments, which are what
+        // ciflow's take; `task` only repeats the id.
         env_kwargs: env_spec["kwargs"]
             .as_object()
             .into_iter()
             .flatten()
             .filter(|(name, _)| name.as_str() != "task")
-            .filter_map(|(name, value)| Some((name.clone(), value.as_f64()?)))
+            .filter_map(|(name, value)| {
+                let value = match value {
+                    Value::String(text) => Kwarg::Text(text.clone()),
+                    other => Kwarg::Number(other.as_f64()?),
+                };
+                Some((name.clone(), value))
+            })
             .collect(),
         action_space: parse_minari_box("action_space", &text(metadata, "action_space")?)?,
         observation_space,

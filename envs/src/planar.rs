@@ -279,9 +279,9 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
     }
 }
 
-/// Rejects option keys a task does not know.
-pub fn reject_unknown_options(
-    extra: &BTreeMap<String, f64>,
+/// Rejects option (or construction argument) keys a task does not know.
+pub fn reject_unknown_options<V>(
+    extra: &BTreeMap<String, V>,
     known: &[&str],
 ) -> Result<(), EnvError> {
     match extra.keys().find(|k| !known.contains(&k.as_str())) {

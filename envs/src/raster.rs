@@ -4,7 +4,7 @@
 //! frame with equal scales on both axes (the world's `y` points up, the image's down).
 //! Coverage is tested per pixel centre, which is exact enough for line drawings.
 
-use nalgebra::Vector2;
+use nalgebra::{Rotation3, Vector2, Vector3};
 
 use crate::env::EnvError;
 
@@ -18,6 +18,15 @@ pub const BLUE: Rgb = [31, 119, 180];
 pub const ORANGE: Rgb = [255, 127, 14];
 pub const GREEN: Rgb = [44, 160, 44];
 pub const RED: Rgb = [214, 39, 40];
+
+/// Orthographic projection onto the screen of a camera at azimuth `φ` and elevation `e`
+/// (rad) looking at the origin: with `v = R_z(−φ) p` (the camera on the `+x` axis),
+/// `s = (v_y, v_z cos e − v_x sin e)`, so nearer points appear lower.
+pub fn oblique_projection(p: &Vector3<f64>, azimuth: f64, elevation: f64) -> Vector2<f64> {
+    let v = Rotation3::from_euler_angles(0.0, 0.0, -azimuth) * p;
+    let (sin_e, cos_e) = elevation.sin_cos();
+    Vector2::new(v.y, v.z * cos_e - v.x * sin_e)
+}
 
 /// The world rectangle `[x_min, x_max] × [y_min, y_max]` shown in a frame.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -149,6 +149,12 @@ pub fn pouring(
     .fitting_every_demonstration())
 }
 
+/// Reaching: a go-to flow whose attractor the context places (the goal is a tool
+/// position, not a joint target, so it is learned), affine like pouring's.
+pub fn reach(task: &'static str, context_dim: usize) -> Result<TrainConfig, ContextWithoutTarget> {
+    pouring(task, context_dim)
+}
+
 #[cfg(test)]
 mod tests {
     use ciflow_engine::flow::CouplingKind;

@@ -7,10 +7,13 @@ use ciflow_engine::training::TrainConfig;
 
 use crate::env::{Env, EnvError};
 use crate::recipes::{self, ContextWithoutTarget};
-use crate::tasks::{lasa, limit_cycle, obstacle_avoidance, pouring};
+use crate::tasks::{lasa, limit_cycle, obstacle_avoidance, pouring, reach};
 
-/// Construction arguments, as `gymnasium.make(id, **kwargs)` takes them (numbers only).
-pub type Kwargs = BTreeMap<String, f64>;
+pub use crate::kwargs::{Kwarg, Kwargs, TextArgument};
+
+
+/// Builds the arm a task drives with these construction arguments.
+pub type MakeRobot = fn(&Kwargs) -> Result<Box<dyn Robot>, EnvError>;
 
 /// Points along the curve a task's motion should trace, for a context.
 pub type ReferenceCurve = fn(&[f64]) -> Vec<[f64; 2]>;
@@ -30,6 +33,9 @@ pub struct TaskEntry {
     /// Arguments and options whose values may be given by name: `(key, names)`, where a
     /// name stands for its index in `names` (e.g. LASA's `shape`).
     pub named_values: &'static [(&'static str, &'static [&'static str])],
+    /// Construction arguments that are texts (the reach task's `urdf`); all others are
+    /// numbers.
+    pub text_arguments: &'static [TextArgument],
     /// The closed curve a 2-D task's motion should trace for a context (the limit
     /// cycle's outline), drawn beside learned fields; `None` for go-to tasks.
     pub reference_curve: Option<ReferenceCurve>,
@@ -43,9 +49,10 @@ pub struct TaskEntry {
     /// The context entries a mid-motion change replaces by default: the last `n` (the
     /// obstacle-avoidance target, while its obstacles stay), or all of them (`None`).
     pub moved_context_tail: Option<usize>,
-    /// The arm the task drives, with its real limits (pouring: the Panda); `None` for
-    /// the planar tasks' point mass, whose workspace each check chooses.
-    pub robot: Option<fn() -> Box<dyn Robot>>,
+    /// The arm the task built with these construction arguments drives, with its real
+    /// limits (pouring: the Panda; reach: the arm of its URDF); `None` for the planar
+    /// tasks' point mass, whose workspace each check chooses.
+    pub robot: Option<MakeRobot>,
     /// How the task's policy is trained unless told otherwise, for a context of the
     /// given dimension ([`recipes`]); use [`TaskEntry::training_recipe`].
     pub training: fn(&'static str, usize) -> Result<TrainConfig, ContextWithoutTarget>,
@@ -82,13 +89,43 @@ impl TaskEntry {
         }
     }
 
-    /// `NAME=VALUE` pairs of arguments or options as numbers ([`Self::value`] of each).
-    pub fn values(&self, pairs: &[(String, String)]) -> Result<Kwargs, EnvError> {
+    /// `NAME=VALUE` pairs of reset options as numbers ([`Self::value`] of each).
+    pub fn values(&self, pairs: &[(String, String)]) -> Result<BTreeMap<String, f64>, EnvError> {
         pairs
             .iter()
             .map(|(key, text)| Ok((key.clone(), self.value(key, text)?)))
             .collect()
     }
+
+    /// The construction argument `key` for `text`: the text itself (a file's content for
+    /// a file argument) if the task takes `key` as text, else [`Self::value`].
+    pub fn argument(&self, key: &str, text: &str) -> Result<Kwarg, EnvError> {
+        match self.text_arguments.iter().find(|a| a.key == key) {
+            Some(argument) if argument.file => document(key, text).map(Kwarg::Text),
+            Some(_) => Ok(Kwarg::Text(text.to_owned())),
+            None => self.value(key, text).map(Kwarg::Number),
+        }
+    }
+
+    /// `NAME=VALUE` pairs of construction arguments ([`Self::argument`] of each).
+    pub fn arguments(&self, pairs: &[(String, String)]) -> Result<Kwargs, EnvError> {
+        pairs
+            .iter()
+            .map(|(key, text)| Ok((key.clone(), self.argument(key, text)?)))
+            .collect()
+    }
+}
+
+/// A document given in full (its first non-blank character is `<`, as in any XML) or as
+/// the path of a file holding it.
+fn document(key: &str, text: &str) -> Result<String, EnvError> {
+    if text.trim_start().starts_with('<') {
+        return Ok(text.to_owned());
+    }
+    std::fs::read_to_string(text).map_err(|e| EnvError::InvalidOption {
+        name: key.into(),
+        detail: format!("cannot read `{text}`: {e}"),
+    })
 }
 
 fn unknown_kwargs(kwargs: &Kwargs, known: &[&str]) -> Result<(), EnvError> {
@@ -103,10 +140,8 @@ fn limit_cycle_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
 fn obstacle_avoidance_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
     let name = obstacle_avoidance::OBSTACLES_OPTION;
     unknown_kwargs(kwargs, &[name])?;
-    let count = kwargs
-        .get(name)
-        .copied()
-        .unwrap_or(obstacle_avoidance::MAX_OBSTACLES as f64);
+    let count =
+        crate::kwargs::number(kwargs, name)?.unwrap_or(obstacle_avoidance::MAX_OBSTACLES as f64);
     if count.fract() != 0.0 || count < 0.0 {
         return Err(EnvError::InvalidOption {
             name: name.into(),
@@ -119,13 +154,20 @@ fn obstacle_avoidance_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
 fn lasa_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
     let name = lasa::SHAPE_OPTION;
     unknown_kwargs(kwargs, &[name])?;
-    let shape = crate::planar::index_option(kwargs, name, lasa::SHAPES.len())?.unwrap_or(0);
+    let numbers = crate::kwargs::number(kwargs, name)?
+        .map(|shape| BTreeMap::from([(name.to_owned(), shape)]))
+        .unwrap_or_default();
+    let shape = crate::planar::index_option(&numbers, name, lasa::SHAPES.len())?.unwrap_or(0);
     Ok(Box::new(lasa::make(shape)?))
 }
 
 fn pouring_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
     unknown_kwargs(kwargs, &[])?;
     Ok(Box::new(pouring::Pouring::new()?))
+}
+
+fn reach_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
+    Ok(Box::new(reach::Reach::new(kwargs)?))
 }
 
 /// Defaults never fail: each task's tests build it with its defaults.
@@ -143,6 +185,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             make: || with_defaults(limit_cycle_with),
             make_with: limit_cycle_with,
             named_values: &[],
+            text_arguments: &[],
             reference_curve: Some(limit_cycle::outline_curve),
             bounded_context: &[0],
             pushed_link: 0,
@@ -157,6 +200,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             make: || with_defaults(obstacle_avoidance_with),
             make_with: obstacle_avoidance_with,
             named_values: &[],
+            text_arguments: &[],
             reference_curve: None,
             bounded_context: &[],
             pushed_link: 0,
@@ -171,12 +215,29 @@ pub fn tasks() -> &'static [TaskEntry] {
             make: || with_defaults(pouring_with),
             make_with: pouring_with,
             named_values: &[],
+            text_arguments: &[],
             reference_curve: None,
             bounded_context: &[3, 4, 5],
             pushed_link: pouring::HAND_LINK,
             moved_context_tail: None,
-            robot: Some(pouring::robot),
+            robot: Some(|_| Ok(pouring::robot())),
             training: recipes::pouring,
+        },
+        TaskEntry {
+            id: reach::ID,
+            name: "reach",
+            summary: "any serial arm from its URDF (default: the Panda) brings its tool to a \
+                      goal, context = the goal's position",
+            make: || with_defaults(reach_with),
+            make_with: reach_with,
+            named_values: &[],
+            text_arguments: &reach::TEXT_ARGUMENTS,
+            reference_curve: None,
+            bounded_context: &[],
+            pushed_link: pouring::HAND_LINK,
+            moved_context_tail: None,
+            robot: Some(reach::robot),
+            training: recipes::reach,
         },
         TaskEntry {
             id: lasa::ID,
@@ -185,6 +246,7 @@ pub fn tasks() -> &'static [TaskEntry] {
             make: || with_defaults(lasa_with),
             make_with: lasa_with,
             named_values: &[(lasa::SHAPE_OPTION, &lasa::SHAPES)],
+            text_arguments: &[],
             reference_curve: None,
             bounded_context: &[],
             pushed_link: 0,

@@ -18,7 +18,7 @@ fn scratch_dir(name: &str) -> PathBuf {
 fn two_obstacles(episodes: u64, seed: u64, credits: Credits) -> Recording {
     Recording {
         task: "obstacle-avoidance".into(),
-        kwargs: [("obstacles".to_string(), 2.0)].into(),
+        kwargs: [("obstacles".to_string(), 2.0.into())].into(),
         options: Default::default(),
         episodes,
         seed,
@@ -45,7 +45,10 @@ fn recorded_expert_episodes_read_back_identically() {
     let (read_spec, episodes) = dataset::read(&out).unwrap();
     assert_eq!(read_spec, spec);
     assert_eq!(spec.dataset_id, "ciflow/obstacle-avoidance-expert-v0");
-    assert_eq!(spec.env_kwargs, [("obstacles".to_string(), 2.0)].into());
+    assert_eq!(
+        spec.env_kwargs,
+        [("obstacles".to_string(), 2.0.into())].into()
+    );
     assert_eq!(spec.credits.author, ["A. Person", "B. Person"]);
     let description = spec.credits.description.as_deref().unwrap();
     assert!(

@@ -15,7 +15,10 @@ fn options(pairs: &[(&str, f64)]) -> ResetOptions {
 }
 
 fn kwargs(pairs: &[(&str, f64)]) -> Kwargs {
-    pairs.iter().map(|(k, v)| (k.to_string(), *v)).collect()
+    pairs
+        .iter()
+        .map(|(k, v)| (k.to_string(), (*v).into()))
+        .collect()
 }
 
 /// The distance from `point` to the polyline through `path`.

@@ -7,13 +7,13 @@ use ciflow_envs::{Env, EnvError, ResetOptions, make_with};
 #[test]
 fn context_dimension_follows_the_obstacle_count() {
     for (obstacles, dim) in [(1, 4), (2, 6), (3, 8)] {
-        let kwargs = [("obstacles".to_string(), obstacles as f64)].into();
+        let kwargs = [("obstacles".to_string(), (obstacles as f64).into())].into();
         let env = make_with("obstacle-avoidance", &kwargs).unwrap();
         assert_eq!(env.spec().context_space.dim(), dim);
         assert_eq!(env.spec().observation_space.dim(), 4 + dim);
     }
     for bad in [0.0, 4.0, 1.5] {
-        let kwargs = [("obstacles".to_string(), bad)].into();
+        let kwargs = [("obstacles".to_string(), bad.into())].into();
         assert!(matches!(
             make_with("obstacle-avoidance", &kwargs),
             Err(EnvError::InvalidOption { .. })

@@ -4,7 +4,7 @@
 
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use ciflow_envs::ResetOptions;
-use ciflow_envs::registry::{self, tasks};
+use ciflow_envs::registry::{self, Kwargs, tasks};
 
 fn push(link: usize) -> Perturbation {
     Perturbation {
@@ -52,7 +52,7 @@ fn a_task_arm_has_a_joint_per_action() {
         if let Some(robot) = task.robot {
             let env = (task.make)();
             assert_eq!(
-                robot().dof(),
+                robot(&Kwargs::new()).unwrap().dof(),
                 env.spec().action_space.dim(),
                 "{}",
                 task.name
@@ -60,7 +60,7 @@ fn a_task_arm_has_a_joint_per_action() {
             arms += 1;
         }
     }
-    assert_eq!(arms, 1, "pouring drives the Panda");
+    assert_eq!(arms, 2, "pouring and reach drive an arm");
 }
 
 #[test]

@@ -159,7 +159,7 @@ pub fn robot_simulator(policy: &Policy, scale: f64) -> EvaluationResult<Simulato
     };
     let task = registry::entry(&config.task)?;
     let robot: Box<dyn Robot> = match task.robot {
-        Some(arm) => arm(),
+        Some(arm) => arm(&ciflow_envs::kwargs::from_json(&config.task_kwargs)?)?,
         None => {
             let bounds = &config.bounds;
             let d = config.state_dim;

@@ -68,8 +68,9 @@ def main() -> None:
             misses += 1 + skipped
             period += skipped
             continue
-        if deadline - time.perf_counter() > SPIN:
-            time.sleep(deadline - time.perf_counter() - SPIN)
+        rest = deadline - time.perf_counter() - SPIN
+        if rest > 0:
+            time.sleep(rest)
         while time.perf_counter() < deadline:
             pass
 

@@ -4,11 +4,46 @@
 use std::collections::BTreeMap;
 
 use ciflow_bridge::protocol::{F64s, PerturbationKindMsg, PerturbationMsg};
+use ciflow_envs::registry::{Kwarg, Kwargs};
 use ciflow_envs::{BoxSpace, Dtype, EnvSpec, ResetOptions};
 use pyo3::conversion::FromPyObjectOwned;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
+
+/// A construction argument from Python: a number (`obstacles=2`) or a string (a URDF).
+#[derive(FromPyObject)]
+pub enum PyKwarg {
+    Number(f64),
+    Text(String),
+}
+
+/// Construction arguments from Python (absent: none).
+pub fn kwargs_from_py(kwargs: Option<BTreeMap<String, PyKwarg>>) -> Kwargs {
+    kwargs
+        .unwrap_or_default()
+        .into_iter()
+        .map(|(name, value)| {
+            let kwarg = match value {
+                PyKwarg::Number(number) => Kwarg::Number(number),
+                PyKwarg::Text(text) => Kwarg::Text(text),
+            };
+            (name, kwarg)
+        })
+        .collect()
+}
+
+/// Construction arguments as a Python dict of floats and strings.
+pub fn kwargs_to_dict<'py>(py: Python<'py>, kwargs: &Kwargs) -> PyResult<Bound<'py, PyDict>> {
+    let dict = PyDict::new(py);
+    for (name, kwarg) in kwargs {
+        match kwarg {
+            Kwarg::Number(number) => dict.set_item(name, number)?,
+            Kwarg::Text(text) => dict.set_item(name, text)?,
+        }
+    }
+    Ok(dict)
+}
 
 pub fn floats_from_bytes(what: &str, bytes: &[u8]) -> PyResult<Vec<f64>> {
     F64s::from_le_bytes(bytes).ok_or_else(|| {

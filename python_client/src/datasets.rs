@@ -9,14 +9,14 @@ use std::sync::Mutex;
 use ciflow_bridge::EpisodePublisher;
 use ciflow_bridge::error::full_message;
 use ciflow_envs::dataset::{self, Credits, DatasetSpec, Episode};
-use ciflow_envs::registry::Kwargs;
+use ciflow_envs::registry::Kwarg;
 use ciflow_envs::rollout::{Recording, record_expert_dataset};
 use ciflow_envs::{BoxSpace, Dtype};
 use pyo3::exceptions::{PyKeyError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
-use crate::convert::{floats_from_bytes, floats_to_bytes};
+use crate::convert::{PyKwarg, floats_from_bytes, floats_to_bytes, kwargs_from_py, kwargs_to_dict};
 use crate::errors::to_py;
 
 fn dataset_error(error: dataset::DatasetError) -> PyErr {
@@ -69,8 +69,9 @@ impl PyDatasetSpec {
         env_spec: &Bound<'_, PyDict>,
         dataset_id: &str,
         algorithm_name: &str,
-        kwargs: Option<Kwargs>,
+        kwargs: Option<BTreeMap<String, PyKwarg>>,
     ) -> PyResult<Self> {
+        let kwargs = kwargs_from_py(kwargs);
         let id: String = env_spec
             .get_item("id")?
             .ok_or_else(|| PyKeyError::new_err("spec has no `id`"))?
@@ -88,7 +89,7 @@ impl PyDatasetSpec {
             spec: DatasetSpec {
                 dataset_id: dataset_id.to_owned(),
                 env_id: id,
-                env_kwargs: kwargs.unwrap_or_default(),
+                env_kwargs: kwargs,
                 observation_space: space_from_dict(env_spec, "observation_space")?,
                 action_space: space_from_dict(env_spec, "action_space")?,
                 context_space: space_from_dict(env_spec, "context_space")?,
@@ -290,7 +291,7 @@ pub fn read_dataset<'py>(
     let info = PyDict::new(py);
     info.set_item("dataset_id", &spec.dataset_id)?;
     info.set_item("env_id", &spec.env_id)?;
-    info.set_item("env_kwargs", &spec.env_kwargs)?;
+    info.set_item("env_kwargs", kwargs_to_dict(py, &spec.env_kwargs)?)?;
     info.set_item("algorithm_name", &spec.algorithm_name)?;
     info.set_item("control_dt", spec.control_dt)?;
     info.set_item(
@@ -336,13 +337,13 @@ pub fn record_expert(
     out: PathBuf,
     episodes: u64,
     seed: u64,
-    kwargs: Option<Kwargs>,
+    kwargs: Option<BTreeMap<String, PyKwarg>>,
     options: Option<BTreeMap<String, f64>>,
     overwrite: bool,
 ) -> PyResult<String> {
     let recording = Recording {
         task: task.to_owned(),
-        kwargs: kwargs.unwrap_or_default(),
+        kwargs: kwargs_from_py(kwargs),
         options: options.unwrap_or_default(),
         episodes,
         seed,
@@ -356,11 +357,30 @@ pub fn record_expert(
     Ok(spec.dataset_id)
 }
 
-/// The number `text` stands for as argument or option `key` of `task` (a number, or a
-/// name the task gives its values, e.g. LASA's `shape=Sshape`).
+/// The number `text` stands for as reset option `key` of `task` (a number, or a name the
+/// task gives its values, e.g. LASA's `shape=Sshape`).
 #[pyfunction]
 pub fn task_value(task: &str, key: &str, text: &str) -> PyResult<f64> {
     ciflow_envs::registry::entry(task)
         .and_then(|entry| entry.value(key, text))
         .map_err(|e| PyValueError::new_err(full_message(&e)))
+}
+
+/// Construction argument `key` of `task` given as `text`: a float as [`task_value`], or a
+/// string for the arguments the task takes as text (a document argument such as the reach
+/// task's `urdf` given as a path is read here, so the environment holds its content).
+#[pyfunction]
+pub fn task_argument<'py>(
+    py: Python<'py>,
+    task: &str,
+    key: &str,
+    text: &str,
+) -> PyResult<Bound<'py, PyAny>> {
+    let argument = ciflow_envs::registry::entry(task)
+        .and_then(|entry| entry.argument(key, text))
+        .map_err(|e| PyValueError::new_err(full_message(&e)))?;
+    Ok(match argument {
+        Kwarg::Number(number) => number.into_pyobject(py)?.into_any(),
+        Kwarg::Text(text) => text.into_pyobject(py)?.into_any(),
+    })
 }

@@ -19,8 +19,8 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
 use crate::convert::{
-    columns_to_dict, floats_from_bytes, floats_to_bytes, perturbation_from_dict,
-    reset_options_from_dict, spec_to_dict,
+    PyKwarg, columns_to_dict, floats_from_bytes, floats_to_bytes, kwargs_from_py,
+    perturbation_from_dict, reset_options_from_dict, spec_to_dict,
 };
 use crate::datasets::{PyDatasetSpec, PyDatasetWriter, PyEpisode, PyEpisodePublisher};
 use crate::errors::{CiflowError, EngineUnreachable, to_py};
@@ -166,7 +166,8 @@ impl ClientHandle {
     }
 
     /// Opens a session of `num_envs` environments of `task` on `engine`, built with the
-    /// task's numeric construction arguments `kwargs`.
+    /// task's construction arguments `kwargs` (numbers, and strings where the task takes
+    /// text).
     #[pyo3(signature = (engine, task, num_envs=1, kwargs=None))]
     fn make(
         &self,
@@ -174,9 +175,9 @@ impl ClientHandle {
         engine: &str,
         task: &str,
         num_envs: u32,
-        kwargs: Option<BTreeMap<String, f64>>,
+        kwargs: Option<BTreeMap<String, PyKwarg>>,
     ) -> PyResult<Session> {
-        let kwargs = kwargs.unwrap_or_default();
+        let kwargs = kwargs_from_py(kwargs);
         let env = py
             .detach(|| self.client.make(engine, task, num_envs, &kwargs))
             .map_err(to_py)?;
@@ -582,6 +583,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(datasets::read_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(datasets::record_expert, m)?)?;
     m.add_function(wrap_pyfunction!(datasets::task_value, m)?)?;
+    m.add_function(wrap_pyfunction!(datasets::task_argument, m)?)?;
     m.add("CiflowError", m.py().get_type::<CiflowError>())?;
     m.add("EngineUnreachable", m.py().get_type::<EngineUnreachable>())?;
     m.add("DEFAULT_ENDPOINT", ciflow_bridge::DEFAULT_ENDPOINT)?;

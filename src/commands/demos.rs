@@ -52,7 +52,7 @@ pub fn run(args: DemosArgs) -> anyhow::Result<()> {
     let task = ciflow_envs::registry::entry(&args.task)?;
     let recording = Recording {
         task: args.task.clone(),
-        kwargs: task.values(&args.kwargs)?,
+        kwargs: task.arguments(&args.kwargs)?,
         options: task.values(&args.options)?,
         episodes: args.episodes,
         seed: args.seed,

@@ -239,10 +239,16 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
 }
 
 /// The closed-loop episodes of `acting` in `task` (the default mode).
+/// Without `--kwarg`, a checkpoint acts in the task it recorded (e.g. its URDF arm).
 fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Result<()> {
-    let kwargs = task.values(&args.kwargs)?;
-    let mut env = (task.make_with)(&kwargs)
-        .with_context(|| format!("building `{}` with {kwargs:?}", task.name))?;
+    let kwargs = match (&acting, args.kwargs.is_empty()) {
+        (Acting::Model(model), true) => model.task_kwargs()?,
+        _ => task.arguments(&args.kwargs)?,
+    };
+    let mut env = (task.make_with)(&kwargs).with_context(|| {
+        let shown: Vec<_> = kwargs.iter().map(|(k, v)| format!("{k}={v}")).collect();
+        format!("building `{}` with {}", task.name, shown.join(", "))
+    })?;
     let config = EvaluationConfig {
         episodes: args.episodes,
         seed: args.seed,

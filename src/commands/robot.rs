@@ -8,8 +8,6 @@ use ciflow_engine::robot::{LockedJoint, PointMass2d, Robot, SerialChain, UrdfOpt
 use clap::{Args, Subcommand};
 use serde_json::{Value, json};
 
-use crate::parse::parse_locked_joint;
-
 #[derive(Args, Debug)]
 pub struct RobotArgs {
     #[command(flatten)]
@@ -30,13 +28,7 @@ struct UrdfArgs {
     tool: Option<String>,
     /// Joints held fixed, as NAME (at 0) or NAME=POSITION, comma-separated; e.g. one
     /// finger of a gripper.
-    #[arg(
-        long,
-        value_name = "NAMES",
-        value_delimiter = ',',
-        value_parser = parse_locked_joint,
-        requires = "urdf"
-    )]
+    #[arg(long, value_name = "NAMES", value_delimiter = ',', requires = "urdf")]
     lock_joints: Vec<LockedJoint>,
     /// Reflected rotor inertias of the moving joints in chain order, comma-separated
     /// (kg·m², kg for a prismatic joint); URDF cannot carry them (default: zero).

@@ -33,7 +33,8 @@ pub struct ServeArgs {
     #[arg(long = "policy", value_name = "[NAME=]DIR", value_parser = parse_named_dir)]
     pub policies: Vec<(Option<String>, PathBuf)>,
     /// Construction argument of the policies' task, as given to `ciflow demos --kwarg`
-    /// when the checkpoint's data was made (e.g. obstacles=1; repeatable).
+    /// when the checkpoint's data was made (e.g. obstacles=1; repeatable). Without any,
+    /// each checkpoint's own recorded arguments apply.
     #[arg(long = "policy-kwarg", value_name = "NAME=VALUE", value_parser = parse_number_pair)]
     pub policy_kwargs: Vec<(String, f64)>,
     #[command(flatten)]
@@ -51,7 +52,11 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         trusted_keys: args.trust.load()?,
         ..ServerOptions::default()
     };
-    let kwargs: Kwargs = args.policy_kwargs.into_iter().collect();
+    let kwargs: Kwargs = args
+        .policy_kwargs
+        .into_iter()
+        .map(|(name, value)| (name, value.into()))
+        .collect();
     options.policies = args
         .policies
         .iter()

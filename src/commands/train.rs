@@ -96,10 +96,13 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .context("--subset")?;
     }
     let recipe = task.training_recipe(spec.context_space.dim())?;
-    let robot = task
-        .robot
-        .map(|robot| JointRange::from_limits(robot().limits()));
-    let config = args.model.apply(args.context.apply(recipe)?, robot)?;
+    let robot = match task.robot {
+        Some(arm) => Some(JointRange::from_limits(arm(&spec.env_kwargs)?.limits())),
+        None => None,
+    };
+    let mut config = args.model.apply(args.context.apply(recipe)?, robot)?;
+    // The checkpoint builds the same task (and robot) the demonstrations were made in.
+    config.task_kwargs = ciflow_envs::kwargs::to_json(&spec.env_kwargs);
     let (latent, goal_context_indices) = (config.latent, &config.goal_context_indices);
     println!(
         "{}: {} episodes, state {}-D, context {}-D, dt = {} s; latent {latent:?}, target in \
@@ -116,7 +119,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .publish
         .as_deref()
         .map(|name| {
-            let kwargs = task.values(&args.kwargs)?;
+            let kwargs = task.arguments(&args.kwargs)?;
             let network = args.zenoh.network.options()?;
             let publisher = CheckpointPublisher::open(&network, name)?.with_kwargs(kwargs);
             anyhow::Ok(publisher.with_signer(args.signing.load()?))

@@ -1,8 +1,7 @@
 //! Messages of policies served by the engine: checkpoints published by a trainer for
 //! hot-loading, and `run`, which lets a policy drive a session.
 
-use std::collections::BTreeMap;
-
+use ciflow_envs::registry::Kwargs;
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
 
@@ -24,7 +23,7 @@ pub struct CheckpointMsg {
     /// Construction arguments of the task (e.g. `{obstacles: 1}`); absent or empty: those
     /// of the policy it replaces, else the task's defaults.
     #[serde(default)]
-    pub kwargs: BTreeMap<String, f64>,
+    pub kwargs: Kwargs,
     /// The trainer's signature (see [`crate::signing`]); absent: unsigned.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub signature: Option<CheckpointSignature>,

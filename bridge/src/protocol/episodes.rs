@@ -13,6 +13,7 @@ use std::collections::BTreeMap;
 
 use ciflow_envs::BoxSpace;
 use ciflow_envs::dataset::{Credits, DatasetSpec, Episode};
+use ciflow_envs::registry::Kwargs;
 use serde::{Deserialize, Serialize};
 
 use super::{F64s, Header, PROTOCOL_VERSION};
@@ -28,7 +29,7 @@ pub struct EpisodeMsg {
     pub task: String,
     /// The task's construction arguments, e.g. `{"obstacles": 2}` (none: its defaults).
     #[serde(default)]
-    pub kwargs: BTreeMap<String, f64>,
+    pub kwargs: Kwargs,
     /// The publishing recorder, the last chunk of the key.
     pub recorder: String,
     /// Minari id of the dataset the recorder writes, e.g. `ciflow/pouring-expert-v0`.

@@ -4,6 +4,7 @@
 
 use std::collections::BTreeMap;
 
+use ciflow_envs::registry::Kwargs;
 use ciflow_envs::{EnvSpec, Info, ResetOptions};
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
@@ -81,7 +82,7 @@ pub struct MakeRequest {
     pub num_envs: u32,
     /// Construction arguments of the task (numbers), e.g. `{"obstacles": 2}`.
     #[serde(default)]
-    pub kwargs: BTreeMap<String, f64>,
+    pub kwargs: Kwargs,
     /// How long the caller waits, in milliseconds (see [`Header::deadline_ms`]): a `make`
     /// that would outlive the caller builds nothing.
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -167,7 +167,7 @@ pub fn eventually(seconds: f64, mut condition: impl FnMut() -> bool) -> bool {
     condition()
 }
 
-pub fn no_kwargs() -> BTreeMap<String, f64> {
+pub fn no_kwargs() -> ciflow_bridge::Kwargs {
     BTreeMap::new()
 }
 
@@ -214,5 +214,5 @@ pub fn write_checkpoint(tag: &str) -> PathBuf {
 
 /// The construction arguments of [`write_checkpoint`]'s task.
 pub fn one_obstacle() -> ciflow_bridge::Kwargs {
-    BTreeMap::from([("obstacles".to_owned(), 1.0)])
+    BTreeMap::from([("obstacles".to_owned(), 1.0.into())])
 }

@@ -23,6 +23,32 @@ pub struct LockedJoint {
     pub position: Real,
 }
 
+impl std::str::FromStr for LockedJoint {
+    type Err = String;
+
+    /// `NAME` (held at 0) or `NAME=POSITION`.
+    fn from_str(text: &str) -> Result<Self, String> {
+        let (name, position) = match text.split_once('=') {
+            None => (text, 0.0),
+            Some((name, position)) => {
+                let position = position
+                    .trim()
+                    .parse()
+                    .map_err(|_| format!("`{position}` in `{text}` is not a number"))?;
+                (name, position)
+            }
+        };
+        let name = name.trim();
+        if name.is_empty() {
+            return Err(format!("`{text}` names no joint"));
+        }
+        Ok(Self {
+            name: name.to_owned(),
+            position,
+        })
+    }
+}
+
 impl Model {
     /// Parses a URDF document (see the module documentation). Position, velocity and
     /// effort limits are read from the `<limit>` tags (continuous joints: no position

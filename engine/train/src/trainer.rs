@@ -123,6 +123,7 @@ pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<Fl
     let config = FlowConfig {
         format: ciflow_engine::flow::checkpoint::config::FORMAT,
         task: train.task.clone(),
+        task_kwargs: train.task_kwargs.clone(),
         state_dim: d,
         context_dim: m,
         dt: data.dt,

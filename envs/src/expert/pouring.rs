@@ -11,19 +11,18 @@
 //! where `θ_des` is a smooth step from 0 (farther than [`TILT_START`]) to
 //! [`POUR_TILT`] (closer than [`TILT_END`]) and `w = up × u` tilts the cup's opening toward
 //! the pour direction `u`. So the cup travels upright to the pre-pour pose above the lip,
-//! then tilts. Joint accelerations follow from damped least squares with a null-space
-//! posture term (Siciliano et al., "Robotics", §3.5 and §8.6):
-//!
-//! `q̈ = J⁺_λ (k_v (ẋ_des − J q̇) − J̇ q̇) + (I − J⁺_λ J)(k_n (q_nom − q) − d_n q̇)`,
-//! `J⁺_λ = Jᵀ (J Jᵀ + λ² I)⁻¹`.
+//! then tilts. Joint accelerations follow by [`resolved_acceleration`] of the spout's
+//! twist `(ṗ_des, ω_des)`.
 //!
 //! Every term is continuous in the state and the context, and the posture term pins the
 //! null-space motion to `q_nom`, so the joint-space solution varies continuously with the
 //! pot's pose (tested).
 
-use ciflow_engine::math::{DMatrix, DVector, Isometry3, Matrix3, Vector3};
+use ciflow_engine::math::{DVector, Isometry3, Matrix3, Vector3};
 use ciflow_engine::robot::{DynamicsError, Robot};
 use nalgebra::{Rotation3, Unit};
+
+use super::resolved_acceleration::{Gains, cap, resolved_acceleration};
 
 /// Tilt of the cup while pouring, rad.
 pub const POUR_TILT: f64 = 1.45;
@@ -40,10 +39,12 @@ const POSITION_GAIN: f64 = 1.5;
 const MAX_SPEED: f64 = 0.15;
 const ORIENTATION_GAIN: f64 = 3.0;
 const MAX_ANGULAR_SPEED: f64 = 1.5;
-const VELOCITY_GAIN: f64 = 12.0;
-const POSTURE_GAIN: f64 = 10.0;
-const POSTURE_DAMPING: f64 = 6.0;
-const DAMPING: f64 = 0.02;
+const GAINS: Gains = Gains {
+    velocity: 12.0,
+    posture: 10.0,
+    posture_damping: 6.0,
+    damping: 0.02,
+};
 
 /// The cup rigidly held by the hand.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -121,12 +122,6 @@ pub fn desired_tilt(distance: f64) -> f64 {
     POUR_TILT * smoothstep((TILT_START - distance) / (TILT_START - TILT_END))
 }
 
-/// Caps the norm of `v` at `max`.
-fn cap(v: Vector3, max: f64) -> Vector3 {
-    let n = v.norm();
-    if n > max { v * (max / n) } else { v }
-}
-
 /// The expert's joint accelerations for state `(q, q̇)`.
 pub fn expert_acceleration(
     robot: &dyn Robot,
@@ -135,7 +130,6 @@ pub fn expert_acceleration(
     q: &[f64],
     qd: &[f64],
 ) -> Result<DVector, DynamicsError> {
-    let n = q.len();
     let frame = robot.end_effector();
     let hand = robot.frame_placement(q, frame)?;
     let cup = CupPose::of_hand(&hand);
@@ -145,33 +139,17 @@ pub fn expert_acceleration(
     let error = Rotation3::from_matrix_unchecked(desired * cup.hand.transpose()).scaled_axis();
     let angular = cap(ORIENTATION_GAIN * error, MAX_ANGULAR_SPEED);
 
-    let spout = CupPose::spout_in_hand();
-    let mut jacobian = DMatrix::zeros(6, n);
-    robot.frame_jacobian(q, frame, &spout, &mut jacobian)?;
-    // J̇ q̇ by a forward difference along the motion.
-    const H: f64 = 1e-6;
-    let ahead: Vec<f64> = q.iter().zip(qd).map(|(q, v)| q + H * v).collect();
-    let mut jacobian_ahead = DMatrix::zeros(6, n);
-    robot.frame_jacobian(&ahead, frame, &spout, &mut jacobian_ahead)?;
-    let qd = DVector::from_column_slice(qd);
-    let bias = (&jacobian_ahead - &jacobian) * &qd / H;
-
-    let twist = &jacobian * &qd;
     let desired_twist = DVector::from_iterator(6, velocity.iter().chain(angular.iter()).copied());
-    let task = VELOCITY_GAIN * (desired_twist - twist) - bias;
-
-    let jjt = &jacobian * jacobian.transpose() + DMatrix::identity(6, 6) * DAMPING.powi(2);
-    let pseudo_inverse = jacobian.transpose()
-        * jjt
-            .cholesky()
-            .expect("J Jᵀ + λ² I is positive definite")
-            .inverse();
-    let posture = DVector::from_iterator(
-        n,
-        (0..n).map(|i| POSTURE_GAIN * (nominal[i] - q[i]) - POSTURE_DAMPING * qd[i]),
-    );
-    let null_space = DMatrix::identity(n, n) - &pseudo_inverse * &jacobian;
-    Ok(&pseudo_inverse * task + null_space * posture)
+    resolved_acceleration(
+        robot,
+        frame,
+        &CupPose::spout_in_hand(),
+        &desired_twist,
+        nominal,
+        &GAINS,
+        q,
+        qd,
+    )
 }
 
 #[cfg(test)]

@@ -4,3 +4,4 @@ pub mod lasa;
 pub mod limit_cycle;
 pub mod obstacle_avoidance;
 pub mod pouring;
+pub mod reach;

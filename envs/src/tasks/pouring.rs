@@ -63,13 +63,13 @@
 use ciflow_engine::math::{Isometry3, Vector3};
 use ciflow_engine::robot::{PANDA_HOME, Robot, panda};
 use ciflow_engine::sim::{Perturbation, PerturbationKind, SimConfig, Simulator};
-use nalgebra::{Rotation3, Translation3, UnitQuaternion, Vector2};
+use nalgebra::{Translation3, UnitQuaternion, Vector2};
 use rand::RngExt;
 
 use crate::env::{Env, EnvError, EnvSpec, Info, PERTURBED_INFO, ResetOptions, SUCCESS_INFO, Step};
 use crate::expert::pouring::{CupPose, PourTarget, expert_acceleration};
 use crate::planar::reject_unknown_options;
-use crate::raster::{BLACK, BLUE, Canvas, GREY, ORANGE, RED, View};
+use crate::raster::{BLACK, BLUE, Canvas, GREY, ORANGE, RED, View, oblique_projection};
 use crate::seeding::EpisodeRng;
 use crate::space::{BoxSpace, Dtype};
 
@@ -534,11 +534,7 @@ const CAMERA_AZIMUTH: f64 = -0.6;
 /// Elevation of the camera above the horizon, rad (20°).
 const CAMERA_ELEVATION: f64 = 0.35;
 
-/// Orthographic projection onto the screen of a camera at azimuth `φ` and elevation `e`
-/// looking at the robot's base: with `v = R_z(−φ) p` (the camera on the `+x` axis),
-/// `s = (v_y, v_z cos e − v_x sin e)`, so nearer points appear lower.
+/// The camera's view of `p` ([`oblique_projection`]), looking at the robot's base.
 fn project(p: &Vector3) -> Vector2<f64> {
-    let v = Rotation3::from_euler_angles(0.0, 0.0, -CAMERA_AZIMUTH) * p;
-    let (sin_e, cos_e) = CAMERA_ELEVATION.sin_cos();
-    Vector2::new(v.y, v.z * cos_e - v.x * sin_e)
+    oblique_projection(p, CAMERA_AZIMUTH, CAMERA_ELEVATION)
 }

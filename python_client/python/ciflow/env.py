@@ -50,7 +50,7 @@ class CiflowEnv(gym.Env):
         self._control = None
         self.render_mode = render_mode
         client, engine_name = connection.resolve(task, engine, zenoh_config)
-        self._session = client.make(engine_name, task, 1, construction_kwargs(kwargs))
+        self._session = client.make(engine_name, task, 1, construction_kwargs(task, kwargs))
         spec = self._session.spec
         self.task_spec = spec
         self.observation_space = box(spec["observation_space"])

@@ -30,6 +30,7 @@ import numpy as np
 from ciflow import _native, connection
 from ciflow.convert import to_lerobot
 from ciflow.registration import task_entry
+from ciflow.spaces import construction_kwargs
 
 __all__ = ["Recorded", "record", "main"]
 
@@ -136,7 +137,7 @@ def record(
     out = Path(out) if out is not None else None
     if out is not None and out.exists() and not overwrite:
         raise FileExistsError(f"{out} already exists (pass overwrite=True / --overwrite)")
-    kwargs = _task_numbers(task_id, kwargs, "construction argument")
+    kwargs = construction_kwargs(task_id, kwargs or {})
     options = _task_numbers(task_id, options, "reset option")
     dataset_id = dataset_id or f"ciflow/{name}-expert-v0"
 

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import math
+import os
 
 import numpy as np
 from gymnasium import spaces
+
+from ciflow import _native
 
 _OPTION_FIELDS = ("context", "initial_position", "initial_velocity")
 
@@ -52,9 +56,21 @@ def reset_options(defaults: dict, options: dict | None) -> dict | None:
     return wire
 
 
-def construction_kwargs(kwargs: dict) -> dict:
-    """The task's construction arguments: numbers only, as the engine takes them."""
-    try:
-        return {key: float(value) for key, value in kwargs.items()}
-    except (TypeError, ValueError):
-        raise TypeError(f"task arguments must be numbers, got {kwargs!r}") from None
+def construction_kwargs(task: str, kwargs: dict) -> dict:
+    """The task's construction arguments as the engine takes them: numbers as floats, and
+    strings as the task reads them — a name of a value (LASA's ``shape="Sshape"``), a text
+    (the reach task's ``tool``), or a document given by path (its ``urdf``), read here so
+    that the environment's identity holds the content, not this machine's path."""
+    arguments = {}
+    for key, value in kwargs.items():
+        if isinstance(value, os.PathLike):
+            value = os.fspath(value)
+        if isinstance(value, str):
+            arguments[key] = _native.task_argument(task, key, value)
+        elif isinstance(value, (int, float)) and not isinstance(value, bool):
+            if not math.isfinite(value):
+                raise ValueError(f"task argument {key}={value!r} is not finite")
+            arguments[key] = float(value)
+        else:
+            raise TypeError(f"task argument {key}={value!r}: expected a number or a string")
+    return arguments

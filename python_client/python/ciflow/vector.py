@@ -41,7 +41,7 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
             raise ValueError("CiflowVectorEnv does not render; use gymnasium.make for frames")
         self._session = None
         client, engine_name = connection.resolve(task, engine, zenoh_config)
-        self._session = client.make(engine_name, task, int(num_envs), construction_kwargs(kwargs))
+        self._session = client.make(engine_name, task, int(num_envs), construction_kwargs(task, kwargs))
         spec = self._session.spec
         self.task_spec = spec
         self.num_envs = int(num_envs)

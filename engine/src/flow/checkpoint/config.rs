@@ -2,6 +2,8 @@
 //! task name. The other half, `weights.safetensors`, holds the parameters named by
 //! [`FlowConfig::parameter_shapes`] / [`BaselineConfig::parameter_shapes`].
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 
 use crate::math::distance;
@@ -167,6 +169,11 @@ pub struct FlowConfig {
     pub format: u32,
     /// Name of the task the policy was trained for; loading checks it.
     pub task: String,
+    /// The task's construction arguments (numbers, or texts such as the reach task's URDF
+    /// document): what builds the same task and robot to act in and to check it on.
+    /// Checkpoints without the key were trained on the task's defaults.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub task_kwargs: BTreeMap<String, serde_json::Value>,
     /// `d`, the dimension of `y` and `z`.
     pub state_dim: usize,
     /// `m`, the dimension of `c` (0: the unconditioned ImitationFlow).
@@ -221,6 +228,7 @@ impl FlowConfig {
         Self {
             format: FORMAT,
             task: task.to_owned(),
+            task_kwargs: BTreeMap::new(),
             state_dim,
             context_dim,
             dt: 0.01,
