@@ -36,6 +36,13 @@ from tqdm import tqdm
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 CIFLOW = os.environ.get("CIFLOW", str(ROOT / "target" / "release" / "ciflow"))
+ARMS = ROOT / "engine" / "tests" / "assets"
+# The reach task's arms (README "Bring your own robot"): URDF, tool and home posture.
+REACH_ARMS = {
+    "ur5e": {"urdf": ARMS / "ur5e.urdf", "tool": "tool0", "home": "0,-1.57,1.57,-1.57,-1.57,0"},
+    "iiwa14": {"urdf": ARMS / "iiwa14.urdf", "home": "0,0.5,0,-1.2,0,0.8,0"},
+}
+REACH_DEMOS = 500
 PYTHON = os.environ.get("PYTHON", sys.executable)
 
 # The experiments' sizes (the issue's numbers; see README "The experiments").
@@ -213,7 +220,7 @@ def plan(out: pathlib.Path) -> list[Job]:
     """The experiments as jobs; out/experiments has the layout scripts/report.py reads."""
     data, policies, exp = out / "data", out / "policies", out / "experiments"
     for d in (data, policies, exp / "pouring" / "nll", exp / "pouring" / "seeds",
-              exp / "stability", exp / "robot_loop", out / "figures"):
+              exp / "stability", exp / "robot_loop", exp / "reach", out / "figures"):
         d.mkdir(parents=True, exist_ok=True)
 
     def record(name, task, episodes, seed, dataset, *extra):
@@ -294,6 +301,20 @@ def plan(out: pathlib.Path) -> list[Job]:
                 CIFLOW, "stability", "--checkpoint", checkpoint, "--json", "--starts", "100",
                 "--robot-loop", "--robot-traces", "4", *extra]], after=[after],
                 stdout=exp / "robot_loop" / f"{name}{suffix}.json"))
+    # Bring your own robot (README): the reach task on two arms that are not the Panda,
+    # given by URDF; recorded through gymnasium.make, trained, and evaluated on new goals
+    # beside their expert.
+    for arm, arguments in REACH_ARMS.items():
+        kwargs = [arg for key, value in arguments.items() for arg in ("--kwarg", f"{key}={value}")]
+        jobs.append(Job(f"reach-{arm}", [
+            [PYTHON, "-m", "ciflow.record", "--task", "reach", *kwargs, "--episodes",
+             REACH_DEMOS, "--seed", 0, "--out", data / f"reach-{arm}", "--no-publish",
+             "--overwrite", "--quiet"],
+            [CIFLOW, "train", "--task", "reach", "--demos", data / f"reach-{arm}", "--out",
+             policies / f"reach-{arm}"],
+            evaluate(policies / f"reach-{arm}", *held_out, "--out", exp / "reach" / f"{arm}.json"),
+            [CIFLOW, "evaluate", "--expert", "--task", "reach", *kwargs, *held_out, "--out",
+             exp / "reach" / f"{arm}-expert.json"]]))
     # The pouring policy and the learning curve's models are the task's recipe (`ciflow
     # train`): every successful episode of their subset fitted, none held out for early
     # stopping, the last epoch kept, so n on the curve is n episodes fitted and the

@@ -12,6 +12,11 @@ spec = importlib.util.spec_from_file_location(
 demo = importlib.util.module_from_spec(spec)
 sys.modules["demo"] = demo  # dataclasses look their module up while the class is built
 spec.loader.exec_module(demo)
+# The report reads what the plan writes.
+report_spec = importlib.util.spec_from_file_location(
+    "report", pathlib.Path(__file__).with_name("report.py"))
+report = importlib.util.module_from_spec(report_spec)
+report_spec.loader.exec_module(report)
 
 
 def python(code):
@@ -61,6 +66,13 @@ def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
     for name in ("pouring-record-train", "pouring-perturb", "pouring-push", "pouring-context",
                  "obstacles-3", "stability-obstacles-3-baseline", "limit-cycle-field",
                  "limit-cycle-10-seed2", "pouring-0.1-seed2", "pouring-joint-range-push",
-                 "robot-loop-flow", "robot-loop-joint-range-pushed"):
+                 "robot-loop-flow", "robot-loop-joint-range-pushed", "reach-ur5e",
+                 "reach-iiwa14"):
         assert name in names
+    # The reach jobs write the files the report's section reads, for both of its arms.
+    reach = {job.name: job for job in jobs if job.name.startswith("reach-")}
+    for arm, _label in report.REACH_ARMS:
+        written = [str(arg) for command in reach[f"reach-{arm}"].commands for arg in command]
+        assert str(tmp_path / "experiments" / "reach" / f"{arm}.json") in written
+        assert str(tmp_path / "experiments" / "reach" / f"{arm}-expert.json") in written
     assert all(set(job.after) <= names for job in jobs)

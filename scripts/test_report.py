@@ -128,6 +128,11 @@ def experiments(tmp_path):
     write(root / "robot_loop" / "flow.json", robot_loop(42, 0.065, 2))
     write(root / "robot_loop" / "joint-range-pushed.json",
           robot_loop(3, 0.012, 0, {"force": 40.0, "at": 1.0, "duration": 0.2}))
+    reach = evaluation(0.96, 50, {"mode": "none"})
+    reach["final_distance"] = {"count": 50, "mean": 0.004, "std": 0.002, "min": 0.001,
+                               "max": 0.021}
+    write(root / "reach" / "ur5e.json", reach)
+    write(root / "reach" / "ur5e-expert.json", evaluation(1.0, 50, {"mode": "none"}))
     samples = [{"time": 0.01 * k, "state": [0.1 * k] * 7, "command": [1.0] * 7,
                 "reward": -0.5 + 0.005 * k, "running": True, "episode_done": k == 99}
                for k in range(100)]
@@ -169,6 +174,9 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert "| flow | — | 100 of 100 | 42 | 6.5% of 1000 | 7 |" in text
     assert ("| joint-range | 40 N for 0.2 s on the hand at 1 s | 100 of 100 | 3 | 1.2% of 1000 | 7 |"
             in text)
+    assert ("| UR5e | 96.0% (50 goals) | ≥ 90%: **pass** | 4.0 mm (21.0 mm) | 100.0% |"
+            in text)
+    assert "| KUKA LBR iiwa 14 | not run | ≥ 90% | | |" in text
     assert ("session ran 0.99 simulated s (100 telemetry samples) and ended with the spout "
             "0.5 cm from the pour point") in text
     figures = tmp_path / "out" / "figures"

@@ -30,8 +30,8 @@ fn serve_hosts_every_task_for_clients_in_other_processes() {
     let tasks: Vec<&str> = ciflow_envs::tasks().iter().map(|t| t.id).collect();
     assert_eq!(
         tasks.len(),
-        4,
-        "limit cycle, obstacle avoidance, pouring, LASA: {tasks:?}"
+        5,
+        "limit cycle, obstacle avoidance, pouring, reach, LASA: {tasks:?}"
     );
     for task in tasks {
         let info = engine.tasks.iter().find(|t| t.spec.id == task);

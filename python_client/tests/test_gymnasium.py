@@ -15,7 +15,7 @@ def task_id(request):
 
 
 def test_import_registers_every_task():
-    assert len(ciflow.TASK_IDS) == 4, ciflow.TASK_IDS
+    assert len(ciflow.TASK_IDS) == 5, ciflow.TASK_IDS
     for task_id in ciflow.TASK_IDS:
         spec = gym.spec(task_id)
         assert spec.entry_point == "ciflow.env:CiflowEnv"
