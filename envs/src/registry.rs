@@ -11,7 +11,6 @@ use crate::tasks::{lasa, limit_cycle, obstacle_avoidance, pouring, reach};
 
 pub use crate::kwargs::{Kwarg, Kwargs, TextArgument};
 
-
 /// Builds the arm a task drives with these construction arguments.
 pub type MakeRobot = fn(&Kwargs) -> Result<Box<dyn Robot>, EnvError>;
 
@@ -43,8 +42,9 @@ pub struct TaskEntry {
     /// (angles, the limit cycle's phase): checks that extrapolate the context keep these
     /// inside the training box and scale the others (positions).
     pub bounded_context: &'static [usize],
-    /// The movable link the evaluation pushes by default: the hand of an arm (its last
-    /// link), the body of a point mass.
+    /// The movable link the evaluation pushes by default with the task's default
+    /// arguments: the hand of an arm (its last link), the body of a point mass; see
+    /// [`TaskEntry::pushed_link_with`] for other arguments.
     pub pushed_link: usize,
     /// The context entries a mid-motion change replaces by default: the last `n` (the
     /// obstacle-avoidance target, while its obstacles stay), or all of them (`None`).
@@ -86,6 +86,15 @@ impl TaskEntry {
                 .map(|i| i as f64)
                 .ok_or_else(|| invalid(format!("`{text}` is none of {}", names.join(", ")))),
             None => Err(invalid(format!("`{text}` is not a number"))),
+        }
+    }
+
+    /// The link the evaluation pushes by default on the task built with `kwargs`: an arm's
+    /// last link (the reach task's depends on its URDF), else [`TaskEntry::pushed_link`].
+    pub fn pushed_link_with(&self, kwargs: &Kwargs) -> Result<usize, EnvError> {
+        match self.robot {
+            Some(arm) => Ok(arm(kwargs)?.link_count() - 1),
+            None => Ok(self.pushed_link),
         }
     }
 

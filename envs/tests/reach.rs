@@ -162,3 +162,13 @@ fn bad_arguments_are_typed_errors() {
     invalid(&[("urdf", UR5E), ("lock_joints", "=1")], "lock_joints");
     invalid(&[("colour", "red")], "colour");
 }
+
+#[test]
+fn the_evaluation_pushes_the_last_link_of_the_urdf_arm() {
+    let reach = registry::entry("reach").unwrap();
+    assert_eq!(
+        reach.pushed_link_with(&Kwargs::new()).unwrap(),
+        reach.pushed_link
+    );
+    assert_eq!(reach.pushed_link_with(&ur5e()).unwrap(), 5);
+}

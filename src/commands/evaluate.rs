@@ -14,7 +14,7 @@ use anyhow::Context;
 use ciflow_engine::flow::Policy;
 use ciflow_envs::actor::{DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::dataset::{self, Episode};
-use ciflow_envs::registry::{self, TaskEntry};
+use ciflow_envs::registry::{self, Kwargs, TaskEntry};
 use ciflow_evaluation::field::{FieldConfig, field};
 use ciflow_evaluation::likelihood::{log_likelihood, scored_episodes};
 use ciflow_evaluation::{
@@ -155,11 +155,18 @@ fn read_dataset(dir: &Path) -> anyhow::Result<Vec<Episode>> {
 }
 
 /// The disturbance the flags ask for in `task` (its defaults where a flag is not given).
-fn disturbance(args: &EvaluateArgs, task: &TaskEntry) -> Disturbance {
-    match args.perturb {
+fn disturbance(
+    args: &EvaluateArgs,
+    task: &TaskEntry,
+    kwargs: &Kwargs,
+) -> anyhow::Result<Disturbance> {
+    Ok(match args.perturb {
         PerturbArg::None => Disturbance::None,
         PerturbArg::Push => Disturbance::Push(PushConfig {
-            link: args.push_link.unwrap_or(task.pushed_link),
+            link: match args.push_link {
+                Some(link) => link,
+                None => task.pushed_link_with(kwargs)?,
+            },
             start: args.push_start,
             duration: args.push_duration,
             displacement: args.push_displacement,
@@ -172,7 +179,7 @@ fn disturbance(args: &EvaluateArgs, task: &TaskEntry) -> Disturbance {
             time: args.switch_time,
             tail: args.switch_tail.or(task.moved_context_tail),
         }),
-    }
+    })
 }
 
 pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
@@ -254,7 +261,7 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
         seed: args.seed,
         velocity_gain: args.velocity_gain,
         reset_extra: task.values(&args.options)?,
-        disturbance: disturbance(args, task),
+        disturbance: disturbance(args, task, &kwargs)?,
         trajectories: args.trajectories,
     };
     let progress = progress::bar(args.episodes as u64, "evaluate", "episodes");
