@@ -10,11 +10,7 @@
 # demonstrations (its latency is that of any policy of the same shape).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$PWD/target}
-# The workspace's libtorch (the `ciflow` binary links it), as the Makefile sets it.
-export LIBTORCH=${LIBTORCH:-$PWD/.libtorch} LIBTORCH_CXX11_ABI=1
-export LD_LIBRARY_PATH=$LIBTORCH/lib:$LIBTORCH/cuda-lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}
-PYTHON=${PYTHON:-$PWD/.venv/bin/python}
+source bench/workspace.sh
 PORT=${PORT:-27491}
 ENDPOINT=tcp/127.0.0.1:$PORT
 SECONDS_PER_LOOP=${1:-60}

@@ -3,11 +3,7 @@
 # env-steps/s — all against one `ciflow serve` started here on a private port.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$PWD/target}
-# The workspace's libtorch (the `ciflow` binary links it), as the Makefile sets it.
-export LIBTORCH=${LIBTORCH:-$PWD/.libtorch} LIBTORCH_CXX11_ABI=1
-export LD_LIBRARY_PATH=$LIBTORCH/lib:$LIBTORCH/cuda-lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}
-PYTHON=${PYTHON:-$PWD/.venv/bin/python}
+source bench/workspace.sh
 PORT=${PORT:-27490}
 ENDPOINT=tcp/127.0.0.1:$PORT
 

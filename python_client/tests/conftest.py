@@ -15,6 +15,11 @@ ROOT = Path(__file__).resolve().parents[2]
 BINARY = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target")) / "release" / "ciflow"
 
 
+def ciflow_cli(*args):
+    """Runs the `ciflow` binary with `args` (paths and numbers as text); fails on an error."""
+    subprocess.run([str(BINARY), *map(str, args)], check=True, capture_output=True, timeout=1200)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

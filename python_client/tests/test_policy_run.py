@@ -15,11 +15,7 @@ import ciflow
 
 # pytest runs with --import-mode=importlib: conftest is not on sys.path by itself.
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from conftest import BINARY, free_port  # noqa: E402
-
-
-def ciflow_cli(*args):
-    subprocess.run([str(BINARY), *map(str, args)], check=True, capture_output=True, timeout=600)
+from conftest import BINARY, ciflow_cli, free_port  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -15,17 +15,13 @@ import ciflow
 
 # pytest runs with --import-mode=importlib: conftest is not on sys.path by itself.
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from conftest import BINARY, free_port  # noqa: E402
+from conftest import BINARY, ciflow_cli, free_port  # noqa: E402
 
 UR5E = Path(__file__).resolve().parents[2] / "engine" / "tests" / "assets" / "ur5e.urdf"
 ARGUMENTS = {"urdf": str(UR5E), "tool": "tool0", "home": "0,-1.57,1.57,-1.57,-1.57,0"}
 DEMONSTRATIONS = 500
 GOALS = 50
 SUCCESS_RADIUS = 0.01
-
-
-def ciflow_cli(*args):
-    subprocess.run([str(BINARY), *map(str, args)], check=True, capture_output=True, timeout=1200)
 
 
 @pytest.fixture(scope="module")

@@ -62,10 +62,11 @@
 
 use ciflow_engine::math::{Isometry3, Vector3};
 use ciflow_engine::robot::{PANDA_HOME, Robot, panda};
-use ciflow_engine::sim::{Perturbation, PerturbationKind, SimConfig, Simulator};
+use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
 use nalgebra::{Translation3, UnitQuaternion, Vector2};
 use rand::RngExt;
 
+use super::arm_start;
 use crate::env::{Env, EnvError, EnvSpec, Info, PERTURBED_INFO, ResetOptions, SUCCESS_INFO, Step};
 use crate::expert::pouring::{CupPose, PourTarget, expert_acceleration};
 use crate::planar::reject_unknown_options;
@@ -91,11 +92,7 @@ pub const START_SPREAD: f64 = 0.05;
 /// Widest `start_spread` option: keeps every start within the Panda's joint limits, rad.
 pub const MAX_START_SPREAD: f64 = 0.3;
 pub const START_SPREAD_OPTION: &str = "start_spread";
-pub const PUSH_FORCE_OPTION: &str = "push_force";
-/// Duration of the `push_force` push, s.
-pub const DEMO_PUSH_DURATION: f64 = 0.2;
-/// When the `push_force` push starts: uniform in this window, s.
-pub const DEMO_PUSH_WINDOW: (f64, f64) = (0.3, 3.0);
+pub use super::arm_start::{DEMO_PUSH_DURATION, DEMO_PUSH_WINDOW, PUSH_FORCE_OPTION};
 const CONTEXT_LOW: [f64; 6] = [0.42, -0.25, 0.0, -0.1, -0.1, -0.6];
 const CONTEXT_HIGH: [f64; 6] = [0.6, 0.25, 0.1, 0.1, 0.1, 0.6];
 const DOF: usize = 7;
@@ -298,20 +295,6 @@ impl Pouring {
         self.target = pour_target(&self.pot);
         Ok(())
     }
-
-    fn joint_vector(&self, what: &'static str, values: &[f64]) -> Result<Vec<f64>, EnvError> {
-        if values.len() != DOF {
-            return Err(EnvError::WrongDimension {
-                what,
-                expected: DOF,
-                got: values.len(),
-            });
-        }
-        if values.iter().any(|v| !v.is_finite()) {
-            return Err(EnvError::NotFinite { what });
-        }
-        Ok(values.to_vec())
-    }
 }
 
 impl Env for Pouring {
@@ -325,13 +308,7 @@ impl Env for Pouring {
         options: &ResetOptions,
     ) -> Result<(Vec<f64>, Info), EnvError> {
         reject_unknown_options(&options.extra, &[START_SPREAD_OPTION, PUSH_FORCE_OPTION])?;
-        let push_force = options.extra.get(PUSH_FORCE_OPTION).copied().unwrap_or(0.0);
-        if !(push_force.is_finite() && push_force >= 0.0) {
-            return Err(EnvError::InvalidOption {
-                name: PUSH_FORCE_OPTION.into(),
-                detail: format!("{push_force} N; a finite force >= 0 is needed"),
-            });
-        }
+        let push_force = arm_start::push_force(&options.extra)?;
         let spread = match options.extra.get(START_SPREAD_OPTION).copied() {
             None => START_SPREAD,
             Some(s) if (0.0..=MAX_START_SPREAD).contains(&s) => s,
@@ -352,43 +329,18 @@ impl Env for Pouring {
                 .collect(),
         };
         let q0 = match &options.initial_position {
-            Some(q0) => {
-                let q0 = self.joint_vector("initial_position", q0)?;
-                let limits = self.robot().limits();
-                if let Some(i) =
-                    (0..DOF).find(|&i| q0[i] < limits.q_min[i] || q0[i] > limits.q_max[i])
-                {
-                    return Err(EnvError::OutOfBounds {
-                        what: "initial_position",
-                        detail: format!("joint {i} = {} is outside its limits", q0[i]),
-                    });
-                }
-                q0
-            }
+            Some(q0) => arm_start::initial_position(q0, self.robot().limits())?,
             None => PANDA_HOME
                 .iter()
                 .map(|q| q + rng.random_range(-spread..=spread))
                 .collect(),
         };
         let qd0 = match &options.initial_velocity {
-            Some(qd0) => self.joint_vector("initial_velocity", qd0)?,
+            Some(qd0) => arm_start::joint_vector("initial_velocity", qd0, DOF)?,
             None => vec![0.0; DOF],
         };
         // Drawn after the start, so a pushed episode starts where the unpushed one does.
-        let rng = self.rng.reseed(None);
-        let push = (push_force > 0.0).then(|| {
-            let magnitude = rng.random_range(0.0..=push_force);
-            let angle = rng.random_range(0.0..std::f64::consts::TAU);
-            Perturbation {
-                kind: PerturbationKind::LinkWrench {
-                    link: HAND_LINK,
-                    force: [magnitude * angle.cos(), magnitude * angle.sin(), 0.0],
-                    torque: [0.0; 3],
-                },
-                start: rng.random_range(DEMO_PUSH_WINDOW.0..=DEMO_PUSH_WINDOW.1),
-                duration: DEMO_PUSH_DURATION,
-            }
-        });
+        let push = arm_start::demo_push(self.rng.reseed(None), push_force, HAND_LINK);
         self.apply_context(&context)?;
         self.simulator
             .reset(&q0, &qd0)

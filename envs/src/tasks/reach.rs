@@ -57,10 +57,11 @@
 use ciflow_engine::math::Vector3;
 use ciflow_engine::model::LockedJoint;
 use ciflow_engine::robot::{PANDA_HOME, Robot, SerialChain, UrdfOptions, panda};
-use ciflow_engine::sim::{Perturbation, PerturbationKind, SimConfig, Simulator};
+use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use super::arm_start::{self, PUSH_FORCE_OPTION};
 use crate::env::{Env, EnvError, EnvSpec, Info, PERTURBED_INFO, ResetOptions, SUCCESS_INFO, Step};
 use crate::expert::reach::expert_acceleration;
 use crate::kwargs::{self, Kwargs, TextArgument};
@@ -68,7 +69,6 @@ use crate::planar::reject_unknown_options;
 use crate::raster::{BLACK, Canvas, GREEN, GREY, RED, View, oblique_projection};
 use crate::seeding::EpisodeRng;
 use crate::space::{BoxSpace, Dtype};
-use crate::tasks::pouring::{DEMO_PUSH_DURATION, DEMO_PUSH_WINDOW, PUSH_FORCE_OPTION};
 
 pub const ID: &str = "ciflow/Reach-v0";
 pub const URDF_ARGUMENT: &str = "urdf";
@@ -341,21 +341,6 @@ impl Reach {
         Ok((-distance, info))
     }
 
-    fn joint_vector(&self, what: &'static str, values: &[f64]) -> Result<Vec<f64>, EnvError> {
-        let n = self.robot().dof();
-        if values.len() != n {
-            return Err(EnvError::WrongDimension {
-                what,
-                expected: n,
-                got: values.len(),
-            });
-        }
-        if values.iter().any(|v| !v.is_finite()) {
-            return Err(EnvError::NotFinite { what });
-        }
-        Ok(values.to_vec())
-    }
-
     fn apply_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
         self.spec.context_space.check("context", context)?;
         self.goal = Vector3::from_column_slice(context);
@@ -402,13 +387,7 @@ impl Env for Reach {
         options: &ResetOptions,
     ) -> Result<(Vec<f64>, Info), EnvError> {
         reject_unknown_options(&options.extra, &[PUSH_FORCE_OPTION])?;
-        let push_force = options.extra.get(PUSH_FORCE_OPTION).copied().unwrap_or(0.0);
-        if !(push_force.is_finite() && push_force >= 0.0) {
-            return Err(EnvError::InvalidOption {
-                name: PUSH_FORCE_OPTION.into(),
-                detail: format!("{push_force} N; a finite force >= 0 is needed"),
-            });
-        }
+        let push_force = arm_start::push_force(&options.extra)?;
         let robot = self.simulator.robot();
         let rng = self.rng.reseed(seed);
         let context = match &options.context {
@@ -426,41 +405,16 @@ impl Env for Reach {
             }
         };
         let q0 = match &options.initial_position {
-            Some(q0) => {
-                let q0 = self.joint_vector("initial_position", q0)?;
-                let limits = self.robot().limits();
-                if let Some(i) =
-                    (0..q0.len()).find(|&i| q0[i] < limits.q_min[i] || q0[i] > limits.q_max[i])
-                {
-                    return Err(EnvError::OutOfBounds {
-                        what: "initial_position",
-                        detail: format!("joint {i} = {} is outside its limits", q0[i]),
-                    });
-                }
-                q0
-            }
+            Some(q0) => arm_start::initial_position(q0, robot.limits())?,
             None => posture_near(robot, &self.home, START_SPREAD, rng),
         };
+        let joints = robot.dof();
         let qd0 = match &options.initial_velocity {
-            Some(qd0) => self.joint_vector("initial_velocity", qd0)?,
-            None => vec![0.0; self.robot().dof()],
+            Some(qd0) => arm_start::joint_vector("initial_velocity", qd0, joints)?,
+            None => vec![0.0; joints],
         };
         // Drawn after the start, so a pushed episode starts where the unpushed one does.
-        let last_link = self.robot().dof() - 1;
-        let rng = self.rng.reseed(None);
-        let push = (push_force > 0.0).then(|| {
-            let magnitude = rng.random_range(0.0..=push_force);
-            let angle = rng.random_range(0.0..std::f64::consts::TAU);
-            Perturbation {
-                kind: PerturbationKind::LinkWrench {
-                    link: last_link,
-                    force: [magnitude * angle.cos(), magnitude * angle.sin(), 0.0],
-                    torque: [0.0; 3],
-                },
-                start: rng.random_range(DEMO_PUSH_WINDOW.0..=DEMO_PUSH_WINDOW.1),
-                duration: DEMO_PUSH_DURATION,
-            }
-        });
+        let push = arm_start::demo_push(self.rng.reseed(None), push_force, joints - 1);
         self.apply_context(&context)?;
         self.simulator
             .reset(&q0, &qd0)
