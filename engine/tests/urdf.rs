@@ -295,3 +295,15 @@ fn a_gripper_loads_once_all_but_one_finger_is_locked() {
     assert_eq!(robot.dof(), 8);
     assert_eq!(robot.limits().q_max[7], 0.04, "the finger's travel");
 }
+
+#[test]
+fn a_locked_joint_reads_as_a_name_held_at_zero_or_at_a_position() {
+    let locked = |name: &str, position| LockedJoint {
+        name: name.into(),
+        position,
+    };
+    assert_eq!("finger".parse(), Ok(locked("finger", 0.0)));
+    assert_eq!(" finger = 0.02".parse(), Ok(locked("finger", 0.02)));
+    assert!("finger=wide".parse::<LockedJoint>().is_err());
+    assert!("=0.1".parse::<LockedJoint>().is_err());
+}
