@@ -54,6 +54,34 @@ pub struct ResetOptions {
     pub extra: BTreeMap<String, f64>,
 }
 
+/// Where an environment is in its episode, and the checks its methods share.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// Never reset, or reset failed: only `reset` is allowed.
+    NeedsReset,
+    Running,
+    /// The episode ended: `step` needs a `reset`; the other methods still see its state.
+    Ended,
+}
+
+impl Phase {
+    /// Refuses with [`EnvError::NeedsReset`] before the first `reset`.
+    pub fn started(self) -> Result<(), EnvError> {
+        match self {
+            Phase::NeedsReset => Err(EnvError::NeedsReset),
+            Phase::Running | Phase::Ended => Ok(()),
+        }
+    }
+
+    /// Refuses with [`EnvError::NeedsReset`] unless an episode is running (`step`).
+    pub fn running(self) -> Result<(), EnvError> {
+        match self {
+            Phase::Running => Ok(()),
+            Phase::NeedsReset | Phase::Ended => Err(EnvError::NeedsReset),
+        }
+    }
+}
+
 /// The result of one [`Env::step`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Step {

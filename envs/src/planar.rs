@@ -13,7 +13,7 @@ use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
 use nalgebra::Vector2;
 use rand_chacha::ChaCha8Rng;
 
-use crate::env::{Env, EnvError, EnvSpec, Info, ResetOptions, Step};
+use crate::env::{Env, EnvError, EnvSpec, Info, Phase, ResetOptions, Step};
 use crate::expert::tracking::{VelocityField, tracking_acceleration};
 use crate::raster::{BLACK, BLUE, Canvas, View};
 use crate::seeding::EpisodeRng;
@@ -73,13 +73,6 @@ pub trait PlanarTask: Send + 'static {
     fn evaluate(&self, x: &Vector2<f64>, xd: &Vector2<f64>) -> Outcome;
     /// Draws the task's scene (targets, obstacles, outlines) under the trajectory.
     fn draw(&self, canvas: &mut Canvas);
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Phase {
-    NeedsReset,
-    Running,
-    Ended,
 }
 
 /// A planar task as an [`Env`].
@@ -212,9 +205,7 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
     }
 
     fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
-        if self.phase != Phase::Running {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.running()?;
         self.spec.action_space.check("action", action)?;
         self.simulator.step(action).map_err(EnvError::Simulation)?;
         self.steps += 1;
@@ -234,9 +225,7 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
     }
 
     fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
-        if self.phase == Phase::NeedsReset {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.started()?;
         let (x, xd) = self.state();
         let a = tracking_acceleration(self.task.field(), &x, &xd, self.task.velocity_gain());
         Ok(self.spec.action_space.clip(a.as_slice()))
@@ -248,9 +237,7 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
     }
 
     fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
-        if self.phase == Phase::NeedsReset {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.started()?;
         self.check_context(context)?;
         self.task.set_context(context);
         self.context = context.to_vec();
@@ -258,9 +245,7 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
     }
 
     fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError> {
-        if self.phase == Phase::NeedsReset {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.started()?;
         self.simulator
             .perturb(perturbation)
             .map_err(EnvError::InvalidPerturbation)

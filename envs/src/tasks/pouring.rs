@@ -67,7 +67,9 @@ use nalgebra::{Translation3, UnitQuaternion, Vector2};
 use rand::RngExt;
 
 use super::arm_start;
-use crate::env::{Env, EnvError, EnvSpec, Info, PERTURBED_INFO, ResetOptions, SUCCESS_INFO, Step};
+use crate::env::{
+    Env, EnvError, EnvSpec, Info, PERTURBED_INFO, Phase, ResetOptions, SUCCESS_INFO, Step,
+};
 use crate::expert::pouring::{CupPose, PourTarget, expert_acceleration};
 use crate::planar::reject_unknown_options;
 use crate::raster::{BLACK, BLUE, Canvas, GREY, ORANGE, RED, View, oblique_projection};
@@ -123,13 +125,6 @@ fn over_opening(pot: &Isometry3, point: &Vector3) -> bool {
     let opening = pot * nalgebra::Point3::new(0.0, 0.0, POT_HEIGHT);
     let horizontal = Vector2::new(point.x - opening.x, point.y - opening.y);
     horizontal.norm() < POT_RADIUS && point.z > opening.z
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Phase {
-    NeedsReset,
-    Running,
-    Ended,
 }
 
 /// The pouring environment (see the module docs).
@@ -357,9 +352,7 @@ impl Env for Pouring {
     }
 
     fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
-        if self.phase != Phase::Running {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.running()?;
         self.spec.action_space.check("action", action)?;
         self.simulator.step(action).map_err(EnvError::Simulation)?;
         self.steps += 1;
@@ -379,9 +372,7 @@ impl Env for Pouring {
     }
 
     fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
-        if self.phase == Phase::NeedsReset {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.started()?;
         let qdd = expert_acceleration(
             self.robot(),
             &self.target,
@@ -394,16 +385,12 @@ impl Env for Pouring {
     }
 
     fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
-        if self.phase == Phase::NeedsReset {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.started()?;
         self.apply_context(context)
     }
 
     fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError> {
-        if self.phase == Phase::NeedsReset {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.started()?;
         self.simulator
             .perturb(perturbation)
             .map_err(EnvError::InvalidPerturbation)

@@ -62,7 +62,9 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::arm_start::{self, PUSH_FORCE_OPTION};
-use crate::env::{Env, EnvError, EnvSpec, Info, PERTURBED_INFO, ResetOptions, SUCCESS_INFO, Step};
+use crate::env::{
+    Env, EnvError, EnvSpec, Info, PERTURBED_INFO, Phase, ResetOptions, SUCCESS_INFO, Step,
+};
 use crate::expert::reach::expert_acceleration;
 use crate::kwargs::{self, Kwargs, TextArgument};
 use crate::planar::reject_unknown_options;
@@ -211,13 +213,6 @@ pub fn arm(kwargs: &Kwargs) -> Result<Arm, EnvError> {
 /// The arm [`Reach`] drives with these arguments (the registry's `robot`).
 pub fn robot(kwargs: &Kwargs) -> Result<Box<dyn Robot>, EnvError> {
     Ok(arm(kwargs)?.robot)
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Phase {
-    NeedsReset,
-    Running,
-    Ended,
 }
 
 /// The reach environment (see the module docs).
@@ -431,9 +426,7 @@ impl Env for Reach {
     }
 
     fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
-        if self.phase != Phase::Running {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.running()?;
         self.spec.action_space.check("action", action)?;
         self.simulator.step(action).map_err(EnvError::Simulation)?;
         self.steps += 1;
@@ -453,9 +446,7 @@ impl Env for Reach {
     }
 
     fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
-        if self.phase == Phase::NeedsReset {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.started()?;
         let qdd = expert_acceleration(
             self.robot(),
             &self.goal,
@@ -468,16 +459,12 @@ impl Env for Reach {
     }
 
     fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
-        if self.phase == Phase::NeedsReset {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.started()?;
         self.apply_context(context)
     }
 
     fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError> {
-        if self.phase == Phase::NeedsReset {
-            return Err(EnvError::NeedsReset);
-        }
+        self.phase.started()?;
         self.simulator
             .perturb(perturbation)
             .map_err(EnvError::InvalidPerturbation)
