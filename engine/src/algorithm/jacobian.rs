@@ -3,8 +3,8 @@
 use super::kinematics::body_placement;
 use super::{DynamicsError, check_len, check_matrix_shape, check_vector};
 use crate::math::{DMatrix, DVector, Real, Vector3};
-use crate::model::Model;
-use crate::spatial::{Force, Motion, Se3};
+use crate::model::{JointKind, Model};
+use crate::spatial::Se3;
 
 /// The geometric Jacobian `J(q)` (6 × n, world-aligned, rows `[linear; angular]`) of the
 /// point `point` (coordinates in frame `frame`): `[ṗ; ω] = J(q) q̇`. Column `j` is
@@ -21,10 +21,13 @@ pub fn frame_jacobian(
     let target = super::frame_placement(model, q, frame)?.act_point(point);
     jacobian.fill(0.0);
     let body = model.frames()[frame].body;
-    for_each_joint_motion(model, q, body, |j, s| {
-        let linear = s.linear + s.angular.cross(&target);
+    for_each_joint_axis(model, q, body, |j, kind, axis, origin| {
+        let (linear, angular) = match kind {
+            JointKind::Revolute => (axis.cross(&(target - origin)), axis),
+            JointKind::Prismatic => (axis, Vector3::zeros()),
+        };
         jacobian.fixed_view_mut::<3, 1>(0, j).copy_from(&linear);
-        jacobian.fixed_view_mut::<3, 1>(3, j).copy_from(&s.angular);
+        jacobian.fixed_view_mut::<3, 1>(3, j).copy_from(&angular);
     });
     Ok(())
 }
@@ -52,25 +55,29 @@ pub fn wrench_to_joint_torque(
         });
     }
     let point = body_placement(model, q, Some(link)).translation;
-    // The wrench about the world origin, paired with each joint's world motion subspace.
-    let wrench = Force::new(*force, torque + point.cross(force));
     tau.fill(0.0);
-    for_each_joint_motion(model, q, Some(link), |j, s| tau[j] = wrench.dot(&s));
+    for_each_joint_axis(model, q, Some(link), |j, kind, axis, origin| {
+        tau[j] = match kind {
+            JointKind::Revolute => axis.dot(&(torque + (point - origin).cross(force))),
+            JointKind::Prismatic => axis.dot(force),
+        };
+    });
     Ok(())
 }
 
-/// Calls `visit(j, Sⱼ)` with the motion subspace of each joint moving `body`, expressed
-/// in the world frame about the world origin (so a point `p` moves at `v + ω × p`).
-fn for_each_joint_motion(
+/// Calls `visit(j, kind, zⱼ, oⱼ)` with the kind, world axis and origin of each joint
+/// moving `body`.
+fn for_each_joint_axis(
     model: &Model,
     q: &[Real],
     body: Option<usize>,
-    mut visit: impl FnMut(usize, Motion),
+    mut visit: impl FnMut(usize, JointKind, Vector3, Vector3),
 ) {
     let count = body.map_or(0, |b| b + 1);
     let mut o_m = Se3::identity();
     for (j, (body, &qj)) in model.bodies()[..count].iter().zip(q).enumerate() {
         o_m = o_m * body.joint.transform(qj);
-        visit(j, o_m.act_motion(&body.joint.motion_subspace()));
+        let joint = &body.joint;
+        visit(j, joint.kind, o_m.rotation * joint.axis, o_m.translation);
     }
 }
