@@ -76,6 +76,8 @@ OBSTACLE_MODEL = ["--epochs", "2", "--keep", "last"]
 # encoder and the couplings' local features (README "Obstacle avoidance").
 OBSTACLE_GENERIC = "3-generic"
 OBSTACLE_GENERIC_MODEL = [*OBSTACLE_MODEL, "--contraction-layers", "0"]
+# The perturbation script's run as a Rerun recording, beside the report.
+PERTURB_RECORDING = "pouring_perturb.rrd"
 # What the perturbation script does to the running pouring session (simulated seconds):
 # a 0.2 s push on the hand, then the pot moved to another valid pose, where it stays:
 # 5 cm along x, 8 cm along y, turned by 0.33 rad. (Turning it by 0.93 rad instead, most
@@ -267,7 +269,8 @@ def plan(out: pathlib.Path) -> list[Job]:
         PYTHON, "-m", "ciflow.perturb", "--task", "pouring", "--policy", "pouring", "--seed",
         TEST_SEED, "--push", PERTURB_PUSH, "--context-step", PERTURB_CONTEXT, "--quiet",
         "--record", exp / "pouring" / "perturb.json", "--plot",
-        out / "figures" / "pouring_perturb_script.png"]], after=["pouring-record-train"]))
+        out / "figures" / "pouring_perturb_script.png", "--rrd", out / PERTURB_RECORDING]],
+        after=["pouring-record-train"]))
     # The closed-loop figures: held-out contexts undisturbed, pushed, and with the pot moved.
     pouring_modes = (("eval", []), ("push", ["--perturb", "push"]),
                      ("context", ["--perturb", "context"]))

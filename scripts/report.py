@@ -494,7 +494,10 @@ def plot_script_run(report, script):
                   "Pouring over Zenoh: the engine's policy pushed (red) and its pot moved (blue) "
                   "by the perturbation script")
     report.add(f"The perturbation script's session ran {last['time']:.2f} simulated s "
-               f"({len(samples)} telemetry samples) and {ended}.", "")
+               f"({len(samples)} telemetry samples) and {ended}. The run in 3-D, with its "
+               "series and events, is the Rerun recording `pouring_perturb.rrd` beside this "
+               "report (`rerun pouring_perturb.rrd`, or `python -m ciflow.view --record "
+               "experiments/pouring/perturb.json`).", "")
 
 
 def joint_limits(report, root):

@@ -21,15 +21,15 @@ use zenoh::query::{ConsolidationMode, Querier, QueryTarget};
 use zenoh::sample::Sample;
 
 use crate::config::{NetworkOptions, Role};
-use crate::control::{SessionAddress, SessionControl};
+use crate::control::{SessionAddress, SessionControl, TelemetryStream};
 use crate::error::{BridgeError, check_name};
 use crate::limits::{Limits, Usage};
 use crate::protocol::keys::{self, SessionOp};
 use crate::protocol::{
-    AckReply, ActRequest, ActionReply, BatchResetReply, BatchStepReply, BatchStepRequest, F64s,
-    FrameHeader, LimitsReply, LimitsRequest, MakeReply, MakeRequest, PROTOCOL_VERSION, PolicyInfo,
-    RenderReply, RenderRequest, ResetReply, ResetRequest, StepReply, StepRequest, TaskInfo,
-    TasksReply, TasksRequest, decode_reply, encode,
+    AckReply, ActRequest, ActionReply, BatchResetReply, BatchStepReply, BatchStepRequest,
+    DescribeReply, DescribeRequest, F64s, FrameHeader, LimitsReply, LimitsRequest, MakeReply,
+    MakeRequest, PROTOCOL_VERSION, PolicyInfo, RenderReply, RenderRequest, ResetReply,
+    ResetRequest, StepReply, StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply, encode,
 };
 use crate::query::{decode_ok, first_reply, query};
 
@@ -178,6 +178,32 @@ impl Client {
             SessionAddress::new(engine, &self.identity, session),
             token,
             self.timeout,
+        )
+    }
+
+    /// What a session is — its task, construction arguments and size — from the engine,
+    /// the owner's identity and the session id (as a telemetry key names them); needs no
+    /// token.
+    pub fn describe(
+        &self,
+        engine: &str,
+        identity: &str,
+        session: &str,
+    ) -> Result<DescribeReply, BridgeError> {
+        self.call(
+            &keys::session(engine, identity, session, SessionOp::Describe.as_str()),
+            &DescribeRequest {
+                v: PROTOCOL_VERSION,
+            },
+        )
+    }
+
+    /// The telemetry of every session on `engine` ([`ANY_ENGINE`](crate::ANY_ENGINE): on
+    /// every engine) that this identity may read, each sample with where it came from.
+    pub fn watch(&self, engine: &str) -> Result<TelemetryStream, BridgeError> {
+        TelemetryStream::subscribe(
+            &self.zsession,
+            &keys::session(engine, "*", "*", "telemetry"),
         )
     }
 

@@ -241,21 +241,30 @@ impl SessionControl {
     /// Subscribes to this session's telemetry (subscribe before starting what you want
     /// to record).
     pub fn telemetry(&self) -> Result<TelemetryStream, BridgeError> {
-        TelemetryStream::subscribe(&self.zsession, &self.address)
+        TelemetryStream::subscribe(&self.zsession, &self.address.key("telemetry"))
     }
 }
 
-/// The telemetry samples of one session, as they arrive.
+/// A telemetry sample and the engine and owner identity of its session.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SourcedTelemetry {
+    pub engine: String,
+    pub identity: String,
+    pub telemetry: Telemetry,
+}
+
+/// The telemetry samples of one session (or of every session a [`crate::Client::watch`]
+/// matches), as they arrive.
 pub struct TelemetryStream {
     subscriber: Subscriber<FifoChannelHandler<Sample>>,
 }
 
 impl TelemetryStream {
-    /// Subscribes to `…/session/<session>/telemetry` at `address` (telemetry needs no
-    /// token; behind access control, only the owner's identity may subscribe).
-    fn subscribe(zsession: &zenoh::Session, address: &SessionAddress) -> Result<Self, BridgeError> {
+    /// Subscribes to the telemetry keys `key` matches (telemetry needs no token; behind
+    /// access control, only the owner's identity may subscribe).
+    pub(crate) fn subscribe(zsession: &zenoh::Session, key: &str) -> Result<Self, BridgeError> {
         let subscriber = zsession
-            .declare_subscriber(address.key("telemetry"))
+            .declare_subscriber(key.to_owned())
             .wait()
             .map_err(BridgeError::zenoh("subscribing to the telemetry"))?;
         Ok(Self { subscriber })
@@ -263,18 +272,37 @@ impl TelemetryStream {
 
     /// The next sample, or `None` if none arrives within `timeout`.
     pub fn recv_timeout(&self, timeout: Duration) -> Result<Option<Telemetry>, BridgeError> {
-        match self.subscriber.recv_timeout(timeout) {
-            Ok(Some(sample)) => decode_reply(&sample.payload().to_bytes())
-                .map(Some)
-                .map_err(|source| BridgeError::BadReply {
-                    key: sample.key_expr().to_string(),
+        Ok(self.recv_sourced(timeout)?.map(|sample| sample.telemetry))
+    }
+
+    /// The next sample with the engine and owner it came from, or `None` if none arrives
+    /// within `timeout`.
+    pub fn recv_sourced(&self, timeout: Duration) -> Result<Option<SourcedTelemetry>, BridgeError> {
+        let sample = match self.subscriber.recv_timeout(timeout) {
+            Ok(Some(sample)) => sample,
+            Ok(None) => return Ok(None),
+            Err(source) => {
+                return Err(BridgeError::Zenoh {
+                    action: "receiving the telemetry",
                     source,
-                }),
-            Ok(None) => Ok(None),
-            Err(source) => Err(BridgeError::Zenoh {
-                action: "receiving the telemetry",
+                });
+            }
+        };
+        let key = sample.key_expr().as_str();
+        let (engine, identity, _) =
+            keys::parse_telemetry(key).ok_or_else(|| BridgeError::UnexpectedKey {
+                key: key.to_owned(),
+                expected: "a session's telemetry key",
+            })?;
+        let telemetry =
+            decode_reply(&sample.payload().to_bytes()).map_err(|source| BridgeError::BadReply {
+                key: key.to_owned(),
                 source,
-            }),
-        }
+            })?;
+        Ok(Some(SourcedTelemetry {
+            engine: engine.to_owned(),
+            identity: identity.to_owned(),
+            telemetry,
+        }))
     }
 }

@@ -70,6 +70,9 @@ pub enum BridgeError {
         #[source]
         source: rmp_serde::decode::Error,
     },
+    /// A sample arrived on a key outside the layout its subscription expects.
+    #[error("a sample on `{key}`, which is not {expected}")]
+    UnexpectedKey { key: String, expected: &'static str },
     /// An error reply that is not a protocol [`ErrorReply`]; `payload` is its text.
     #[error("undecodable error reply on `{key}`: {payload}")]
     BadErrorReply {

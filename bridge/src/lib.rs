@@ -38,7 +38,7 @@ pub use checkpoint_policy::{CheckpointPolicy, PolicyLoadError};
 pub use ciflow_envs::registry::Kwargs;
 pub use client::{BatchStep, Client, EngineInfo, RemoteEnv, StepResult};
 pub use config::{DEFAULT_ENDPOINT, Mode, NetworkOptions, Role};
-pub use control::{ANY_ENGINE, SessionControl, TelemetryStream};
+pub use control::{ANY_ENGINE, SessionControl, SourcedTelemetry, TelemetryStream};
 pub use episodes::{CollectError, EpisodePublisher, EpisodeSubscriber};
 pub use error::BridgeError;
 pub use limits::{Limits, Usage};

@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use ciflow_engine::sim::Perturbation;
 use serde::{Deserialize, Serialize};
 
+use crate::scene::Scene;
 use crate::space::BoxSpace;
 
 pub use crate::error::EnvError;
@@ -37,6 +38,31 @@ pub struct EnvSpec {
     pub physics_dt: f64,
     /// Episode length after which `truncated` is set.
     pub max_episode_steps: u32,
+}
+
+impl EnvSpec {
+    /// Splits an observation into its state and its context, refusing a wrong length or a
+    /// non-finite entry (values outside the observation space pass: viewers draw pushed
+    /// or extrapolated states as they are).
+    pub fn split_observation<'a>(
+        &self,
+        observation: &'a [f64],
+    ) -> Result<(&'a [f64], &'a [f64]), EnvError> {
+        let expected = self.observation_space.dim();
+        if observation.len() != expected {
+            return Err(EnvError::WrongDimension {
+                what: "observation",
+                expected,
+                got: observation.len(),
+            });
+        }
+        if observation.iter().any(|v| !v.is_finite()) {
+            return Err(EnvError::NotFinite {
+                what: "observation",
+            });
+        }
+        Ok(observation.split_at(expected - self.context_space.dim()))
+    }
 }
 
 /// Options accepted by [`Env::reset`]; unset fields are drawn from the task's documented
@@ -127,4 +153,10 @@ pub trait Env: Send {
 
     /// Renders the current state as an RGB image, row-major `height × width × 3`.
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError>;
+
+    /// The task's bodies at `observation` (state then context, as `step` returns it): the
+    /// robot, the context's objects (pot, obstacles, target, outline), what viewers show.
+    /// It depends on the observation and the construction arguments only, so a fresh
+    /// environment draws any recorded or streamed observation without a reset.
+    fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError>;
 }

@@ -16,6 +16,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::env::{Env, EnvError, EnvSpec, Info, Phase, ResetOptions, Step};
 use crate::expert::tracking::{VelocityField, tracking_acceleration};
 use crate::raster::{BLACK, BLUE, Canvas, View};
+use crate::scene::{Body, Scene, Shape, planar};
 use crate::seeding::EpisodeRng;
 use crate::space::{BoxSpace, Dtype};
 
@@ -73,6 +74,8 @@ pub trait PlanarTask: Send + 'static {
     fn evaluate(&self, x: &Vector2<f64>, xd: &Vector2<f64>) -> Outcome;
     /// Draws the task's scene (targets, obstacles, outlines) under the trajectory.
     fn draw(&self, canvas: &mut Canvas);
+    /// The context's objects (targets, obstacles, outlines) in the plane `z = 0`.
+    fn context_bodies(&self, context: &[f64]) -> Vec<Body>;
 }
 
 /// A planar task as an [`Env`].
@@ -135,6 +138,11 @@ impl<T: PlanarTask> PlanarEnv<T> {
     pub fn state(&self) -> (Vector2<f64>, Vector2<f64>) {
         let (q, qd) = (self.simulator.q(), self.simulator.qd());
         (Vector2::new(q[0], q[1]), Vector2::new(qd[0], qd[1]))
+    }
+
+    /// The point's drawn radius: a fixed share of the workspace's diagonal.
+    fn point_radius(&self) -> f64 {
+        0.012 * (self.task.setup().workspace.max - self.task.setup().workspace.min).norm()
     }
 
     fn observation(&self) -> Vec<f64> {
@@ -256,11 +264,25 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         if self.phase != Phase::NeedsReset {
             self.task.draw(&mut canvas);
             canvas.polyline(&self.trail, false, BLUE, 2.0);
-            let radius =
-                0.012 * (self.task.setup().workspace.max - self.task.setup().workspace.min).norm();
-            canvas.disc(&self.state().0, radius, BLACK);
+            canvas.disc(&self.state().0, self.point_radius(), BLACK);
         }
         Ok(canvas.into_pixels())
+    }
+
+    /// The point mass as a ball on the plane `z = 0`, and the task's context bodies.
+    fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {
+        let (state, context) = self.spec.split_observation(observation)?;
+        let point = Body::new(
+            "point",
+            Shape::Sphere {
+                centre: planar(&Vector2::new(state[0], state[1])),
+                radius: self.point_radius(),
+            },
+            BLACK,
+        );
+        let mut bodies = self.task.context_bodies(context);
+        bodies.push(point);
+        Ok(Scene { bodies })
     }
 }
 

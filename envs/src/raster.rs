@@ -77,7 +77,24 @@ impl Canvas {
         self.pixels
     }
 
-    fn to_pixel(&self, p: &Vector2<f64>) -> Vector2<f64> {
+    /// Width and height in pixels.
+    pub fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// Pixels per world unit.
+    pub fn scale(&self) -> f64 {
+        self.scale
+    }
+
+    /// Colours pixel `(x, y)`, which must lie in the frame.
+    pub fn put(&mut self, x: u32, y: u32, color: Rgb) {
+        let i = (y as usize * self.width as usize + x as usize) * 3;
+        self.pixels[i..i + 3].copy_from_slice(&color);
+    }
+
+    /// Where the world point `p` lands, in pixel coordinates (`y` down).
+    pub fn to_pixel(&self, p: &Vector2<f64>) -> Vector2<f64> {
         Vector2::new(
             self.origin.x + self.scale * p.x,
             self.origin.y - self.scale * p.y,
@@ -99,8 +116,7 @@ impl Canvas {
         for y in y0..y1 {
             for x in x0..x1 {
                 if inside(Vector2::new(x as f64 + 0.5, y as f64 + 0.5)) {
-                    let i = (y as usize * self.width as usize + x as usize) * 3;
-                    self.pixels[i..i + 3].copy_from_slice(&color);
+                    self.put(x, y, color);
                 }
             }
         }

@@ -3,6 +3,7 @@
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use ciflow_envs::env::PERTURBED_INFO;
 use ciflow_envs::rollout::expert_episode;
+use ciflow_envs::scene::{Body, Shape};
 use ciflow_envs::tasks::pouring::{DEMO_PUSH_DURATION, PUSH_FORCE_OPTION, Pouring};
 use ciflow_envs::{Env, EnvError, ResetOptions};
 
@@ -250,37 +251,82 @@ fn invalid_inputs_are_typed_errors() {
 
 #[test]
 fn render_shows_the_cup_held_by_the_hand_above_the_pot() {
-    const SIZE: usize = 240;
     let mut env = Pouring::new().unwrap();
-    env.reset(Some(0), &ResetOptions::default()).unwrap();
+    let (mut observation, _) = env.reset(Some(0), &ResetOptions::default()).unwrap();
     for step in 0..600 {
         if step % 200 == 0 {
-            let frame = env.render(SIZE as u32, SIZE as u32).unwrap();
-            let pixels_of = |colour: [u8; 3]| -> Vec<(i64, i64)> {
-                frame
-                    .chunks(3)
-                    .enumerate()
-                    .filter(|(_, p)| *p == colour)
-                    .map(|(i, _)| ((i % SIZE) as i64, (i / SIZE) as i64))
-                    .collect()
+            let scene = env.scene(&observation).unwrap();
+            let index = |name: &str| {
+                scene
+                    .bodies
+                    .iter()
+                    .position(|b| b.name == name)
+                    .unwrap_or_else(|| panic!("no body `{name}`"))
             };
-            let (cup, arm) = (pixels_of(ciflow_envs::raster::BLUE), pixels_of([0, 0, 0]));
-            assert!(!cup.is_empty() && !arm.is_empty());
-            // The fingers (black) touch the cup (blue): no gap between hand and cup.
-            let touching = cup.iter().any(|(x, y)| {
-                arm.iter()
-                    .any(|(u, v)| (x - u).abs() <= 1 && (y - v).abs() <= 1)
+            let picture = env.picture(240, 240).unwrap();
+            let (cup, fingers) = (
+                picture.pixels_of(index("cup")),
+                picture.pixels_of(index("robot/fingers")),
+            );
+            assert!(!cup.is_empty() && !fingers.is_empty(), "step {step}");
+            // The fingers touch the cup: no gap between hand and cup.
+            let touching = cup.iter().any(|&(x, y)| {
+                fingers
+                    .iter()
+                    .any(|&(u, v)| x.abs_diff(u) <= 1 && y.abs_diff(v) <= 1)
             });
             assert!(touching, "step {step}: the cup floats apart from the hand");
-            // The pot (orange) is in frame, below the cup on screen.
-            let pot = pixels_of(ciflow_envs::raster::ORANGE);
-            let lowest_cup = cup.iter().map(|p| p.1).max().unwrap();
-            let lowest_pot = pot.iter().map(|p| p.1).max().unwrap();
-            assert!(lowest_pot > lowest_cup, "step {step}");
+            // The pot is in frame, below the cup on screen.
+            let lowest = |pixels: &[(u32, u32)]| pixels.iter().map(|p| p.1).max().unwrap();
+            let pot = picture.pixels_of(index("pot"));
+            assert!(lowest(&pot) > lowest(&cup), "step {step}");
+            // Shading: the pot's pixels are not all one colour.
+            let frame = env.render(240, 240).unwrap();
+            let shades: std::collections::BTreeSet<_> = pot
+                .iter()
+                .map(|&(x, y)| {
+                    let i = (y as usize * 240 + x as usize) * 3;
+                    [frame[i], frame[i + 1], frame[i + 2]]
+                })
+                .collect();
+            assert!(shades.len() > 5, "step {step}: {} shades", shades.len());
         }
         let action = env.expert_action().unwrap();
-        env.step(&action).unwrap();
+        observation = env.step(&action).unwrap().observation;
     }
+}
+
+#[test]
+fn the_scene_of_an_observation_needs_no_reset_and_refuses_bad_observations() {
+    let mut env = Pouring::new().unwrap();
+    let (observation, _) = env.reset(Some(3), &ResetOptions::default()).unwrap();
+    let fresh = Pouring::new().unwrap();
+    assert_eq!(
+        fresh.scene(&observation).unwrap(),
+        env.scene(&observation).unwrap()
+    );
+    assert!(matches!(
+        fresh.scene(&observation[1..]),
+        Err(EnvError::WrongDimension { .. })
+    ));
+    let mut broken = observation.clone();
+    broken[2] = f64::NAN;
+    assert!(matches!(
+        fresh.scene(&broken),
+        Err(EnvError::NotFinite { .. })
+    ));
+    // The pot stands where the context puts it.
+    let mut moved = observation.clone();
+    let n = moved.len();
+    moved[n - 6] += 0.05;
+    let pot_x = |observation: &[f64]| match fresh.scene(observation).unwrap().body("pot") {
+        Some(Body {
+            shape: Shape::Cylinder { pose, .. },
+            ..
+        }) => pose.translation.x,
+        other => panic!("{other:?}"),
+    };
+    assert!((pot_x(&moved) - pot_x(&observation) - 0.05).abs() < 1e-12);
 }
 
 fn options(pairs: &[(&str, f64)]) -> ResetOptions {

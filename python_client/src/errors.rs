@@ -44,6 +44,7 @@ pub fn to_py(error: BridgeError) -> PyErr {
         | BridgeError::CheckpointConfig { .. } => PyValueError::new_err(message),
         BridgeError::BadReply { .. }
         | BridgeError::BadErrorReply { .. }
-        | BridgeError::FrameLost { .. } => CiflowError::new_err(message),
+        | BridgeError::FrameLost { .. }
+        | BridgeError::UnexpectedKey { .. } => CiflowError::new_err(message),
     }
 }

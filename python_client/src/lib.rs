@@ -5,6 +5,7 @@
 mod convert;
 mod datasets;
 mod errors;
+mod scenes;
 
 use std::collections::BTreeMap;
 use std::sync::Mutex;
@@ -19,7 +20,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
 use crate::convert::{
-    PyKwarg, columns_to_dict, floats_from_bytes, floats_to_bytes, kwargs_from_py,
+    PyKwarg, columns_to_dict, floats_from_bytes, floats_to_bytes, kwargs_from_py, kwargs_to_dict,
     perturbation_from_dict, reset_options_from_dict, spec_to_dict,
 };
 use crate::datasets::{PyDatasetSpec, PyDatasetWriter, PyEpisode, PyEpisodePublisher};
@@ -191,6 +192,34 @@ impl ClientHandle {
         let engine = engine.unwrap_or(ANY_ENGINE);
         let control = self.client.attach(engine, session, token).map_err(to_py)?;
         Ok(Control { control })
+    }
+
+    /// What a session is: `{"task", "kwargs", "num_envs"}`, from the engine, its owner's
+    /// identity and its id (as telemetry samples name them); needs no token.
+    fn describe<'py>(
+        &self,
+        py: Python<'py>,
+        engine: &str,
+        identity: &str,
+        session: &str,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let reply = py
+            .detach(|| self.client.describe(engine, identity, session))
+            .map_err(to_py)?;
+        let dict = PyDict::new(py);
+        dict.set_item("task", &reply.task)?;
+        dict.set_item("kwargs", kwargs_to_dict(py, &reply.kwargs)?)?;
+        dict.set_item("num_envs", reply.num_envs)?;
+        Ok(dict)
+    }
+
+    /// A feed of the telemetry of every session on `engine` (default: every engine) that
+    /// this identity may read.
+    #[pyo3(signature = (engine=None))]
+    fn watch(&self, py: Python<'_>, engine: Option<&str>) -> PyResult<TelemetryFeed> {
+        let engine = engine.unwrap_or(ANY_ENGINE);
+        let stream = py.detach(|| self.client.watch(engine)).map_err(to_py)?;
+        Ok(TelemetryFeed { stream })
     }
 
     /// A publisher of finished episodes of `task` on
@@ -497,7 +526,7 @@ impl Control {
     }
 }
 
-/// Telemetry samples of one session, as they arrive.
+/// Telemetry samples of one session (or of every watched session), as they arrive.
 #[pyclass(module = "ciflow._native")]
 struct TelemetryFeed {
     stream: TelemetryStream,
@@ -527,11 +556,14 @@ impl TelemetryFeed {
                     .min(TELEMETRY_POLL),
                 None => TELEMETRY_POLL,
             };
-            if let Some(sample) = py
-                .detach(|| self.stream.recv_timeout(wait))
+            if let Some(sourced) = py
+                .detach(|| self.stream.recv_sourced(wait))
                 .map_err(to_py)?
             {
+                let sample = &sourced.telemetry;
                 let dict = PyDict::new(py);
+                dict.set_item("engine", &sourced.engine)?;
+                dict.set_item("identity", &sourced.identity)?;
                 dict.set_item("session", &sample.session)?;
                 dict.set_item("step", sample.step)?;
                 dict.set_item("time", sample.time)?;
@@ -576,6 +608,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Session>()?;
     m.add_class::<Control>()?;
     m.add_class::<TelemetryFeed>()?;
+    m.add_class::<scenes::Scenery>()?;
     m.add_class::<PyDatasetSpec>()?;
     m.add_class::<PyEpisode>()?;
     m.add_class::<PyDatasetWriter>()?;

@@ -71,16 +71,33 @@ def test_run_policy_is_perturbed_from_a_second_process(policy_engine, tmp_path):
     pusher = subprocess.Popen(
         [sys.executable, "-m", "ciflow.perturb", "--session", owner.session_id,
          "--token", owner.token_hex, "--engine", endpoint, "--engine-name", name,
-         "--push", "joint=0:20,at=0.5,duration=0.3", "--record", str(traces), "--quiet"],
+         "--push", "joint=0:20,at=0.5,duration=0.3", "--record", str(traces), "--quiet",
+         "--rrd", str(tmp_path / "run.rrd")],
         stdout=subprocess.PIPE, text=True,
     )
     assert "scheduled" in pusher.stdout.readline()
     owner.run_policy("avoid", speed=2.0, steps=120)
     pushed = record(feed)
     assert pusher.wait(timeout=60) == 0
-    recorded = json.loads(traces.read_text())["samples"]
+    record_file = json.loads(traces.read_text())
+    recorded = record_file["samples"]
     assert recorded, "the second process recorded the telemetry"
     assert recorded[-1]["running"] is False
+    # Attached by id, the script learned what the session is from the engine (describe),
+    # and its Rerun recording holds one row per sample and the push.
+    assert record_file["task"] == "ciflow/Obstacle-v0"
+    assert record_file["kwargs"] == {"obstacles": 1.0}
+    from rerun.chunk import RrdReader
+
+    rows, events = {}, []
+    for chunk in RrdReader(str(tmp_path / "run.rrd")).store().stream().to_chunks():
+        if "time" not in chunk.timeline_names:
+            continue  # static: the series' line names
+        rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+        if chunk.entity_path == "/run/events":
+            events.append(chunk)
+    assert rows["/run/state"] == len(recorded) and rows["/run/world/point"] == len(recorded)
+    assert events, "the push is an event"
 
     # The push shows in the telemetry: the y-velocity departs from the reference run.
     by_step = {s["step"]: s for s in reference}

@@ -71,4 +71,4 @@ def test_the_wheel_installs_and_runs_in_an_empty_environment(tmp_path, private_d
                          cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     assert "stepped (" in run.stdout, run.stdout
-    assert "extras ['convert', 'plot']" in run.stdout, run.stdout
+    assert "extras ['convert', 'plot', 'view']" in run.stdout, run.stdout

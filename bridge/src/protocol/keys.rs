@@ -161,10 +161,12 @@ pub enum SessionOp {
     /// Policy-driven sessions: the engine steps the environment itself.
     Run,
     Stop,
+    /// The session's task and construction arguments, for viewers (no token).
+    Describe,
 }
 
 impl SessionOp {
-    pub const ALL: [SessionOp; 12] = [
+    pub const ALL: [SessionOp; 13] = [
         SessionOp::Reset,
         SessionOp::Step,
         SessionOp::ResetBatch,
@@ -177,6 +179,7 @@ impl SessionOp {
         SessionOp::Close,
         SessionOp::Run,
         SessionOp::Stop,
+        SessionOp::Describe,
     ];
 
     /// The last chunk of the operation's key.
@@ -194,6 +197,7 @@ impl SessionOp {
             SessionOp::Close => "close",
             SessionOp::Run => "run",
             SessionOp::Stop => "stop",
+            SessionOp::Describe => "describe",
         }
     }
 
@@ -223,6 +227,23 @@ pub fn parse_route(key: &str) -> Option<Route<'_>> {
             }),
             _ => None,
         },
+        _ => None,
+    }
+}
+
+/// The engine, owner identity and session of a telemetry key
+/// (`ciflow/v2/engine/<engine>/client/<identity>/session/<session>/telemetry`).
+pub fn parse_telemetry(key: &str) -> Option<(&str, &str, &str)> {
+    let rest = key.strip_prefix(ROOT)?.strip_prefix("/engine/")?;
+    let chunks: Vec<&str> = rest.split('/').collect();
+    match chunks.as_slice() {
+        [engine, "client", identity, "session", session, "telemetry"]
+            if [engine, identity, session]
+                .iter()
+                .all(|c| is_plain_chunk(c)) =>
+        {
+            Some((engine, identity, session))
+        }
         _ => None,
     }
 }

@@ -286,6 +286,24 @@ pub struct AckReply {
     pub time: f64,
 }
 
+/// `…/describe`: `{v}` (no token: it tells what the session is, not how to drive it).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DescribeRequest {
+    pub v: u16,
+}
+
+/// Reply to `…/describe`.
+/// The reply names the task and the construction arguments the session was made with,
+/// so that a viewer can draw its telemetry.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DescribeReply {
+    pub v: u16,
+    /// The Gymnasium id.
+    pub task: String,
+    pub kwargs: Kwargs,
+    pub num_envs: u32,
+}
+
 /// `…/render`: the frame is published on `…/session/<session>/frame`; subscribe first.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RenderRequest {

@@ -567,7 +567,14 @@ impl Shared {
             .telemetry
             .session(identity, &id)
             .map_err(|e| ErrorReply::new(ErrorCode::Internal, full_message(&e)))?;
-        let session = Session::new(id.clone(), client, token, envs, telemetry);
+        let session = Session::new(
+            id.clone(),
+            client,
+            token,
+            request.kwargs.clone(),
+            envs,
+            telemetry,
+        );
         // A deadline passed while building, or a client that vanished meanwhile
         // (nobody would ever close its session): nothing is kept.
         if deadline.passed() {
@@ -640,6 +647,7 @@ impl Shared {
             ));
         };
         match op {
+            SessionOp::Describe => Ok(session.describe()),
             SessionOp::Reset => {
                 let request: ResetRequest = decode_request(payload)?;
                 session.authorize(&request.token)?;

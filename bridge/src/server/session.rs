@@ -6,6 +6,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
+use ciflow_envs::registry::Kwargs;
 use ciflow_envs::{EnvError, EnvSpec, Info, ResetOptions};
 use rayon::prelude::*;
 use serde_bytes::ByteBuf;
@@ -16,7 +17,7 @@ use crate::error::full_message;
 use crate::policy::Policy;
 use crate::protocol::{
     AckReply, ActionReply, BatchResetReply, BatchStepReply, ContextCheckReply, ContextRequest,
-    ErrorCode, ErrorReply, F64s, FrameHeader, PROTOCOL_VERSION, PerturbRequest,
+    DescribeReply, ErrorCode, ErrorReply, F64s, FrameHeader, PROTOCOL_VERSION, PerturbRequest,
     PerturbationKindMsg, ResetReply, ResetRequest, RunRequest, StepReply, TOKEN_BYTES, encode,
 };
 
@@ -31,6 +32,8 @@ pub(crate) struct Session {
     pub owner: String,
     token: Token,
     spec: EnvSpec,
+    /// The construction arguments the session was made with (for `describe`).
+    kwargs: Kwargs,
     envs: Vec<EnvSlot>,
     /// Options of the last reset, reused by autoresets.
     reset_options: ResetOptions,
@@ -78,6 +81,7 @@ impl Session {
         id: String,
         owner: String,
         token: Token,
+        kwargs: Kwargs,
         envs: Vec<EnvSlot>,
         telemetry: TelemetryPublisher,
     ) -> Self {
@@ -87,6 +91,7 @@ impl Session {
             owner,
             token,
             spec,
+            kwargs,
             envs,
             reset_options: ResetOptions::default(),
             telemetry,
@@ -94,6 +99,16 @@ impl Session {
             run: None,
             runs: 0,
         }
+    }
+
+    /// What the session is: its task, construction arguments and size.
+    pub fn describe(&self) -> Vec<u8> {
+        encode(&DescribeReply {
+            v: PROTOCOL_VERSION,
+            task: self.spec.id.clone(),
+            kwargs: self.kwargs.clone(),
+            num_envs: self.envs.len() as u32,
+        })
     }
 
     /// Refuses callers that do not hold the session's token.

@@ -17,6 +17,7 @@ use ciflow_bridge::{
 use ciflow_engine::flow::checkpoint;
 use ciflow_engine::flow::{CheckpointConfig, CouplingKind, FlowConfig, LatentKind, Weights};
 use ciflow_engine::sim::Perturbation;
+use ciflow_envs::scene::{Body, Scene, Shape};
 use ciflow_envs::{BoxSpace, Dtype, Env, EnvError, EnvSpec, Info, ResetOptions, Step};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -124,6 +125,18 @@ impl Env for Fixture {
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
         let shade = ((self.x.tanh() + 1.0) * 127.0) as u8;
         Ok(vec![shade; (width * height * 3) as usize])
+    }
+
+    /// A ball at `x` on the line.
+    fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {
+        let (state, _) = self.spec.split_observation(observation)?;
+        let ball = Shape::Sphere {
+            centre: [state[0], 0.0, 0.0].into(),
+            radius: 0.1,
+        };
+        Ok(Scene {
+            bodies: vec![Body::new("ball", ball, [0, 0, 0])],
+        })
     }
 }
 

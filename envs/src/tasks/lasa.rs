@@ -75,6 +75,7 @@ use crate::planar::{
     Outcome, PlanarEnv, PlanarSetup, PlanarTask, index_option, reject_unknown_options,
 };
 use crate::raster::{Canvas, GREEN, GREY, View};
+use crate::scene::{Body, Shape, planar};
 use crate::space::{BoxSpace, Dtype};
 
 pub const ID: &str = "ciflow/Lasa-v0";
@@ -351,5 +352,31 @@ impl PlanarTask for Lasa {
             canvas.polyline(&shifted, false, GREY, 1.0);
         }
         canvas.circle(&goal, 2.0, GREEN, 3.0);
+    }
+
+    /// The goal `context` as a ball and, once a shape is loaded, its demonstrated paths
+    /// moved with the goal.
+    fn context_bodies(&self, context: &[f64]) -> Vec<Body> {
+        let goal = Vector2::new(context[0], context[1]);
+        let paths = self.models.get(&self.shape).map_or(&[][..], |m| &m.paths);
+        let mut bodies: Vec<_> = paths
+            .iter()
+            .enumerate()
+            .map(|(i, path)| {
+                let points = path.iter().map(|p| planar(&(p + goal))).collect();
+                let curve = Shape::Curve {
+                    points,
+                    closed: false,
+                    radius: 0.3,
+                };
+                Body::new(format!("demonstrations/{i}"), curve, GREY)
+            })
+            .collect();
+        let ball = Shape::Sphere {
+            centre: planar(&goal),
+            radius: 2.0,
+        };
+        bodies.push(Body::new("goal", ball, GREEN));
+        bodies
     }
 }

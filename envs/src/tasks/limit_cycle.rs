@@ -60,6 +60,7 @@ use crate::expert::limit_cycle::LimitCycleField;
 use crate::expert::tracking::VelocityField;
 use crate::planar::{Outcome, PlanarEnv, PlanarSetup, PlanarTask, reject_unknown_options};
 use crate::raster::{Canvas, GREY, View};
+use crate::scene::{Body, Shape, planar};
 use crate::space::{BoxSpace, Dtype};
 use crate::vitruvian::Outline;
 
@@ -237,5 +238,19 @@ impl PlanarTask for LimitCycle {
 
     fn draw(&self, canvas: &mut Canvas) {
         canvas.polyline(&self.field.outline.polyline(720), true, GREY, 2.0);
+    }
+
+    /// The outline the motion should trace for `context`.
+    fn context_bodies(&self, context: &[f64]) -> Vec<Body> {
+        let points = outline_curve(context)
+            .iter()
+            .map(|&[x, y]| planar(&Vector2::new(x, y)))
+            .collect();
+        let outline = Shape::Curve {
+            points,
+            closed: true,
+            radius: 0.004,
+        };
+        vec![Body::new("outline", outline, GREY)]
     }
 }

@@ -48,7 +48,7 @@
 
 use std::collections::BTreeMap;
 
-use nalgebra::Vector2;
+use nalgebra::{Vector2, Vector3};
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
@@ -57,6 +57,7 @@ use crate::expert::modulation::{Disc, ModulatedField};
 use crate::expert::tracking::VelocityField;
 use crate::planar::{Outcome, PlanarEnv, PlanarSetup, PlanarTask, reject_unknown_options};
 use crate::raster::{Canvas, GREEN, GREY, LIGHT_GREY, View};
+use crate::scene::{Body, Shape, cylinder_between, planar};
 use crate::space::{BoxSpace, Dtype};
 
 pub const ID: &str = "ciflow/Obstacle-v0";
@@ -314,5 +315,29 @@ impl PlanarTask for ObstacleAvoidance {
             canvas.disc(&disc.center, OBSTACLE_RADIUS, GREY);
         }
         canvas.circle(&self.field.target, 0.03, GREEN, 3.0);
+    }
+
+    /// Each obstacle as a squat cylinder of its radius, the target as a ball.
+    fn context_bodies(&self, context: &[f64]) -> Vec<Body> {
+        let (centres, target) = parse_context(context);
+        let mut bodies: Vec<_> = centres
+            .iter()
+            .enumerate()
+            .map(|(i, centre)| {
+                let base = planar(centre);
+                let top = base + OBSTACLE_RADIUS * Vector3::z();
+                Body::new(
+                    format!("obstacles/{i}"),
+                    cylinder_between(&base, &top, OBSTACLE_RADIUS),
+                    GREY,
+                )
+            })
+            .collect();
+        let target = Shape::Sphere {
+            centre: planar(&target),
+            radius: 0.03,
+        };
+        bodies.push(Body::new("target", target, GREEN));
+        bodies
     }
 }

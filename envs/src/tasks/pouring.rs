@@ -70,10 +70,12 @@ use super::arm_start;
 use crate::env::{
     Env, EnvError, EnvSpec, Info, PERTURBED_INFO, Phase, ResetOptions, SUCCESS_INFO, Step,
 };
-use crate::expert::pouring::{CupPose, PourTarget, expert_acceleration};
+use crate::expert::pouring::{CUP_RADIUS, CupPose, PourTarget, expert_acceleration};
 use crate::planar::reject_unknown_options;
-use crate::raster::{BLACK, BLUE, Canvas, GREY, ORANGE, RED, View, oblique_projection};
+use crate::raster::{BLACK, BLUE, GREY, ORANGE, RED, Rgb, View};
+use crate::scene::{self, ARM_COLOR, Body, Scene, Shape, cylinder_between};
 use crate::seeding::EpisodeRng;
+use crate::shading::{self, Camera, Picture};
 use crate::space::{BoxSpace, Dtype};
 
 pub const ID: &str = "ciflow/Pouring-v0";
@@ -397,83 +399,82 @@ impl Env for Pouring {
     }
 
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
-        let mut canvas = Canvas::new(width, height, VIEW)?;
-        if self.phase == Phase::NeedsReset {
-            return Ok(canvas.into_pixels());
-        }
-        // The table top around the robot and the pot, in perspective.
-        let table: Vec<_> = [(-0.3, -0.5), (0.85, -0.5), (0.85, 0.5), (-0.3, 0.5)]
-            .iter()
-            .map(|&(x, y)| project(&Vector3::new(x, y, 0.0)))
-            .collect();
-        canvas.polyline(&table, true, GREY, 1.0);
-        // The arm: a line through the frame origins; the fingers: hand to cup centre.
-        let q = self.simulator.q().as_slice();
-        let placements = (0..self.robot().frames().len())
-            .map(|f| self.robot().frame_placement(q, f))
-            .collect::<Result<Vec<_>, _>>()
+        Ok(self.picture(width, height)?.into_pixels())
+    }
+
+    /// The table, the arm as capsules, the cup in its fingers and the pot with its lip.
+    fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {
+        let (state, context) = self.spec.split_observation(observation)?;
+        let q = &state[..DOF];
+        let robot = self.robot();
+        let hand = robot
+            .frame_placement(q, robot.end_effector())
             .map_err(|e| EnvError::Simulation(e.into()))?;
-        let joints: Vec<_> = placements
-            .iter()
-            .map(|m| project(&m.translation.vector))
-            .collect();
-        canvas.polyline(&joints, false, BLACK, 4.0);
-        let cup = self.cup()?;
-        let hand = &placements[self.robot().end_effector()].translation.vector;
-        canvas.line(
-            &project(hand),
-            &project(&((cup.bottom + cup.top) / 2.0)),
-            BLACK,
-            3.0,
-        );
-        canvas.line(&project(&cup.bottom), &project(&cup.top), BLUE, 10.0);
-        canvas.disc(&project(&cup.spout), 0.01, RED);
-        let trail: Vec<_> = self.spout_trail.iter().map(project).collect();
-        canvas.polyline(&trail, false, GREY, 1.0);
-        // The pot, nearer to the camera than the arm: rims, silhouette edges, the lip.
-        let rim = |height: f64| -> Vec<Vector2<f64>> {
-            (0..48)
-                .map(|i| {
-                    let a = i as f64 * std::f64::consts::TAU / 48.0;
-                    let local =
-                        nalgebra::Point3::new(POT_RADIUS * a.cos(), POT_RADIUS * a.sin(), height);
-                    project(&(self.pot * local).coords)
-                })
-                .collect()
+        let cup = CupPose::of_hand(&hand);
+        let pot = pot_pose(context);
+        let lip = pot * nalgebra::Point3::new(-LIP_OFFSET, 0.0, POT_HEIGHT);
+        let mut bodies = vec![scene::table((-0.3, 0.85), (-0.5, 0.5), 0.02, TABLE)];
+        bodies.extend(scene::arm_links(robot, q, 0.045, ARM_COLOR)?);
+        let fingers = Shape::Capsule {
+            from: hand.translation.vector,
+            to: (cup.bottom + cup.top) / 2.0,
+            radius: 0.012,
         };
-        let (bottom, top) = (rim(0.0), rim(POT_HEIGHT));
-        canvas.polyline(&bottom, true, ORANGE, 2.0);
-        canvas.polyline(&top, true, ORANGE, 2.0);
-        // The silhouette edges join the rims' leftmost and rightmost points.
-        let sides = |rim: &[Vector2<f64>]| {
-            let by_x = |a: &&Vector2<f64>, b: &&Vector2<f64>| a.x.total_cmp(&b.x);
-            let (left, right) = (rim.iter().min_by(by_x), rim.iter().max_by(by_x));
-            [
-                *left.expect("a rim has points"),
-                *right.expect("a rim has points"),
-            ]
-        };
-        for (low, high) in sides(&bottom).iter().zip(&sides(&top)) {
-            canvas.line(low, high, ORANGE, 2.0);
-        }
-        let lip = self.pot * nalgebra::Point3::new(-LIP_OFFSET, 0.0, POT_HEIGHT);
-        canvas.disc(&project(&lip.coords), 0.012, RED);
-        Ok(canvas.into_pixels())
+        bodies.extend([
+            Body::new("robot/fingers", fingers, BLACK),
+            Body::new(
+                "cup",
+                cylinder_between(&cup.bottom, &cup.top, CUP_RADIUS),
+                BLUE,
+            ),
+            Body::new("spout", sphere(cup.spout, 0.01), RED),
+            Body::new(
+                "pot",
+                Shape::Cylinder {
+                    pose: pot,
+                    radius: POT_RADIUS,
+                    height: POT_HEIGHT,
+                },
+                ORANGE,
+            ),
+            Body::new("lip", sphere(lip.coords, 0.012), RED),
+        ]);
+        Ok(Scene { bodies })
     }
 }
 
-/// The region of the projection plane shown by `render`, m: the table, the arm over its
-/// workspace and the pot.
-const VIEW: View = View {
-    min: Vector2::new(-0.35, -0.3),
-    max: Vector2::new(0.7, 0.75),
-};
-/// Azimuth of the camera, rad: it stands at the robot's front right.
-const CAMERA_AZIMUTH: f64 = -0.6;
-/// Elevation of the camera above the horizon, rad (20°).
-const CAMERA_ELEVATION: f64 = 0.35;
-
-/// The camera's view of `p` ([`oblique_projection`]), looking at the robot's base.
-fn project(p: &Vector3) -> Vector2<f64> {
-    oblique_projection(p, CAMERA_AZIMUTH, CAMERA_ELEVATION)
+impl Pouring {
+    /// The shaded picture `render` returns, with which body each pixel shows: the
+    /// [`Env::scene`] of the current observation and the spout's trail, seen from the
+    /// robot's front right (blank before the first reset).
+    pub fn picture(&self, width: u32, height: u32) -> Result<Picture, EnvError> {
+        let mut scene = Scene::default();
+        if self.phase != Phase::NeedsReset {
+            scene = self.scene(&self.observation())?;
+            let trail = Shape::Curve {
+                points: self.spout_trail.clone(),
+                closed: false,
+                radius: 0.002,
+            };
+            scene.bodies.push(Body::new("spout_trail", trail, GREY));
+        }
+        shading::render(&scene, &CAMERA, width, height)
+    }
 }
+
+fn sphere(centre: Vector3, radius: f64) -> Shape {
+    Shape::Sphere { centre, radius }
+}
+
+/// The camera of `render`: at the robot's front right (azimuth −0.6 rad), 20° above the
+/// horizon, showing the table, the arm over its workspace and the pot.
+const CAMERA: Camera = Camera {
+    azimuth: -0.6,
+    elevation: 0.35,
+    view: View {
+        min: Vector2::new(-0.35, -0.3),
+        max: Vector2::new(0.7, 0.75),
+    },
+};
+/// The table's colour.
+const TABLE: Rgb = [205, 200, 190];

@@ -68,8 +68,10 @@ use crate::env::{
 use crate::expert::reach::expert_acceleration;
 use crate::kwargs::{self, Kwargs, TextArgument};
 use crate::planar::reject_unknown_options;
-use crate::raster::{BLACK, Canvas, GREEN, GREY, RED, View, oblique_projection};
+use crate::raster::{GREEN, GREY, RED, View, oblique_projection};
+use crate::scene::{self, ARM_COLOR, Body, Scene, Shape};
 use crate::seeding::EpisodeRng;
+use crate::shading::{self, Camera, Picture};
 use crate::space::{BoxSpace, Dtype};
 
 pub const ID: &str = "ciflow/Reach-v0";
@@ -470,11 +472,37 @@ impl Env for Reach {
             .map_err(EnvError::InvalidPerturbation)
     }
 
-    /// The arm as a line through its frame origins, the goal (green) and the tool's trail,
-    /// seen obliquely from the front right.
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
+        Ok(self.picture(width, height)?.into_pixels())
+    }
+
+    /// The arm as capsules between its joint origins, the tool and the goal.
+    fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {
+        let (state, goal) = self.spec.split_observation(observation)?;
+        let q = &state[..self.robot().dof()];
+        let tool = self
+            .robot()
+            .frame_placement(q, self.robot().end_effector())
+            .map_err(|e| EnvError::Simulation(e.into()))?;
+        let mut bodies = scene::arm_links(self.robot(), q, LINK_RADIUS, ARM_COLOR)?;
+        let ball = |centre: Vector3, radius: f64| Shape::Sphere { centre, radius };
+        bodies.push(Body::new("tool", ball(tool.translation.vector, 0.015), RED));
+        bodies.push(Body::new(
+            "goal",
+            ball(Vector3::from_column_slice(goal), 0.02),
+            GREEN,
+        ));
+        Ok(Scene { bodies })
+    }
+}
+
+impl Reach {
+    /// The shaded picture `render` returns, with which body each pixel shows: the
+    /// [`Env::scene`] of the current observation and the tool's trail, seen obliquely from
+    /// the front right, framing the base and every goal of the context space (blank
+    /// before the first reset).
+    pub fn picture(&self, width: u32, height: u32) -> Result<Picture, EnvError> {
         let project = |p: &Vector3| oblique_projection(p, CAMERA_AZIMUTH, CAMERA_ELEVATION);
-        // The view holds the base and the context space's corners.
         let context_box = &self.spec.context_space;
         let corners = (0..8).map(|k| {
             Vector3::from_fn(|i, _| {
@@ -497,28 +525,27 @@ impl Env for Reach {
         let pad = 0.15 * (view.max - view.min).max();
         view.min.add_scalar_mut(-pad);
         view.max.add_scalar_mut(pad);
-        let mut canvas = Canvas::new(width, height, view)?;
-        if self.phase == Phase::NeedsReset {
-            return Ok(canvas.into_pixels());
+        let camera = Camera {
+            azimuth: CAMERA_AZIMUTH,
+            elevation: CAMERA_ELEVATION,
+            view,
+        };
+        let mut scene = Scene::default();
+        if self.phase != Phase::NeedsReset {
+            scene = self.scene(&self.observation())?;
+            let trail = Shape::Curve {
+                points: self.tool_trail.clone(),
+                closed: false,
+                radius: 0.002,
+            };
+            scene.bodies.push(Body::new("tool_trail", trail, GREY));
         }
-        let q = self.simulator.q().as_slice();
-        let origins = (0..self.robot().frames().len())
-            .map(|f| {
-                self.robot()
-                    .frame_placement(q, f)
-                    .map(|m| project(&m.translation.vector))
-            })
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(|e| EnvError::Simulation(e.into()))?;
-        let trail: Vec<_> = self.tool_trail.iter().map(project).collect();
-        canvas.polyline(&trail, false, GREY, 1.0);
-        canvas.polyline(&origins, false, BLACK, 4.0);
-        canvas.disc(&project(&self.goal), 0.015, GREEN);
-        canvas.disc(&project(&self.tool()?), 0.01, RED);
-        Ok(canvas.into_pixels())
+        shading::render(&scene, &camera, width, height)
     }
 }
 
+/// Radius of the capsules drawn for the arm's links, m.
+const LINK_RADIUS: f64 = 0.04;
 /// Azimuth of the camera, rad: it stands at the robot's front right.
 const CAMERA_AZIMUTH: f64 = -0.6;
 /// Elevation of the camera above the horizon, rad (20°).

@@ -26,7 +26,8 @@ that converges for the final context.
 
 Telemetry is recorded with ``--record traces.json`` and plotted with ``--plot
 traces.png`` (state and command against simulated time, pushes and context changes
-marked).
+marked); ``--rrd run.rrd`` saves the run as a Rerun recording (the robot in 3-D, the
+series and the events; ``python -m ciflow.view`` explains what it holds).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ import time
 import numpy as np
 
 import ciflow
+from ciflow import connection
 from ciflow.registration import task_entry
 from ciflow.remote import Attached
 
@@ -173,6 +175,7 @@ def main(argv=None) -> int:
                         help="stop after this many simulated seconds (default: episode end)")
     parser.add_argument("--record", help="write the telemetry to this JSON file")
     parser.add_argument("--plot", help="plot state/command/context to this PNG file")
+    parser.add_argument("--rrd", help="save the run as a Rerun recording (ciflow[view])")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--wait", type=float, default=10.0,
                         help="give up after this many seconds without telemetry")
@@ -181,6 +184,7 @@ def main(argv=None) -> int:
         change["duration"] = 0.0
 
     env = None
+    task, kwargs = None, {}
     if args.session:
         if not args.token:
             parser.error("--session needs --token")
@@ -191,10 +195,10 @@ def main(argv=None) -> int:
 
         kwargs = {k: float(v) for k, v in (item.split("=", 1) for item in args.kwarg)}
         try:
-            task_id, _name = task_entry(args.task)
+            task, _name = task_entry(args.task)
         except ValueError as error:
             parser.error(str(error))
-        env = gym.make(task_id, engine=args.engine, zenoh_config=args.zenoh_config, **kwargs)
+        env = gym.make(task, engine=args.engine, zenoh_config=args.zenoh_config, **kwargs)
         env.reset(seed=args.seed)
         control = env.unwrapped.attach()
         print(f"session {env.unwrapped.session_id} token {env.unwrapped.token_hex} "
@@ -254,15 +258,29 @@ def main(argv=None) -> int:
     print(f"{len(samples)} samples, t = {last['time']:.2f} s, episode "
           f"{'ended' if last['episode_done'] else 'not ended'}, final state {last['state']}")
 
+    if task is None:
+        # An attached session: its engine says what it is.
+        first = samples[0]
+        described = connection.client(args.engine, args.zenoh_config).describe(
+            first["engine"], first["identity"], first["session"])
+        task, kwargs = described["task"], described["kwargs"]
     if args.record:
         with open(args.record, "w") as file:
             json.dump({
+                "task": task,
+                "kwargs": kwargs,
                 "events": events,
                 "samples": [{k: (v.tolist() if isinstance(v, np.ndarray) else v)
                              for k, v in s.items()} for s in samples],
             }, file)
     if args.plot:
         plot(samples, events, args.plot)
+    if args.rrd:
+        from ciflow import view
+
+        recording = view.open_recording("ciflow.perturb", save=args.rrd)
+        view.record_run(recording, task, kwargs, samples, events)
+        view.finish(recording)
     if env is None:
         control.close()
     else:

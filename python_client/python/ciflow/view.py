@@ -1,0 +1,303 @@
+"""``python -m ciflow.view``: watch ciflow sessions, datasets and perturbation runs in
+Rerun (https://rerun.io), the 3-D viewer robotics people already use.
+
+What to show (one of):
+
+* ``--watch ENGINE`` — every session of the engine named ENGINE, live, as their telemetry
+  arrives (``--watch '*'``: every engine); ``--session ID`` narrows it to one session;
+  ``--engine``/``--zenoh-config`` say how to reach the engines, as for ``ciflow.perturb``;
+* ``--dataset DIR`` — every episode of a ciflow (Minari) dataset, one after another on
+  the ``time`` timeline (each episode under ``episodes/<k>``);
+* ``--record traces.json`` — a run recorded by ``python -m ciflow.perturb --record``,
+  with its pushes and context changes.
+
+Where to show it: ``--spawn`` (default) starts a native viewer, ``--serve`` serves a
+web viewer (open the printed URL), ``--save FILE.rrd`` writes a recording anyone can
+open with ``rerun FILE.rrd``.
+
+Each session or episode logs, under its own path: ``world/…`` the task's bodies (the
+arm's links as capsules between its joint origins, cup, pot, table, obstacles, target,
+outline — the same bodies ``render()`` shades), ``state``, ``command``, ``context`` and
+``reward`` as time series (one line per coordinate), and ``events`` (context changes, pushes,
+episode ends) as a text log. Needs ``pip install 'ciflow[view]'`` (``rerun-sdk``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from ciflow import _native, connection
+
+#: Samples with a context different from the previous one by more than this are logged
+#: as context changes.
+CONTEXT_CHANGE = 1e-9
+
+
+def _rerun():
+    try:
+        import rerun
+    except ImportError as error:
+        raise SystemExit("ciflow.view needs Rerun: pip install 'ciflow[view]'") from error
+    return rerun
+
+
+def _quaternion_from_z(direction: np.ndarray) -> list[float]:
+    """The rotation (xyzw) that turns ``+z`` onto ``direction``."""
+    length = np.linalg.norm(direction)
+    if length < 1e-12:
+        return [0.0, 0.0, 0.0, 1.0]
+    d = direction / length
+    axis = np.cross([0.0, 0.0, 1.0], d)
+    sin, cos = np.linalg.norm(axis), d[2]
+    if sin < 1e-12:
+        return [0.0, 0.0, 0.0, 1.0] if cos > 0 else [1.0, 0.0, 0.0, 0.0]
+    half = np.arctan2(sin, cos) / 2.0
+    return [*(axis / sin * np.sin(half)), float(np.cos(half))]
+
+
+def body_archetype(body: dict):
+    """The Rerun archetype drawing one body of ``_native.Scenery.scene``."""
+    rr = _rerun()
+    color = [body["color"]]
+    kind = body["kind"]
+    if kind == "capsule":
+        start, end = np.asarray(body["from"]), np.asarray(body["to"])
+        return rr.Capsules3D(lengths=[float(np.linalg.norm(end - start))], radii=[body["radius"]],
+                             translations=[start], quaternions=[_quaternion_from_z(end - start)],
+                             colors=color)
+    if kind == "cylinder":
+        # ciflow's cylinder stands on its base; Rerun's is centred.
+        axis = _rotate(body["quaternion"], [0.0, 0.0, 1.0])
+        centre = np.asarray(body["translation"]) + body["height"] / 2.0 * axis
+        return rr.Cylinders3D(lengths=[body["height"]], radii=[body["radius"]], centers=[centre],
+                              quaternions=[body["quaternion"]], colors=color, fill_mode="solid")
+    if kind == "cuboid":
+        return rr.Boxes3D(half_sizes=[body["half_extents"]], centers=[body["translation"]],
+                          quaternions=[body["quaternion"]], colors=color, fill_mode="solid")
+    if kind == "sphere":
+        r = body["radius"]
+        return rr.Ellipsoids3D(half_sizes=[[r, r, r]], centers=[body["centre"]], colors=color,
+                               fill_mode="solid")
+    if kind == "curve":
+        points = list(body["points"])
+        if body["closed"] and points:
+            points.append(points[0])
+        return rr.LineStrips3D([points], radii=[body["radius"]], colors=color)
+    raise ValueError(f"unknown body kind `{kind}`")
+
+
+def _rotate(quaternion, vector) -> np.ndarray:
+    x, y, z, w = quaternion
+    q = np.array([x, y, z])
+    v = np.asarray(vector, dtype=float)
+    return v + 2.0 * np.cross(q, np.cross(q, v) + w * v)
+
+
+class Track:
+    """One session's or episode's entities in a recording, under ``root``."""
+
+    def __init__(self, recording, root: str, task: str, kwargs: dict | None = None):
+        self.rr = _rerun()
+        self.recording = recording
+        self.root = root.strip("/")
+        self.scenery = _native.Scenery(task, kwargs or {})
+        self.previous_context = None
+        self.samples = 0
+        # Series whose line names are logged (once, static).
+        self.named: set[str] = set()
+
+    def log(self, time: float, observation, command=None, reward: float | None = None,
+            context_dim: int | None = None) -> None:
+        """Logs one observation (state then context) at simulated ``time`` (s)."""
+        rr, rec = self.rr, self.recording
+        observation = np.asarray(observation, dtype=float)
+        rec.set_time("time", duration=float(time))
+        for body in self.scenery.scene(observation.tolist()):
+            rec.log(f"{self.root}/world/{body['name']}", body_archetype(body))
+        split = len(observation) - (context_dim or 0)
+        state, context = observation[:split], observation[split:]
+        series = [("state", state), ("context", context)]
+        if command is not None:
+            series.append(("command", np.asarray(command, dtype=float)))
+        if reward is not None:
+            series.append(("reward", np.array([reward], dtype=float)))
+        for name, values in series:
+            if not len(values):
+                continue
+            path = f"{self.root}/{name}"
+            if path not in self.named:
+                names = [name] if len(values) == 1 else [f"{name}[{i}]" for i in range(len(values))]
+                rec.log(path, rr.SeriesLines(names=names), static=True)
+                self.named.add(path)
+            rec.log(path, rr.Scalars(values))
+        if (self.previous_context is not None and len(context)
+                and np.max(np.abs(context - self.previous_context)) > CONTEXT_CHANGE):
+            self.event(f"context → {np.round(context, 4).tolist()}")
+        self.previous_context = context
+        self.samples += 1
+
+    def event(self, text: str, level: str = "INFO") -> None:
+        """A line in the track's event log at the current time."""
+        self.recording.log(f"{self.root}/events", self.rr.TextLog(text, level=level))
+
+
+def open_recording(application: str, spawn: bool = False, serve: bool = False,
+                   save: str | None = None):
+    """A Rerun recording stream sent to a native viewer (``spawn``), a web viewer
+    (``serve``; its URL is printed) and/or an ``.rrd`` file (``save``)."""
+    rr = _rerun()
+    recording = rr.RecordingStream(application)
+    sinks = []
+    if save:
+        sinks.append(rr.FileSink(save))
+    if spawn:
+        recording.spawn(connect=False)
+        sinks.append(rr.GrpcSink())
+    if serve:
+        url = recording.serve_grpc()
+        rr.serve_web_viewer(connect_to=url, open_browser=False)
+        print(f"Rerun web viewer serving {url}", flush=True)
+        sinks.append(rr.GrpcSink(url))
+    recording.set_sinks(*sinks)
+    return recording
+
+
+def finish(recording) -> None:
+    """Sends everything logged and closes the sinks (an ``.rrd`` file is complete after
+    this)."""
+    recording.flush()
+    recording.disconnect()
+
+
+def record_run(recording, task: str, kwargs: dict, samples: list[dict], events: list[dict],
+               root: str = "run") -> Track:
+    """Logs a perturbation run (``ciflow.perturb``'s samples and events) as one track."""
+    track = Track(recording, root, task, kwargs)
+    pending = sorted(events, key=lambda e: e["start"])
+    for sample in samples:
+        while pending and pending[0]["start"] <= sample["time"]:
+            event = pending.pop(0)
+            recording.set_time("time", duration=float(event["start"]))
+            track.event(f"{event['kind']} for {event['duration']:.2f} s", level="WARN")
+        observation = np.concatenate([sample["state"], sample["context"]])
+        track.log(sample["time"], observation, sample["command"], sample["reward"],
+                  context_dim=len(sample["context"]))
+    return track
+
+
+def record_dataset(recording, path: str, episodes: slice | None = None) -> list[Track]:
+    """Logs every episode of the dataset at ``path`` (or the slice ``episodes``) one after
+    another on the ``time`` timeline, each under ``episodes/<k>``."""
+    info, all_episodes = _native.read_dataset(path)
+    dim, context_dim, action_dim = (len(info[f"{space}_space"]["low"])
+                                    for space in ("observation", "context", "action"))
+    dt = info["control_dt"]
+    chosen = list(enumerate(all_episodes))[episodes or slice(None)]
+    tracks, offset = [], 0.0
+    for k, episode in chosen:
+        track = Track(recording, f"episodes/{k}", info["env_id"], info["env_kwargs"])
+        observations = np.frombuffer(episode["observations"], dtype="<f8").reshape(-1, dim)
+        actions = np.frombuffer(episode["actions"], dtype="<f8").reshape(-1, action_dim)
+        rewards = np.frombuffer(episode["rewards"], dtype="<f8")
+        perturbed = episode["infos"].get("perturbed")
+        perturbed = None if perturbed is None else np.frombuffer(perturbed, dtype="<f8")
+        for step, observation in enumerate(observations):
+            command = actions[step - 1] if step > 0 else None
+            reward = rewards[step - 1] if step > 0 else None
+            track.log(offset + step * dt, observation, command, reward, context_dim)
+            if perturbed is not None and step < len(perturbed) and perturbed[step] > 0 and (
+                    step == 0 or perturbed[step - 1] == 0):
+                track.event("push", level="WARN")
+        track.event(f"episode {k} (seed {episode['seed']}) ends")
+        offset += len(observations) * dt
+        tracks.append(track)
+    return tracks
+
+
+def watch(recording, client: _native.ClientHandle, engine: str | None, session: str | None,
+          timeout: float | None, max_samples: int | None = None) -> dict[str, Track]:
+    """Logs the telemetry of every session on ``engine`` (or only ``session``) as it
+    arrives, each under ``sessions/<id>``, until ``timeout`` seconds pass without a sample
+    or ``max_samples`` arrive. Returns the tracks by session id."""
+    feed = client.watch(engine)
+    tracks: dict[str, Track] = {}
+    received = 0
+    while max_samples is None or received < max_samples:
+        sample = feed.recv(timeout)
+        if sample is None:
+            break
+        if session is not None and sample["session"] != session:
+            continue
+        track = tracks.get(sample["session"])
+        if track is None:
+            described = client.describe(sample["engine"], sample["identity"], sample["session"])
+            track = Track(recording, f"sessions/{sample['session']}", described["task"],
+                          described["kwargs"])
+            tracks[sample["session"]] = track
+            print(f"watching session {sample['session']} ({described['task']}) of "
+                  f"{sample['identity']} on {sample['engine']}", flush=True)
+        state, context, command = (np.frombuffer(sample[k], dtype="<f8")
+                                   for k in ("state", "context", "command"))
+        track.log(sample["time"], np.concatenate([state, context]), command, sample["reward"],
+                  context_dim=len(context))
+        if sample["episode_done"]:
+            track.event("episode ends")
+        received += 1
+    return tracks
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m ciflow.view", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--watch", metavar="ENGINE",
+                        help="watch every session of this engine ('*': every engine)")
+    source.add_argument("--dataset", help="show every episode of this dataset directory")
+    source.add_argument("--record", help="show a run recorded by ciflow.perturb --record")
+    parser.add_argument("--session", help="with --watch: only this session id")
+    parser.add_argument("--episodes", help="with --dataset: a slice of episodes, e.g. 0:10")
+    parser.add_argument("--engine", help="endpoint to connect to, e.g. tcp/10.0.0.5:7447")
+    parser.add_argument("--zenoh-config", help="Zenoh JSON5 file (e.g. via a router)")
+    parser.add_argument("--timeout", type=float, default=None,
+                        help="with --watch: stop after this many seconds without telemetry")
+    parser.add_argument("--spawn", action="store_true", help="start a native viewer (default)")
+    parser.add_argument("--serve", action="store_true", help="serve a web viewer")
+    parser.add_argument("--save", metavar="FILE.rrd", help="write a recording")
+    args = parser.parse_args(argv)
+    spawn = args.spawn or not (args.serve or args.save)
+    recording = open_recording("ciflow", spawn=spawn, serve=args.serve, save=args.save)
+    if args.dataset:
+        episodes = None
+        if args.episodes:
+            start, _, stop = args.episodes.partition(":")
+            episodes = slice(int(start) if start else None, int(stop) if stop else None)
+        tracks = record_dataset(recording, args.dataset, episodes)
+        print(f"{len(tracks)} episode(s) of {args.dataset}")
+    elif args.record:
+        with open(args.record) as file:
+            record = json.load(file)
+        if "task" not in record:
+            parser.error(f"{args.record} names no task (recorded by an older ciflow.perturb)")
+        samples = [{k: np.asarray(v) if isinstance(v, list) else v for k, v in s.items()}
+                   for s in record["samples"]]
+        track = record_run(recording, record["task"], record.get("kwargs", {}), samples,
+                           record["events"])
+        print(f"{track.samples} samples of {args.record}")
+    else:
+        client = connection.client(args.engine, args.zenoh_config)
+        engine = None if args.watch == "*" else args.watch
+        try:
+            tracks = watch(recording, client, engine, args.session, args.timeout)
+        except KeyboardInterrupt:
+            tracks = {}
+        print(f"watched {len(tracks)} session(s)")
+    finish(recording)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

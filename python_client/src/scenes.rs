@@ -1,0 +1,109 @@
+//! `Scenery`: a task's 3-D bodies at any observation, for viewers (`ciflow.view`).
+
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+
+use ciflow_bridge::error::full_message;
+use ciflow_envs::Env;
+use ciflow_envs::scene::{Body, Shape};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::convert::{PyKwarg, kwargs_from_py};
+
+/// The bodies of `task` built with `kwargs` at any of its observations: the robot, the
+/// context's objects. Holds one environment of the task, never reset or stepped.
+#[pyclass(module = "ciflow._native")]
+pub struct Scenery {
+    env: Mutex<Box<dyn Env>>,
+}
+
+#[pymethods]
+impl Scenery {
+    #[new]
+    #[pyo3(signature = (task, kwargs=None))]
+    fn new(task: &str, kwargs: Option<BTreeMap<String, PyKwarg>>) -> PyResult<Self> {
+        let kwargs = kwargs_from_py(kwargs);
+        let env = ciflow_envs::registry::entry(task)
+            .and_then(|entry| (entry.make_with)(&kwargs))
+            .map_err(|e| PyValueError::new_err(full_message(&e)))?;
+        Ok(Self {
+            env: Mutex::new(env),
+        })
+    }
+
+    /// The bodies at `observation` (state then context): a list of dicts with `name`,
+    /// `color` (RGB 0–255), `kind` and the shape's fields — `capsule`: `from`, `to`,
+    /// `radius`; `cylinder`: `translation` (base centre), `quaternion` (xyzw; the axis is
+    /// its `z`), `radius`, `height`; `cuboid`: `translation` (centre), `quaternion`,
+    /// `half_extents`; `sphere`: `centre`, `radius`; `curve`: `points`, `closed`, `radius`.
+    fn scene<'py>(
+        &self,
+        py: Python<'py>,
+        observation: Vec<f64>,
+    ) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let scene = self
+            .env
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .scene(&observation)
+            .map_err(|e| PyValueError::new_err(full_message(&e)))?;
+        scene.bodies.iter().map(|b| body_to_dict(py, b)).collect()
+    }
+}
+
+fn body_to_dict<'py>(py: Python<'py>, body: &Body) -> PyResult<Bound<'py, PyDict>> {
+    let dict = PyDict::new(py);
+    dict.set_item("name", &body.name)?;
+    let [r, g, b] = body.color;
+    dict.set_item("color", (r, g, b))?;
+    let xyz = |v: &nalgebra::Vector3<f64>| [v.x, v.y, v.z];
+    let pose = |pose: &nalgebra::Isometry3<f64>| -> PyResult<()> {
+        let q = pose.rotation.coords;
+        dict.set_item("translation", xyz(&pose.translation.vector))?;
+        dict.set_item("quaternion", [q.x, q.y, q.z, q.w])
+    };
+    match &body.shape {
+        Shape::Capsule { from, to, radius } => {
+            dict.set_item("kind", "capsule")?;
+            dict.set_item("from", xyz(from))?;
+            dict.set_item("to", xyz(to))?;
+            dict.set_item("radius", radius)?;
+        }
+        Shape::Cylinder {
+            pose: placement,
+            radius,
+            height,
+        } => {
+            dict.set_item("kind", "cylinder")?;
+            pose(placement)?;
+            dict.set_item("radius", radius)?;
+            dict.set_item("height", height)?;
+        }
+        Shape::Cuboid {
+            pose: placement,
+            half_extents,
+        } => {
+            dict.set_item("kind", "cuboid")?;
+            pose(placement)?;
+            dict.set_item("half_extents", xyz(half_extents))?;
+        }
+        Shape::Sphere { centre, radius } => {
+            dict.set_item("kind", "sphere")?;
+            dict.set_item("centre", xyz(centre))?;
+            dict.set_item("radius", radius)?;
+        }
+        Shape::Curve {
+            points,
+            closed,
+            radius,
+        } => {
+            dict.set_item("kind", "curve")?;
+            dict.set_item("points", points.iter().map(xyz).collect::<Vec<_>>())?;
+            dict.set_item("closed", closed)?;
+            dict.set_item("radius", radius)?;
+        }
+    }
+    Ok(dict)
+}

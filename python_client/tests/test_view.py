@@ -1,0 +1,180 @@
+"""`python -m ciflow.view` and the shaded `rgb_array` frames, without a display: every
+recording is saved to an `.rrd` file and read back with Rerun's own chunk reader."""
+
+import threading
+import warnings
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import ciflow
+from ciflow import _native, view
+
+rerun = pytest.importorskip("rerun")
+from rerun.chunk import RrdReader  # noqa: E402
+
+ASSETS = Path(__file__).parent / "assets"
+POURING = "ciflow/Pouring-v0"
+
+
+def rows_by_entity(path) -> dict[str, int]:
+    """Rows on the `time` timeline per entity path of the recording at `path`."""
+    rows: dict[str, int] = {}
+    for chunk in RrdReader(str(path)).store().stream().to_chunks():
+        if "time" in chunk.timeline_names:
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    return rows
+
+
+def text_logs(path, entity: str) -> list[str]:
+    texts = []
+    for chunk in RrdReader(str(path)).store().stream().to_chunks():
+        if chunk.entity_path == entity:
+            batch = chunk.to_record_batch()
+            column = next(c for c in batch.schema.names if c.endswith("TextLog:text"))
+            texts += [t[0] for t in batch.column(column).to_pylist() if t]
+    return texts
+
+
+@pytest.fixture(autouse=True)
+def rerun_warnings_are_errors():
+    # Rerun reports malformed components (a bad colour, a wrong length) as warnings and
+    # drops them: here they fail the test.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rerun.error_utils.RerunWarning)
+        yield
+
+
+def test_a_watched_session_is_recorded_with_its_bodies_and_one_row_per_sample(engine, tmp_path):
+    endpoint, name = engine
+    env = gym.make(POURING, engine=endpoint)
+    env.reset(seed=1)
+    client = _native.ClientHandle.open(connect=[endpoint])
+    described = client.describe(name, "anonymous", env.unwrapped.session_id)
+    assert described["task"] == POURING and described["num_envs"] == 1
+
+    recording = view.open_recording("test", save=str(tmp_path / "live.rrd"))
+    watched = {}
+    watcher = threading.Thread(target=lambda: watched.update(
+        view.watch(recording, client, name, env.unwrapped.session_id, timeout=3.0)))
+    watcher.start()
+    threading.Event().wait(0.5)  # the subscription reaches the engine
+    context = env.unwrapped.context_space.low
+    for step in range(60):
+        env.step(np.zeros(7))
+        if step == 30:
+            env.unwrapped.set_context(np.asarray(context) + 0.01)
+        threading.Event().wait(0.02)  # under the engine's 60 Hz telemetry rate
+    watcher.join()
+    env.close()
+    view.finish(recording)
+
+    (track,) = watched.values()
+    assert track.samples >= 40, track.samples
+    rows = rows_by_entity(tmp_path / "live.rrd")
+    root = f"/sessions/{env.unwrapped.session_id}"
+    for entity in ("state", "command", "context", "reward", "world/cup", "world/pot",
+                   "world/table", "world/robot/link1", "world/robot/fingers"):
+        assert rows.get(f"{root}/{entity}") == track.samples, (entity, rows)
+    assert any("context →" in t for t in text_logs(tmp_path / "live.rrd", f"{root}/events"))
+
+
+def test_a_dataset_is_recorded_episode_after_episode_with_its_pushes(tmp_path):
+    _native.record_expert("pouring", str(tmp_path / "ds"), 2, seed=4,
+                          kwargs={}, options={"push_force": 40.0})
+    path = tmp_path / "ds.rrd"
+    recording = view.open_recording("test", save=str(path))
+    tracks = view.record_dataset(recording, str(tmp_path / "ds"))
+    view.finish(recording)
+    _, episodes = _native.read_dataset(str(tmp_path / "ds"))
+    rows = rows_by_entity(path)
+    for k, (track, episode) in enumerate(zip(tracks, episodes)):
+        steps = len(np.frombuffer(episode["rewards"], dtype="<f8"))
+        assert track.samples == steps + 1
+        assert rows[f"/episodes/{k}/world/cup"] == steps + 1
+        assert rows[f"/episodes/{k}/command"] == steps
+        logs = text_logs(path, f"/episodes/{k}/events")
+        assert "push" in logs, logs
+        assert logs[-1].startswith(f"episode {k}")
+
+
+def test_a_perturbation_run_logs_its_pushes_and_context_changes(tmp_path):
+    env = gym.make("ciflow/Obstacle-v0", obstacles=2)
+    observation, _ = env.reset(seed=0)
+    context = observation[4:]
+    samples = []
+    for step in range(20):
+        action = env.unwrapped.expert_action()
+        observation, reward, *_ = env.step(action)
+        if step == 10:
+            moved = context.copy()
+            moved[-2:] += 0.05
+            env.unwrapped.set_context(moved)
+        samples.append({"time": 0.01 * (step + 1), "state": observation[:4],
+                        "context": observation[4:], "command": action, "reward": reward})
+    env.close()
+    events = [{"kind": "push", "start": 0.05, "duration": 0.02}]
+    path = tmp_path / "run.rrd"
+    recording = view.open_recording("test", save=str(path))
+    view.record_run(recording, "obstacle-avoidance", {"obstacles": 2}, samples, events)
+    view.finish(recording)
+    rows = rows_by_entity(path)
+    assert rows["/run/world/point"] == 20
+    assert rows["/run/world/obstacles/1"] == 20 and "/run/world/obstacles/2" not in rows
+    logs = text_logs(path, "/run/events")
+    assert logs[0].startswith("push") and any("context →" in t for t in logs)
+
+
+def test_a_body_is_drawn_as_its_own_solid():
+    scenery = _native.Scenery("pouring")
+    env = gym.make(POURING)
+    observation, _ = env.reset(seed=0)
+    env.close()
+    bodies = {b["name"]: b for b in scenery.scene(observation.tolist())}
+    kinds = {name: type(view.body_archetype(b)).__name__ for name, b in bodies.items()}
+    assert kinds["pot"] == "Cylinders3D" and kinds["table"] == "Boxes3D"
+    assert kinds["robot/link1"] == "Capsules3D" and kinds["spout"] == "Ellipsoids3D"
+    # A capsule's Rerun pose puts its far end where ciflow's body ends.
+    link = bodies["robot/link3"]
+    capsule = view.body_archetype(link)
+    length = capsule.lengths.as_arrow_array().to_pylist()[0]
+    quaternion = capsule.quaternions.as_arrow_array().to_pylist()[0]
+    end = np.asarray(link["from"]) + length * view._rotate(quaternion, [0, 0, 1])
+    np.testing.assert_allclose(end, link["to"], atol=1e-6)
+    with pytest.raises(ValueError, match="observation"):
+        scenery.scene(observation[:-1].tolist())
+
+
+def test_the_pouring_frame_of_a_known_state_matches_its_reference():
+    """The reference is `assets/pouring_frame.png`, written by this test's own code from
+    seed 0 (`python tests/test_view.py` rewrites it after a deliberate change)."""
+    import matplotlib.image
+
+    frame = pouring_frame()
+    reference = (matplotlib.image.imread(ASSETS / "pouring_frame.png")[..., :3] * 255).round()
+    difference = np.abs(frame.astype(float) - reference)
+    assert frame.shape == reference.shape
+    assert difference.mean() < 1.0, difference.mean()
+    assert (difference.max(axis=-1) > 16).mean() < 0.005
+    # Shaded solids: many more distinct colours than a line drawing's handful.
+    assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 200
+
+
+def pouring_frame() -> np.ndarray:
+    env = gym.make(POURING, render_mode="rgb_array")
+    env.reset(seed=0)
+    for _ in range(100):
+        env.step(env.unwrapped.expert_action())
+    frame = env.render()
+    env.close()
+    return frame
+
+
+if __name__ == "__main__":
+    import matplotlib.pyplot
+
+    ASSETS.mkdir(exist_ok=True)
+    matplotlib.pyplot.imsave(ASSETS / "pouring_frame.png", pouring_frame())
+    ciflow  # the package registers the environments on import
