@@ -573,6 +573,7 @@ impl TelemetryFeed {
                 dict.set_item("reward", sample.reward)?;
                 dict.set_item("running", sample.running)?;
                 dict.set_item("episode_done", sample.episode_done)?;
+                dict.set_item("perturbed", sample.perturbed)?;
                 return Ok(Some(dict));
             }
             if deadline.is_some_and(|d| Instant::now() >= d) {
@@ -609,6 +610,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Control>()?;
     m.add_class::<TelemetryFeed>()?;
     m.add_class::<scenes::Scenery>()?;
+    m.add_class::<scenes::FlowField>()?;
     m.add_class::<PyDatasetSpec>()?;
     m.add_class::<PyEpisode>()?;
     m.add_class::<PyDatasetWriter>()?;

@@ -1,11 +1,15 @@
-//! `Scenery`: a task's 3-D bodies at any observation, for viewers (`ciflow.view`).
+//! What viewers (`ciflow.view`) draw: `Scenery`, a task's 3-D bodies at any observation,
+//! and `FlowField`, a 2-D flow policy's field and latent-grid deformation per context.
 
 use std::collections::BTreeMap;
+use std::path::PathBuf;
 use std::sync::Mutex;
 
 use ciflow_bridge::error::full_message;
+use ciflow_engine::flow::Policy;
 use ciflow_envs::Env;
 use ciflow_envs::scene::{Body, Shape};
+use ciflow_evaluation::field::{FieldConfig, field};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -50,6 +54,67 @@ impl Scenery {
             .scene(&observation)
             .map_err(|e| PyValueError::new_err(full_message(&e)))?;
         scene.bodies.iter().map(|b| body_to_dict(py, b)).collect()
+    }
+}
+
+/// A 2-D flow policy loaded from its checkpoint directory, whose figure data — the
+/// learned vector field, noise-free rollouts and the image of the latent grid — viewers
+/// draw for the context a session is in (the same data as `ciflow evaluate --field`).
+#[pyclass(module = "ciflow._native")]
+pub struct FlowField {
+    policy: Mutex<Policy>,
+}
+
+#[pymethods]
+impl FlowField {
+    #[new]
+    fn new(py: Python<'_>, checkpoint: PathBuf) -> PyResult<Self> {
+        let policy = py
+            .detach(|| Policy::load(&checkpoint, None))
+            .map_err(|e| PyValueError::new_err(full_message(&e)))?;
+        Ok(Self {
+            policy: Mutex::new(policy),
+        })
+    }
+
+    /// The policy's task (Gymnasium id).
+    #[getter]
+    fn task(&self) -> String {
+        self.lock().config().task.clone()
+    }
+
+    /// The figure data for `context` as JSON: `{task, window, fields: [{context, x, y,
+    /// velocity_x, velocity_y, rollouts, latent_grid, reference?}]}`, on a
+    /// `resolution`² grid over `window` (`[x_min, x_max, y_min, y_max]`; default: the
+    /// training data's box widened by a quarter) with `latent_lines` lines per latent axis.
+    #[pyo3(signature = (context, window=None, resolution=20, latent_lines=10, rollout_steps=400))]
+    fn at(
+        &self,
+        py: Python<'_>,
+        context: Vec<f64>,
+        window: Option<[f64; 4]>,
+        resolution: usize,
+        latent_lines: usize,
+        rollout_steps: usize,
+    ) -> PyResult<String> {
+        let config = FieldConfig {
+            contexts: vec![context],
+            window,
+            resolution,
+            starts: None,
+            rollout_steps,
+            latent_lines,
+        };
+        let report = py
+            .detach(|| field(&self.lock(), &config, &[]))
+            .map_err(|e| PyValueError::new_err(full_message(&e)))?;
+        serde_json::to_string(&report).map_err(|e| PyValueError::new_err(e.to_string()))
+    }
+}
+
+impl FlowField {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Policy> {
+        self.policy.lock().unwrap_or_else(|p| p.into_inner())
     }
 }
 

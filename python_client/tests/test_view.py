@@ -1,6 +1,8 @@
 """`python -m ciflow.view` and the shaded `rgb_array` frames, without a display: every
 recording is saved to an `.rrd` file and read back with Rerun's own chunk reader."""
 
+import json
+import sys
 import threading
 import warnings
 from pathlib import Path
@@ -14,6 +16,10 @@ from ciflow import _native, view
 
 rerun = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
+
+# pytest runs with --import-mode=importlib: conftest is not on sys.path by itself.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from conftest import BINARY, ciflow_cli  # noqa: E402
 
 ASSETS = Path(__file__).parent / "assets"
 POURING = "ciflow/Pouring-v0"
@@ -64,6 +70,8 @@ def test_a_watched_session_is_recorded_with_its_bodies_and_one_row_per_sample(en
     context = env.unwrapped.context_space.low
     for step in range(60):
         env.step(np.zeros(7))
+        if step == 10:
+            env.unwrapped.perturb_link_wrench(6, [0.0, 0.0, 5.0], duration=0.1)
         if step == 30:
             env.unwrapped.set_context(np.asarray(context) + 0.01)
         threading.Event().wait(0.02)  # under the engine's 60 Hz telemetry rate
@@ -78,7 +86,8 @@ def test_a_watched_session_is_recorded_with_its_bodies_and_one_row_per_sample(en
     for entity in ("state", "command", "context", "reward", "world/cup", "world/pot",
                    "world/table", "world/robot/link1", "world/robot/fingers"):
         assert rows.get(f"{root}/{entity}") == track.samples, (entity, rows)
-    assert any("context →" in t for t in text_logs(tmp_path / "live.rrd", f"{root}/events"))
+    events = text_logs(tmp_path / "live.rrd", f"{root}/events")
+    assert any("context →" in t for t in events) and "push" in events, events
 
 
 def test_a_dataset_is_recorded_episode_after_episode_with_its_pushes(tmp_path):
@@ -100,8 +109,9 @@ def test_a_dataset_is_recorded_episode_after_episode_with_its_pushes(tmp_path):
         assert logs[-1].startswith(f"episode {k}")
 
 
-def test_a_perturbation_run_logs_its_pushes_and_context_changes(tmp_path):
-    env = gym.make("ciflow/Obstacle-v0", obstacles=2)
+def obstacle_run(obstacles: int) -> list[dict]:
+    """20 expert steps of the obstacle task, its target moved 5 cm after the 11th."""
+    env = gym.make("ciflow/Obstacle-v0", obstacles=obstacles)
     observation, _ = env.reset(seed=0)
     context = observation[4:]
     samples = []
@@ -115,6 +125,11 @@ def test_a_perturbation_run_logs_its_pushes_and_context_changes(tmp_path):
         samples.append({"time": 0.01 * (step + 1), "state": observation[:4],
                         "context": observation[4:], "command": action, "reward": reward})
     env.close()
+    return samples
+
+
+def test_a_perturbation_run_logs_its_pushes_and_context_changes(tmp_path):
+    samples = obstacle_run(2)
     events = [{"kind": "push", "start": 0.05, "duration": 0.02}]
     path = tmp_path / "run.rrd"
     recording = view.open_recording("test", save=str(path))
@@ -125,6 +140,53 @@ def test_a_perturbation_run_logs_its_pushes_and_context_changes(tmp_path):
     assert rows["/run/world/obstacles/1"] == 20 and "/run/world/obstacles/2" not in rows
     logs = text_logs(path, "/run/events")
     assert logs[0].startswith("push") and any("context →" in t for t in logs)
+
+
+def test_the_command_line_shows_a_recorded_run_and_refuses_a_record_without_its_task(tmp_path):
+    samples = obstacle_run(1)
+    record = {"task": "ciflow/Obstacle-v0", "kwargs": {"obstacles": 1}, "events": [],
+              "samples": [{k: v.tolist() if isinstance(v, np.ndarray) else v
+                           for k, v in s.items()} for s in samples]}
+    (tmp_path / "run.json").write_text(json.dumps(record))
+    assert view.main(["--record", str(tmp_path / "run.json"),
+                      "--save", str(tmp_path / "run.rrd")]) == 0
+    assert rows_by_entity(tmp_path / "run.rrd")["/run/world/point"] == len(samples)
+    del record["task"]
+    (tmp_path / "old.json").write_text(json.dumps(record))
+    with pytest.raises(SystemExit):
+        view.main(["--record", str(tmp_path / "old.json"), "--save", str(tmp_path / "x.rrd")])
+
+
+def test_a_2d_policy_is_drawn_as_its_field_and_latent_grid_for_each_context(tmp_path):
+    if not BINARY.exists():
+        pytest.skip(f"{BINARY} not built (cargo build --release)")
+    ciflow_cli("demos", "--task", "obstacle-avoidance", "--episodes", "4",
+               "--kwarg", "obstacles=1", "--out", tmp_path / "demos")
+    ciflow_cli("train", "--task", "obstacle-avoidance", "--demos", tmp_path / "demos",
+               "--out", tmp_path / "avoid", "--epochs", "2", "--layers", "2", "--hidden", "16,16")
+    flow_field = _native.FlowField(str(tmp_path / "avoid"))
+    path = tmp_path / "field.rrd"
+    recording = view.open_recording("test", save=str(path))
+    view.record_run(recording, "obstacle-avoidance", {"obstacles": 1}, obstacle_run(1), [],
+                    flow_field=flow_field)
+    # A policy of another task draws nothing on this one.
+    view.record_run(recording, "ciflow/LimitCycle-v0", {}, [
+        {"time": 0.0, "state": np.zeros(4), "context": np.zeros(1), "command": np.zeros(2),
+         "reward": 0.0}], [], root="other", flow_field=flow_field)
+    view.finish(recording)
+
+    arrows = []
+    for chunk in RrdReader(str(path)).store().stream().to_chunks():
+        if chunk.entity_path == "/run/world/policy/field":
+            batch = chunk.to_record_batch()
+            column = next(c for c in batch.schema.names if c.endswith("Arrows3D:vectors"))
+            arrows += [np.asarray(v) for v in batch.column(column).to_pylist()]
+    rows = rows_by_entity(path)
+    # Drawn for the first context and again after the target moved.
+    assert rows["/run/world/policy/field"] == 2 == rows["/run/world/policy/latent_grid"]
+    assert len(arrows) == 2 and arrows[0].shape == (20 * 20, 3)
+    assert np.abs(arrows[0] - arrows[1]).max() > 1e-6, "the field follows the context"
+    assert not any(entity.startswith("/other/world/policy") for entity in rows)
 
 
 def test_a_body_is_drawn_as_its_own_solid():

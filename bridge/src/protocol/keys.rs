@@ -340,6 +340,20 @@ mod tests {
     }
 
     #[test]
+    fn telemetry_keys_name_their_engine_owner_and_session() {
+        let key = session("e1", "alice", "s1", "telemetry");
+        assert_eq!(parse_telemetry(&key), Some(("e1", "alice", "s1")));
+        for key in [
+            session("e1", "alice", "s1", "step"),
+            session("e1", "*", "*", "telemetry"),
+            session("e1", "alice", "s1", "frame"),
+            "ciflow/v2/engine/e1/client/alice/session/s1/telemetry/extra".to_owned(),
+        ] {
+            assert_eq!(parse_telemetry(&key), None, "{key}");
+        }
+    }
+
+    #[test]
     fn client_tokens_name_an_identity_and_an_instance() {
         let client = client("alice", "c1");
         assert_eq!(parse_client_alive(&client_alive(&client)), Some("alice/c1"));

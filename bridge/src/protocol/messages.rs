@@ -369,4 +369,8 @@ pub struct Telemetry {
     /// The episode ended (terminated or truncated) with this sample.
     #[serde(default)]
     pub episode_done: bool,
+    /// An external force (a push) acted during this sample's step, for the tasks that
+    /// report it (`info["perturbed"]`: pouring, reach).
+    #[serde(default)]
+    pub perturbed: bool,
 }

@@ -1,6 +1,7 @@
 //! One environment inside a session, with the bookkeeping the protocol reports: simulated
 //! time, the last command, and whether the episode ended (for next-step autoreset).
 
+use ciflow_envs::env::PERTURBED_INFO;
 use ciflow_envs::{Env, EnvError, Info, ResetOptions, Step};
 
 pub(crate) struct EnvSlot {
@@ -13,6 +14,9 @@ pub(crate) struct EnvSlot {
     pub reward: f64,
     /// `true` after a step that terminated or truncated, until the next reset.
     pub episode_over: bool,
+    /// An external force acted during the last step (the task's [`PERTURBED_INFO`];
+    /// false for tasks that do not report it).
+    pub perturbed: bool,
 }
 
 impl EnvSlot {
@@ -25,6 +29,7 @@ impl EnvSlot {
             observation: Vec::new(),
             reward: 0.0,
             episode_over: false,
+            perturbed: false,
         }
     }
 
@@ -44,6 +49,7 @@ impl EnvSlot {
         self.observation.clone_from(&observation);
         self.reward = 0.0;
         self.episode_over = false;
+        self.perturbed = pushed(&info);
         Ok((observation, info))
     }
 
@@ -60,6 +66,7 @@ impl EnvSlot {
         self.observation.clone_from(&step.observation);
         self.reward = step.reward;
         self.episode_over = step.terminated || step.truncated;
+        self.perturbed = pushed(&step.info);
         Ok(step)
     }
 
@@ -95,6 +102,10 @@ impl EnvSlot {
         let context_dim = self.env.spec().context_space.dim();
         &self.observation[..self.observation.len().saturating_sub(context_dim)]
     }
+}
+
+fn pushed(info: &Info) -> bool {
+    info.get(PERTURBED_INFO).is_some_and(|&flag| flag > 0.0)
 }
 
 /// `values` must have `expected` finite elements.

@@ -124,6 +124,7 @@ impl TelemetryPublisher {
             reward: slot.reward,
             running,
             episode_done: slot.episode_over,
+            perturbed: slot.perturbed,
         };
         // A dropped telemetry sample is harmless; the next step sends a fresh one.
         let _ = self

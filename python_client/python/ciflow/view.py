@@ -18,8 +18,10 @@ open with ``rerun FILE.rrd``.
 Each session or episode logs, under its own path: ``world/…`` the task's bodies (the
 arm's links as capsules between its joint origins, cup, pot, table, obstacles, target,
 outline — the same bodies ``render()`` shades), ``state``, ``command``, ``context`` and
-``reward`` as time series (one line per coordinate), and ``events`` (context changes, pushes,
-episode ends) as a text log. Needs ``pip install 'ciflow[view]'`` (``rerun-sdk``).
+``reward`` as time series (one line per coordinate), ``events`` (context changes, pushes,
+episode ends) as a text log, and with ``--policy CHECKPOINT`` (a 2-D task's flow) the
+policy's vector field, noise-free rollouts and latent-grid deformation for the context
+shown, under ``world/policy``, redrawn when the context changes. Needs ``pip install 'ciflow[view]'`` (``rerun-sdk``).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 
 import numpy as np
 
@@ -68,7 +71,7 @@ def body_archetype(body: dict):
         start, end = np.asarray(body["from"]), np.asarray(body["to"])
         return rr.Capsules3D(lengths=[float(np.linalg.norm(end - start))], radii=[body["radius"]],
                              translations=[start], quaternions=[_quaternion_from_z(end - start)],
-                             colors=color)
+                             colors=color, fill_mode="solid")
     if kind == "cylinder":
         # ciflow's cylinder stands on its base; Rerun's is centred.
         axis = _rotate(body["quaternion"], [0.0, 0.0, 1.0])
@@ -97,18 +100,66 @@ def _rotate(quaternion, vector) -> np.ndarray:
     return v + 2.0 * np.cross(q, np.cross(q, v) + w * v)
 
 
-class Track:
-    """One session's or episode's entities in a recording, under ``root``."""
+def log_field(recording, path: str, report: dict) -> None:
+    """Logs a 2-D policy's figure data for one context (``_native.FlowField.at``) under
+    ``path``: ``field`` (arrows, the longest one grid cell long), ``latent_grid`` (the
+    image of the latent grid lines) and ``rollouts`` (noise-free), in the plane ``z = 0``."""
+    rr = _rerun()
+    (data,) = report["fields"]
+    xs, ys = np.meshgrid(data["x"], data["y"])
+    velocity = np.stack([np.asarray(data["velocity_x"]), np.asarray(data["velocity_y"])], -1)
+    velocity = velocity.reshape(-1, 2)
+    cell = min(np.diff(data["x"]).min(), np.diff(data["y"]).min())
+    longest = np.nanmax(np.linalg.norm(velocity, axis=1))
+    scale = cell / longest if longest > 0 else 0.0
+    flat = lambda points: [[p[0], p[1], 0.0] for p in points]  # noqa: E731
+    origins = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], -1)
+    vectors = np.concatenate([velocity * scale, np.zeros((len(velocity), 1))], -1)
+    recording.log(f"{path}/field", rr.Arrows3D(origins=origins, vectors=vectors,
+                                               colors=[[90, 90, 200]]))
+    recording.log(f"{path}/latent_grid", rr.LineStrips3D(
+        [flat(line) for line in data["latent_grid"]], colors=[[170, 170, 170]]))
+    recording.log(f"{path}/rollouts", rr.LineStrips3D(
+        [flat(line) for line in data["rollouts"] if line], colors=[[31, 119, 180]]))
 
-    def __init__(self, recording, root: str, task: str, kwargs: dict | None = None):
+
+def send_layout(recording, roots: list[str]) -> None:
+    """Lays the viewer out for the tracks at ``roots``: the 3-D scene on the left two
+    thirds, the state, command and event log of every track stacked on the right."""
+    import rerun.blueprint as rrb
+
+    def series(name: str):
+        return rrb.TimeSeriesView(name=name, contents=[f"+ /{root}/{name}" for root in roots])
+
+    recording.send_blueprint(rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(name="scene", origin="/",
+                              contents=[f"+ /{root}/world/**" for root in roots]),
+            rrb.Vertical(series("state"), series("command"),
+                         rrb.TextLogView(name="events",
+                                         contents=[f"+ /{root}/events" for root in roots])),
+            column_shares=[2, 1]),
+        collapse_panels=True))
+
+
+class Track:
+    """One session's or episode's entities in a recording, under ``root``. With a 2-D
+    ``flow_field`` of the same task, the policy's field and latent-grid deformation are
+    logged under ``world/policy`` for the first context and after each change."""
+
+    def __init__(self, recording, root: str, task: str, kwargs: dict | None = None,
+                 flow_field: _native.FlowField | None = None):
         self.rr = _rerun()
         self.recording = recording
         self.root = root.strip("/")
         self.scenery = _native.Scenery(task, kwargs or {})
+        self.flow_field = flow_field
         self.previous_context = None
         self.samples = 0
         # Series whose line names are logged (once, static).
         self.named: set[str] = set()
+        # Whether the last live sample was pushed (a push starts on a rising edge).
+        self.pushed = False
 
     def log(self, time: float, observation, command=None, reward: float | None = None,
             context_dim: int | None = None) -> None:
@@ -134,9 +185,13 @@ class Track:
                 rec.log(path, rr.SeriesLines(names=names), static=True)
                 self.named.add(path)
             rec.log(path, rr.Scalars(values))
-        if (self.previous_context is not None and len(context)
-                and np.max(np.abs(context - self.previous_context)) > CONTEXT_CHANGE):
+        changed = (self.previous_context is not None and len(context)
+                   and np.max(np.abs(context - self.previous_context)) > CONTEXT_CHANGE)
+        if changed:
             self.event(f"context → {np.round(context, 4).tolist()}")
+        if self.flow_field is not None and (changed or self.previous_context is None):
+            report = json.loads(self.flow_field.at(context.tolist()))
+            log_field(rec, f"{self.root}/world/policy", report)
         self.previous_context = context
         self.samples += 1
 
@@ -166,6 +221,19 @@ def open_recording(application: str, spawn: bool = False, serve: bool = False,
     return recording
 
 
+def _matching(flow_field: _native.FlowField | None, task: str) -> _native.FlowField | None:
+    """``flow_field`` if it is a policy of ``task``; otherwise None, with a note."""
+    if flow_field is None:
+        return None
+    from ciflow.registration import task_entry
+
+    if task_entry(flow_field.task)[0] != task_entry(task)[0]:
+        print(f"--policy is a policy of {flow_field.task}, not of {task}: no field drawn",
+              file=sys.stderr)
+        return None
+    return flow_field
+
+
 def finish(recording) -> None:
     """Sends everything logged and closes the sinks (an ``.rrd`` file is complete after
     this)."""
@@ -174,9 +242,10 @@ def finish(recording) -> None:
 
 
 def record_run(recording, task: str, kwargs: dict, samples: list[dict], events: list[dict],
-               root: str = "run") -> Track:
+               root: str = "run", flow_field: _native.FlowField | None = None) -> Track:
     """Logs a perturbation run (``ciflow.perturb``'s samples and events) as one track."""
-    track = Track(recording, root, task, kwargs)
+    track = Track(recording, root, task, kwargs, _matching(flow_field, task))
+    send_layout(recording, [track.root])
     pending = sorted(events, key=lambda e: e["start"])
     for sample in samples:
         while pending and pending[0]["start"] <= sample["time"]:
@@ -189,7 +258,8 @@ def record_run(recording, task: str, kwargs: dict, samples: list[dict], events: 
     return track
 
 
-def record_dataset(recording, path: str, episodes: slice | None = None) -> list[Track]:
+def record_dataset(recording, path: str, episodes: slice | None = None,
+                   flow_field: _native.FlowField | None = None) -> list[Track]:
     """Logs every episode of the dataset at ``path`` (or the slice ``episodes``) one after
     another on the ``time`` timeline, each under ``episodes/<k>``."""
     info, all_episodes = _native.read_dataset(path)
@@ -197,9 +267,11 @@ def record_dataset(recording, path: str, episodes: slice | None = None) -> list[
                                     for space in ("observation", "context", "action"))
     dt = info["control_dt"]
     chosen = list(enumerate(all_episodes))[episodes or slice(None)]
+    send_layout(recording, [f"episodes/{k}" for k, _ in chosen])
     tracks, offset = [], 0.0
     for k, episode in chosen:
-        track = Track(recording, f"episodes/{k}", info["env_id"], info["env_kwargs"])
+        track = Track(recording, f"episodes/{k}", info["env_id"], info["env_kwargs"],
+                      _matching(flow_field, info["env_id"]))
         observations = np.frombuffer(episode["observations"], dtype="<f8").reshape(-1, dim)
         actions = np.frombuffer(episode["actions"], dtype="<f8").reshape(-1, action_dim)
         rewards = np.frombuffer(episode["rewards"], dtype="<f8")
@@ -219,7 +291,8 @@ def record_dataset(recording, path: str, episodes: slice | None = None) -> list[
 
 
 def watch(recording, client: _native.ClientHandle, engine: str | None, session: str | None,
-          timeout: float | None, max_samples: int | None = None) -> dict[str, Track]:
+          timeout: float | None, max_samples: int | None = None,
+          flow_field: _native.FlowField | None = None) -> dict[str, Track]:
     """Logs the telemetry of every session on ``engine`` (or only ``session``) as it
     arrives, each under ``sessions/<id>``, until ``timeout`` seconds pass without a sample
     or ``max_samples`` arrive. Returns the tracks by session id."""
@@ -236,14 +309,18 @@ def watch(recording, client: _native.ClientHandle, engine: str | None, session: 
         if track is None:
             described = client.describe(sample["engine"], sample["identity"], sample["session"])
             track = Track(recording, f"sessions/{sample['session']}", described["task"],
-                          described["kwargs"])
+                          described["kwargs"], _matching(flow_field, described["task"]))
             tracks[sample["session"]] = track
+            send_layout(recording, [t.root for t in tracks.values()])
             print(f"watching session {sample['session']} ({described['task']}) of "
                   f"{sample['identity']} on {sample['engine']}", flush=True)
         state, context, command = (np.frombuffer(sample[k], dtype="<f8")
                                    for k in ("state", "context", "command"))
         track.log(sample["time"], np.concatenate([state, context]), command, sample["reward"],
                   context_dim=len(context))
+        if sample["perturbed"] and not track.pushed:
+            track.event("push", level="WARN")
+        track.pushed = sample["perturbed"]
         if sample["episode_done"]:
             track.event("episode ends")
         received += 1
@@ -262,6 +339,9 @@ def main(argv=None) -> int:
     parser.add_argument("--episodes", help="with --dataset: a slice of episodes, e.g. 0:10")
     parser.add_argument("--engine", help="endpoint to connect to, e.g. tcp/10.0.0.5:7447")
     parser.add_argument("--zenoh-config", help="Zenoh JSON5 file (e.g. via a router)")
+    parser.add_argument("--policy", metavar="CHECKPOINT",
+                        help="a 2-D flow policy's checkpoint directory: draw its vector field "
+                             "and latent-grid deformation for each context shown")
     parser.add_argument("--timeout", type=float, default=None,
                         help="with --watch: stop after this many seconds without telemetry")
     parser.add_argument("--spawn", action="store_true", help="start a native viewer (default)")
@@ -270,12 +350,13 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     spawn = args.spawn or not (args.serve or args.save)
     recording = open_recording("ciflow", spawn=spawn, serve=args.serve, save=args.save)
+    flow_field = _native.FlowField(args.policy) if args.policy else None
     if args.dataset:
         episodes = None
         if args.episodes:
             start, _, stop = args.episodes.partition(":")
             episodes = slice(int(start) if start else None, int(stop) if stop else None)
-        tracks = record_dataset(recording, args.dataset, episodes)
+        tracks = record_dataset(recording, args.dataset, episodes, flow_field)
         print(f"{len(tracks)} episode(s) of {args.dataset}")
     elif args.record:
         with open(args.record) as file:
@@ -285,16 +366,23 @@ def main(argv=None) -> int:
         samples = [{k: np.asarray(v) if isinstance(v, list) else v for k, v in s.items()}
                    for s in record["samples"]]
         track = record_run(recording, record["task"], record.get("kwargs", {}), samples,
-                           record["events"])
+                           record["events"], flow_field=flow_field)
         print(f"{track.samples} samples of {args.record}")
     else:
         client = connection.client(args.engine, args.zenoh_config)
         engine = None if args.watch == "*" else args.watch
         try:
-            tracks = watch(recording, client, engine, args.session, args.timeout)
+            tracks = watch(recording, client, engine, args.session, args.timeout,
+                           flow_field=flow_field)
         except KeyboardInterrupt:
             tracks = {}
         print(f"watched {len(tracks)} session(s)")
+    if args.serve and not args.watch:
+        print("serving the recording; Ctrl-C to stop", flush=True)
+        try:
+            threading.Event().wait()
+        except KeyboardInterrupt:
+            pass
     finish(recording)
     return 0
 
