@@ -140,7 +140,7 @@ def test_make_vec_steps_all_environments_in_one_request(task_id, engine):
     envs = gym.make_vec(task_id, num_envs=n, engine=engine[0])
     try:
         assert isinstance(envs.unwrapped, ciflow.CiflowVectorEnv)
-        assert envs.unwrapped._session.num_envs == n
+        assert envs.unwrapped._shares == [n], "one session, one request per step"
         observations, _ = envs.reset(seed=100)
         assert observations.shape == (n,) + envs.single_observation_space.shape
         single = gym.make(task_id, engine=engine[0])

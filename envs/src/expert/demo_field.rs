@@ -20,6 +20,8 @@
 //! `∂f_tube/∂u = (Cov_w(v, x) + k_c Cov_w(x, x)) / σ² − k_c I` and
 //! `∂s/∂u = −s (1 − s) (u − x̄)ᵀ / σ²`, where `x̄ = Σ wᵢ xᵢ / W`.
 
+use std::sync::Arc;
+
 use nalgebra::{Matrix2, Vector2};
 
 use crate::expert::tracking::VelocityField;
@@ -47,7 +49,9 @@ pub struct Sample {
 /// The demonstration field (see the module docs).
 #[derive(Clone, Debug, PartialEq)]
 pub struct DemoField {
-    centres: Vec<Sample>,
+    /// Shared by the fields cloned from one (environments of one shape): only the goal
+    /// differs between them.
+    centres: Arc<[Sample]>,
     /// The goal `g`, where all demonstrations end.
     pub goal: Vector2<f64>,
 }
@@ -80,7 +84,7 @@ impl DemoField {
             }
         }
         (!centres.is_empty()).then_some(Self {
-            centres,
+            centres: centres.into(),
             goal: Vector2::zeros(),
         })
     }
@@ -101,7 +105,7 @@ impl DemoField {
             .fold(f64::INFINITY, f64::min);
         let (mut total, mut sum_x, mut sum_v) = (0.0, Vector2::zeros(), Vector2::zeros());
         let (mut sum_xx, mut sum_vx) = (Matrix2::zeros(), Matrix2::zeros());
-        for c in &self.centres {
+        for c in self.centres.iter() {
             let excess = ((c.position - u).norm_squared() - nearest) * scale;
             // Below e^-40 of the nearest centre's weight: nothing a double would keep.
             if excess > 40.0 {

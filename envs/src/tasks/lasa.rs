@@ -63,6 +63,7 @@
 
 use std::collections::BTreeMap;
 use std::collections::btree_map::Entry;
+use std::sync::{Arc, LazyLock, Mutex};
 
 use nalgebra::Vector2;
 use rand::RngExt;
@@ -141,13 +142,26 @@ pub fn shape_index(name: &str) -> Result<usize, EnvError> {
 struct ShapeModel {
     field: DemoField,
     starts: Vec<Vector2<f64>>,
-    /// Demonstrated paths, for `render`.
-    paths: Vec<Vec<Vector2<f64>>>,
+    /// Demonstrated paths, for `render` (shared by every environment of the shape).
+    paths: Arc<[Vec<Vector2<f64>>]>,
     /// What `render` shows: the paths wherever the goal may move them.
     view: View,
 }
 
+/// The shapes loaded in this process: every environment of a shape shares its
+/// demonstrations and kernel centres (tens of kB per shape), cloning only the goal.
+static LOADED: LazyLock<Mutex<BTreeMap<usize, ShapeModel>>> = LazyLock::new(Default::default);
+
 impl ShapeModel {
+    /// Shape `shape`'s model, loaded once per process.
+    fn shared(shape: usize) -> Result<Self, EnvError> {
+        let mut loaded = LOADED.lock().unwrap_or_else(|p| p.into_inner());
+        if let Entry::Vacant(slot) = loaded.entry(shape) {
+            slot.insert(Self::load(shape)?);
+        }
+        Ok(loaded[&shape].clone())
+    }
+
     fn load(shape: usize) -> Result<Self, EnvError> {
         let failed = |detail: String| EnvError::InvalidOption {
             name: SHAPE_OPTION.into(),
@@ -292,7 +306,7 @@ impl PlanarTask for Lasa {
             });
         }
         if let Entry::Vacant(slot) = self.models.entry(shape) {
-            slot.insert(ShapeModel::load(shape)?);
+            slot.insert(ShapeModel::shared(shape)?);
         }
         let demos = self.models[&shape].starts.len();
         self.demo = index_option(extra, DEMO_OPTION, demos)?;
@@ -347,7 +361,7 @@ impl PlanarTask for Lasa {
 
     fn draw(&self, canvas: &mut Canvas) {
         let goal = self.goal();
-        for path in &self.model().paths {
+        for path in self.model().paths.iter() {
             let shifted: Vec<_> = path.iter().map(|p| p + goal).collect();
             canvas.polyline(&shifted, false, GREY, 1.0);
         }

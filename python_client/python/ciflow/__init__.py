@@ -8,6 +8,8 @@
     # context: the pot pose (x, y, z in m; roll, pitch, yaw in rad)
     env = gym.make("ciflow/Pouring-v0", context=[0.5, 0.0, 0.05, 0.0, 0.0, 0.3], render_mode="rgb_array")
     envs = gym.make_vec("ciflow/LimitCycle-v0", num_envs=1024)   # one request per step
+    # spread over every engine behind a router, one request per engine per step
+    envs = gym.make_vec("ciflow/LimitCycle-v0", num_envs=8192, engine="tcp/R:7447", engines="*")
 
 The environments live in an engine. ``engine=`` (or ``CIFLOW_ENGINE``) selects one:
 an endpoint such as ``"tcp/10.0.0.5:7447"`` or an engine name. Without it, the engine on

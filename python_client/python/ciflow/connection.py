@@ -59,8 +59,7 @@ def _embedded_client() -> _native.ClientHandle:
 
 def _pick(client: _native.ClientHandle, task: str | None) -> str | None:
     for engine in client.discover():
-        names = {t["spec"]["id"] for t in engine["tasks"]} | {t["name"] for t in engine["tasks"]}
-        if task is None or task in names:
+        if task is None or _serves(engine, task):
             return engine["name"]
     return None
 
@@ -91,6 +90,47 @@ def resolve(
                 + _HOW_TO_START
             )
         return client, name
+
+
+def resolve_engines(
+    task: str, engines: list[str] | str, engine: str | None = None,
+    zenoh_config: str | None = None,
+) -> tuple[_native.ClientHandle, list[str]]:
+    """A client and the names of the engines to spread ``task`` over: ``engines`` as
+    listed (each must answer and serve the task), or ``"*"`` for every engine serving it
+    that the client reaches, in name order. ``engine`` (an endpoint) or ``zenoh_config``
+    says how to reach them, e.g. through a Zenoh router."""
+    zenoh_config = zenoh_config or os.environ.get("CIFLOW_ZENOH_CONFIG") or None
+    engine = engine or os.environ.get("CIFLOW_ENGINE") or None
+    if engine and not _looks_like_endpoint(engine):
+        raise ValueError(f"with engines=, engine= is the endpoint to reach them by, not {engine!r}")
+    try:
+        with _lock:
+            client = _client(engine, zenoh_config)
+    except _native.EngineUnreachable as error:
+        raise _native.EngineUnreachable(
+            f"no ciflow engine reachable at {engine or zenoh_config or default_endpoint()}: "
+            f"{error}. {_HOW_TO_START}") from None
+    serving = {info["name"] for info in client.discover() if _serves(info, task)}
+    if engines == "*":
+        if not serving:
+            raise _native.EngineUnreachable(f"no ciflow engine serving {task} answered. "
+                                            + _HOW_TO_START)
+        return client, sorted(serving)
+    if isinstance(engines, str) or not engines:
+        raise ValueError(f"engines= takes a list of engine names or '*', not {engines!r}")
+    if len(set(engines)) != len(engines):
+        raise ValueError(f"engines= names an engine twice: {engines}")
+    missing = [name for name in engines if name not in serving]
+    if missing:
+        raise _native.EngineUnreachable(
+            f"engine(s) {missing} did not answer or do not serve {task} "
+            f"(serving it: {sorted(serving) or 'none'})")
+    return client, list(engines)
+
+
+def _serves(info: dict, task: str) -> bool:
+    return any(task in (t["spec"]["id"], t["name"]) for t in info["tasks"])
 
 
 def _default(task: str | None) -> tuple[_native.ClientHandle, str]:

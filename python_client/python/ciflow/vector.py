@@ -1,19 +1,31 @@
-"""``gymnasium.vector.VectorEnv`` over the engine's batched step: one request steps all
-``num_envs`` environments."""
+"""``gymnasium.vector.VectorEnv`` over the engines' batched step: one request per engine
+steps all of that engine's environments, the requests to different engines in flight
+together."""
 
 from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
 
 import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from ciflow import connection
+from ciflow import _native, connection
 from ciflow.spaces import box, construction_kwargs, from_wire, reset_options, to_wire
 
 
 class CiflowVectorEnv(gym.vector.VectorEnv):
-    """``num_envs`` copies of a task in one engine session, stepped by one request.
+    """``num_envs`` copies of a task, stepped by one request per engine.
+
+    ``engines`` spreads them over several engines — a list of engine names, or ``"*"``
+    for every engine serving the task that ``engine``/``zenoh_config`` reaches (e.g. a
+    Zenoh router joining machines), in name order. Environment ``i`` lives on the engine
+    whose share holds ``i`` (shares differ by at most one, in the order of ``engines``);
+    each step sends every engine its share at once and merges the replies in that fixed
+    order, so results do not depend on which engine answers first. An engine that stops
+    answering raises ``EngineUnreachable`` (or ``CiflowError``) after the client's
+    timeout.
 
     Autoreset is Gymnasium's next-step mode (``metadata["autoreset_mode"]``): after an
     episode ends, the next ``step`` ignores that environment's action, resets it and
@@ -35,16 +47,33 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
         max_episode_steps: int | None = None,
         initial_position=None,
         initial_velocity=None,
+        engines: list[str] | str | None = None,
         **kwargs,
     ):
         if render_mode is not None:
             raise ValueError("CiflowVectorEnv does not render; use gymnasium.make for frames")
-        self._session = None
-        client, engine_name = connection.resolve(task, engine, zenoh_config)
-        self._session = client.make(engine_name, task, int(num_envs), construction_kwargs(task, kwargs))
-        spec = self._session.spec
+        self._sessions = []
+        self._pool = None
+        num_envs = int(num_envs)
+        if engines is None:
+            client, engine_name = connection.resolve(task, engine, zenoh_config)
+            names = [engine_name]
+        else:
+            client, names = connection.resolve_engines(task, engines, engine, zenoh_config)
+        shares = [num_envs // len(names) + (k < num_envs % len(names))
+                  for k in range(len(names))]
+        construction = construction_kwargs(task, kwargs)
+        for name, share in zip(names, shares):
+            if share > 0:
+                self._sessions.append(client.make(name, task, share, construction))
+        self.engine_names = [s.engine for s in self._sessions]
+        self._shares = [s.num_envs for s in self._sessions]
+        self._offsets = np.cumsum([0, *self._shares[:-1]]).tolist()
+        if len(self._sessions) > 1:
+            self._pool = ThreadPoolExecutor(len(self._sessions), thread_name_prefix="ciflow")
+        spec = self._sessions[0].spec
         self.task_spec = spec
-        self.num_envs = int(num_envs)
+        self.num_envs = num_envs
         self.single_observation_space = box(spec["observation_space"])
         self.single_action_space = box(spec["action_space"])
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -61,36 +90,56 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
         super().reset(seed=seed)
         if isinstance(seed, (list, tuple)):
             raise ValueError("pass one integer seed; environment i gets seed + i")
-        observations, info = self._session.reset_batch(
-            seed, reset_options(self._reset_defaults, options)
-        )
-        return self._observations(observations), self._info(info)
+        options = reset_options(self._reset_defaults, options)
+        replies = self._each(lambda session, offset: session.reset_batch(
+            None if seed is None else seed + offset, options))
+        observations = b"".join(observation for observation, _ in replies)
+        return self._observations(observations), self._info([info for _, info in replies])
 
     def step(self, actions):
         actions = np.asarray(actions, dtype="<f8").reshape(self.num_envs, -1)
-        observations, rewards, terminated, truncated, info = self._session.step_batch(
-            to_wire(actions)
-        )
+        replies = self._each(lambda session, offset: session.step_batch(
+            to_wire(actions[offset:offset + session.num_envs])))
+        observations, rewards, terminated, truncated = (
+            b"".join(reply[k] for reply in replies) for k in range(4))
         return (
             self._observations(observations),
             np.frombuffer(rewards, dtype="<f8").copy(),
             np.frombuffer(terminated, dtype=np.uint8).astype(bool),
             np.frombuffer(truncated, dtype=np.uint8).astype(bool),
-            self._info(info),
+            self._info([reply[4] for reply in replies]),
         )
+
+    def _each(self, request) -> list:
+        """``request(session, offset)`` for every engine's session, in flight together
+        (the native calls release the GIL); the replies in the sessions' order."""
+        if self._pool is None:
+            return [request(self._sessions[0], 0)]
+        futures = [self._pool.submit(request, session, offset)
+                   for session, offset in zip(self._sessions, self._offsets)]
+        return [future.result() for future in futures]
 
     def _observations(self, data: bytes) -> np.ndarray:
         return from_wire(data, self.single_observation_space.dtype, self._obs_shape)
 
-    @staticmethod
-    def _info(columns: dict) -> dict:
+    def _info(self, parts: list[dict]) -> dict:
+        """The engines' info columns merged in environment order; a key one engine did
+        not report is NaN (and masked out) for its environments."""
         info = {}
-        for key, data in columns.items():
-            values = np.frombuffer(data, dtype="<f8").copy()
+        for key in sorted({key for columns in parts for key in columns}):
+            values = np.concatenate([
+                np.frombuffer(columns[key], dtype="<f8") if key in columns
+                else np.full(share, np.nan)
+                for columns, share in zip(parts, self._shares)])
             info[key] = values
             info[f"_{key}"] = ~np.isnan(values)
         return info
 
     def close_extras(self, **kwargs):
-        if self._session is not None:
-            self._session.close()
+        if self._pool is not None:
+            self._pool.shutdown()
+        for session in self._sessions:
+            try:
+                session.close()
+            except _native.EngineUnreachable:
+                pass  # the engine is gone, and its sessions with it

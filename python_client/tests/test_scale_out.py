@@ -1,0 +1,98 @@
+"""One Gymnasium vector environment over several engines joined by a Zenoh router
+(`ciflow router` and three `ciflow serve` processes on loopback): the merged results equal
+a single engine's for the same seeds and actions, and a vanished engine is an error."""
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import ciflow
+
+# pytest runs with --import-mode=importlib: conftest is not on sys.path by itself.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from conftest import BINARY, free_port, start_process  # noqa: E402
+
+TASK = "ciflow/Obstacle-v0"
+ENGINES = ["scale-a", "scale-b", "scale-c"]
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """(router endpoint, {engine name: process}) of a router with three engines."""
+    if not BINARY.exists():
+        pytest.skip(f"{BINARY} not built (cargo build --release)")
+    router = f"tcp/127.0.0.1:{free_port()}"
+    processes = [start_process([str(BINARY), "router", "--listen", router])]
+    engines = {}
+    for name in ENGINES:
+        engines[name] = start_process([
+            sys.executable, "-m", "ciflow", "serve", "--name", name, "--connect", router,
+            "--listen", f"tcp/127.0.0.1:{free_port()}"])
+    processes += engines.values()
+    yield router, engines
+    for process in processes:
+        process.terminate()
+        process.wait(timeout=10)
+
+
+def rollout(envs, steps: int = 850) -> list[np.ndarray]:
+    """Observations, rewards, flags and an info column of `steps` seeded random steps
+    (past the task's 800-step episodes, so every environment autoresets)."""
+    actions = np.random.default_rng(3).uniform(-1.0, 1.0, (steps, envs.num_envs, 2))
+    observations, _ = envs.reset(seed=7)
+    trace = [observations]
+    for action in actions:
+        observations, rewards, terminated, truncated, info = envs.step(action)
+        trace += [observations, rewards, terminated, truncated, info["is_success"]]
+    return trace
+
+
+def test_environments_spread_over_engines_step_as_on_one(cluster):
+    router, _ = cluster
+    spread = gym.make_vec(TASK, num_envs=10, engine=router, engines=ENGINES, obstacles=2)
+    alone = gym.make_vec(TASK, num_envs=10, engine=router, engines=ENGINES[:1], obstacles=2)
+    try:
+        assert spread.unwrapped.engine_names == ENGINES
+        assert spread.unwrapped._shares == [4, 3, 3]
+        merged, single = rollout(spread), rollout(alone)
+        ended = [t | u for t, u in zip(merged[3::5], merged[4::5])]
+        assert np.any(ended, axis=0).all(), "every episode ended: autoreset is exercised"
+        for a, b in zip(merged, single):
+            np.testing.assert_array_equal(a, b)
+    finally:
+        spread.close()
+        alone.close()
+
+
+def test_every_engine_serving_the_task_is_found_in_name_order(cluster):
+    router, _ = cluster
+    envs = gym.make_vec(TASK, num_envs=4, engine=router, engines="*", obstacles=1)
+    try:
+        assert envs.unwrapped.engine_names == sorted(ENGINES)
+        assert envs.unwrapped._shares == [2, 1, 1]
+    finally:
+        envs.close()
+    with pytest.raises(ciflow.EngineUnreachable, match="nope"):
+        gym.make_vec(TASK, num_envs=4, engine=router, engines=["scale-a", "nope"])
+    with pytest.raises(ValueError, match="twice"):
+        gym.make_vec(TASK, num_envs=4, engine=router, engines=["scale-a", "scale-a"])
+
+
+def test_an_engine_that_disappears_is_an_error_not_a_hang(cluster):
+    router, engines = cluster
+    envs = gym.make_vec(TASK, num_envs=6, engine=router, engines=ENGINES, obstacles=1)
+    envs.reset(seed=0)
+    envs.step(np.zeros((6, 2)))
+    engines["scale-c"].kill()
+    engines["scale-c"].wait(timeout=10)
+    started = time.monotonic()
+    with pytest.raises((ciflow.EngineUnreachable, ciflow.CiflowError)):
+        for _ in range(100):
+            envs.step(np.zeros((6, 2)))
+    assert time.monotonic() - started < 15.0
+    envs.close()
