@@ -63,7 +63,8 @@ pub struct Outline {
     bumps: [Bump; 5],
     /// `κ` of the curl `T`, rad/m² (0 for the star-shaped phases).
     curl: f64,
-    /// Dense points of the curve, for distances to it.
+    /// Dense points of the curve, for distances to it, closed: the first point is
+    /// repeated at the end.
     points: Vec<Vector2<f64>>,
     /// Per run of `RUN` segments: a disc `(centre, radius)` holding them.
     runs: Vec<(Vector2<f64>, f64)>,
@@ -125,20 +126,23 @@ impl Outline {
             runs: Vec::new(),
         };
         outline.points = outline.polyline(DISTANCE_POINTS);
+        // Closed: the first point again at the end, so runs index without wrapping.
+        outline.points.push(outline.points[0]);
         outline.runs = (0..DISTANCE_POINTS / RUN)
             .map(|k| {
                 let ends = outline.run_points(k);
-                let centre = ends.clone().sum::<Vector2<f64>>() / (RUN + 1) as f64;
-                let radius = ends.map(|p| (p - centre).norm()).fold(0.0, f64::max);
+                let centre = ends.iter().sum::<Vector2<f64>>() / (RUN + 1) as f64;
+                let radius = ends.iter().map(|p| (p - centre).norm()).fold(0.0, f64::max);
                 (centre, radius)
             })
             .collect();
         outline
     }
 
-    /// The `RUN + 1` polyline points of run `k` (its segments' ends, closing the curve).
-    fn run_points(&self, k: usize) -> impl Iterator<Item = Vector2<f64>> + Clone + '_ {
-        (k * RUN..=(k + 1) * RUN).map(|i| self.points[i % self.points.len()])
+    /// The `RUN + 1` polyline points of run `k` (its segments' ends; the last run's
+    /// closes the curve).
+    fn run_points(&self, k: usize) -> &[Vector2<f64>] {
+        &self.points[k * RUN..=(k + 1) * RUN]
     }
 
     /// The star-shaped figure's radius `r(θ)` before the curl, m.
@@ -191,12 +195,15 @@ impl Outline {
     /// segment found so far, starting from the run whose disc is nearest.
     pub fn distance(&self, x: &Vector2<f64>) -> f64 {
         let bound = |k: usize| (x - self.runs[k].0).norm() - self.runs[k].1;
+        // The square root of the nearest squared distance: the same number as the
+        // nearest distance (the square root is monotonic and correctly rounded), one
+        // square root per run instead of one per segment.
         let run_distance = |k: usize| {
-            let ends = self.run_points(k);
-            ends.clone()
-                .zip(ends.skip(1))
-                .map(|(a, b)| segment_distance(x, &a, &b))
+            self.run_points(k)
+                .windows(2)
+                .map(|ab| segment_distance_squared(x, &ab[0], &ab[1]))
                 .fold(f64::INFINITY, f64::min)
+                .sqrt()
         };
         let nearest = (0..self.runs.len())
             .min_by(|&a, &b| bound(a).total_cmp(&bound(b)))
@@ -217,11 +224,11 @@ fn rotate(x: &Vector2<f64>, angle: f64) -> Vector2<f64> {
     Vector2::new(cos * x.x - sin * x.y, sin * x.x + cos * x.y)
 }
 
-/// Distance from `x` to the segment `[a, b]`.
-fn segment_distance(x: &Vector2<f64>, a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
+/// Squared distance from `x` to the segment `[a, b]`.
+fn segment_distance_squared(x: &Vector2<f64>, a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
     let chord = b - a;
     let along = ((x - a).dot(&chord) / chord.norm_squared().max(f64::MIN_POSITIVE)).clamp(0.0, 1.0);
-    (x - (a + along * chord)).norm()
+    (x - (a + along * chord)).norm_squared()
 }
 
 #[cfg(test)]
@@ -322,7 +329,14 @@ mod tests {
             for i in 0..400 {
                 let x = Vector2::new(-1.3 + 0.0065 * i as f64, 1.1 - 0.0057 * i as f64);
                 let brute = (0..n)
-                    .map(|j| segment_distance(&x, &outline.points[j], &outline.points[(j + 1) % n]))
+                    .map(|j| {
+                        let (a, b) = (&outline.points[j], &outline.points[(j + 1) % n]);
+                        let chord = b - a;
+                        let along = ((x - a).dot(&chord)
+                            / chord.norm_squared().max(f64::MIN_POSITIVE))
+                        .clamp(0.0, 1.0);
+                        (x - (a + along * chord)).norm()
+                    })
                     .fold(f64::INFINITY, f64::min);
                 assert_eq!(outline.distance(&x), brute, "c = {c}, {x:?}");
             }

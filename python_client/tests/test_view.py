@@ -60,6 +60,8 @@ def test_a_watched_session_is_recorded_with_its_bodies_and_one_row_per_sample(en
     client = _native.ClientHandle.open(connect=[endpoint])
     described = client.describe(name, "anonymous", env.unwrapped.session_id)
     assert described["task"] == POURING and described["num_envs"] == 1
+    with pytest.raises(ciflow.CiflowError, match="unknown_session"):
+        client.describe(name, "anonymous", "0123456789abcdef")
 
     recording = view.open_recording("test", save=str(tmp_path / "live.rrd"))
     watched = {}
@@ -207,6 +209,18 @@ def test_a_body_is_drawn_as_its_own_solid():
     np.testing.assert_allclose(end, link["to"], atol=1e-6)
     with pytest.raises(ValueError, match="observation"):
         scenery.scene(observation[:-1].tolist())
+
+
+def test_a_reach_arm_is_drawn_from_its_own_urdf():
+    urdf = (Path(__file__).resolve().parents[2] / "engine/tests/assets/ur5e.urdf").read_text()
+    scenery = _native.Scenery("ciflow/Reach-v0", {"urdf": urdf, "tool": "tool0"})
+    env = gym.make("ciflow/Reach-v0", urdf=urdf, tool="tool0")
+    observation, _ = env.reset(seed=0)
+    env.close()
+    bodies = {b["name"]: b for b in scenery.scene(observation.tolist())}
+    links = [name for name in bodies if name.startswith("robot/")]
+    assert 4 <= len(links) <= 7, links  # the UR5e's six joints, coincident frames merged
+    np.testing.assert_allclose(bodies["goal"]["centre"], observation[-3:])
 
 
 def test_the_pouring_frame_of_a_known_state_matches_its_reference():

@@ -298,6 +298,7 @@ def watch(recording, client: _native.ClientHandle, engine: str | None, session: 
     or ``max_samples`` arrive. Returns the tracks by session id."""
     feed = client.watch(engine)
     tracks: dict[str, Track] = {}
+    skipped: set[str] = set()
     received = 0
     while max_samples is None or received < max_samples:
         sample = feed.recv(timeout)
@@ -305,11 +306,20 @@ def watch(recording, client: _native.ClientHandle, engine: str | None, session: 
             break
         if session is not None and sample["session"] != session:
             continue
+        if sample["session"] in skipped:
+            continue
         track = tracks.get(sample["session"])
         if track is None:
-            described = client.describe(sample["engine"], sample["identity"], sample["session"])
-            track = Track(recording, f"sessions/{sample['session']}", described["task"],
-                          described["kwargs"], _matching(flow_field, described["task"]))
+            try:
+                described = client.describe(sample["engine"], sample["identity"],
+                                            sample["session"])
+                track = Track(recording, f"sessions/{sample['session']}", described["task"],
+                              described["kwargs"], _matching(flow_field, described["task"]))
+            except (_native.CiflowError, ValueError) as error:
+                # Closed since its sample was sent, or a task this build does not know.
+                print(f"not showing session {sample['session']}: {error}", file=sys.stderr)
+                skipped.add(sample["session"])
+                continue
             tracks[sample["session"]] = track
             send_layout(recording, [t.root for t in tracks.values()])
             print(f"watching session {sample['session']} ({described['task']}) of "
