@@ -14,7 +14,7 @@ use ciflow_engine::robot::Robot;
 use nalgebra::{Rotation3, Unit, UnitQuaternion};
 
 use crate::error::EnvError;
-use crate::raster::Rgb;
+use crate::raster::{GREY, Rgb};
 
 /// The colour of an arm's links.
 pub const ARM_COLOR: Rgb = [165, 170, 180];
@@ -50,6 +50,12 @@ pub enum Shape {
         closed: bool,
         radius: f64,
     },
+}
+
+impl Shape {
+    pub fn sphere(centre: Vector3, radius: f64) -> Self {
+        Self::Sphere { centre, radius }
+    }
 }
 
 /// One named, coloured shape. Names are paths (`robot/link3`, `obstacles/0`) so that a
@@ -129,6 +135,16 @@ pub fn arm_links(
             Body::new(format!("robot/link{}", i + 1), shape, color)
         })
         .collect())
+}
+
+/// The path a point has taken (an arm's spout or tool): a thin grey curve.
+pub fn trail(name: &str, points: &[Vector3]) -> Body {
+    let curve = Shape::Curve {
+        points: points.to_vec(),
+        closed: false,
+        radius: 0.002,
+    };
+    Body::new(name, curve, GREY)
 }
 
 /// A flat box under the robot: the table, its top at `z = 0`, spanning `[x0, x1] × [y0, y1]`.

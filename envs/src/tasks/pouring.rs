@@ -72,7 +72,7 @@ use crate::env::{
 };
 use crate::expert::pouring::{CUP_RADIUS, CupPose, PourTarget, expert_acceleration};
 use crate::planar::reject_unknown_options;
-use crate::raster::{BLACK, BLUE, GREY, ORANGE, RED, Rgb, View};
+use crate::raster::{BLACK, BLUE, ORANGE, RED, Rgb, View};
 use crate::scene::{self, ARM_COLOR, Body, Scene, Shape, cylinder_between};
 use crate::seeding::EpisodeRng;
 use crate::shading::{self, Camera, Picture};
@@ -427,7 +427,7 @@ impl Env for Pouring {
                 cylinder_between(&cup.bottom, &cup.top, CUP_RADIUS),
                 BLUE,
             ),
-            Body::new("spout", sphere(cup.spout, 0.01), RED),
+            Body::new("spout", Shape::sphere(cup.spout, 0.01), RED),
             Body::new(
                 "pot",
                 Shape::Cylinder {
@@ -437,7 +437,7 @@ impl Env for Pouring {
                 },
                 ORANGE,
             ),
-            Body::new("lip", sphere(lip.coords, 0.012), RED),
+            Body::new("lip", Shape::sphere(lip.coords, 0.012), RED),
         ]);
         Ok(Scene { bodies })
     }
@@ -451,19 +451,12 @@ impl Pouring {
         let mut scene = Scene::default();
         if self.phase != Phase::NeedsReset {
             scene = self.scene(&self.observation())?;
-            let trail = Shape::Curve {
-                points: self.spout_trail.clone(),
-                closed: false,
-                radius: 0.002,
-            };
-            scene.bodies.push(Body::new("spout_trail", trail, GREY));
+            scene
+                .bodies
+                .push(scene::trail("spout_trail", &self.spout_trail));
         }
         shading::render(&scene, &CAMERA, width, height)
     }
-}
-
-fn sphere(centre: Vector3, radius: f64) -> Shape {
-    Shape::Sphere { centre, radius }
 }
 
 /// The camera of `render`: at the robot's front right (azimuth −0.6 rad), 20° above the

@@ -68,7 +68,7 @@ use crate::env::{
 use crate::expert::reach::expert_acceleration;
 use crate::kwargs::{self, Kwargs, TextArgument};
 use crate::planar::reject_unknown_options;
-use crate::raster::{GREEN, GREY, RED, View, oblique_projection};
+use crate::raster::{GREEN, RED, View, oblique_projection};
 use crate::scene::{self, ARM_COLOR, Body, Scene, Shape};
 use crate::seeding::EpisodeRng;
 use crate::shading::{self, Camera, Picture};
@@ -533,12 +533,9 @@ impl Reach {
         let mut scene = Scene::default();
         if self.phase != Phase::NeedsReset {
             scene = self.scene(&self.observation())?;
-            let trail = Shape::Curve {
-                points: self.tool_trail.clone(),
-                closed: false,
-                radius: 0.002,
-            };
-            scene.bodies.push(Body::new("tool_trail", trail, GREY));
+            scene
+                .bodies
+                .push(scene::trail("tool_trail", &self.tool_trail));
         }
         shading::render(&scene, &camera, width, height)
     }

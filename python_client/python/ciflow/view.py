@@ -161,15 +161,16 @@ class Track:
         # Whether the last live sample was pushed (a push starts on a rising edge).
         self.pushed = False
 
-    def log(self, time: float, observation, command=None, reward: float | None = None,
-            context_dim: int | None = None) -> None:
-        """Logs one observation (state then context) at simulated ``time`` (s)."""
+    def log(self, time: float, observation, context_dim: int, command=None,
+            reward: float | None = None) -> None:
+        """Logs one observation (state then its ``context_dim`` context entries) at
+        simulated ``time`` (s), with the command and reward that led to it, if any."""
         rr, rec = self.rr, self.recording
         observation = np.asarray(observation, dtype=float)
         rec.set_time("time", duration=float(time))
         for body in self.scenery.scene(observation.tolist()):
             rec.log(f"{self.root}/world/{body['name']}", body_archetype(body))
-        split = len(observation) - (context_dim or 0)
+        split = len(observation) - context_dim
         state, context = observation[:split], observation[split:]
         series = [("state", state), ("context", context)]
         if command is not None:
@@ -253,8 +254,8 @@ def record_run(recording, task: str, kwargs: dict, samples: list[dict], events: 
             recording.set_time("time", duration=float(event["start"]))
             track.event(f"{event['kind']} for {event['duration']:.2f} s", level="WARN")
         observation = np.concatenate([sample["state"], sample["context"]])
-        track.log(sample["time"], observation, sample["command"], sample["reward"],
-                  context_dim=len(sample["context"]))
+        track.log(sample["time"], observation, len(sample["context"]), sample["command"],
+                  sample["reward"])
     return track
 
 
@@ -280,7 +281,7 @@ def record_dataset(recording, path: str, episodes: slice | None = None,
         for step, observation in enumerate(observations):
             command = actions[step - 1] if step > 0 else None
             reward = rewards[step - 1] if step > 0 else None
-            track.log(offset + step * dt, observation, command, reward, context_dim)
+            track.log(offset + step * dt, observation, context_dim, command, reward)
             if perturbed is not None and step < len(perturbed) and perturbed[step] > 0 and (
                     step == 0 or perturbed[step - 1] == 0):
                 track.event("push", level="WARN")
@@ -326,8 +327,8 @@ def watch(recording, client: _native.ClientHandle, engine: str | None, session: 
                   f"{sample['identity']} on {sample['engine']}", flush=True)
         state, context, command = (np.frombuffer(sample[k], dtype="<f8")
                                    for k in ("state", "context", "command"))
-        track.log(sample["time"], np.concatenate([state, context]), command, sample["reward"],
-                  context_dim=len(context))
+        track.log(sample["time"], np.concatenate([state, context]), len(context), command,
+                  sample["reward"])
         if sample["perturbed"] and not track.pushed:
             track.event("push", level="WARN")
         track.pushed = sample["perturbed"]
