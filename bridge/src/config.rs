@@ -9,8 +9,26 @@ use zenoh::{Config, Wait};
 
 use crate::error::BridgeError;
 
-/// Where a zero-configuration engine listens and a zero-configuration client connects.
+/// Where a zero-configuration engine listens and a zero-configuration client connects,
+/// unless [`DEFAULT_ENDPOINT_VARIABLE`] names another ([`default_endpoint`]).
 pub const DEFAULT_ENDPOINT: &str = "tcp/127.0.0.1:7447";
+
+/// The environment variable that moves the zero-configuration endpoint (the Python
+/// package reads the same one), e.g. so that tests meet on a private port.
+pub const DEFAULT_ENDPOINT_VARIABLE: &str = "CIFLOW_DEFAULT_ENDPOINT";
+
+/// The zero-configuration endpoint: [`DEFAULT_ENDPOINT_VARIABLE`] if set, else
+/// [`DEFAULT_ENDPOINT`].
+pub fn default_endpoint() -> String {
+    std::env::var(DEFAULT_ENDPOINT_VARIABLE)
+        .ok()
+        .filter(|endpoint| !endpoint.is_empty())
+        .unwrap_or_else(|| DEFAULT_ENDPOINT.to_owned())
+}
+
+/// Where an engine that found the default endpoint taken listens itself: loopback, on a
+/// port the system picks.
+const JOINING_ENGINE_ENDPOINT: &str = "tcp/127.0.0.1:0";
 
 /// The link lease every ciflow process announces (Zenoh's default is 10 s): a peer that
 /// hears nothing from this process for that long drops its link, so an engine reclaims
@@ -93,8 +111,29 @@ impl NetworkOptions {
     /// listed here).
     pub fn engine_endpoints(&self) -> Vec<String> {
         match (self.listen.is_empty(), &self.config_file) {
-            (true, None) => vec![DEFAULT_ENDPOINT.to_owned()],
+            (true, None) => vec![default_endpoint()],
             _ => self.listen.clone(),
+        }
+    }
+
+    /// Whether nothing was configured: no file, mode or endpoint (what a second engine
+    /// on one machine may join the first through, see [`NetworkOptions::joining_default`]).
+    pub fn is_default(&self) -> bool {
+        self.config_file.is_none()
+            && self.mode.is_none()
+            && self.connect.is_empty()
+            && self.listen.is_empty()
+    }
+
+    /// An engine's options to join the engine (or router) already listening on the
+    /// default endpoint: connect to it as a peer, which routes the joiner's queries
+    /// for the clients of the first, and listen on a loopback port of the system's
+    /// choosing. So engines started with no options on one machine all meet.
+    pub fn joining_default(&self) -> Self {
+        Self {
+            connect: vec![default_endpoint()],
+            listen: vec![JOINING_ENGINE_ENDPOINT.to_owned()],
+            ..self.clone()
         }
     }
 
@@ -153,7 +192,7 @@ fn default_config(role: Role) -> Result<Config, BridgeError> {
         "transport/link/tx/lease",
         &LEASE_MS.to_string(),
     )?;
-    let endpoint = json_list(&[DEFAULT_ENDPOINT.to_owned()]);
+    let endpoint = json_list(&[default_endpoint()]);
     match role {
         Role::Engine => {
             insert(&mut config, "mode", &json_string(Mode::Peer.as_str()))?;
@@ -205,6 +244,27 @@ mod tests {
             ..NetworkOptions::default()
         };
         assert!(from_file.engine_endpoints().is_empty());
+    }
+
+    #[test]
+    fn a_second_default_engine_joins_the_first_and_listens_on_a_free_loopback_port() {
+        let default = NetworkOptions::default();
+        assert!(default.is_default());
+        let joining = default.joining_default();
+        assert!(!joining.is_default());
+        assert_eq!(joining.connect, [default_endpoint()]);
+        assert_eq!(joining.listen, [JOINING_ENGINE_ENDPOINT]);
+        let config = joining.to_zenoh_config(Role::Engine).unwrap();
+        assert!(config.get_json("mode").unwrap().contains("peer"));
+        for configured in [
+            NetworkOptions::endpoint(Role::Engine, "tcp/127.0.0.1:1"),
+            NetworkOptions {
+                mode: Some(Mode::Client),
+                ..NetworkOptions::default()
+            },
+        ] {
+            assert!(!configured.is_default(), "{configured:?}");
+        }
     }
 
     #[test]

@@ -37,7 +37,9 @@ pub use access::AccessPolicy;
 pub use checkpoint_policy::{CheckpointPolicy, PolicyLoadError};
 pub use ciflow_envs::registry::Kwargs;
 pub use client::{BatchStep, Client, EngineInfo, RemoteEnv, StepResult};
-pub use config::{DEFAULT_ENDPOINT, Mode, NetworkOptions, Role};
+pub use config::{
+    DEFAULT_ENDPOINT, DEFAULT_ENDPOINT_VARIABLE, Mode, NetworkOptions, Role, default_endpoint,
+};
 pub use control::{ANY_ENGINE, SessionControl, SourcedTelemetry, TelemetryStream};
 pub use episodes::{CollectError, EpisodePublisher, EpisodeSubscriber};
 pub use error::BridgeError;

@@ -84,6 +84,13 @@ impl Engine {
         &self.name
     }
 
+    /// Whether the engine found the default endpoint taken by another engine and joined
+    /// it (that engine's clients reach this one through it) instead of listening there.
+    #[getter]
+    fn joined(&self) -> bool {
+        self.lock().as_ref().is_some_and(EngineServer::joined)
+    }
+
     /// Number of sessions it hosts.
     fn session_count(&self) -> usize {
         self.lock().as_ref().map_or(0, EngineServer::session_count)

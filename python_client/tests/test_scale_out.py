@@ -83,6 +83,25 @@ def test_every_engine_serving_the_task_is_found_in_name_order(cluster):
         gym.make_vec(TASK, num_envs=4, engine=router, engines=["scale-a", "scale-a"])
 
 
+def test_engines_started_without_options_on_one_machine_all_meet(private_default_endpoint):
+    """The first `ciflow serve` listens on the default endpoint, the next ones find it
+    taken and join it: a client of the default endpoint reaches every one of them."""
+    if not BINARY.exists():
+        pytest.skip(f"{BINARY} not built (cargo build --release)")
+    engines = [start_process([str(BINARY), "serve", "--name", name])
+               for name in ("zero-a", "zero-b")]
+    try:
+        envs = gym.make_vec(TASK, num_envs=4, engines="*", obstacles=1)
+        assert envs.unwrapped.engine_names == ["zero-a", "zero-b"]
+        envs.reset(seed=0)
+        envs.step(np.zeros((4, 2)))
+        envs.close()
+    finally:
+        for engine in engines:
+            engine.terminate()
+            engine.wait(timeout=10)
+
+
 def test_an_engine_that_disappears_is_an_error_not_a_hang(cluster):
     router, engines = cluster
     envs = gym.make_vec(TASK, num_envs=6, engine=router, engines=ENGINES, obstacles=1)

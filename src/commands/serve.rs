@@ -4,7 +4,9 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
-use ciflow_bridge::{CheckpointPolicy, EngineServer, Kwargs, Policy, ServerOptions};
+use ciflow_bridge::{
+    CheckpointPolicy, EngineServer, Kwargs, Policy, ServerOptions, default_endpoint,
+};
 
 use super::network::NetworkArgs;
 use crate::parse::{parse_named_dir, parse_number_pair};
@@ -69,7 +71,12 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let policy_names: Vec<String> = options.policies.iter().map(|p| p.info().name).collect();
     let task_ids: Vec<String> = options.tasks.iter().map(|t| t.id.clone()).collect();
     let server = EngineServer::open(&network, options).context("starting the engine")?;
-    let endpoints = network.engine_endpoints();
+    let endpoints = if server.joined() {
+        // Clients of the engine already there reach this one through it.
+        vec![format!("{} (joined the engine there)", default_endpoint())]
+    } else {
+        network.engine_endpoints()
+    };
     // Tests and scripts wait for this line before connecting.
     println!(
         "ciflow engine `{}` ready on [{}] serving {}; policies: [{}]",

@@ -105,18 +105,40 @@ pub struct EngineServer {
     _clients: Subscriber<()>,
     _checkpoints: Subscriber<()>,
     _token: LivelinessToken,
+    joined: bool,
 }
 
 impl EngineServer {
     /// Opens a Zenoh session for an engine (listening on the default endpoint unless
-    /// `network` says otherwise) and starts serving.
+    /// `network` says otherwise) and starts serving. With no network options and the
+    /// default endpoint already taken (another engine on this machine), it joins that
+    /// one instead ([`NetworkOptions::joining_default`]): its clients reach both.
+    /// [`EngineServer::joined`] tells which happened.
     pub fn open(network: &NetworkOptions, options: ServerOptions) -> Result<Self, BridgeError> {
-        let session = network.open(
-            Role::Engine,
-            "open the engine's Zenoh session",
-            "is another engine already listening on that endpoint?",
-        )?;
-        Self::start(session, options)
+        let open = |network: &NetworkOptions| {
+            network.open(
+                Role::Engine,
+                "open the engine's Zenoh session",
+                "is another engine already listening on that endpoint?",
+            )
+        };
+        let (session, joined) = match open(network) {
+            Ok(session) => (session, false),
+            Err(error) if network.is_default() => match open(&network.joining_default()) {
+                Ok(session) => (session, true),
+                Err(_) => return Err(error),
+            },
+            Err(error) => return Err(error),
+        };
+        let mut server = Self::start(session, options)?;
+        server.joined = joined;
+        Ok(server)
+    }
+
+    /// Whether [`EngineServer::open`] found the default endpoint taken and joined the
+    /// engine there instead of listening on it.
+    pub fn joined(&self) -> bool {
+        self.joined
     }
 
     /// Starts serving on an open Zenoh session.
@@ -283,6 +305,7 @@ impl EngineServer {
             _clients: clients,
             _checkpoints: checkpoints,
             _token: token,
+            joined: false,
         })
     }
 

@@ -5,7 +5,7 @@ import argparse
 import sys
 import time
 
-from ciflow import _native
+from ciflow import _native, connection
 
 
 def main(argv=None) -> int:
@@ -23,7 +23,9 @@ def main(argv=None) -> int:
         config=args.config, mode=args.mode, connect=args.connect, listen=args.listen,
         name=args.name,
     )
-    endpoints = ", ".join(args.listen or [_native.DEFAULT_ENDPOINT])
+    endpoints = ", ".join(args.listen or [connection.default_endpoint()])
+    if engine.joined:
+        endpoints += " (joined the engine there)"
     print(f"ciflow engine `{engine.name}` ready on [{endpoints}]", flush=True)
     try:
         while True:
