@@ -7,8 +7,9 @@ use std::sync::Mutex;
 
 use ciflow_bridge::error::full_message;
 use ciflow_engine::flow::Policy;
-use ciflow_envs::Env;
+use ciflow_engine::robot::Robot;
 use ciflow_envs::scene::{Body, Shape};
+use ciflow_envs::{Env, EnvError};
 use ciflow_evaluation::field::{FieldConfig, field};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -17,10 +18,12 @@ use pyo3::types::PyDict;
 use crate::convert::{PyKwarg, kwargs_from_py};
 
 /// The bodies of `task` built with `kwargs` at any of its observations: the robot, the
-/// context's objects. Holds one environment of the task, never reset or stepped.
+/// context's objects. Holds one environment of the task, never reset or stepped, and the
+/// arm it drives (for tasks with one).
 #[pyclass(module = "ciflow._native")]
 pub struct Scenery {
     env: Mutex<Box<dyn Env>>,
+    robot: Option<Box<dyn Robot>>,
 }
 
 #[pymethods]
@@ -29,12 +32,48 @@ impl Scenery {
     #[pyo3(signature = (task, kwargs=None))]
     fn new(task: &str, kwargs: Option<BTreeMap<String, PyKwarg>>) -> PyResult<Self> {
         let kwargs = kwargs_from_py(kwargs);
-        let env = ciflow_envs::registry::entry(task)
-            .and_then(|entry| (entry.make_with)(&kwargs))
-            .map_err(|e| PyValueError::new_err(full_message(&e)))?;
+        let refused = |e: EnvError| PyValueError::new_err(full_message(&e));
+        let entry = ciflow_envs::registry::entry(task).map_err(refused)?;
+        let env = (entry.make_with)(&kwargs).map_err(refused)?;
+        let robot = entry
+            .robot
+            .map(|make| make(&kwargs))
+            .transpose()
+            .map_err(refused)?;
         Ok(Self {
             env: Mutex::new(env),
+            robot,
         })
+    }
+
+    /// The placement of every named frame of the task's arm (its URDF links, base and
+    /// tool) at `observation`, whose first entries are the joint positions: `{name:
+    /// (translation, quaternion xyzw)}`; empty for tasks without an arm.
+    fn frame_placements<'py>(
+        &self,
+        py: Python<'py>,
+        observation: Vec<f64>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let placements = PyDict::new(py);
+        let Some(robot) = &self.robot else {
+            return Ok(placements);
+        };
+        let q = observation.get(..robot.dof()).ok_or_else(|| {
+            PyValueError::new_err(format!(
+                "an observation of {} values holds no {} joint positions",
+                observation.len(),
+                robot.dof()
+            ))
+        })?;
+        for (index, frame) in robot.frames().iter().enumerate() {
+            let placement = robot
+                .frame_placement(q, index)
+                .map_err(|e| PyValueError::new_err(full_message(&e)))?;
+            let t = placement.translation.vector;
+            let r = placement.rotation.coords;
+            placements.set_item(&frame.name, ([t.x, t.y, t.z], [r.x, r.y, r.z, r.w]))?;
+        }
+        Ok(placements)
     }
 
     /// The bodies at `observation` (state then context): a list of dicts with `name`,

@@ -223,6 +223,56 @@ def test_a_reach_arm_is_drawn_from_its_own_urdf():
     np.testing.assert_allclose(bodies["goal"]["centre"], observation[-3:])
 
 
+def test_a_urdf_with_visuals_is_drawn_with_its_own_geometry_posed_as_rerun_poses_it(tmp_path):
+    """The UR5e with a box as every link's visual: the links' geometry is Rerun's URDF
+    loader's, and each joint's logged transform (from ciflow's forward kinematics) equals
+    the one Rerun's own URDF joint computes from the joint's angle."""
+    from rerun.urdf import UrdfTree
+
+    plain = (Path(__file__).resolve().parents[2] / "engine/tests/assets/ur5e.urdf").read_text()
+    urdf = plain.replace("<inertial>", '<visual><geometry><box size="0.05 0.05 0.05"/>'
+                                       "</geometry></visual><inertial>")
+    assert urdf.count("<visual>") >= 6
+    kwargs = {"urdf": urdf, "tool": "tool0"}
+    env = gym.make("ciflow/Reach-v0", **kwargs)
+    observation, _ = env.reset(seed=2)
+    env.close()
+    path = tmp_path / "urdf.rrd"
+    recording = view.open_recording("test", save=str(path))
+    track = view.Track(recording, "run", "ciflow/Reach-v0", kwargs)
+    track.log(0.0, observation, 3)
+    view.finish(recording)
+
+    rows, transforms = {}, {}
+    for chunk in RrdReader(str(path)).store().stream().to_chunks():
+        rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+        if chunk.entity_path.startswith("/run/world/urdf_joints/"):
+            batch = chunk.to_record_batch()
+            # Row 0's first (only) instance of each component.
+            value = {name.split(":")[-1]: batch.column(name).to_pylist()[0][0]
+                     for name in batch.schema.names if "Transform3D" in name}
+            transforms[chunk.entity_path.rsplit("/", 1)[1]] = value
+    assert any("visual_geometries" in entity for entity in rows), sorted(rows)
+    assert "/run/world/urdf_base" in rows, "the URDF's frames hang on the track's world"
+    assert not any(entity.startswith("/run/world/robot/") for entity in rows)
+
+    with open(tmp_path / "ur5e.urdf", "w") as file:
+        file.write(urdf)
+    tree = UrdfTree.from_file_path(str(tmp_path / "ur5e.urdf"))
+    movable = [j for j in tree.joints() if j.joint_type in ("revolute", "continuous")]
+    assert len(movable) == 6 and set(j.name for j in movable) <= set(transforms)
+    for joint, q in zip(movable, observation[:6]):
+        expected = {c.component_descriptor().component.split(":")[-1]:
+                    c.as_arrow_array().to_pylist()[0]
+                    for c in joint.compute_transform(float(q)).as_component_batches()}
+        logged = transforms[joint.name]
+        np.testing.assert_allclose(logged["translation"], expected["translation"], atol=1e-6)
+        # q and −q are one rotation.
+        sign = np.sign(np.dot(logged["quaternion"], expected["quaternion"]))
+        np.testing.assert_allclose(sign * np.asarray(logged["quaternion"]),
+                                   expected["quaternion"], atol=1e-6)
+
+
 def test_the_pouring_frame_of_a_known_state_matches_its_reference():
     """The reference is `assets/pouring_frame.png`, written by this test's own code from
     seed 0 (`python tests/test_view.py` rewrites it after a deliberate change)."""

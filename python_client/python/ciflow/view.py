@@ -28,7 +28,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import tempfile
 import threading
 
 import numpy as np
@@ -123,6 +125,78 @@ def log_field(recording, path: str, report: dict) -> None:
         [flat(line) for line in data["rollouts"] if line], colors=[[31, 119, 180]]))
 
 
+class UrdfModel:
+    """A task arm's own link geometry from its URDF's ``<visual>`` elements, logged once
+    by Rerun's URDF loader and posed per sample: each URDF joint's transform is the
+    parent link's placement inverted times the child link's, both from ciflow's forward
+    kinematics (``Scenery.frame_placements``), so locked joints and tools come out as the
+    task's model has them. The document arrives as text (the session holds no path), so
+    meshes load only where the URDF names them by absolute path."""
+
+    def __init__(self, recording, root: str, document: str):
+        from rerun.urdf import UrdfTree
+
+        self.recording, self.root = recording, root
+        # One path chunk: Rerun's loader takes the prefix as a single name.
+        prefix = urdf_prefix(root)
+        with tempfile.NamedTemporaryFile("w", suffix=".urdf", delete=False) as file:
+            file.write(document)
+        try:
+            self.tree = UrdfTree.from_file_path(file.name, entity_path_prefix=prefix,
+                                                frame_prefix=f"{prefix}/")
+            self.tree.log_urdf_to_recording(recording)
+        finally:
+            os.unlink(file.name)
+        self.frame_prefix = f"{prefix}/"
+        # The URDF's root link is the task's base: hang its frame tree on the track's
+        # world (an entity's implicit frame is `tf#/<entity path>`).
+        recording.log(f"{root}/world/urdf_base", _rerun().Transform3D(
+            translation=[0.0, 0.0, 0.0], parent_frame=f"tf#/{root}/world",
+            child_frame=self.frame_prefix + self.tree.root_link().name), static=True)
+
+    @classmethod
+    def of(cls, recording, root: str, document) -> "UrdfModel | None":
+        """The model of ``document`` (a URDF text), or None without one or without any
+        ``<visual>`` (the task's capsules are drawn then)."""
+        if not isinstance(document, str) or "<visual" not in document:
+            return None
+        return cls(recording, root, document)
+
+    def pose(self, placements: dict) -> None:
+        """Logs every joint of the URDF whose two links the task's arm has a frame for."""
+        for joint in self.tree.joints():
+            parent, child = placements.get(joint.parent_link), placements.get(joint.child_link)
+            if parent is None or child is None:
+                continue
+            translation, quaternion = relative_pose(parent, child)
+            self.recording.log(
+                f"{self.root}/world/urdf_joints/{joint.name}",
+                _rerun().Transform3D(translation=translation, quaternion=quaternion,
+                                     parent_frame=self.frame_prefix + joint.parent_link,
+                                     child_frame=self.frame_prefix + joint.child_link))
+
+
+def urdf_prefix(root: str) -> str:
+    """The one-chunk entity path under which the URDF model of track ``root`` lives."""
+    return "urdf-" + root.replace("/", "-")
+
+
+def relative_pose(parent, child) -> tuple[np.ndarray, np.ndarray]:
+    """``parent⁻¹ · child`` of two placements ``(translation, quaternion xyzw)``."""
+    (tp, qp), (tc, qc) = parent, child
+    inverse = np.array([-qp[0], -qp[1], -qp[2], qp[3]])
+    return _rotate(inverse, np.subtract(tc, tp)), _multiply(inverse, qc)
+
+
+def _multiply(a, b) -> np.ndarray:
+    """The quaternion product ``a b`` (xyzw)."""
+    (ax, ay, az, aw), (bx, by, bz, bw) = a, b
+    return np.array([aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz])
+
+
 def send_layout(recording, roots: list[str]) -> None:
     """Lays the viewer out for the tracks at ``roots``: the 3-D scene on the left two
     thirds, the state, command and event log of every track stacked on the right."""
@@ -133,8 +207,8 @@ def send_layout(recording, roots: list[str]) -> None:
 
     recording.send_blueprint(rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(name="scene", origin="/",
-                              contents=[f"+ /{root}/world/**" for root in roots]),
+            rrb.Spatial3DView(name="scene", origin="/", contents=[
+                f"+ /{path}/**" for root in roots for path in (f"{root}/world", urdf_prefix(root))]),
             rrb.Vertical(series("state"), series("command"),
                          rrb.TextLogView(name="events",
                                          contents=[f"+ /{root}/events" for root in roots])),
@@ -154,6 +228,7 @@ class Track:
         self.root = root.strip("/")
         self.scenery = _native.Scenery(task, kwargs or {})
         self.flow_field = flow_field
+        self.urdf = UrdfModel.of(recording, self.root, (kwargs or {}).get("urdf"))
         self.previous_context = None
         self.samples = 0
         # Series whose line names are logged (once, static).
@@ -169,7 +244,11 @@ class Track:
         observation = np.asarray(observation, dtype=float)
         rec.set_time("time", duration=float(time))
         for body in self.scenery.scene(observation.tolist()):
+            if self.urdf is not None and body["name"].startswith("robot/"):
+                continue  # the URDF's own link geometry stands in for the capsules
             rec.log(f"{self.root}/world/{body['name']}", body_archetype(body))
+        if self.urdf is not None:
+            self.urdf.pose(self.scenery.frame_placements(observation.tolist()))
         split = len(observation) - context_dim
         state, context = observation[:split], observation[split:]
         series = [("state", state), ("context", context)]
