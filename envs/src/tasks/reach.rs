@@ -54,6 +54,9 @@
 //! ## Version history
 //! v0: initial version.
 
+use std::collections::BTreeMap;
+use std::sync::{Arc, LazyLock, Mutex};
+
 use ciflow_engine::math::Vector3;
 use ciflow_engine::model::LockedJoint;
 use ciflow_engine::robot::{PANDA_HOME, Robot, SerialChain, UrdfOptions, panda};
@@ -118,8 +121,9 @@ const MAX_EPISODE_STEPS: u32 = 400;
 const GOAL_TRIES: usize = 1000;
 
 /// The arm of the construction arguments and its nominal posture.
+#[derive(Clone)]
 pub struct Arm {
-    pub robot: Box<dyn Robot>,
+    pub robot: SerialChain,
     pub home: Vec<f64>,
 }
 
@@ -139,7 +143,7 @@ pub fn arm(kwargs: &Kwargs) -> Result<Arm, EnvError> {
     let keys: Vec<_> = TEXT_ARGUMENTS.iter().map(|a| a.key).collect();
     reject_unknown_options(kwargs, &keys)?;
     let text = |name| kwargs::text(kwargs, name);
-    let (robot, default_home): (Box<dyn Robot>, Vec<f64>) = match text(URDF_ARGUMENT)? {
+    let (robot, default_home): (SerialChain, Vec<f64>) = match text(URDF_ARGUMENT)? {
         None => {
             if let Some(name) = [TOOL_ARGUMENT, LOCK_ARGUMENT, ARMATURE_ARGUMENT]
                 .into_iter()
@@ -151,7 +155,7 @@ pub fn arm(kwargs: &Kwargs) -> Result<Arm, EnvError> {
                         .into(),
                 });
             }
-            (Box::new(panda()), PANDA_HOME.to_vec())
+            (panda(), PANDA_HOME.to_vec())
         }
         Some(urdf) => {
             let locked = match text(LOCK_ARGUMENT)? {
@@ -187,7 +191,7 @@ pub fn arm(kwargs: &Kwargs) -> Result<Arm, EnvError> {
                     if m.is_finite() { m } else { 0.0 }
                 })
                 .collect();
-            (Box::new(chain), middle)
+            (chain, middle)
         }
     };
     let home = match text(HOME_ARGUMENT)? {
@@ -214,7 +218,55 @@ pub fn arm(kwargs: &Kwargs) -> Result<Arm, EnvError> {
 
 /// The arm [`Reach`] drives with these arguments (the registry's `robot`).
 pub fn robot(kwargs: &Kwargs) -> Result<Box<dyn Robot>, EnvError> {
-    Ok(arm(kwargs)?.robot)
+    Ok(Box::new(prototype(kwargs)?.arm.robot.clone()))
+}
+
+/// What every environment built with the same arguments shares: the parsed arm and the
+/// context space its sampled goals span.
+struct Prototype {
+    arm: Arm,
+    context_space: BoxSpace,
+}
+
+/// Prototypes by their arguments (as JSON), so that a session of many environments parses
+/// its URDF and samples its goal box once, not once per environment.
+static PROTOTYPES: LazyLock<Mutex<BTreeMap<String, Arc<Prototype>>>> =
+    LazyLock::new(Default::default);
+/// Argument sets remembered at once; past it the memory starts over.
+const REMEMBERED_PROTOTYPES: usize = 16;
+
+/// The prototype of `kwargs`, built on first use.
+fn prototype(kwargs: &Kwargs) -> Result<Arc<Prototype>, EnvError> {
+    // Arguments that do not serialise (none do today) are simply not remembered.
+    let key = serde_json::to_string(&kwargs::to_json(kwargs)).ok();
+    let known = PROTOTYPES.lock().unwrap_or_else(|p| p.into_inner());
+    if let Some(prototype) = key.as_ref().and_then(|key| known.get(key)) {
+        return Ok(Arc::clone(prototype));
+    }
+    drop(known);
+    let arm = arm(kwargs)?;
+    let mut sampler = ChaCha8Rng::seed_from_u64(0);
+    let mut low = Vector3::repeat(f64::INFINITY);
+    let mut high = Vector3::repeat(f64::NEG_INFINITY);
+    for _ in 0..GOAL_SAMPLES {
+        let goal = sampled_goal(&arm.robot, &arm.home, &mut sampler)?;
+        low = low.inf(&goal);
+        high = high.sup(&goal);
+    }
+    let context_space = BoxSpace::new(
+        (low.add_scalar(-CONTEXT_MARGIN)).as_slice().to_vec(),
+        (high.add_scalar(CONTEXT_MARGIN)).as_slice().to_vec(),
+        Dtype::Float64,
+    );
+    let built = Arc::new(Prototype { arm, context_space });
+    if let Some(key) = key {
+        let mut known = PROTOTYPES.lock().unwrap_or_else(|p| p.into_inner());
+        if known.len() >= REMEMBERED_PROTOTYPES {
+            known.clear();
+        }
+        known.insert(key, Arc::clone(&built));
+    }
+    Ok(built)
 }
 
 /// The reach environment (see the module docs).
@@ -231,7 +283,9 @@ pub struct Reach {
 
 impl Reach {
     pub fn new(kwargs: &Kwargs) -> Result<Self, EnvError> {
-        let Arm { robot, home } = arm(kwargs)?;
+        let prototype = prototype(kwargs)?;
+        let (robot, home) = (prototype.arm.robot.clone(), prototype.arm.home.clone());
+        let context_space = prototype.context_space.clone();
         let limits = robot.limits().clone();
         let n = robot.dof();
         let config = SimConfig {
@@ -239,19 +293,6 @@ impl Reach {
             control_dt: 0.01,
             ..SimConfig::default()
         };
-        let mut sampler = ChaCha8Rng::seed_from_u64(0);
-        let mut low = Vector3::repeat(f64::INFINITY);
-        let mut high = Vector3::repeat(f64::NEG_INFINITY);
-        for _ in 0..GOAL_SAMPLES {
-            let goal = sampled_goal(robot.as_ref(), &home, &mut sampler)?;
-            low = low.inf(&goal);
-            high = high.sup(&goal);
-        }
-        let context_space = BoxSpace::new(
-            (low.add_scalar(-CONTEXT_MARGIN)).as_slice().to_vec(),
-            (high.add_scalar(CONTEXT_MARGIN)).as_slice().to_vec(),
-            Dtype::Float64,
-        );
         // Velocities can exceed their nominal limits under pushes.
         let observation_space = BoxSpace::new(
             [
@@ -281,7 +322,7 @@ impl Reach {
             physics_dt: config.physics_dt,
             max_episode_steps: MAX_EPISODE_STEPS,
         };
-        let simulator = Simulator::new(robot, config).map_err(EnvError::Simulation)?;
+        let simulator = Simulator::new(Box::new(robot), config).map_err(EnvError::Simulation)?;
         let goal = Vector3::from_column_slice(&spec.context_space.low);
         Ok(Self {
             spec,
