@@ -258,12 +258,17 @@ def main(argv=None) -> int:
     print(f"{len(samples)} samples, t = {last['time']:.2f} s, episode "
           f"{'ended' if last['episode_done'] else 'not ended'}, final state {last['state']}")
 
-    if task is None:
+    status = 0
+    if task is None and (args.record or args.rrd):
         # An attached session: its engine says what it is.
         first = samples[0]
-        described = connection.client(args.engine, args.zenoh_config).describe(
-            first["engine"], first["identity"], first["session"])
-        task, kwargs = described["task"], described["kwargs"]
+        try:
+            described = connection.client(args.engine, args.zenoh_config).describe(
+                first["engine"], first["identity"], first["session"])
+            task, kwargs = described["task"], described["kwargs"]
+        except (ciflow.CiflowError, ciflow.EngineUnreachable) as error:
+            print(f"the engine did not say what session {first['session']} is ({error}): "
+                  "the record names no task", file=sys.stderr)
     if args.record:
         with open(args.record, "w") as file:
             json.dump({
@@ -275,7 +280,10 @@ def main(argv=None) -> int:
             }, file)
     if args.plot:
         plot(samples, events, args.plot)
-    if args.rrd:
+    if args.rrd and task is None:
+        print(f"--rrd {args.rrd} not written: the session's task is unknown", file=sys.stderr)
+        status = 1
+    elif args.rrd:
         from ciflow import view
 
         recording = view.open_recording("ciflow.perturb", save=args.rrd)
@@ -285,7 +293,7 @@ def main(argv=None) -> int:
         control.close()
     else:
         env.close()
-    return 0
+    return status
 
 
 if __name__ == "__main__":

@@ -451,8 +451,9 @@ def main(argv=None) -> int:
     elif args.record:
         with open(args.record) as file:
             record = json.load(file)
-        if "task" not in record:
-            parser.error(f"{args.record} names no task (recorded by an older ciflow.perturb)")
+        if not record.get("task"):
+            parser.error(f"{args.record} names no task (an older ciflow.perturb, or one "
+                         "whose engine did not say)")
         samples = [{k: np.asarray(v) if isinstance(v, list) else v for k, v in s.items()}
                    for s in record["samples"]]
         track = record_run(recording, record["task"], record.get("kwargs", {}), samples,
