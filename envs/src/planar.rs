@@ -272,14 +272,8 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
     /// The point mass as a ball on the plane `z = 0`, and the task's context bodies.
     fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {
         let (state, context) = self.spec.split_observation(observation)?;
-        let point = Body::new(
-            "point",
-            Shape::Sphere {
-                centre: planar(&Vector2::new(state[0], state[1])),
-                radius: self.point_radius(),
-            },
-            BLACK,
-        );
+        let centre = planar(&Vector2::new(state[0], state[1]));
+        let point = Body::new("point", Shape::sphere(centre, self.point_radius()), BLACK);
         let mut bodies = self.task.context_bodies(context);
         bodies.push(point);
         Ok(Scene { bodies })

@@ -95,17 +95,24 @@ pub fn planar(p: &nalgebra::Vector2<f64>) -> Vector3 {
     Vector3::new(p.x, p.y, 0.0)
 }
 
-/// A cylinder with its base centre at `from` and its top centre at `to`.
-pub fn cylinder_between(from: &Vector3, to: &Vector3, radius: f64) -> Shape {
+/// The pose at `from` whose `z` axis points at `to`, and the distance between them: how
+/// a cylinder or a capsule from `from` to `to` is placed.
+pub fn axis_pose(from: &Vector3, to: &Vector3) -> (Isometry3, f64) {
     let axis = to - from;
     let rotation = UnitQuaternion::rotation_between(&Vector3::z(), &axis).unwrap_or_else(|| {
         // `axis` points straight down (or has no length): turn half a circle about x.
         UnitQuaternion::from_axis_angle(&Unit::new_normalize(Vector3::x()), std::f64::consts::PI)
     });
+    (Isometry3::from_parts((*from).into(), rotation), axis.norm())
+}
+
+/// A cylinder with its base centre at `from` and its top centre at `to`.
+pub fn cylinder_between(from: &Vector3, to: &Vector3, radius: f64) -> Shape {
+    let (pose, height) = axis_pose(from, to);
     Shape::Cylinder {
-        pose: Isometry3::from_parts((*from).into(), rotation),
+        pose,
         radius,
-        height: axis.norm(),
+        height,
     }
 }
 

@@ -8,7 +8,7 @@ use std::sync::Mutex;
 use ciflow_bridge::error::full_message;
 use ciflow_engine::flow::Policy;
 use ciflow_engine::robot::Robot;
-use ciflow_envs::scene::{Body, Shape};
+use ciflow_envs::scene::{Body, Shape, axis_pose};
 use ciflow_envs::{Env, EnvError};
 use ciflow_evaluation::field::{FieldConfig, field};
 use pyo3::exceptions::PyValueError;
@@ -78,7 +78,8 @@ impl Scenery {
 
     /// The bodies at `observation` (state then context): a list of dicts with `name`,
     /// `color` (RGB 0–255), `kind` and the shape's fields — `capsule`: `from`, `to`,
-    /// `radius`; `cylinder`: `translation` (base centre), `quaternion` (xyzw; the axis is
+    /// `radius`, and the same as `translation` (at `from`), `quaternion` (its `z` toward
+    /// `to`) and `length`; `cylinder`: `translation` (base centre), `quaternion` (xyzw; the axis is
     /// its `z`), `radius`, `height`; `cuboid`: `translation` (centre), `quaternion`,
     /// `half_extents`; `sphere`: `centre`, `radius`; `curve`: `points`, `closed`, `radius`.
     fn scene<'py>(
@@ -174,6 +175,9 @@ fn body_to_dict<'py>(py: Python<'py>, body: &Body) -> PyResult<Bound<'py, PyDict
             dict.set_item("from", xyz(from))?;
             dict.set_item("to", xyz(to))?;
             dict.set_item("radius", radius)?;
+            let (placement, length) = axis_pose(from, to);
+            pose(&placement)?;
+            dict.set_item("length", length)?;
         }
         Shape::Cylinder {
             pose: placement,

@@ -292,9 +292,8 @@ pub struct DescribeRequest {
     pub v: u16,
 }
 
-/// Reply to `…/describe`.
-/// The reply names the task and the construction arguments the session was made with,
-/// so that a viewer can draw its telemetry.
+/// Reply to `…/describe`: the task and the construction arguments the session was made
+/// with, so that a viewer can draw its telemetry.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DescribeReply {
     pub v: u16,

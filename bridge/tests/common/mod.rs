@@ -130,10 +130,7 @@ impl Env for Fixture {
     /// A ball at `x` on the line.
     fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {
         let (state, _) = self.spec.split_observation(observation)?;
-        let ball = Shape::Sphere {
-            centre: [state[0], 0.0, 0.0].into(),
-            radius: 0.1,
-        };
+        let ball = Shape::sphere([state[0], 0.0, 0.0].into(), 0.1);
         Ok(Scene {
             bodies: vec![Body::new("ball", ball, [0, 0, 0])],
         })

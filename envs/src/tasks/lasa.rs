@@ -386,11 +386,7 @@ impl PlanarTask for Lasa {
                 Body::new(format!("demonstrations/{i}"), curve, GREY)
             })
             .collect();
-        let ball = Shape::Sphere {
-            centre: planar(&goal),
-            radius: 2.0,
-        };
-        bodies.push(Body::new("goal", ball, GREEN));
+        bodies.push(Body::new("goal", Shape::sphere(planar(&goal), 2.0), GREEN));
         bodies
     }
 }

@@ -333,11 +333,11 @@ impl PlanarTask for ObstacleAvoidance {
                 )
             })
             .collect();
-        let target = Shape::Sphere {
-            centre: planar(&target),
-            radius: 0.03,
-        };
-        bodies.push(Body::new("target", target, GREEN));
+        bodies.push(Body::new(
+            "target",
+            Shape::sphere(planar(&target), 0.03),
+            GREEN,
+        ));
         bodies
     }
 }

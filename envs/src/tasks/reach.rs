@@ -521,18 +521,10 @@ impl Env for Reach {
     fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {
         let (state, goal) = self.spec.split_observation(observation)?;
         let q = &state[..self.robot().dof()];
-        let tool = self
-            .robot()
-            .frame_placement(q, self.robot().end_effector())
-            .map_err(|e| EnvError::Simulation(e.into()))?;
+        let tool = Shape::sphere(tool_position(self.robot(), q)?, 0.015);
+        let goal = Shape::sphere(Vector3::from_column_slice(goal), 0.02);
         let mut bodies = scene::arm_links(self.robot(), q, LINK_RADIUS, ARM_COLOR)?;
-        let ball = |centre: Vector3, radius: f64| Shape::Sphere { centre, radius };
-        bodies.push(Body::new("tool", ball(tool.translation.vector, 0.015), RED));
-        bodies.push(Body::new(
-            "goal",
-            ball(Vector3::from_column_slice(goal), 0.02),
-            GREEN,
-        ));
+        bodies.extend([Body::new("tool", tool, RED), Body::new("goal", goal, GREEN)]);
         Ok(Scene { bodies })
     }
 }

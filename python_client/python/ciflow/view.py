@@ -50,30 +50,15 @@ def _rerun():
     return rerun
 
 
-def _quaternion_from_z(direction: np.ndarray) -> list[float]:
-    """The rotation (xyzw) that turns ``+z`` onto ``direction``."""
-    length = np.linalg.norm(direction)
-    if length < 1e-12:
-        return [0.0, 0.0, 0.0, 1.0]
-    d = direction / length
-    axis = np.cross([0.0, 0.0, 1.0], d)
-    sin, cos = np.linalg.norm(axis), d[2]
-    if sin < 1e-12:
-        return [0.0, 0.0, 0.0, 1.0] if cos > 0 else [1.0, 0.0, 0.0, 0.0]
-    half = np.arctan2(sin, cos) / 2.0
-    return [*(axis / sin * np.sin(half)), float(np.cos(half))]
-
-
 def body_archetype(body: dict):
     """The Rerun archetype drawing one body of ``_native.Scenery.scene``."""
     rr = _rerun()
     color = [body["color"]]
     kind = body["kind"]
     if kind == "capsule":
-        start, end = np.asarray(body["from"]), np.asarray(body["to"])
-        return rr.Capsules3D(lengths=[float(np.linalg.norm(end - start))], radii=[body["radius"]],
-                             translations=[start], quaternions=[_quaternion_from_z(end - start)],
-                             colors=color, fill_mode="solid")
+        return rr.Capsules3D(lengths=[body["length"]], radii=[body["radius"]],
+                             translations=[body["translation"]],
+                             quaternions=[body["quaternion"]], colors=color, fill_mode="solid")
     if kind == "cylinder":
         # ciflow's cylinder stands on its base; Rerun's is centred.
         axis = _rotate(body["quaternion"], [0.0, 0.0, 1.0])
