@@ -8,20 +8,23 @@
 # Pinocchio side: bench/pinocchio/timing.cpp against the headers of the PyPI `pin` wheel
 # (site-packages/cmeel.prefix, Eigen from `cmeel-eigen`), all templates instantiated in
 # the program itself with PIN_CXXFLAGS (default `-O3 -DNDEBUG`, the flags of Pinocchio's
-# own CMake Release benchmarks, plus `-march=native`). No Pinocchio library is linked, so
+# own CMake Release benchmarks, plus `-march=$MARCH`). Both sides compile for the same
+# CPU: the Rust side is built with `-C target-cpu=$MARCH` (MARCH, default `native`) into
+# its own target directory, so the workspace's portable build is left alone. No Pinocchio library is linked, so
 # no ABI is mixed; the model comes from Pinocchio's URDF parser via Python
 # (bench/pinocchio/compare.py). Compiling those templates takes ~3 CPU-minutes once; the
 # binary is kept in $CARGO_TARGET_DIR/pinocchio-bench and rebuilt only when the source,
 # the flags or the Pinocchio version change.
 #
-# Environment: CARGO_TARGET_DIR, PYTHON, CXX, PIN_CXXFLAGS, URDF; ROUNDS, BATCH_MS,
+# Environment: CARGO_TARGET_DIR, PYTHON, CXX, MARCH, PIN_CXXFLAGS, URDF; ROUNDS, BATCH_MS,
 # STATES, SEED (see compare.py).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$PWD/target}
 PYTHON=${PYTHON:-$PWD/.venv/bin/python}
 CXX=${CXX:-g++}
-PIN_CXXFLAGS=${PIN_CXXFLAGS:--O3 -DNDEBUG -march=native}
+MARCH=${MARCH:-native}
+PIN_CXXFLAGS=${PIN_CXXFLAGS:--O3 -DNDEBUG -march=$MARCH}
 URDF=${URDF:-$PWD/engine/assets/panda.urdf}
 
 prefix=$("$PYTHON" -m cmeel cmake 2>/dev/null)
@@ -45,9 +48,11 @@ if [[ ! -x $pinocchio_bin || "$(cat "$build/stamp" 2>/dev/null)" != "$stamp" ]];
   "${compile[@]}" 2> "$build/compile.log" || { cat "$build/compile.log" >&2; exit 1; }
   echo "$stamp" > "$build/stamp"
 fi
-cargo build --release --quiet -p ciflow-engine --example dynamics_timing
+rust_target=$CARGO_TARGET_DIR/cpu-$MARCH
+RUSTFLAGS="-C target-cpu=$MARCH" CARGO_TARGET_DIR=$rust_target \
+  cargo build --release --quiet -p ciflow-engine --example dynamics_timing
 
 workdir=$(mktemp -d)
 trap 'rm -rf "$workdir"' EXIT
-echo "== ciflow (Rust, release) vs Pinocchio $pin_version ($CXX $PIN_CXXFLAGS) on $(nproc) CPUs: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
-"$PYTHON" bench/pinocchio/compare.py "$URDF" "$CARGO_TARGET_DIR/release/examples/dynamics_timing" "$pinocchio_bin" "$workdir"
+echo "== ciflow (Rust, release, -C target-cpu=$MARCH) vs Pinocchio $pin_version ($CXX $PIN_CXXFLAGS) on $(nproc) CPUs: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
+"$PYTHON" bench/pinocchio/compare.py "$URDF" "$rust_target/release/examples/dynamics_timing" "$pinocchio_bin" "$workdir"

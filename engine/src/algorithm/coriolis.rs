@@ -16,6 +16,7 @@
 //! Then `C q̇` is the velocity product of the RNEA and `Ṁ = C + Cᵀ`. Every product is a
 //! structured spatial operation (no 6 × 6 matrix is formed).
 
+use super::kinematics::place_joints;
 use super::{DynamicsError, check_vector};
 use crate::math::{DMatrix, Real};
 use crate::model::{Data, Model};
@@ -31,10 +32,11 @@ pub fn coriolis_matrix<'d>(
     check_vector("q", q, model.nv())?;
     check_vector("qd", qd, model.nv())?;
     let n = model.nv();
+    place_joints(model, data, q);
     let mut o_m_i = Se3::identity();
     let mut v = Motion::zero();
     for (i, body) in model.bodies().iter().enumerate() {
-        o_m_i = o_m_i * body.joint.transform(q[i]);
+        o_m_i = o_m_i * data.li_m_i[i];
         let s = o_m_i.act_motion(&body.joint.motion_subspace());
         v += s * qd[i];
         let inertia = o_m_i.act_inertia(&body.inertia);

@@ -1,22 +1,30 @@
 //! The composite rigid-body algorithm (CRBA): the joint-space inertia matrix `M(q)`.
-//! Featherstone (2008), Table 6.2: `Mᵢⱼ = Sⱼᵀ ʲXᵢ* Iᶜᵢ Sᵢ` for `j ⪯ i`, with the composite
-//! inertia `Iᶜᵢ = Iᵢ + Σ_children Iᶜ`; the joints' armature adds `diag(I_a)`
+//! Featherstone (2008), §6.2, in world coordinates (as Pinocchio's world convention):
+//! with `⁰Mᵢ` the placement of body `i`, its motion subspace `Sᵢ` and inertia `Iᵢ` mapped
+//! to the base frame, the composite inertia `Iᶜᵢ = Σ_{k ⪰ i} Iₖ` and
+//! `Mⱼᵢ = Sⱼᵀ Iᶜᵢ Sᵢ` for `j ⪯ i`; the joints' armature adds `diag(I_a)`
 //! ([`Model::armature`](crate::model::Model::armature)).
+//!
+//! Why world coordinates: the body-frame form carries `Iᶜᵢ Sᵢ` to every ancestor through
+//! a chain of dependent force transforms (`n(n−1)/2` of them); here every `Mⱼᵢ` is an
+//! independent 6-vector dot product and the composites are plain sums, at the price of
+//! one inertia transform per body (the body-frame form needs `n − 1`).
 
+use super::kinematics::place_joints;
 use super::{DynamicsError, check_vector};
 use crate::math::{DMatrix, Real};
 use crate::model::{Data, Model};
+use crate::spatial::Se3;
 
-/// The joint-space inertia matrix `M(q)` (n × n, both triangles filled) into `data.m`.
+/// The joint-space inertia matrix `M(q)` (n × n, both triangles filled) into `data.m`;
+/// also leaves `ᵖMᵢ` in `data.li_m_i`.
 pub fn crba<'d>(
     model: &Model,
     data: &'d mut Data,
     q: &[Real],
 ) -> Result<&'d DMatrix, DynamicsError> {
     check_vector("q", q, model.nv())?;
-    for (i, body) in model.bodies().iter().enumerate() {
-        data.li_m_i[i] = body.joint.transform(q[i]);
-    }
+    place_joints(model, data, q);
     composite_rigid_body(model, data);
     Ok(&data.m)
 }
@@ -25,21 +33,28 @@ pub fn crba<'d>(
 /// dynamics reuses those of the RNEA).
 pub(crate) fn composite_rigid_body(model: &Model, data: &mut Data) {
     let bodies = model.bodies();
-    for (ycrb, body) in data.ycrb.iter_mut().zip(bodies) {
-        *ycrb = body.inertia;
+    let n = bodies.len();
+    let mut o_m_i = Se3::identity();
+    for ((body, li_m_i), (s_world, ic_world)) in bodies
+        .iter()
+        .zip(&data.li_m_i)
+        .zip(data.s_world.iter_mut().zip(data.ic_world.iter_mut()))
+    {
+        o_m_i = o_m_i * *li_m_i;
+        *s_world = o_m_i.act_motion(&body.joint.motion_subspace());
+        *ic_world = o_m_i.act_inertia(&body.inertia);
     }
-    for i in (0..bodies.len()).rev() {
-        let mut force = data.ycrb[i] * bodies[i].joint.motion_subspace();
-        data.m[(i, i)] = bodies[i].joint.project(&force) + model.armature()[i];
-        for j in (0..i).rev() {
-            force = data.li_m_i[j + 1].act_force(&force);
-            let m_ij = bodies[j].joint.project(&force);
-            data.m[(i, j)] = m_ij;
-            data.m[(j, i)] = m_ij;
-        }
-        if i > 0 {
-            let composite = data.li_m_i[i].act_inertia(&data.ycrb[i]);
-            data.ycrb[i - 1] += composite;
+    for i in (1..n).rev() {
+        let child = data.ic_world[i];
+        data.ic_world[i - 1] += child;
+    }
+    for i in 0..n {
+        let force = data.ic_world[i] * data.s_world[i];
+        data.m[(i, i)] = force.dot(&data.s_world[i]) + model.armature()[i];
+        for j in 0..i {
+            let m_ji = force.dot(&data.s_world[j]);
+            data.m[(j, i)] = m_ji;
+            data.m[(i, j)] = m_ji;
         }
     }
 }

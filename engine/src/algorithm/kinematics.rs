@@ -1,7 +1,7 @@
 //! Forward kinematics.
 
 use super::{DynamicsError, check_vector};
-use crate::math::Real;
+use crate::math::{Real, sin_cos_slice};
 use crate::model::{Data, Model};
 use crate::spatial::Se3;
 
@@ -9,14 +9,25 @@ use crate::spatial::Se3;
 /// `⁰Mᵢ = ⁰Mₚ ᵖMᵢ` into `data.o_m_i`.
 pub fn forward_kinematics(model: &Model, data: &mut Data, q: &[Real]) -> Result<(), DynamicsError> {
     check_vector("q", q, model.nv())?;
+    place_joints(model, data, q);
     let mut o_m_i = Se3::identity();
-    for (i, body) in model.bodies().iter().enumerate() {
-        let li_m_i = body.joint.transform(q[i]);
-        o_m_i = o_m_i * li_m_i;
-        data.li_m_i[i] = li_m_i;
-        data.o_m_i[i] = o_m_i;
+    for (li_m_i, o_m) in data.li_m_i.iter().zip(&mut data.o_m_i) {
+        o_m_i = o_m_i * *li_m_i;
+        *o_m = o_m_i;
     }
     Ok(())
+}
+
+/// `ᵖMᵢ(qᵢ)` of every joint into `data.li_m_i`, the first step of every algorithm; the
+/// sines and cosines of all joint angles are taken together ([`sin_cos_slice`]). `q` is
+/// already checked.
+pub(crate) fn place_joints(model: &Model, data: &mut Data, q: &[Real]) {
+    sin_cos_slice(q, &mut data.sin_q, &mut data.cos_q);
+    for (i, body) in model.bodies().iter().enumerate() {
+        data.li_m_i[i] = body
+            .joint
+            .transform_from(q[i], data.sin_q[i], data.cos_q[i]);
+    }
 }
 
 /// The placement `⁰M_f(q)` of frame `frame` in the base frame, walking the chain only up

@@ -1,7 +1,7 @@
 //! The mutable workspace of the algorithms.
 
 use super::Model;
-use crate::math::{DMatrix, DVector};
+use crate::math::{DMatrix, DVector, Real, Vector3};
 use crate::spatial::{Force, Inertia, Motion, Se3};
 
 /// Per-body buffers and results, allocated once by [`Data::new`] so that the algorithms
@@ -10,6 +10,9 @@ use crate::spatial::{Force, Inertia, Motion, Se3};
 /// dynamics).
 #[derive(Clone, Debug)]
 pub struct Data {
+    /// `sin qᵢ`, `cos qᵢ`.
+    pub(crate) sin_q: Vec<Real>,
+    pub(crate) cos_q: Vec<Real>,
     /// `ᵖMᵢ`: body `i` in its parent.
     pub(crate) li_m_i: Vec<Se3>,
     /// `⁰Mᵢ`: body `i` in the base frame.
@@ -17,10 +20,11 @@ pub struct Data {
     pub(crate) v: Vec<Motion>,
     pub(crate) a: Vec<Motion>,
     pub(crate) f: Vec<Force>,
-    /// Composite rigid-body inertias (CRBA), body frame.
-    pub(crate) ycrb: Vec<Inertia>,
-    /// World-frame quantities of the Coriolis algorithm: `S`, `Ṡ`, and the composites of
-    /// the inertias `I`, their rates `İ` and the momenta `I v`.
+    /// Each body's first moment of mass `mₖ cₖ`, base frame (gravity).
+    pub(crate) first_moments: Vec<Vector3>,
+    /// World-frame quantities of the Coriolis algorithm (the CRBA shares `S` and `Iᶜ`):
+    /// `S`, `Ṡ`, and the composites of the inertias `I`, their rates `İ` and the momenta
+    /// `I v`.
     pub(crate) s_world: Vec<Motion>,
     pub(crate) s_dot_world: Vec<Motion>,
     pub(crate) ic_world: Vec<Inertia>,
@@ -40,12 +44,14 @@ impl Data {
     pub fn new(model: &Model) -> Self {
         let n = model.nv();
         Self {
+            sin_q: vec![0.0; n],
+            cos_q: vec![1.0; n],
             li_m_i: vec![Se3::identity(); n],
             o_m_i: vec![Se3::identity(); n],
             v: vec![Motion::zero(); n],
             a: vec![Motion::zero(); n],
             f: vec![Force::zero(); n],
-            ycrb: vec![Inertia::zero(); n],
+            first_moments: vec![Vector3::zeros(); n],
             s_world: vec![Motion::zero(); n],
             s_dot_world: vec![Motion::zero(); n],
             ic_world: vec![Inertia::zero(); n],

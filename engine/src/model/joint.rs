@@ -1,7 +1,7 @@
 //! One-degree-of-freedom joints: revolute (an angle about an axis) and prismatic (a
 //! displacement along it).
 
-use crate::math::{Matrix3, Real, Vector3};
+use crate::math::{Matrix3, Real, Vector3, sin_cos};
 use crate::spatial::{Force, Motion, Se3};
 
 /// How a joint moves its child along its unit axis.
@@ -46,6 +46,15 @@ impl Joint {
 
     /// The placement `ᵖMᵢ(q)` of the child body in its parent.
     pub fn transform(&self, q: Real) -> Se3 {
+        let (sin, cos) = sin_cos(q);
+        self.transform_from(q, sin, cos)
+    }
+
+    /// [`transform`](Self::transform) with `sin q` and `cos q` already computed (a
+    /// prismatic joint ignores them), so that the algorithms can take the sines and
+    /// cosines of all joints at once.
+    #[inline(always)]
+    pub(crate) fn transform_from(&self, q: Real, sin: Real, cos: Real) -> Se3 {
         let placement = &self.placement;
         match self.kind {
             JointKind::Prismatic => Se3::new(
@@ -54,18 +63,17 @@ impl Joint {
             ),
             JointKind::Revolute if self.axis == Vector3::z() => {
                 // The common case (DH chains, most URDFs): `R Rz(q)` mixes two columns.
-                let (s, c) = q.sin_cos();
                 let r = &placement.rotation;
                 let (x, y) = (r.column(0), r.column(1));
                 let rotation = Matrix3::from_columns(&[
-                    x * c + y * s,
-                    y * c - x * s,
+                    x * cos + y * sin,
+                    y * cos - x * sin,
                     r.column(2).into_owned(),
                 ]);
                 Se3::new(rotation, placement.translation)
             }
             JointKind::Revolute => Se3::new(
-                placement.rotation * Se3::rotation_about(&self.axis, q),
+                placement.rotation * Se3::rotation_about_from(&self.axis, sin, cos),
                 placement.translation,
             ),
         }

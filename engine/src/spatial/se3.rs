@@ -5,7 +5,7 @@ use std::ops::Mul;
 use super::{Force, Inertia, Motion};
 use nalgebra::Rotation3;
 
-use crate::math::{Isometry3, Matrix3, Real, UnitQuaternion, Vector3, skew};
+use crate::math::{Isometry3, Matrix3, Real, UnitQuaternion, Vector3, sin_cos, skew};
 
 /// A rigid transform `ᵃMᵦ = (R, p)` taking coordinates in frame `b` to frame `a`:
 /// `xₐ = R x_b + p`. `act_*` maps a quantity from `b` to `a`, `act_inv_*` back.
@@ -44,9 +44,14 @@ impl Se3 {
     /// Rotation by `angle` about the unit `axis` (Rodrigues:
     /// `R = 1 + sin θ [a]× + (1 − cos θ) [a]×²`).
     pub fn rotation_about(axis: &Vector3, angle: Real) -> Matrix3 {
-        let (s, c) = angle.sin_cos();
+        let (sin, cos) = sin_cos(angle);
+        Self::rotation_about_from(axis, sin, cos)
+    }
+
+    /// [`rotation_about`](Self::rotation_about) from the angle's sine and cosine.
+    pub fn rotation_about_from(axis: &Vector3, sin: Real, cos: Real) -> Matrix3 {
         let k = skew(axis);
-        Matrix3::identity() + k * s + k * k * (1.0 - c)
+        Matrix3::identity() + k * sin + k * k * (1.0 - cos)
     }
 
     pub fn inverse(&self) -> Se3 {
@@ -99,6 +104,7 @@ impl Se3 {
     /// `I_o' = R I_o Rᵀ − ([R h]×[p]× + [p]×[R h]× + m [p]×²)`, which with
     /// `[a]×[b]× = b aᵀ − (a · b) 1` and `u = R h + ½ m p` is
     /// `I_o' = R I_o Rᵀ − (p uᵀ + u pᵀ) + 2 (u · p) 1`.
+    #[inline(always)]
     pub fn act_inertia(&self, inertia: &Inertia) -> Inertia {
         let p = &self.translation;
         let rh = self.rotation * inertia.first_moment;
