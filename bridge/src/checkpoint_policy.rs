@@ -181,6 +181,10 @@ impl Policy for CheckpointPolicy {
         self.kwargs.clone()
     }
 
+    fn model(&self) -> Option<&Model> {
+        Some(&self.model)
+    }
+
     fn act_into(&self, observation: &[f64], action: &mut [f64]) -> Result<(), PolicyError> {
         let mut actor = self.actor()?;
         let result = actor.act(observation, action).map_err(PolicyError::from);

@@ -5,12 +5,14 @@
 //! waiting for its one reply.
 
 use std::collections::BTreeMap;
+use std::ops::Range;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use ciflow_envs::registry::Kwargs;
 use ciflow_envs::{EnvSpec, Info, ResetOptions};
+use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use zenoh::Wait;
@@ -27,9 +29,10 @@ use crate::limits::{Limits, Usage};
 use crate::protocol::keys::{self, SessionOp};
 use crate::protocol::{
     AckReply, ActRequest, ActionReply, BatchResetReply, BatchStepReply, BatchStepRequest,
-    DescribeReply, DescribeRequest, F64s, FrameHeader, LimitsReply, LimitsRequest, MakeReply,
-    MakeRequest, PROTOCOL_VERSION, PolicyInfo, RenderReply, RenderRequest, ResetReply,
-    ResetRequest, StepReply, StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply, encode,
+    DescribeReply, DescribeRequest, EvaluateReply, EvaluateRequest, F64s, FrameHeader, LimitsReply,
+    LimitsRequest, MakeReply, MakeRequest, PROTOCOL_VERSION, PolicyInfo, RenderReply,
+    RenderRequest, ResetReply, ResetRequest, StepReply, StepRequest, TaskInfo, TasksReply,
+    TasksRequest, decode_reply, encode,
 };
 use crate::query::{decode_ok, first_reply, query};
 
@@ -247,6 +250,29 @@ impl Client {
             },
         )?;
         Ok(reply.action.0)
+    }
+
+    /// Has checkpoint policy `policy` of `engine` run the closed-loop episodes `episodes`
+    /// of the evaluation `config` in its task (see [`crate::spread`] for a whole
+    /// evaluation over many engines).
+    pub fn evaluate(
+        &self,
+        engine: &str,
+        policy: &str,
+        config: &EvaluationConfig,
+        episodes: Range<usize>,
+    ) -> Result<EpisodeBatch, BridgeError> {
+        let reply: EvaluateReply = self.call(
+            &keys::policy_evaluate(engine, policy),
+            &EvaluateRequest {
+                v: PROTOCOL_VERSION,
+                config: config.clone(),
+                first: episodes.start as u64,
+                count: episodes.len() as u64,
+                deadline_ms: Some(self.deadline_ms()),
+            },
+        )?;
+        Ok(reply.batch)
     }
 
     /// The deadline the requests that build or compute in bulk carry: nine tenths of this

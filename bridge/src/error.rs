@@ -110,6 +110,20 @@ pub enum BridgeError {
         #[source]
         source: FlowError,
     },
+    /// One engine of several failed (`ciflow evaluate --engines`).
+    #[error("engine `{engine}`")]
+    Engine {
+        engine: String,
+        #[source]
+        source: Box<BridgeError>,
+    },
+    /// Engines did not serve a published checkpoint in time.
+    #[error(
+        "engine(s) {engines} did not load the checkpoint within {seconds} s: an engine that \
+         trusts keys loads only signed checkpoints (--signing-key), and an engine must serve \
+         the checkpoint's task (its log says why it refused)"
+    )]
+    CheckpointNotLoaded { engines: String, seconds: u64 },
     #[error("frame {id} of session {session} did not arrive within {timeout_ms} ms")]
     FrameLost {
         session: String,

@@ -14,7 +14,8 @@
 //!   checkpoints as policies; [`publisher`]: a trainer's checkpoint publications, which
 //!   engines hot-load; [`signing`]: who may publish them;
 //! - [`router`]: a Zenoh router in this process; [`access`]: the access-control rules it
-//!   enforces (who may serve, own sessions and publish policies).
+//!   enforces (who may serve, own sessions and publish policies);
+//! - [`spread`]: a closed-loop evaluation's episodes spread over many engines.
 
 pub mod access;
 pub mod checkpoint_policy;
@@ -31,6 +32,7 @@ pub mod query;
 pub mod router;
 pub mod server;
 pub mod signing;
+pub mod spread;
 pub mod task_factory;
 
 pub use access::AccessPolicy;

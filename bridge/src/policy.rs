@@ -2,7 +2,7 @@
 //! an observation in, the policy's desired acceleration out.
 
 use crate::protocol::PolicyInfo;
-use ciflow_envs::actor::ActorError;
+use ciflow_envs::actor::{ActorError, Model};
 use ciflow_envs::registry::Kwargs;
 
 /// Why a policy could not produce an action.
@@ -30,6 +30,12 @@ pub trait Policy: Send + Sync {
     /// checkpoint hot-loaded under the policy's name inherits them.
     fn task_kwargs(&self) -> Kwargs {
         Kwargs::new()
+    }
+
+    /// The trained model behind the policy, for the closed-loop evaluations an engine
+    /// runs (`…/policy/<name>/evaluate`); `None` for policies that are not checkpoints.
+    fn model(&self) -> Option<&Model> {
+        None
     }
 
     /// `a = π(o)` as a new vector.

@@ -19,11 +19,12 @@
 //! changes of [`Disturbance::Context`].
 
 use std::collections::BTreeMap;
+use std::ops::Range;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use ciflow_envs::actor::{Actor, Model};
-use ciflow_envs::env::{Env, Info, ResetOptions, SUCCESS_INFO};
+use ciflow_envs::env::{Env, EnvSpec, Info, ResetOptions, SUCCESS_INFO};
 use ciflow_envs::registry;
 
 use crate::push::{self, PushConfig, PushOutcome, PushSummary};
@@ -35,7 +36,7 @@ use crate::{EvaluationError, EvaluationResult};
 /// avoidance and LASA, pouring, limit cycle.
 pub const DISTANCE_KEYS: [&str; 3] = ["distance_to_target", "pour_distance", "outline_error"];
 /// A context change in the middle of the motion.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ContextSwitch {
     /// Simulated time of the change, s.
     pub time: f64,
@@ -45,7 +46,7 @@ pub struct ContextSwitch {
 }
 
 /// What happens to an episode besides the policy acting.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "mode", rename_all = "snake_case")]
 pub enum Disturbance {
     None,
@@ -87,7 +88,7 @@ impl Driver {
 }
 
 /// Settings of [`evaluate`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EvaluationConfig {
     pub episodes: usize,
     /// Episode `i` is reset with `seed + i`.
@@ -102,7 +103,7 @@ pub struct EvaluationConfig {
 }
 
 /// What one episode did.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EpisodeResult {
     pub seed: u64,
     /// The context at reset.
@@ -123,7 +124,7 @@ pub struct EpisodeResult {
 
 /// An example episode for figures: the disturbed run and, for pushes, its undisturbed
 /// reference (same seed).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Example {
     pub seed: u64,
     pub trace: Trace,
@@ -326,43 +327,98 @@ fn rate(flags: impl Iterator<Item = Option<bool>>) -> Option<f64> {
     (!flags.is_empty()).then(|| flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64)
 }
 
+impl EvaluationConfig {
+    /// Refuses settings no episode can run with: no episodes, an invalid push.
+    pub fn validate(&self) -> EvaluationResult<()> {
+        if self.episodes == 0 {
+            return Err(EvaluationError::InvalidConfig(
+                "at least one episode is needed".into(),
+            ));
+        }
+        if let Disturbance::Push(push) = &self.disturbance {
+            push.validate()?;
+        }
+        Ok(())
+    }
+}
+
+/// Some consecutive episodes of an evaluation, as [`run_episodes`] returns them and
+/// [`summarize`] merges them: wherever they ran, episode `i` depends only on its seed
+/// `seed + i`, so batches run apart (on other threads, processes or machines) add up to
+/// the report of one run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeBatch {
+    /// Index of the first episode.
+    pub first: usize,
+    pub results: Vec<EpisodeResult>,
+    /// Traces of the batch's episodes among the first [`EvaluationConfig::trajectories`].
+    pub trajectories: Vec<Trace>,
+    /// Episode 0 in full, if the batch holds it.
+    pub example: Option<Example>,
+    /// The first distance key an episode of the batch reported.
+    pub distance_key: Option<String>,
+}
+
+impl EpisodeBatch {
+    /// Appends the batch that follows this one.
+    pub fn append(&mut self, next: EpisodeBatch) {
+        debug_assert_eq!(next.first, self.first + self.results.len());
+        self.results.extend(next.results);
+        self.trajectories.extend(next.trajectories);
+        self.example = self.example.take().or(next.example);
+        self.distance_key = self.distance_key.take().or(next.distance_key);
+    }
+}
+
 /// Runs `config.episodes` closed-loop episodes of `acting` in `env`; `progress` is called
 /// after each episode with the number done.
 pub fn evaluate(
     env: &mut dyn Env,
     acting: Acting,
     config: &EvaluationConfig,
-    mut progress: impl FnMut(usize),
+    progress: impl FnMut(usize),
 ) -> EvaluationResult<EvaluationReport> {
-    if config.episodes == 0 {
-        return Err(EvaluationError::InvalidConfig(
-            "at least one episode is needed".into(),
-        ));
-    }
-    if let Disturbance::Push(push) = &config.disturbance {
-        push.validate()?;
+    config.validate()?;
+    let batch = run_episodes(env, acting, config, 0..config.episodes, progress)?;
+    summarize(env.spec(), acting, config, vec![batch])
+}
+
+/// Runs the episodes `episodes` (indices below `config.episodes`) of the evaluation
+/// `config`; `progress` is called after each episode with the number done.
+pub fn run_episodes(
+    env: &mut dyn Env,
+    acting: Acting,
+    config: &EvaluationConfig,
+    episodes: Range<usize>,
+    mut progress: impl FnMut(usize),
+) -> EvaluationResult<EpisodeBatch> {
+    config.validate()?;
+    if episodes.end > config.episodes {
+        return Err(EvaluationError::InvalidConfig(format!(
+            "episodes {}..{} of an evaluation of {}",
+            episodes.start, episodes.end, config.episodes
+        )));
     }
     let spec = env.spec().clone();
-    let (mut driver, task) = match acting {
-        Acting::Model(model) => (
-            Driver::Actor(Box::new(Actor::new(model, &spec, config.velocity_gain)?)),
-            model.task().to_owned(),
-        ),
-        Acting::Expert => (
-            Driver::Expert,
-            registry::entry(&spec.id).map_or_else(|_| spec.id.clone(), |e| e.name.to_owned()),
-        ),
+    let mut driver = match acting {
+        Acting::Model(model) => {
+            Driver::Actor(Box::new(Actor::new(model, &spec, config.velocity_gain)?))
+        }
+        Acting::Expert => Driver::Expert,
     };
     let d = spec.action_space.dim();
     let options = ResetOptions {
         extra: config.reset_extra.clone(),
         ..ResetOptions::default()
     };
-    let mut results = Vec::with_capacity(config.episodes);
-    let mut trajectories = Vec::new();
-    let mut example = None;
-    let mut distance_key = None;
-    for i in 0..config.episodes {
+    let mut batch = EpisodeBatch {
+        first: episodes.start,
+        results: Vec::with_capacity(episodes.len()),
+        trajectories: Vec::new(),
+        example: None,
+        distance_key: None,
+    };
+    for (done, i) in episodes.enumerate() {
         let seed = config.seed.wrapping_add(i as u64);
         let (run, reference, push) = match &config.disturbance {
             Disturbance::None => (
@@ -393,9 +449,9 @@ pub fn evaluate(
         let key = DISTANCE_KEYS
             .iter()
             .find(|k| run.last_info.contains_key(**k));
-        distance_key = distance_key.or(key.map(|k| k.to_string()));
+        batch.distance_key = batch.distance_key.or(key.map(|k| k.to_string()));
         let has = |key: &str| run.last_info.contains_key(key);
-        results.push(EpisodeResult {
+        batch.results.push(EpisodeResult {
             seed,
             context: run.trace.context[0].clone(),
             success: run.last_info.get(SUCCESS_INFO).is_some_and(|&s| s == 1.0),
@@ -408,16 +464,58 @@ pub fn evaluate(
             push,
         });
         if i < config.trajectories {
-            trajectories.push(run.trace.clone());
+            batch.trajectories.push(run.trace.clone());
         }
         if i == 0 {
-            example = Some(Example {
+            batch.example = Some(Example {
                 seed,
                 trace: run.trace,
                 reference,
             });
         }
-        progress(i + 1);
+        progress(done + 1);
+    }
+    Ok(batch)
+}
+
+/// The report of the evaluation `config` of `acting` in the task of `spec`, from batches
+/// that together hold its episodes `0..config.episodes` once each (in any order).
+pub fn summarize(
+    spec: &EnvSpec,
+    acting: Acting,
+    config: &EvaluationConfig,
+    mut batches: Vec<EpisodeBatch>,
+) -> EvaluationResult<EvaluationReport> {
+    batches.sort_by_key(|b| b.first);
+    let mut next = 0;
+    for batch in &batches {
+        if batch.first != next {
+            return Err(EvaluationError::InvalidConfig(format!(
+                "the batches skip or repeat episodes at episode {next} (a batch starts at {})",
+                batch.first
+            )));
+        }
+        next += batch.results.len();
+    }
+    if next != config.episodes {
+        return Err(EvaluationError::InvalidConfig(format!(
+            "the batches hold {next} episodes of {}",
+            config.episodes
+        )));
+    }
+    let task = match acting {
+        Acting::Model(model) => model.task().to_owned(),
+        Acting::Expert => {
+            registry::entry(&spec.id).map_or_else(|_| spec.id.clone(), |e| e.name.to_owned())
+        }
+    };
+    let distance_key = batches.iter().find_map(|b| b.distance_key.clone());
+    let example = batches.iter_mut().find_map(|b| b.example.take());
+    let mut results = Vec::with_capacity(config.episodes);
+    let mut trajectories = Vec::new();
+    for batch in batches {
+        results.extend(batch.results);
+        trajectories.extend(batch.trajectories);
     }
     let n = results.len() as f64;
     let distances: Vec<f64> = results.iter().filter_map(|r| r.final_distance).collect();

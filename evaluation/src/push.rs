@@ -25,7 +25,7 @@ use ciflow_engine::math::distance;
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::summary::Summary;
 use crate::trace::Trace;
@@ -35,7 +35,7 @@ use crate::{EvaluationError, EvaluationResult};
 pub const OVERSHOOT: f64 = 1.5;
 
 /// Settings of a push.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PushConfig {
     /// The movable link pushed (pouring: 6, the hand; planar tasks: 0, the mass).
     pub link: usize,
@@ -110,7 +110,7 @@ impl PushConfig {
 }
 
 /// What one push did.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PushOutcome {
     /// The force applied, world frame, N.
     pub force: [f64; 3],

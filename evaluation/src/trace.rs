@@ -2,13 +2,13 @@
 //! measure it.
 
 use ciflow_envs::env::Info;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// `info` keys of a tool point in the world, reported by pouring (the cup's spout).
 pub const TOOL_POINT_KEYS: [&str; 3] = ["spout_x", "spout_y", "spout_z"];
 
 /// One episode's per-step record: `T + 1` states (the reset one first), `T` commands.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Trace {
     /// Simulated time of each state, s.
     pub time: Vec<f64>,

@@ -17,6 +17,7 @@ use ciflow_evaluation::field::{FieldConfig, field};
 use ciflow_evaluation::likelihood::log_likelihood;
 use ciflow_evaluation::{
     Acting, ContextSwitch, Disturbance, EvaluationConfig, EvaluationError, PushConfig, evaluate,
+    run_episodes, summarize,
 };
 use common::obstacle_flow;
 
@@ -363,4 +364,57 @@ fn field_data_are_the_policy_velocity_rollouts_and_latent_grid() {
         .unwrap();
     assert!((z[0] - z0).abs() < 1e-8, "{} vs {z0}", z[0]);
     assert_eq!(f.latent_grid.len(), 6);
+}
+
+#[test]
+fn batches_run_apart_add_up_to_the_report_of_one_run() {
+    // Episode `i` depends only on its seed: batches in any order, on fresh environments,
+    // summarise to the report of one run; a batch missing or repeated is refused.
+    let model = Model::from(obstacle_flow(1));
+    let acting = Acting::Model(&model);
+    let config = config(5, Disturbance::Push(mass_push(0.03)));
+    let mut env = obstacle_avoidance::make(1).unwrap();
+    let whole = evaluate(&mut env, acting, &config, |_| {}).unwrap();
+    let batch = |episodes: std::ops::Range<usize>| {
+        let mut env = obstacle_avoidance::make(1).unwrap();
+        run_episodes(&mut env, acting, &config, episodes, |_| {}).unwrap()
+    };
+    let (first, middle, last) = (batch(0..2), batch(2..3), batch(3..5));
+    assert_eq!(
+        first.trajectories.len(),
+        2,
+        "traces of the first two episodes"
+    );
+    assert!(first.example.is_some() && last.example.is_none());
+    let spec = env.spec().clone();
+    let merged = summarize(
+        &spec,
+        acting,
+        &config,
+        vec![last.clone(), first.clone(), middle.clone()],
+    )
+    .unwrap();
+    assert_eq!(merged, whole);
+
+    let mut appended = first.clone();
+    appended.append(middle.clone());
+    appended.append(last.clone());
+    assert_eq!(
+        summarize(&spec, acting, &config, vec![appended]).unwrap(),
+        whole
+    );
+
+    for batches in [
+        vec![first.clone(), last.clone()],
+        vec![first.clone(), middle.clone(), middle.clone(), last.clone()],
+        vec![first.clone(), middle.clone()],
+    ] {
+        let refused = summarize(&spec, acting, &config, batches);
+        assert!(
+            matches!(refused, Err(EvaluationError::InvalidConfig(_))),
+            "{refused:?}"
+        );
+    }
+    let beyond = run_episodes(&mut env, acting, &config, 4..6, |_| {});
+    assert!(matches!(beyond, Err(EvaluationError::InvalidConfig(_))));
 }

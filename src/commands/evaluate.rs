@@ -5,12 +5,15 @@
 //!   starts, optionally pushed (`--perturb push`) or with the context moved mid-motion
 //!   (`--perturb context`): rates, distances, push displacement and recovery, traces —
 //!   of the checkpoint, or with `--expert --task T` of the task's expert, the reference;
+//!   with `--engines`, the episodes run on engines reachable on Zenoh
+//!   ([`ciflow_bridge::spread`]);
 //! - `--nll DATASET`: the flow's log-likelihood per transition on a dataset;
 //! - `--field FILE`: for 2-D flows, the vector field, rollouts and latent-grid image.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use ciflow_bridge::{CheckpointSigner, Client, spread};
 use ciflow_engine::flow::Policy;
 use ciflow_envs::actor::{DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::dataset::{self, Episode};
@@ -18,11 +21,12 @@ use ciflow_envs::registry::{self, Kwargs, TaskEntry};
 use ciflow_evaluation::field::{FieldConfig, field};
 use ciflow_evaluation::likelihood::{log_likelihood, scored_episodes};
 use ciflow_evaluation::{
-    Acting, ContextSwitch, Disturbance, EvaluationConfig, PushConfig, evaluate,
+    Acting, ContextSwitch, Disturbance, EvaluationConfig, PushConfig, evaluate, summarize,
 };
 use clap::ValueEnum;
 use serde::Serialize;
 
+use super::network::NetworkArgs;
 use crate::parse::{parse_contexts, parse_key_value};
 use crate::progress;
 
@@ -97,6 +101,23 @@ pub struct EvaluateArgs {
     /// Keep the traces of the first K episodes in the JSON.
     #[arg(long, default_value_t = 0)]
     pub trajectories: usize,
+    /// Run the episodes on these engines instead of in this process: names, comma-separated,
+    /// or `*` for every engine reachable on Zenoh. The checkpoint is published to them;
+    /// the report equals the in-process one for the same seeds.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        value_name = "ENGINES",
+        requires = "checkpoint",
+        conflicts_with_all = ["nll", "field"]
+    )]
+    pub engines: Vec<String>,
+    /// With --engines: sign the published checkpoint with this ed25519 private key (PKCS#8
+    /// PEM), for engines that load only signed checkpoints (`ciflow serve --trusted-key`).
+    #[arg(long, value_name = "PEM", requires = "engines")]
+    pub signing_key: Option<PathBuf>,
+    #[command(flatten)]
+    pub network: NetworkArgs,
     /// JSON file to write (episodes or --nll); the summary is printed either way.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -265,10 +286,38 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
         trajectories: args.trajectories,
     };
     let progress = progress::bar(args.episodes as u64, "evaluate", "episodes");
-    let report = evaluate(env.as_mut(), acting, &config, |done| {
-        progress.set_position(done as u64)
-    })
-    .context("evaluating")?;
+    let report = match (&args.engines[..], acting, &args.checkpoint) {
+        ([], ..) => evaluate(env.as_mut(), acting, &config, |done| {
+            progress.set_position(done as u64)
+        })
+        .context("evaluating")?,
+        (engines, Acting::Model(_), Some(dir)) => {
+            let client = Client::open(&args.network.options()?).context("joining Zenoh")?;
+            let engines = spread::resolve_engines(&client, engines)?;
+            let signer = args
+                .signing_key
+                .as_deref()
+                .map(CheckpointSigner::from_pem_file)
+                .transpose()
+                .context("--signing-key")?;
+            let policy = spread::load_checkpoint(&client, &engines, dir, &kwargs, signer)
+                .context("handing the checkpoint to the engines")?;
+            progress.suspend(|| {
+                println!(
+                    "{} episodes on {} engine(s): {}",
+                    config.episodes,
+                    engines.len(),
+                    engines.join(", ")
+                )
+            });
+            let batches = spread::evaluate(&client, &engines, &policy, &config, |done| {
+                progress.set_position(done as u64)
+            })
+            .context("evaluating on the engines")?;
+            summarize(env.spec(), acting, &config, batches)?
+        }
+        _ => anyhow::bail!("--engines evaluates a checkpoint (--checkpoint)"),
+    };
     progress.finish_and_clear();
     print!("{report}");
     if let Some(out) = &args.out {

@@ -103,6 +103,10 @@ pub fn policy_act(engine_id: &str, policy: &str) -> String {
     format!("{}/policy/{policy}/act", engine(engine_id))
 }
 
+pub fn policy_evaluate(engine_id: &str, policy: &str) -> String {
+    format!("{}/policy/{policy}/evaluate", engine(engine_id))
+}
+
 // ---------------------------------------------------------------- policy publications
 
 /// Where a trainer publishes checkpoints of policy `<policy>` (pub/sub: about 1 MB).
@@ -129,6 +133,9 @@ pub enum Route<'a> {
     Tasks,
     Ping,
     PolicyAct {
+        policy: &'a str,
+    },
+    PolicyEvaluate {
         policy: &'a str,
     },
     Make {
@@ -217,6 +224,9 @@ pub fn parse_route(key: &str) -> Option<Route<'_>> {
         ["tasks"] => Some(Route::Tasks),
         ["ping"] => Some(Route::Ping),
         ["policy", policy, "act"] if is_plain_chunk(policy) => Some(Route::PolicyAct { policy }),
+        ["policy", policy, "evaluate"] if is_plain_chunk(policy) => {
+            Some(Route::PolicyEvaluate { policy })
+        }
         ["client", identity, owned @ ..] if is_plain_chunk(identity) => match owned {
             ["make"] => Some(Route::Make { identity }),
             ["limits"] => Some(Route::Limits { identity }),
@@ -318,6 +328,10 @@ mod tests {
         assert_eq!(
             parse_route(&policy_act("e1", "pour")),
             Some(Route::PolicyAct { policy: "pour" })
+        );
+        assert_eq!(
+            parse_route(&policy_evaluate("e1", "pour")),
+            Some(Route::PolicyEvaluate { policy: "pour" })
         );
     }
 

@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 
 use ciflow_envs::registry::Kwargs;
 use ciflow_envs::{EnvSpec, Info, ResetOptions};
+use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
 
@@ -342,6 +343,27 @@ pub struct ActRequest {
     /// How long the caller waits, in milliseconds (see [`Header::deadline_ms`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub deadline_ms: Option<u32>,
+}
+
+/// `…/policy/<name>/evaluate`: closed-loop episodes `first..first + count` of the
+/// evaluation `config` of the (checkpoint) policy `<name>`, in its task built with the
+/// policy's construction arguments — one share of an evaluation spread over engines.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvaluateRequest {
+    pub v: u16,
+    pub config: EvaluationConfig,
+    pub first: u64,
+    pub count: u64,
+    /// How long the caller waits, in milliseconds (see [`Header::deadline_ms`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deadline_ms: Option<u32>,
+}
+
+/// Reply to `…/policy/<name>/evaluate`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvaluateReply {
+    pub v: u16,
+    pub batch: EpisodeBatch,
 }
 
 // ---------------------------------------------------------------- publications

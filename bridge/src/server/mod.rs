@@ -4,7 +4,7 @@
 //! operations of bounded cost (step, reset, expert, a small batch or `act`, …) are
 //! answered directly in Zenoh's callback, so a step costs one network round trip and
 //! nothing more. Everything whose cost grows with its payload or may wait (`make`,
-//! `render`, `reset_batch`, large `step_batch` and `act`) goes to a pool of worker
+//! `render`, `reset_batch`, `evaluate`, large `step_batch` and `act`) goes to a pool of worker
 //! threads ([`workers`]): Zenoh's own threads must never be held for long, or the links
 //! they serve miss their lease and Zenoh drops them, with every session of their clients.
 //!
@@ -29,6 +29,7 @@ use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, Instant};
 
 use ciflow_envs::registry::Kwargs;
+use ciflow_evaluation::{Acting, EpisodeBatch, EvaluationError, run_episodes};
 use rayon::prelude::*;
 use zenoh::Wait;
 use zenoh::liveliness::LivelinessToken;
@@ -52,9 +53,10 @@ use crate::policy::Policy;
 use crate::protocol::keys::{self, Route, SessionOp};
 use crate::protocol::{
     AckReply, ActRequest, ActionReply, BatchStepRequest, ContextRequest, ErrorCode, ErrorReply,
-    F64s, LimitsReply, LimitsRequest, MakeReply, MakeRequest, PROTOCOL_VERSION, PerturbRequest,
-    RenderReply, RenderRequest, ResetRequest, RunRequest, SessionRequest, StepRequest, TaskInfo,
-    TasksReply, TasksRequest, decode_request, encode, requested_deadline,
+    EvaluateReply, EvaluateRequest, F64s, LimitsReply, LimitsRequest, MakeReply, MakeRequest,
+    PROTOCOL_VERSION, PerturbRequest, RenderReply, RenderRequest, ResetRequest, RunRequest,
+    SessionRequest, StepRequest, TaskInfo, TasksReply, TasksRequest, decode_request, encode,
+    requested_deadline,
 };
 use crate::signing::TrustedKeys;
 use crate::task_factory::TaskFactory;
@@ -335,7 +337,7 @@ impl EngineServer {
 fn runs_inline(route: Option<Route<'_>>, query: &Query) -> bool {
     let small = || query.payload().is_none_or(|p| p.len() <= INLINE_BYTES);
     match route {
-        Some(Route::Make { .. }) => false,
+        Some(Route::Make { .. } | Route::PolicyEvaluate { .. }) => false,
         Some(Route::PolicyAct { .. }) => small(),
         Some(Route::Session { op, .. }) => match op {
             SessionOp::Render | SessionOp::ResetBatch => false,
@@ -520,6 +522,9 @@ impl Shared {
             Some(Route::PolicyAct { policy }) => {
                 self.act(policy, decode_request(payload)?, deadline)
             }
+            Some(Route::PolicyEvaluate { policy }) => {
+                self.evaluate(policy, decode_request(payload)?, deadline)
+            }
         }
     }
 
@@ -537,24 +542,7 @@ impl Shared {
             ));
         }
         let client = keys::client(identity, &request.instance);
-        let factory = self
-            .factories
-            .iter()
-            .find(|f| f.id == request.task || f.name == request.task)
-            .ok_or_else(|| {
-                ErrorReply::new(
-                    ErrorCode::UnknownTask,
-                    format!(
-                        "unknown task `{}`; this engine has: {}",
-                        request.task,
-                        self.factories
-                            .iter()
-                            .map(|f| f.id.as_str())
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ),
-                )
-            })?;
+        let factory = self.factory(&request.task)?;
         if request.num_envs == 0 {
             return Err(ErrorReply::new(
                 ErrorCode::InvalidRequest,
@@ -790,6 +778,83 @@ impl Shared {
                 }))
             }
         }
+    }
+
+    /// The factory of `task` (Gymnasium id or short name).
+    fn factory(&self, task: &str) -> Result<&TaskFactory, ErrorReply> {
+        self.factories
+            .iter()
+            .find(|f| f.id == task || f.name == task)
+            .ok_or_else(|| {
+                ErrorReply::new(
+                    ErrorCode::UnknownTask,
+                    format!(
+                        "unknown task `{task}`; this engine has: {}",
+                        self.factories
+                            .iter()
+                            .map(|f| f.id.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                )
+            })
+    }
+
+    /// Episodes `first..first + count` of the evaluation `request.config` of checkpoint
+    /// policy `name`, one at a time so the deadline is looked at between episodes.
+    fn evaluate(&self, name: &str, request: EvaluateRequest, deadline: Deadline) -> Answer {
+        let policy = self.policy(name)?;
+        let model = policy.model().ok_or_else(|| {
+            ErrorReply::new(
+                ErrorCode::InvalidRequest,
+                format!("policy `{name}` is not a checkpoint; only checkpoints evaluate"),
+            )
+        })?;
+        let config = &request.config;
+        let (first, count) = (request.first as usize, request.count as usize);
+        let end = first
+            .checked_add(count)
+            .filter(|&end| count > 0 && end <= config.episodes)
+            .ok_or_else(|| {
+                ErrorReply::new(
+                    ErrorCode::InvalidRequest,
+                    format!(
+                        "episodes {first}..{first}+{count} are not a non-empty part of an \
+                         evaluation of {} episodes",
+                        config.episodes
+                    ),
+                )
+            })?;
+        let invalid =
+            |e: EvaluationError| ErrorReply::new(ErrorCode::InvalidRequest, full_message(&e));
+        config.validate().map_err(invalid)?;
+        let mut env = (self.factory(&policy.info().task)?.make)(&policy.task_kwargs())
+            .map_err(ErrorReply::from)?;
+        let mut batch: Option<EpisodeBatch> = None;
+        for episode in first..end {
+            if deadline.passed() {
+                return Err(deadline_exceeded(&format!(
+                    "after {} of {count} episodes; ask for fewer at a time",
+                    episode - first
+                )));
+            }
+            let one = run_episodes(
+                env.as_mut(),
+                Acting::Model(model),
+                config,
+                episode..episode + 1,
+                |_| {},
+            )
+            .map_err(|e| ErrorReply::new(ErrorCode::Simulation, full_message(&e)))?;
+            match &mut batch {
+                None => batch = Some(one),
+                Some(batch) => batch.append(one),
+            }
+        }
+        Ok(encode(&EvaluateReply {
+            v: PROTOCOL_VERSION,
+            batch: batch.expect("at least one episode"),
+        }))
     }
 
     fn policy(&self, name: &str) -> Result<Arc<dyn Policy>, ErrorReply> {

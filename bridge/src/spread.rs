@@ -1,0 +1,181 @@
+//! Work that splits into independent pieces, spread over the engines reachable on Zenoh:
+//! the episodes of a closed-loop evaluation (`ciflow evaluate --engines`).
+//!
+//! The checkpoint reaches the engines the way a trainer's does: [`load_checkpoint`]
+//! publishes it on the checkpoint channel under a name made from its content, and waits
+//! until every engine lists it. [`evaluate`] then hands out the episodes one query at a
+//! time, [`IN_FLIGHT`] per engine at once so each engine's cores stay busy while a reply
+//! travels; whichever engine is free takes the next episode, so faster engines take more.
+//! Episode `i` depends only on its seed `seed + i`, so the merged batches equal one
+//! in-process run ([`ciflow_evaluation::summarize`] checks that they hold every episode
+//! once). An engine that fails or disappears stops the evaluation with its name.
+
+use std::collections::BTreeSet;
+use std::hash::{DefaultHasher, Hash, Hasher};
+use std::path::Path;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+use ciflow_engine::flow::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
+use ciflow_envs::registry::Kwargs;
+use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
+
+use crate::client::Client;
+use crate::error::BridgeError;
+use crate::publisher::CheckpointPublisher;
+use crate::signing::CheckpointSigner;
+
+/// Queries each engine has in flight at once.
+pub const IN_FLIGHT: usize = 2;
+
+/// How long [`load_checkpoint`] waits for every engine to list the checkpoint.
+pub const LOAD_TIMEOUT: Duration = Duration::from_secs(15);
+
+/// How often [`load_checkpoint`] publishes again while it waits: a publication sent
+/// before Zenoh has routed the engines' subscriptions reaches nobody.
+const REPUBLISH_INTERVAL: Duration = Duration::from_millis(500);
+
+/// The engines `wanted` names: every reachable engine for `["*"]` (at least one must
+/// answer), else the names given, each asked whether it is there.
+pub fn resolve_engines(client: &Client, wanted: &[String]) -> Result<Vec<String>, BridgeError> {
+    if wanted.iter().any(|w| w == "*") {
+        let engines: Vec<String> = client.discover()?.into_iter().map(|e| e.name).collect();
+        if engines.is_empty() {
+            return Err(BridgeError::InvalidArgument(
+                "no engine answered; start some with `ciflow serve`".into(),
+            ));
+        }
+        return Ok(engines);
+    }
+    let mut engines = Vec::with_capacity(wanted.len());
+    for engine in wanted {
+        client
+            .engine_info(engine)
+            .map_err(|source| engine_error(engine, source))?;
+        if !engines.contains(engine) {
+            engines.push(engine.clone());
+        }
+    }
+    if engines.is_empty() {
+        return Err(BridgeError::InvalidArgument("no engine named".into()));
+    }
+    Ok(engines)
+}
+
+/// Publishes the checkpoint `dir` for the task built with `kwargs` until every engine of
+/// `engines` serves it, and returns the policy name it is served under: `eval-` and a
+/// hash of the checkpoint's files and `kwargs`, so that evaluating it again reuses it.
+pub fn load_checkpoint(
+    client: &Client,
+    engines: &[String],
+    dir: &Path,
+    kwargs: &Kwargs,
+    signer: Option<CheckpointSigner>,
+) -> Result<String, BridgeError> {
+    let mut hasher = DefaultHasher::new();
+    for file in [CONFIG_FILE, WEIGHTS_FILE] {
+        let path = dir.join(file);
+        std::fs::read(&path)
+            .map_err(|source| BridgeError::ReadCheckpoint { path, source })?
+            .hash(&mut hasher);
+    }
+    serde_json::to_string(kwargs)
+        .expect("construction arguments serialise")
+        .hash(&mut hasher);
+    let name = format!("eval-{:016x}", hasher.finish());
+    let publisher = CheckpointPublisher::new(client.zenoh_session(), &name)?
+        .with_kwargs(kwargs.clone())
+        .with_signer(signer);
+    let start = Instant::now();
+    let mut waiting: BTreeSet<&String> = engines.iter().collect();
+    loop {
+        publisher.publish(dir, 0, f64::NAN)?;
+        let published = Instant::now();
+        while published.elapsed() < REPUBLISH_INTERVAL {
+            let mut loaded = Vec::new();
+            for engine in &waiting {
+                let info = client
+                    .engine_info(engine)
+                    .map_err(|source| engine_error(engine, source))?;
+                if info.policies.iter().any(|p| p.name == name) {
+                    loaded.push(*engine);
+                }
+            }
+            waiting.retain(|e| !loaded.contains(e));
+            if waiting.is_empty() {
+                return Ok(name);
+            }
+            if start.elapsed() > LOAD_TIMEOUT {
+                let missing: Vec<&str> = waiting.iter().map(|e| e.as_str()).collect();
+                return Err(BridgeError::CheckpointNotLoaded {
+                    engines: missing.join(", "),
+                    seconds: LOAD_TIMEOUT.as_secs(),
+                });
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
+/// The episodes of the evaluation `config` of policy `policy` (served by every engine of
+/// `engines`, see [`load_checkpoint`]), one query per episode; `progress` is called with
+/// the number of episodes done. The batches come back in episode order.
+pub fn evaluate(
+    client: &Client,
+    engines: &[String],
+    policy: &str,
+    config: &EvaluationConfig,
+    progress: impl Fn(usize) + Sync,
+) -> Result<Vec<EpisodeBatch>, BridgeError> {
+    config
+        .validate()
+        .map_err(|e| BridgeError::InvalidArgument(crate::error::full_message(&e)))?;
+    let next = AtomicUsize::new(0);
+    let done = AtomicUsize::new(0);
+    let failed = AtomicBool::new(false);
+    let batches = Mutex::new(Vec::with_capacity(config.episodes));
+    let first_error = Mutex::new(None);
+    std::thread::scope(|scope| {
+        for engine in engines
+            .iter()
+            .flat_map(|e| std::iter::repeat_n(e, IN_FLIGHT))
+        {
+            scope.spawn(|| {
+                while !failed.load(Ordering::Relaxed) {
+                    let episode = next.fetch_add(1, Ordering::Relaxed);
+                    if episode >= config.episodes {
+                        break;
+                    }
+                    match client.evaluate(engine, policy, config, episode..episode + 1) {
+                        Ok(batch) => {
+                            lock(&batches).push(batch);
+                            progress(done.fetch_add(1, Ordering::Relaxed) + 1);
+                        }
+                        Err(source) => {
+                            failed.store(true, Ordering::Relaxed);
+                            lock(&first_error).get_or_insert(engine_error(engine, source));
+                        }
+                    }
+                }
+            });
+        }
+    });
+    if let Some(error) = first_error.into_inner().unwrap_or_else(|p| p.into_inner()) {
+        return Err(error);
+    }
+    let mut batches = batches.into_inner().unwrap_or_else(|p| p.into_inner());
+    batches.sort_by_key(|b| b.first);
+    Ok(batches)
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+fn engine_error(engine: &str, source: BridgeError) -> BridgeError {
+    BridgeError::Engine {
+        engine: engine.to_owned(),
+        source: Box::new(source),
+    }
+}

@@ -1,0 +1,145 @@
+//! `ciflow evaluate --engines`: the episodes of an evaluation run on two engines behind a
+//! router (separate processes meeting over Zenoh) and give the report of the same
+//! evaluation run in process, pushes included; `*` finds both engines; an engine that is
+//! not there, or is gone, is named in a clear error.
+
+mod common;
+
+use std::time::Duration;
+
+use common::{Scratch, ciflow, endpoint, line_with, spawn_ciflow, succeed};
+use serde_json::Value;
+
+const PORT: u16 = 17_931;
+
+fn json(path: &str) -> Value {
+    serde_json::from_slice(&std::fs::read(path).expect("JSON written")).expect("valid JSON")
+}
+
+#[test]
+fn episodes_spread_over_engines_give_the_in_process_report() {
+    let scratch = Scratch::new("evaluate-engines");
+    let (demos, policy) = (scratch.arg("demos"), scratch.arg("policy"));
+    succeed(&[
+        "demos",
+        "--task",
+        "obstacle-avoidance",
+        "--kwarg",
+        "obstacles=1",
+        "--episodes",
+        "6",
+        "--out",
+        &demos,
+    ]);
+    succeed(&[
+        "train",
+        "--task",
+        "obstacle-avoidance",
+        "--demos",
+        &demos,
+        "--out",
+        &policy,
+        "--epochs",
+        "2",
+        "--layers",
+        "2",
+        "--hidden",
+        "16,16",
+    ]);
+
+    let router = endpoint(PORT);
+    let ready = Duration::from_secs(30);
+    let (_router, router_lines) = spawn_ciflow(&["router", "--listen", &router]);
+    line_with(&router_lines, "ready", ready);
+    let mut engines = Vec::new();
+    for (port, name) in [(PORT + 1, "spread-a"), (PORT + 2, "spread-b")] {
+        let listen = endpoint(port);
+        let (process, lines) = spawn_ciflow(&[
+            "serve",
+            "--name",
+            name,
+            "--connect",
+            &router,
+            "--listen",
+            &listen,
+        ]);
+        line_with(&lines, "ready", ready);
+        engines.push((process, lines));
+    }
+
+    let evaluate = |out: &str, extra: &[&str]| {
+        let common = [
+            "evaluate",
+            "--checkpoint",
+            &policy,
+            "--episodes",
+            "8",
+            "--seed",
+            "5",
+            "--perturb",
+            "push",
+            "--push-start",
+            "0.5",
+            "--trajectories",
+            "2",
+            "--out",
+            out,
+        ];
+        succeed(&[&common[..], extra].concat())
+    };
+    let (local, spread) = (scratch.arg("local.json"), scratch.arg("spread.json"));
+    evaluate(&local, &[]);
+    let output = evaluate(&spread, &["--engines", "*", "--connect", &router]);
+    let printed = String::from_utf8_lossy(&output.stdout).to_string()
+        + &String::from_utf8_lossy(&output.stderr);
+    assert!(
+        printed.contains("8 episodes on 2 engine(s): spread-a, spread-b"),
+        "`*` finds both engines: {printed}"
+    );
+    let (local, spread) = (json(&local), json(&spread));
+    assert_eq!(local["results"].as_array().map(Vec::len), Some(8));
+    assert!(
+        local["results"][0]["push"]["displacement"].as_f64() > Some(0.0),
+        "the episodes were pushed: {}",
+        local["results"][0]
+    );
+    assert_eq!(local["trajectories"].as_array().map(Vec::len), Some(2));
+    assert_eq!(
+        spread, local,
+        "the engines' report equals the in-process one"
+    );
+
+    let missing = ciflow(&[
+        "evaluate",
+        "--checkpoint",
+        &policy,
+        "--episodes",
+        "2",
+        "--engines",
+        "spread-a,nowhere",
+        "--connect",
+        &router,
+    ]);
+    let stderr = String::from_utf8_lossy(&missing.stderr);
+    assert!(!missing.status.success());
+    assert!(stderr.contains("engine `nowhere`"), "{stderr}");
+
+    // An engine that goes away is named, and the evaluation ends instead of waiting.
+    let (mut gone, _) = engines.pop().expect("two engines");
+    gone.0.kill().expect("kill an engine");
+    gone.0.wait().expect("the engine exits");
+    let after = ciflow(&[
+        "evaluate",
+        "--checkpoint",
+        &policy,
+        "--episodes",
+        "4",
+        "--engines",
+        "spread-a,spread-b",
+        "--connect",
+        &router,
+    ]);
+    let stderr = String::from_utf8_lossy(&after.stderr);
+    assert!(!after.status.success());
+    assert!(stderr.contains("engine `spread-b`"), "{stderr}");
+}
