@@ -21,10 +21,10 @@ pub enum Command {
     /// Train a stable conditioned policy by exact maximum likelihood on demonstrations.
     Train(Box<commands::train::TrainArgs>),
     /// Measure how many noise-free rollouts of a trained policy converge.
-    Stability(commands::stability::StabilityArgs),
+    Stability(Box<commands::stability::StabilityArgs>),
     /// Evaluate a checkpoint: closed-loop success, collision, spill and push-recovery
     /// rates in its task, log-likelihood on a dataset, or 2-D vector-field figure data (JSON).
-    Evaluate(commands::evaluate::EvaluateArgs),
+    Evaluate(Box<commands::evaluate::EvaluateArgs>),
     /// LASA handwriting benchmark: per shape, a stable flow against a behaviour-cloning
     /// MLP with the same budget; writes tables (DTW, swept area, final error, time) and plots.
     Lasa(commands::lasa::LasaArgs),

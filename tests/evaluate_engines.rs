@@ -1,7 +1,8 @@
-//! `ciflow evaluate --engines`: the episodes of an evaluation run on two engines behind a
-//! router (separate processes meeting over Zenoh) and give the report of the same
-//! evaluation run in process, pushes included; `*` finds both engines; an engine that is
-//! not there, or is gone, is named in a clear error.
+//! `ciflow evaluate --engines` and `ciflow stability --engines`: the episodes of an
+//! evaluation and the rollouts of a stability check run on two engines behind a router
+//! (separate processes meeting over Zenoh) and give the reports of the same work run in
+//! process, pushes and the negative control included; `*` finds both engines; an engine
+//! that is not there, or is gone, is named in a clear error.
 
 mod common;
 
@@ -107,6 +108,37 @@ fn episodes_spread_over_engines_give_the_in_process_report() {
     assert_eq!(
         spread, local,
         "the engines' report equals the in-process one"
+    );
+
+    let stability = |extra: &[&str]| {
+        let common = [
+            "stability",
+            "--checkpoint",
+            &policy,
+            "--starts",
+            "30",
+            "--max-steps",
+            "3000",
+            "--negative-control",
+            "--negative-control-starts",
+            "10",
+            "--json",
+        ];
+        let output = ciflow(&[&common[..], extra].concat());
+        assert!(
+            output.status.success(),
+            "{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        serde_json::from_slice::<Value>(&output.stdout).expect("the report as JSON")
+    };
+    let local = stability(&[]);
+    assert_eq!(local["observation_space"]["rollouts"], 30);
+    assert_eq!(local["negative_control"]["rollouts"], 10);
+    let spread = stability(&["--engines", "spread-a,spread-b", "--connect", &router]);
+    assert_eq!(
+        spread, local,
+        "the engines' stability report equals the in-process one"
     );
 
     let missing = ciflow(&[

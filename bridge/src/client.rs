@@ -12,6 +12,8 @@ use std::time::{Duration, Instant};
 
 use ciflow_envs::registry::Kwargs;
 use ciflow_envs::{EnvSpec, Info, ResetOptions};
+use ciflow_evaluation::stability::{Ending, StabilityConfig};
+use ciflow_evaluation::stability_check::Subject;
 use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
@@ -31,8 +33,8 @@ use crate::protocol::{
     AckReply, ActRequest, ActionReply, BatchResetReply, BatchStepReply, BatchStepRequest,
     DescribeReply, DescribeRequest, EvaluateReply, EvaluateRequest, F64s, FrameHeader, LimitsReply,
     LimitsRequest, MakeReply, MakeRequest, PROTOCOL_VERSION, PolicyInfo, RenderReply,
-    RenderRequest, ResetReply, ResetRequest, StepReply, StepRequest, TaskInfo, TasksReply,
-    TasksRequest, decode_reply, encode,
+    RenderRequest, ResetReply, ResetRequest, StabilityReply, StabilityRequest, StepReply,
+    StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply, encode,
 };
 use crate::query::{decode_ok, first_reply, query};
 
@@ -273,6 +275,38 @@ impl Client {
             },
         )?;
         Ok(reply.batch)
+    }
+
+    /// Has checkpoint policy `policy` of `engine` run the observation-space rollouts
+    /// `trials` of the stability check `config` of `subject` (the checkpoint's model or its
+    /// negative control), and returns their endings in order.
+    pub fn stability(
+        &self,
+        engine: &str,
+        policy: &str,
+        subject: Subject,
+        config: &StabilityConfig,
+        trials: Range<usize>,
+    ) -> Result<Vec<Ending>, BridgeError> {
+        let reply: StabilityReply = self.call(
+            &keys::policy_stability(engine, policy),
+            &StabilityRequest {
+                v: PROTOCOL_VERSION,
+                subject,
+                config: config.clone(),
+                first: trials.start as u64,
+                count: trials.len() as u64,
+                deadline_ms: Some(self.deadline_ms()),
+            },
+        )?;
+        if reply.endings.len() != trials.len() {
+            return Err(BridgeError::InvalidArgument(format!(
+                "engine `{engine}` returned {} endings for {} rollouts",
+                reply.endings.len(),
+                trials.len()
+            )));
+        }
+        Ok(reply.endings)
     }
 
     /// The deadline the requests that build or compute in bulk carry: nine tenths of this

@@ -1,14 +1,15 @@
 //! Work that splits into independent pieces, spread over the engines reachable on Zenoh:
-//! the episodes of a closed-loop evaluation (`ciflow evaluate --engines`).
+//! the episodes of a closed-loop evaluation (`ciflow evaluate --engines`) and the rollouts
+//! of a stability check (`ciflow stability --engines`).
 //!
 //! The checkpoint reaches the engines the way a trainer's does: [`load_checkpoint`]
 //! publishes it on the checkpoint channel under a name made from its content, and waits
-//! until every engine lists it. [`evaluate`] then hands out the episodes one query at a
-//! time, [`IN_FLIGHT`] per engine at once so each engine's cores stay busy while a reply
-//! travels; whichever engine is free takes the next episode, so faster engines take more.
-//! Episode `i` depends only on its seed `seed + i`, so the merged batches equal one
-//! in-process run ([`ciflow_evaluation::summarize`] checks that they hold every episode
-//! once). An engine that fails or disappears stops the evaluation with its name.
+//! until every engine lists it. The work then goes out one share per query, [`IN_FLIGHT`]
+//! per engine at once so each engine's cores stay busy while a reply travels; whichever
+//! engine is free takes the next share, so faster engines take more. Episode `i` depends
+//! only on its seed `seed + i` and rollout `i` only on `i` and the seed, so the merged
+//! results equal one in-process run. An engine that fails or disappears stops the work
+//! with its name.
 
 use std::collections::BTreeSet;
 use std::hash::{DefaultHasher, Hash, Hasher};
@@ -19,6 +20,8 @@ use std::time::{Duration, Instant};
 
 use ciflow_engine::flow::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
 use ciflow_envs::registry::Kwargs;
+use ciflow_evaluation::stability::{Ending, StabilityConfig};
+use ciflow_evaluation::stability_check::Subject;
 use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 
 use crate::client::Client;
@@ -28,6 +31,10 @@ use crate::signing::CheckpointSigner;
 
 /// Queries each engine has in flight at once.
 pub const IN_FLIGHT: usize = 2;
+
+/// Stability rollouts per query: a pouring rollout that never converges takes its
+/// 20 000 steps, about half a second, so a share stays well inside an engine's budget.
+pub const ROLLOUT_SHARE: usize = 4;
 
 /// How long [`load_checkpoint`] waits for every engine to list the checkpoint.
 pub const LOAD_TIMEOUT: Duration = Duration::from_secs(15);
@@ -126,47 +133,104 @@ pub fn evaluate(
     engines: &[String],
     policy: &str,
     config: &EvaluationConfig,
-    progress: impl Fn(usize) + Sync,
+    progress: impl FnMut(usize),
 ) -> Result<Vec<EpisodeBatch>, BridgeError> {
     config
         .validate()
         .map_err(|e| BridgeError::InvalidArgument(crate::error::full_message(&e)))?;
+    share_out(
+        engines,
+        config.episodes,
+        |engine, episode| client.evaluate(engine, policy, config, episode..episode + 1),
+        |batch| batch.results.len(),
+        progress,
+    )
+}
+
+/// The endings of the observation-space rollouts `0..config.starts` of the stability
+/// check `config` of `subject` of policy `policy` (served by every engine of `engines`),
+/// [`ROLLOUT_SHARE`] rollouts per query, in order; `progress` is called with the number
+/// of rollouts done.
+pub fn stability_rollouts(
+    client: &Client,
+    engines: &[String],
+    policy: &str,
+    subject: Subject,
+    config: &StabilityConfig,
+    progress: impl FnMut(usize),
+) -> Result<Vec<Ending>, BridgeError> {
+    let endings = share_out(
+        engines,
+        config.starts.div_ceil(ROLLOUT_SHARE),
+        |engine, share| {
+            let first = share * ROLLOUT_SHARE;
+            let trials = first..(first + ROLLOUT_SHARE).min(config.starts);
+            client.stability(engine, policy, subject, config, trials)
+        },
+        Vec::len,
+        progress,
+    )?;
+    Ok(endings.into_iter().flatten().collect())
+}
+
+/// Runs tasks `0..tasks` on `engines`, [`IN_FLIGHT`] at a time per engine, whichever is
+/// free taking the next task. `progress` is called on this thread with the units done so
+/// far, a result counting `units(result)`. The results come back in task order; the first
+/// failure stops every engine and is returned with its engine's name.
+fn share_out<T: Send>(
+    engines: &[String],
+    tasks: usize,
+    run: impl Fn(&str, usize) -> Result<T, BridgeError> + Sync,
+    units: impl Fn(&T) -> usize + Sync,
+    mut progress: impl FnMut(usize),
+) -> Result<Vec<T>, BridgeError> {
     let next = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
     let failed = AtomicBool::new(false);
-    let batches = Mutex::new(Vec::with_capacity(config.episodes));
+    let results = Mutex::new(Vec::with_capacity(tasks));
     let first_error = Mutex::new(None);
     std::thread::scope(|scope| {
-        for engine in engines
+        let workers: Vec<_> = engines
             .iter()
             .flat_map(|e| std::iter::repeat_n(e, IN_FLIGHT))
-        {
-            scope.spawn(|| {
-                while !failed.load(Ordering::Relaxed) {
-                    let episode = next.fetch_add(1, Ordering::Relaxed);
-                    if episode >= config.episodes {
-                        break;
-                    }
-                    match client.evaluate(engine, policy, config, episode..episode + 1) {
-                        Ok(batch) => {
-                            lock(&batches).push(batch);
-                            progress(done.fetch_add(1, Ordering::Relaxed) + 1);
+            .map(|engine| {
+                scope.spawn(|| {
+                    while !failed.load(Ordering::Relaxed) {
+                        let task = next.fetch_add(1, Ordering::Relaxed);
+                        if task >= tasks {
+                            break;
                         }
-                        Err(source) => {
-                            failed.store(true, Ordering::Relaxed);
-                            lock(&first_error).get_or_insert(engine_error(engine, source));
+                        match run(engine, task) {
+                            Ok(result) => {
+                                done.fetch_add(units(&result), Ordering::Relaxed);
+                                lock(&results).push((task, result));
+                            }
+                            Err(source) => {
+                                failed.store(true, Ordering::Relaxed);
+                                lock(&first_error).get_or_insert(engine_error(engine, source));
+                            }
                         }
                     }
-                }
-            });
+                })
+            })
+            .collect();
+        let mut reported = 0;
+        while workers.iter().any(|w| !w.is_finished()) {
+            let now = done.load(Ordering::Relaxed);
+            if now != reported {
+                progress(now);
+                reported = now;
+            }
+            std::thread::sleep(Duration::from_millis(20));
         }
+        progress(done.load(Ordering::Relaxed));
     });
     if let Some(error) = first_error.into_inner().unwrap_or_else(|p| p.into_inner()) {
         return Err(error);
     }
-    let mut batches = batches.into_inner().unwrap_or_else(|p| p.into_inner());
-    batches.sort_by_key(|b| b.first);
-    Ok(batches)
+    let mut results = results.into_inner().unwrap_or_else(|p| p.into_inner());
+    results.sort_by_key(|(task, _)| *task);
+    Ok(results.into_iter().map(|(_, result)| result).collect())
 }
 
 fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {

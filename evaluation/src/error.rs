@@ -22,6 +22,9 @@ pub enum EvaluationError {
     Subset(#[from] ciflow_envs::learning_curve::TooFewEpisodes),
     #[error("no valid new context found for the episode of seed {seed} in {tries} draws")]
     NoValidContext { seed: u64, tries: usize },
+    /// Work run elsewhere (engines over Zenoh) failed there.
+    #[error("the rollouts run elsewhere failed")]
+    Remote(#[source] Box<dyn std::error::Error + Send + Sync>),
 }
 
 pub type EvaluationResult<T> = Result<T, EvaluationError>;

@@ -20,18 +20,19 @@
 //! `‖y_{k+1} − y_k‖` stayed below `stall_speed · diag` for `stall_steps` consecutive
 //! steps farther than the tolerance from it: end points of spurious attractors.
 
+use std::ops::Range;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use ciflow_engine::flow::{FlowError, FlowResult, MeanDynamics};
 
 use crate::rollout::MeanStepper;
 
 /// Settings of [`measure`].
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StabilityConfig {
     /// Number of rollouts (each with its own random start and context).
     pub starts: usize,
@@ -110,9 +111,11 @@ pub struct StabilityReport {
     pub within: Vec<ShareWithin>,
 }
 
-/// How one rollout ended.
-#[derive(Clone, Copy, Debug)]
-enum Ending {
+/// How one rollout ended: what [`rollouts`] returns per rollout and
+/// [`StabilityReport::from_endings`] counts.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "ending", rename_all = "snake_case")]
+pub enum Ending {
     Converged { steps: usize },
     NonFinite,
     Stalled { distance: f64 },
@@ -136,8 +139,14 @@ impl Ending {
 pub fn measure<M: MeanDynamics + Sync>(
     model: &M,
     config: &StabilityConfig,
-    mut progress: impl FnMut(usize),
+    progress: impl FnMut(usize),
 ) -> FlowResult<StabilityReport> {
+    let endings = rollouts(model, config, 0..config.starts, progress)?;
+    StabilityReport::from_endings(model, config, &endings)
+}
+
+/// Refuses settings no rollout can run with.
+fn validate<M: MeanDynamics>(model: &M, config: &StabilityConfig) -> FlowResult<()> {
     let context_dim = model.bounds().context_min.len();
     if config.starts == 0
         || config.check_every == 0
@@ -155,19 +164,40 @@ pub fn measure<M: MeanDynamics + Sync>(
             "bounded context coordinate {i} of a {context_dim}-D context"
         )));
     }
+    Ok(())
+}
+
+/// The endings of rollouts `trials` (indices below `config.starts`) of the check
+/// `config`, in order, on `config.threads` threads; `progress` is called with the number
+/// finished. Rollout `i` depends only on `i` and the seed, so rollouts run apart (other
+/// threads, processes, machines) add up to one run's.
+pub fn rollouts<M: MeanDynamics + Sync>(
+    model: &M,
+    config: &StabilityConfig,
+    trials: Range<usize>,
+    mut progress: impl FnMut(usize),
+) -> FlowResult<Vec<Ending>> {
+    validate(model, config)?;
+    if trials.end > config.starts {
+        return Err(FlowError::InvalidConfig(format!(
+            "rollouts {}..{} of a check of {}",
+            trials.start, trials.end, config.starts
+        )));
+    }
     let diagonal = model.bounds().state_diagonal().max(f64::MIN_POSITIVE);
     let tolerance = config.tolerance * diagonal;
-    let next_trial = AtomicUsize::new(0);
+    let count = trials.len();
+    let next_trial = AtomicUsize::new(trials.start);
     let finished = AtomicUsize::new(0);
-    let endings = std::thread::scope(|scope| {
-        let workers: Vec<_> = (0..config.threads.min(config.starts))
+    let mut endings = std::thread::scope(|scope| {
+        let workers: Vec<_> = (0..config.threads.min(count))
             .map(|_| {
                 scope.spawn(|| {
                     let mut endings = Vec::new();
                     let mut rollout = Rollout::new(model, config, tolerance, diagonal);
                     loop {
                         let trial = next_trial.fetch_add(1, Ordering::Relaxed);
-                        if trial >= config.starts {
+                        if trial >= trials.end {
                             return FlowResult::Ok(endings);
                         }
                         endings.push((trial, rollout.run(trial)?));
@@ -185,7 +215,7 @@ pub fn measure<M: MeanDynamics + Sync>(
             }
             std::thread::sleep(std::time::Duration::from_millis(20));
         }
-        let mut endings = Vec::with_capacity(config.starts);
+        let mut endings = Vec::with_capacity(count);
         for worker in workers {
             // A worker's panic is a bug: it goes on unwinding here, message intact.
             let worker = worker
@@ -193,47 +223,69 @@ pub fn measure<M: MeanDynamics + Sync>(
                 .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
             endings.extend(worker?);
         }
-        progress(config.starts);
+        progress(count);
         FlowResult::Ok(endings)
     })?;
-    let mut report = StabilityReport {
-        rollouts: config.starts,
-        converged: 0,
-        fraction: 0.0,
-        tolerance,
-        context_scale: config.context_scale,
-        max_steps_to_converge: 0,
-        worst_final_distance: 0.0,
-        diverged_to_non_finite: 0,
-        stalled_away: 0,
-        within: Vec::new(),
-    };
-    for (_, ending) in &endings {
-        match *ending {
-            Ending::Converged { steps } => {
-                report.converged += 1;
-                report.max_steps_to_converge = report.max_steps_to_converge.max(steps);
-            }
-            Ending::NonFinite => report.diverged_to_non_finite += 1,
-            Ending::Stalled { distance } | Ending::OutOfSteps { distance } => {
-                report.stalled_away += usize::from(matches!(ending, Ending::Stalled { .. }));
-                report.worst_final_distance = report.worst_final_distance.max(distance);
+    endings.sort_by_key(|(trial, _)| *trial);
+    Ok(endings.into_iter().map(|(_, ending)| ending).collect())
+}
+
+impl StabilityReport {
+    /// The report of the check `config` of `model` from the endings of all its rollouts.
+    pub fn from_endings<M: MeanDynamics>(
+        model: &M,
+        config: &StabilityConfig,
+        endings: &[Ending],
+    ) -> FlowResult<Self> {
+        validate(model, config)?;
+        if endings.len() != config.starts {
+            return Err(FlowError::InvalidConfig(format!(
+                "{} rollout endings for a check of {}",
+                endings.len(),
+                config.starts
+            )));
+        }
+        let diagonal = model.bounds().state_diagonal().max(f64::MIN_POSITIVE);
+        let tolerance = config.tolerance * diagonal;
+        let mut report = StabilityReport {
+            rollouts: config.starts,
+            converged: 0,
+            fraction: 0.0,
+            tolerance,
+            context_scale: config.context_scale,
+            max_steps_to_converge: 0,
+            worst_final_distance: 0.0,
+            diverged_to_non_finite: 0,
+            stalled_away: 0,
+            within: Vec::new(),
+        };
+        for ending in endings {
+            match *ending {
+                Ending::Converged { steps } => {
+                    report.converged += 1;
+                    report.max_steps_to_converge = report.max_steps_to_converge.max(steps);
+                }
+                Ending::NonFinite => report.diverged_to_non_finite += 1,
+                Ending::Stalled { distance } | Ending::OutOfSteps { distance } => {
+                    report.stalled_away += usize::from(matches!(ending, Ending::Stalled { .. }));
+                    report.worst_final_distance = report.worst_final_distance.max(distance);
+                }
             }
         }
+        report.fraction = report.converged as f64 / report.rollouts as f64;
+        report.within = TOLERANCE_FACTORS
+            .iter()
+            .map(|&factor| ShareWithin {
+                factor,
+                fraction: endings
+                    .iter()
+                    .filter(|e| e.distance(tolerance) <= factor * tolerance)
+                    .count() as f64
+                    / report.rollouts as f64,
+            })
+            .collect();
+        Ok(report)
     }
-    report.fraction = report.converged as f64 / report.rollouts as f64;
-    report.within = TOLERANCE_FACTORS
-        .iter()
-        .map(|&factor| ShareWithin {
-            factor,
-            fraction: endings
-                .iter()
-                .filter(|(_, e)| e.distance(tolerance) <= factor * tolerance)
-                .count() as f64
-                / report.rollouts as f64,
-        })
-        .collect();
-    Ok(report)
 }
 
 /// One worker's model workspace and buffers.

@@ -12,17 +12,18 @@
 //! [`robot_loop`]: crate::robot_loop
 
 use std::fmt;
+use std::ops::Range;
 
-use ciflow_engine::flow::{MeanDynamics, Policy};
+use ciflow_engine::flow::Policy;
 use ciflow_engine::robot::{JointLimits, PointMass2d, Robot};
 use ciflow_engine::sim::{SimConfig, Simulator};
 use ciflow_envs::actor::Model;
 use ciflow_envs::registry;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::error::{EvaluationError, EvaluationResult};
 use crate::robot_loop::{RobotLoopConfig, RobotLoopError, RobotLoopReport, measure_robot_loop};
-use crate::stability::{StabilityConfig, StabilityReport, measure};
+use crate::stability::{self, Ending, StabilityConfig, StabilityReport};
 
 /// The share of the negative control's rollouts the check must flag.
 pub const NEGATIVE_CONTROL_FLAGGED: f64 = 0.99;
@@ -76,45 +77,121 @@ impl Stage {
     }
 }
 
+/// Whose observation-space rollouts a stage runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Subject {
+    /// The checkpoint's model.
+    Model,
+    /// The negative control: the flow with its latent run backwards in time.
+    NegativeControl,
+}
+
+impl Subject {
+    /// The endings of rollouts `trials` of `config` for this subject of `model`, in this
+    /// process ([`stability::rollouts`]).
+    pub fn rollouts(
+        self,
+        model: &Model,
+        config: &StabilityConfig,
+        trials: Range<usize>,
+        progress: impl FnMut(usize),
+    ) -> EvaluationResult<Vec<Ending>> {
+        Ok(match (self, model) {
+            (Subject::Model, Model::Flow(policy)) => {
+                stability::rollouts(policy.as_ref(), config, trials, progress)?
+            }
+            (Subject::Model, Model::Baseline(baseline)) => {
+                stability::rollouts(baseline.as_ref(), config, trials, progress)?
+            }
+            (Subject::NegativeControl, Model::Flow(policy)) => {
+                stability::rollouts(&policy.time_reversed(), config, trials, progress)?
+            }
+            (Subject::NegativeControl, Model::Baseline(_)) => return Err(needs_a_flow()),
+        })
+    }
+
+    /// The report of `config` for this subject of `model`, from all its rollouts' endings.
+    pub fn report(
+        self,
+        model: &Model,
+        config: &StabilityConfig,
+        endings: &[Ending],
+    ) -> EvaluationResult<StabilityReport> {
+        // The reversed flow has the flow's bounds, which is all the report reads.
+        Ok(match model {
+            Model::Flow(policy) => StabilityReport::from_endings(policy.as_ref(), config, endings)?,
+            Model::Baseline(baseline) => {
+                StabilityReport::from_endings(baseline.as_ref(), config, endings)?
+            }
+        })
+    }
+}
+
+fn needs_a_flow() -> EvaluationError {
+    EvaluationError::InvalidConfig(
+        "the negative control and the robot loop need a flow: the baseline has no latent to \
+         reverse and no desired acceleration"
+            .into(),
+    )
+}
+
 /// Runs `check` on `model`; `progress(stage, total, done)` is called after each rollout.
 pub fn check_stability(
     model: &Model,
     check: &StabilityCheck,
+    progress: impl FnMut(Stage, usize, usize),
+) -> EvaluationResult<StabilityCheckReport> {
+    let in_process =
+        |subject: Subject, config: &StabilityConfig, progress: &mut dyn FnMut(usize)| {
+            subject.rollouts(model, config, 0..config.starts, progress)
+        };
+    check_stability_with(model, check, in_process, progress)
+}
+
+/// [`check_stability`] with the observation-space rollouts of each stage run by
+/// `rollouts(subject, config, progress)`, which returns the endings of rollouts
+/// `0..config.starts` in order (`ciflow stability --engines` runs them on engines); the
+/// robot loop runs in this process.
+pub fn check_stability_with(
+    model: &Model,
+    check: &StabilityCheck,
+    mut rollouts: impl FnMut(
+        Subject,
+        &StabilityConfig,
+        &mut dyn FnMut(usize),
+    ) -> EvaluationResult<Vec<Ending>>,
     mut progress: impl FnMut(Stage, usize, usize),
 ) -> EvaluationResult<StabilityCheckReport> {
     let flow = model.flow();
     if flow.is_none() && (check.negative_control_starts.is_some() || check.robot_loop.is_some()) {
-        return Err(EvaluationError::InvalidConfig(
-            "the negative control and the robot loop need a flow: the baseline has no latent \
-             to reverse and no desired acceleration"
-                .into(),
-        ));
+        return Err(needs_a_flow());
     }
-    let mut run = |config: &StabilityConfig, stage: Stage| match model {
-        Model::Flow(policy) => measured(policy.as_ref(), config, stage, &mut progress),
-        Model::Baseline(baseline) => measured(baseline.as_ref(), config, stage, &mut progress),
+    let mut run = |subject: Subject, config: &StabilityConfig, stage: Stage| {
+        let endings = rollouts(subject, config, &mut |done| {
+            progress(stage, config.starts, done)
+        })?;
+        subject.report(model, config, &endings)
     };
-    let observation_space = run(&check.rollouts, Stage::TrainingContexts)?;
+    let observation_space = run(Subject::Model, &check.rollouts, Stage::TrainingContexts)?;
     let far = StabilityConfig {
         context_scale: check.far_context_scale,
         ..check.rollouts.clone()
     };
-    let far_contexts = run(&far, Stage::FarContexts)?;
-    let negative_control = match (flow, check.negative_control_starts) {
-        (Some(policy), Some(starts)) => {
+    let far_contexts = run(Subject::Model, &far, Stage::FarContexts)?;
+    let negative_control = match check.negative_control_starts {
+        Some(starts) => {
             let config = StabilityConfig {
                 starts,
                 ..check.rollouts.clone()
             };
-            let reversed = policy.time_reversed();
-            Some(measured(
-                &reversed,
+            Some(run(
+                Subject::NegativeControl,
                 &config,
                 Stage::NegativeControl,
-                &mut progress,
             )?)
         }
-        _ => None,
+        None => None,
     };
     let robot_loop = match (flow, &check.robot_loop) {
         (Some(policy), Some(config)) => {
@@ -134,18 +211,6 @@ pub fn check_stability(
         robot_loop,
         check: check.clone(),
     })
-}
-
-/// [`measure`] reporting its progress as `stage`.
-fn measured<M: MeanDynamics + Sync>(
-    model: &M,
-    config: &StabilityConfig,
-    stage: Stage,
-    progress: &mut impl FnMut(Stage, usize, usize),
-) -> EvaluationResult<StabilityReport> {
-    Ok(measure(model, config, |done| {
-        progress(stage, config.starts, done)
-    })?)
 }
 
 /// The robot `policy` drives: its task's arm (real limits), or for the planar tasks a

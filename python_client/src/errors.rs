@@ -33,6 +33,15 @@ pub fn to_py(error: BridgeError) -> PyErr {
         | BridgeError::Open { .. }
         | BridgeError::Zenoh { .. }
         | BridgeError::Worker(_) => EngineUnreachable::new_err(message),
+        // One engine of several: unreachable if that one was, with its name in the message.
+        BridgeError::Engine { source, .. }
+            if matches!(
+                *source,
+                BridgeError::NoEngine { .. } | BridgeError::Zenoh { .. }
+            ) =>
+        {
+            EngineUnreachable::new_err(message)
+        }
         BridgeError::ConfigFile { .. }
         | BridgeError::ConfigSetting { .. }
         | BridgeError::UnknownMode(_)
@@ -42,7 +51,9 @@ pub fn to_py(error: BridgeError) -> PyErr {
         | BridgeError::ReadCheckpoint { .. }
         | BridgeError::CheckpointNotUtf8 { .. }
         | BridgeError::CheckpointConfig { .. } => PyValueError::new_err(message),
-        BridgeError::BadReply { .. }
+        BridgeError::Engine { .. }
+        | BridgeError::CheckpointNotLoaded { .. }
+        | BridgeError::BadReply { .. }
         | BridgeError::BadErrorReply { .. }
         | BridgeError::FrameLost { .. }
         | BridgeError::UnexpectedKey { .. } => CiflowError::new_err(message),

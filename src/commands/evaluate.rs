@@ -303,7 +303,7 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
             let policy = spread::load_checkpoint(&client, &engines, dir, &kwargs, signer)
                 .context("handing the checkpoint to the engines")?;
             progress.suspend(|| {
-                println!(
+                eprintln!(
                     "{} episodes on {} engine(s): {}",
                     config.episodes,
                     engines.len(),

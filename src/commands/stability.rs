@@ -10,17 +10,23 @@
 //! run through the computed-torque simulator of its robot: its task's arm with the real
 //! torque and rate limits (pouring: the Panda), from starts uniform inside the joint
 //! limits; for the planar tasks a point mass, from starts in the demonstrations' box
-//! scaled by `--scale`.
+//! scaled by `--scale`. With `--engines` the observation-space rollouts run on engines
+//! reachable on Zenoh ([`ciflow_bridge::spread`]).
 
 use std::path::PathBuf;
 
 use anyhow::Context;
+use ciflow_bridge::{CheckpointSigner, Client, spread};
 use ciflow_envs::actor::Model;
 use ciflow_envs::registry;
+use ciflow_evaluation::EvaluationError;
 use ciflow_evaluation::robot_loop::{RobotLoopConfig, RobotPush};
 use ciflow_evaluation::stability::StabilityConfig;
-use ciflow_evaluation::stability_check::{StabilityCheck, check_stability};
+use ciflow_evaluation::stability_check::{
+    StabilityCheck, Stage, check_stability, check_stability_with,
+};
 
+use super::network::NetworkArgs;
 use crate::progress;
 
 #[derive(clap::Args, Debug)]
@@ -76,6 +82,18 @@ pub struct StabilityArgs {
     /// Simulated seconds per robot-loop rollout.
     #[arg(long, default_value_t = 60.0)]
     pub robot_duration: f64,
+    /// Run the observation-space rollouts (training and far contexts, negative control) on
+    /// these engines instead of in this process: names, comma-separated, or `*` for every
+    /// engine reachable on Zenoh. The checkpoint is published to them; the report equals
+    /// the in-process one. The robot loop stays in this process.
+    #[arg(long, value_delimiter = ',', value_name = "ENGINES")]
+    pub engines: Vec<String>,
+    /// With --engines: sign the published checkpoint with this ed25519 private key (PKCS#8
+    /// PEM), for engines that load only signed checkpoints (`ciflow serve --trusted-key`).
+    #[arg(long, value_name = "PEM", requires = "engines")]
+    pub signing_key: Option<PathBuf>,
+    #[command(flatten)]
+    pub network: NetworkArgs,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -128,9 +146,32 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
         robot_loop,
     };
     let mut bars = progress::StageBars::new("rollouts");
-    let report = check_stability(&model, &check, |stage, total, done| {
-        bars.update(stage, stage.name(), total, done)
-    })
+    let progress = |stage: Stage, total, done| bars.update(stage, stage.name(), total, done);
+    let report = if args.engines.is_empty() {
+        check_stability(&model, &check, progress)
+    } else {
+        let client = Client::open(&args.network.options()?).context("joining Zenoh")?;
+        let engines = spread::resolve_engines(&client, &args.engines)?;
+        let signer = args
+            .signing_key
+            .as_deref()
+            .map(CheckpointSigner::from_pem_file)
+            .transpose()
+            .context("--signing-key")?;
+        let kwargs = model.task_kwargs()?;
+        let policy = spread::load_checkpoint(&client, &engines, dir, &kwargs, signer)
+            .context("handing the checkpoint to the engines")?;
+        eprintln!(
+            "rollouts on {} engine(s): {}",
+            engines.len(),
+            engines.join(", ")
+        );
+        let on_engines = |subject, config: &StabilityConfig, done: &mut dyn FnMut(usize)| {
+            spread::stability_rollouts(&client, &engines, &policy, subject, config, done)
+                .map_err(|e| EvaluationError::Remote(Box::new(e)))
+        };
+        check_stability_with(&model, &check, on_engines, progress)
+    }
     .context("the stability check")?;
     bars.finish();
     match args.json {

@@ -107,6 +107,10 @@ pub fn policy_evaluate(engine_id: &str, policy: &str) -> String {
     format!("{}/policy/{policy}/evaluate", engine(engine_id))
 }
 
+pub fn policy_stability(engine_id: &str, policy: &str) -> String {
+    format!("{}/policy/{policy}/stability", engine(engine_id))
+}
+
 // ---------------------------------------------------------------- policy publications
 
 /// Where a trainer publishes checkpoints of policy `<policy>` (pub/sub: about 1 MB).
@@ -136,6 +140,9 @@ pub enum Route<'a> {
         policy: &'a str,
     },
     PolicyEvaluate {
+        policy: &'a str,
+    },
+    PolicyStability {
         policy: &'a str,
     },
     Make {
@@ -226,6 +233,9 @@ pub fn parse_route(key: &str) -> Option<Route<'_>> {
         ["policy", policy, "act"] if is_plain_chunk(policy) => Some(Route::PolicyAct { policy }),
         ["policy", policy, "evaluate"] if is_plain_chunk(policy) => {
             Some(Route::PolicyEvaluate { policy })
+        }
+        ["policy", policy, "stability"] if is_plain_chunk(policy) => {
+            Some(Route::PolicyStability { policy })
         }
         ["client", identity, owned @ ..] if is_plain_chunk(identity) => match owned {
             ["make"] => Some(Route::Make { identity }),
@@ -332,6 +342,10 @@ mod tests {
         assert_eq!(
             parse_route(&policy_evaluate("e1", "pour")),
             Some(Route::PolicyEvaluate { policy: "pour" })
+        );
+        assert_eq!(
+            parse_route(&policy_stability("e1", "pour")),
+            Some(Route::PolicyStability { policy: "pour" })
         );
     }
 

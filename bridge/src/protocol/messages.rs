@@ -6,6 +6,8 @@ use std::collections::BTreeMap;
 
 use ciflow_envs::registry::Kwargs;
 use ciflow_envs::{EnvSpec, Info, ResetOptions};
+use ciflow_evaluation::stability::{Ending, StabilityConfig};
+use ciflow_evaluation::stability_check::Subject;
 use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
@@ -364,6 +366,28 @@ pub struct EvaluateRequest {
 pub struct EvaluateReply {
     pub v: u16,
     pub batch: EpisodeBatch,
+}
+
+/// `…/policy/<name>/stability`: the endings of the observation-space rollouts
+/// `first..first + count` of the stability check `config` of the (checkpoint) policy
+/// `<name>` or of its negative control — one share of `ciflow stability --engines`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StabilityRequest {
+    pub v: u16,
+    pub subject: Subject,
+    pub config: StabilityConfig,
+    pub first: u64,
+    pub count: u64,
+    /// How long the caller waits, in milliseconds (see [`Header::deadline_ms`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deadline_ms: Option<u32>,
+}
+
+/// Reply to `…/policy/<name>/stability`: one ending per rollout, in order.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StabilityReply {
+    pub v: u16,
+    pub endings: Vec<Ending>,
 }
 
 // ---------------------------------------------------------------- publications

@@ -4,9 +4,10 @@
 //! operations of bounded cost (step, reset, expert, a small batch or `act`, …) are
 //! answered directly in Zenoh's callback, so a step costs one network round trip and
 //! nothing more. Everything whose cost grows with its payload or may wait (`make`,
-//! `render`, `reset_batch`, `evaluate`, large `step_batch` and `act`) goes to a pool of worker
-//! threads ([`workers`]): Zenoh's own threads must never be held for long, or the links
-//! they serve miss their lease and Zenoh drops them, with every session of their clients.
+//! `render`, `reset_batch`, `evaluate`, `stability`, large `step_batch` and `act`) goes to a
+//! pool of worker threads ([`workers`]): Zenoh's own threads must never be held for long,
+//! or the links they serve miss their lease and Zenoh drops them, with every session of
+//! their clients.
 //!
 //! Every request is answered within its time budget ([`crate::limits`]) and inside the
 //! engine's bounds, or refused with a typed error that leaves nothing allocated. Every
@@ -28,7 +29,9 @@ use std::sync::atomic::AtomicU32;
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, Instant};
 
+use ciflow_envs::actor::Model;
 use ciflow_envs::registry::Kwargs;
+use ciflow_evaluation::stability::StabilityConfig;
 use ciflow_evaluation::{Acting, EpisodeBatch, EvaluationError, run_episodes};
 use rayon::prelude::*;
 use zenoh::Wait;
@@ -55,8 +58,8 @@ use crate::protocol::{
     AckReply, ActRequest, ActionReply, BatchStepRequest, ContextRequest, ErrorCode, ErrorReply,
     EvaluateReply, EvaluateRequest, F64s, LimitsReply, LimitsRequest, MakeReply, MakeRequest,
     PROTOCOL_VERSION, PerturbRequest, RenderReply, RenderRequest, ResetRequest, RunRequest,
-    SessionRequest, StepRequest, TaskInfo, TasksReply, TasksRequest, decode_request, encode,
-    requested_deadline,
+    SessionRequest, StabilityReply, StabilityRequest, StepRequest, TaskInfo, TasksReply,
+    TasksRequest, decode_request, encode, requested_deadline,
 };
 use crate::signing::TrustedKeys;
 use crate::task_factory::TaskFactory;
@@ -337,7 +340,9 @@ impl EngineServer {
 fn runs_inline(route: Option<Route<'_>>, query: &Query) -> bool {
     let small = || query.payload().is_none_or(|p| p.len() <= INLINE_BYTES);
     match route {
-        Some(Route::Make { .. } | Route::PolicyEvaluate { .. }) => false,
+        Some(Route::Make { .. } | Route::PolicyEvaluate { .. } | Route::PolicyStability { .. }) => {
+            false
+        }
         Some(Route::PolicyAct { .. }) => small(),
         Some(Route::Session { op, .. }) => match op {
             SessionOp::Render | SessionOp::ResetBatch => false,
@@ -524,6 +529,9 @@ impl Shared {
             }
             Some(Route::PolicyEvaluate { policy }) => {
                 self.evaluate(policy, decode_request(payload)?, deadline)
+            }
+            Some(Route::PolicyStability { policy }) => {
+                self.stability(policy, decode_request(payload)?, deadline)
             }
         }
     }
@@ -804,27 +812,10 @@ impl Shared {
     /// policy `name`, one at a time so the deadline is looked at between episodes.
     fn evaluate(&self, name: &str, request: EvaluateRequest, deadline: Deadline) -> Answer {
         let policy = self.policy(name)?;
-        let model = policy.model().ok_or_else(|| {
-            ErrorReply::new(
-                ErrorCode::InvalidRequest,
-                format!("policy `{name}` is not a checkpoint; only checkpoints evaluate"),
-            )
-        })?;
+        let model = checkpoint_model(name, policy.as_ref())?;
         let config = &request.config;
-        let (first, count) = (request.first as usize, request.count as usize);
-        let end = first
-            .checked_add(count)
-            .filter(|&end| count > 0 && end <= config.episodes)
-            .ok_or_else(|| {
-                ErrorReply::new(
-                    ErrorCode::InvalidRequest,
-                    format!(
-                        "episodes {first}..{first}+{count} are not a non-empty part of an \
-                         evaluation of {} episodes",
-                        config.episodes
-                    ),
-                )
-            })?;
+        let (first, end) = share(request.first, request.count, config.episodes, "episodes")?;
+        let count = end - first;
         let invalid =
             |e: EvaluationError| ErrorReply::new(ErrorCode::InvalidRequest, full_message(&e));
         config.validate().map_err(invalid)?;
@@ -854,6 +845,39 @@ impl Shared {
         Ok(encode(&EvaluateReply {
             v: PROTOCOL_VERSION,
             batch: batch.expect("at least one episode"),
+        }))
+    }
+
+    /// Rollouts `first..first + count` of the stability check `request.config` of
+    /// checkpoint policy `name` (or of its negative control), one at a time so the
+    /// deadline is looked at between rollouts; on one thread, the request being one of
+    /// several in flight.
+    fn stability(&self, name: &str, request: StabilityRequest, deadline: Deadline) -> Answer {
+        let policy = self.policy(name)?;
+        let model = checkpoint_model(name, policy.as_ref())?;
+        let config = StabilityConfig {
+            threads: 1,
+            ..request.config
+        };
+        let (first, end) = share(request.first, request.count, config.starts, "rollouts")?;
+        let mut endings = Vec::with_capacity(end - first);
+        for trial in first..end {
+            if deadline.passed() {
+                return Err(deadline_exceeded(&format!(
+                    "after {} of {} rollouts; ask for fewer at a time",
+                    trial - first,
+                    end - first
+                )));
+            }
+            let ending = request
+                .subject
+                .rollouts(model, &config, trial..trial + 1, |_| {})
+                .map_err(|e| ErrorReply::new(ErrorCode::InvalidRequest, full_message(&e)))?;
+            endings.extend(ending);
+        }
+        Ok(encode(&StabilityReply {
+            v: PROTOCOL_VERSION,
+            endings,
         }))
     }
 
@@ -932,6 +956,31 @@ impl Shared {
             action: F64s(actions),
         }))
     }
+}
+
+/// The trained model of policy `name`, which `evaluate` and `stability` need.
+fn checkpoint_model<'p>(name: &str, policy: &'p dyn Policy) -> Result<&'p Model, ErrorReply> {
+    policy.model().ok_or_else(|| {
+        ErrorReply::new(
+            ErrorCode::InvalidRequest,
+            format!("policy `{name}` is not a checkpoint; only checkpoints are evaluated"),
+        )
+    })
+}
+
+/// `first..first + count` as indices, if it is a non-empty part of `0..total` `what`.
+fn share(first: u64, count: u64, total: usize, what: &str) -> Result<(usize, usize), ErrorReply> {
+    usize::try_from(first)
+        .ok()
+        .zip(usize::try_from(count).ok())
+        .and_then(|(first, count)| Some((first, first.checked_add(count)?)))
+        .filter(|&(first, end)| first < end && end <= total)
+        .ok_or_else(|| {
+            ErrorReply::new(
+                ErrorCode::InvalidRequest,
+                format!("{what} {first}..{first}+{count} are not a non-empty part of 0..{total}"),
+            )
+        })
 }
 
 fn deadline_exceeded(when: &str) -> ErrorReply {
