@@ -13,21 +13,19 @@
 //! (`tests/sin_cos.rs` compares it with libm). Angles beyond [`REDUCED_RANGE`] (where
 //! `k P₂` would no longer be exact) and non-finite ones go to libm.
 
-use super::Real;
-
 /// `|x|` up to which the reduction keeps its accuracy: `k < 2¹⁶`, so `k P₁` and `k P₂`
 /// are exact.
-pub const REDUCED_RANGE: Real = 1.0e5;
+pub const REDUCED_RANGE: f64 = 1.0e5;
 
 /// `π/2` in three parts: `P₁`, `P₂` with 33 significant bits each, `P₃` the rest.
-const PI_2_PART1: Real = 1.570_796_326_734_125_6;
-const PI_2_PART2: Real = 6.077_100_506_303_966e-11;
-const PI_2_PART3: Real = 2.022_266_248_795_950_6e-21;
-const TWO_OVER_PI: Real = std::f64::consts::FRAC_2_PI;
+const PI_2_PART1: f64 = 1.570_796_326_734_125_6;
+const PI_2_PART2: f64 = 6.077_100_506_303_966e-11;
+const PI_2_PART3: f64 = 2.022_266_248_795_950_6e-21;
+const TWO_OVER_PI: f64 = std::f64::consts::FRAC_2_PI;
 /// `1.5 · 2⁵²`: adding it rounds to an integer, which then sits in the low mantissa bits.
-const ROUND_SHIFT: Real = 6_755_399_441_055_744.0;
+const ROUND_SHIFT: f64 = 6_755_399_441_055_744.0;
 
-const SIN: [Real; 6] = [
+const SIN: [f64; 6] = [
     -1.666_666_666_666_663_2e-1,
     8.333_333_333_322_49e-3,
     -1.984_126_982_985_795e-4,
@@ -35,7 +33,7 @@ const SIN: [Real; 6] = [
     -2.505_076_025_340_686_3e-8,
     1.589_690_995_211_55e-10,
 ];
-const COS: [Real; 6] = [
+const COS: [f64; 6] = [
     4.166_666_666_666_66e-2,
     -1.388_888_888_887_411e-3,
     2.480_158_728_947_673e-5,
@@ -46,7 +44,7 @@ const COS: [Real; 6] = [
 
 /// `(sin x, cos x)`.
 #[inline]
-pub fn sin_cos(x: Real) -> (Real, Real) {
+pub fn sin_cos(x: f64) -> (f64, f64) {
     if in_reduced_range(x) {
         reduced_sin_cos(x)
     } else {
@@ -58,7 +56,7 @@ pub fn sin_cos(x: Real) -> (Real, Real) {
 ///
 /// # Panics
 /// If the lengths differ.
-pub fn sin_cos_slice(x: &[Real], sin: &mut [Real], cos: &mut [Real]) {
+pub fn sin_cos_slice(x: &[f64], sin: &mut [f64], cos: &mut [f64]) {
     assert!(
         x.len() == sin.len() && x.len() == cos.len(),
         "sin_cos_slice: {} angles, {} sines, {} cosines",
@@ -88,12 +86,12 @@ pub fn sin_cos_slice(x: &[Real], sin: &mut [Real], cos: &mut [Real]) {
 
 /// False for NaN as well.
 #[inline(always)]
-fn in_reduced_range(x: Real) -> bool {
+fn in_reduced_range(x: f64) -> bool {
     x.abs() <= REDUCED_RANGE
 }
 
 #[inline(always)]
-fn reduced_sin_cos_lanes<const N: usize>(x: &[Real; N]) -> ([Real; N], [Real; N]) {
+fn reduced_sin_cos_lanes<const N: usize>(x: &[f64; N]) -> ([f64; N], [f64; N]) {
     let (mut sin, mut cos) = ([0.0; N], [0.0; N]);
     for i in 0..N {
         (sin[i], cos[i]) = reduced_sin_cos(x[i]);
@@ -103,7 +101,7 @@ fn reduced_sin_cos_lanes<const N: usize>(x: &[Real; N]) -> ([Real; N], [Real; N]
 
 /// `(sin x, cos x)` for `|x| ≤ REDUCED_RANGE`, without a branch.
 #[inline(always)]
-fn reduced_sin_cos(x: Real) -> (Real, Real) {
+fn reduced_sin_cos(x: f64) -> (f64, f64) {
     let shifted = x * TWO_OVER_PI + ROUND_SHIFT;
     let quadrant = shifted.to_bits();
     let k = shifted - ROUND_SHIFT;
@@ -119,15 +117,15 @@ fn reduced_sin_cos(x: Real) -> (Real, Real) {
     let sin_sign = (quadrant & 2) << 62;
     let cos_sign = (quadrant.wrapping_add(1) & 2) << 62;
     (
-        Real::from_bits(s.to_bits() ^ sin_sign),
-        Real::from_bits(c.to_bits() ^ cos_sign),
+        f64::from_bits(s.to_bits() ^ sin_sign),
+        f64::from_bits(c.to_bits() ^ cos_sign),
     )
 }
 
 /// `sin(r + t)` for `|r| ≤ π/4` and `|t|` below an ulp of `r`:
 /// `r + r³ (S₁ + r² (S₂ + … + r⁸ S₆)) + t (1 − r²/2)`.
 #[inline(always)]
-fn kernel_sin(r: Real, t: Real) -> Real {
+fn kernel_sin(r: f64, t: f64) -> f64 {
     let z = r * r;
     let w = z * z;
     let poly = SIN[1] + z * (SIN[2] + z * SIN[3]) + z * w * (SIN[4] + z * SIN[5]);
@@ -140,7 +138,7 @@ fn kernel_sin(r: Real, t: Real) -> Real {
 /// `1 − r²/2 + r⁴ (C₁ + … + r¹⁰ C₆) − r t`, with `1 − r²/2` rounded once and its rounding
 /// error added back (what keeps the error under one ulp).
 #[inline(always)]
-fn kernel_cos(r: Real, t: Real) -> Real {
+fn kernel_cos(r: f64, t: f64) -> f64 {
     let z = r * r;
     let w = z * z;
     let poly =

@@ -1,6 +1,9 @@
 //! The tch model and the pure-Rust policy are the same function: a checkpoint saved from
-//! a `VarStore` loads in `Policy` and agrees to 1e-5 relative (f64 on both sides), and
-//! tch's log-determinant equals that of its own autograd Jacobian.
+//! a `VarStore` loads in `Policy` and agrees to 1e-5 relative (f64 arithmetic on both
+//! sides, the weights representable in `f32`, which is how the Rust MLPs store them); with
+//! weights that are not, the rounding moves the Rust outputs by less than the 1e-4
+//! relative the f32 storage is allowed. tch's log-determinant equals that of its own
+//! autograd Jacobian.
 
 use ciflow_engine::flow::{
     CheckpointConfig, ContextSet, ContractionConfig, CouplingKind, FlowConfig, JointRange,
@@ -123,14 +126,18 @@ fn contracted(mut config: FlowConfig) -> FlowConfig {
 }
 
 /// Re-draws every variable `N(0, 0.7²)` so the maps are far from the identity init; in
-/// name order, so a seed gives the same model every run (the store's map has none).
-fn randomise(vs: &tch::nn::VarStore, seed: i64) {
+/// name order, so a seed gives the same model every run (the store's map has none). With
+/// `f32_values`, each is then rounded to the nearest `f32` (kept as `f64`).
+fn randomise(vs: &tch::nn::VarStore, seed: i64, f32_values: bool) {
     let mut variables: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
     variables.sort_by(|a, b| a.0.cmp(&b.0));
     seeded(seed, || {
         tch::no_grad(|| {
             for (_, mut v) in variables {
-                let noise = Tensor::randn(v.size(), (Kind::Double, v.device())) * 0.7;
+                let mut noise = Tensor::randn(v.size(), (Kind::Double, v.device())) * 0.7;
+                if f32_values {
+                    noise = noise.to_kind(Kind::Float).to_kind(Kind::Double);
+                }
                 v.copy_(&noise);
             }
         })
@@ -144,16 +151,41 @@ fn rows(t: &Tensor) -> Vec<Vec<f64>> {
         .collect()
 }
 
+/// `|a − b| ≤ 1e-5 (1 + max(|a|, |b|))`.
 fn relative_close(a: f64, b: f64, what: &str) {
+    within(a, b, 1e-5, what);
+}
+
+fn within(a: f64, b: f64, tolerance: f64, what: &str) {
     assert!(
-        (a - b).abs() <= 1e-5 * (1.0 + a.abs().max(b.abs())),
+        (a - b).abs() <= tolerance * (1.0 + a.abs().max(b.abs())),
         "{what}: tch {a} vs rust {b}"
     );
 }
 
 #[test]
 fn saved_var_store_loads_in_the_pure_rust_policy_and_agrees() {
-    let dir = std::env::temp_dir().join(format!("ciflow-parity-{}", std::process::id()));
+    agrees_with_tch(true, 1e-5);
+}
+
+#[test]
+fn weights_rounded_to_f32_move_the_rust_outputs_by_less_than_1e_4() {
+    agrees_with_tch(false, 1e-4);
+}
+
+/// Saves random models (their variables `f32` values or not), loads them in `Policy` and
+/// compares every output with tch's to `tolerance` relative.
+fn agrees_with_tch(f32_values: bool, tolerance: f64) {
+    let relative_close = |a: f64, b: f64, what: &str| {
+        within(
+            a,
+            b,
+            tolerance,
+            &format!("{what} (f32 values: {f32_values})"),
+        )
+    };
+    let dir =
+        std::env::temp_dir().join(format!("ciflow-parity-{}-{f32_values}", std::process::id()));
     for (k, config) in configs().iter().enumerate() {
         let vs = double_var_store();
         let model = FlowModel::new(
@@ -165,7 +197,7 @@ fn saved_var_store_loads_in_the_pure_rust_policy_and_agrees() {
                 speed: 1.0,
             },
         );
-        randomise(&vs, k as i64);
+        randomise(&vs, k as i64, f32_values);
         save_checkpoint(&dir, &CheckpointConfig::Flow(config.clone()), &vs).unwrap();
         let policy = Policy::load(&dir, Some("parity")).unwrap();
         let mut ws = policy.workspace();
@@ -241,7 +273,7 @@ fn log_determinant_equals_the_autograd_jacobian() {
                 speed: 1.0,
             },
         );
-        randomise(&vs, 50 + k as i64);
+        randomise(&vs, 50 + k as i64, true);
         let (d, m) = (config.state_dim as i64, config.context_dim as i64);
         for point in 0..5 {
             let (z, c) = seeded(200 + point, || {
@@ -290,7 +322,7 @@ fn context_sets_make_both_models_invariant_to_permutations_of_the_set() {
                 speed: 1.0,
             },
         );
-        randomise(&vs, 7);
+        randomise(&vs, 7, true);
         save_checkpoint(&dir, &CheckpointConfig::Flow(config.clone()), &vs).unwrap();
         let policy = Policy::load(&dir, Some("parity")).unwrap();
         let mut ws = policy.workspace();
