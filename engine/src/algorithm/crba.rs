@@ -25,17 +25,18 @@ pub fn crba<'d>(
 ) -> Result<&'d DMatrix, DynamicsError> {
     check_vector("q", q, model.nv())?;
     place_joints(model, data, q);
+    bodies_in_world(model, data);
     composite_rigid_body(model, data);
     Ok(&data.m)
 }
 
-/// The CRBA proper, on the placements `ᵖMᵢ(q)` already in `data.li_m_i` (forward
-/// dynamics reuses those of the RNEA).
-pub(crate) fn composite_rigid_body(model: &Model, data: &mut Data) {
-    let bodies = model.bodies();
-    let n = bodies.len();
+/// Every body in world coordinates, from the placements `ᵖMᵢ(q)` in `data.li_m_i`: its
+/// joint's motion subspace `Sᵢ` into `data.s_world` and its own inertia `Iᵢ` (not yet the
+/// composite) into `data.ic_world`. Forward dynamics runs its bias forces on them too.
+pub(crate) fn bodies_in_world(model: &Model, data: &mut Data) {
     let mut o_m_i = Se3::identity();
-    for ((body, li_m_i), (s_world, ic_world)) in bodies
+    for ((body, li_m_i), (s_world, ic_world)) in model
+        .bodies()
         .iter()
         .zip(&data.li_m_i)
         .zip(data.s_world.iter_mut().zip(data.ic_world.iter_mut()))
@@ -44,6 +45,12 @@ pub(crate) fn composite_rigid_body(model: &Model, data: &mut Data) {
         *s_world = o_m_i.act_motion(&body.joint.motion_subspace());
         *ic_world = o_m_i.act_inertia(&body.inertia);
     }
+}
+
+/// The CRBA proper on [`bodies_in_world`]'s quantities: the composites `Iᶜᵢ` (in
+/// `data.ic_world`, replacing the bodies' own inertias) and `M` into `data.m`.
+pub(crate) fn composite_rigid_body(model: &Model, data: &mut Data) {
+    let n = model.nv();
     for i in (1..n).rev() {
         let child = data.ic_world[i];
         data.ic_world[i - 1] += child;

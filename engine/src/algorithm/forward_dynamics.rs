@@ -1,10 +1,19 @@
 //! Forward dynamics `q̈ = M(q)⁻¹ (τ − C(q, q̇) q̇ − g(q))` by CRBA, RNEA and an in-place
 //! Cholesky factorisation `M = L Lᵀ`.
+//!
+//! Both run in world coordinates on one set of placed bodies (the CRBA's
+//! [`bodies_in_world`]): the bias forces `C q̇ + g` by the RNEA in a fixed frame
+//! (Featherstone 2008, §5.3: `vᵢ = vₚ + Sᵢ q̇ᵢ`, `aᵢ = aₚ + Ṡᵢ q̇ᵢ` with `Ṡᵢ = vᵢ × Sᵢ`,
+//! `fᵢ = Iᵢ aᵢ + vᵢ ×* Iᵢ vᵢ`, `τᵢ = Sᵢᵀ Σ_{k ⪰ i} fₖ`, gravity as the base acceleration
+//! `a₀ = −g`), where no quantity is carried from frame to frame, then the composites and
+//! `M` from the same inertias.
 
-use super::crba::composite_rigid_body;
-use super::{DynamicsError, check_vector, nonlinear_effects};
-use crate::math::{DMatrix, DVector, Real};
+use super::crba::{bodies_in_world, composite_rigid_body};
+use super::kinematics::place_joints;
+use super::{DynamicsError, check_vector};
+use crate::math::{DMatrix, DVector, Real, Vector3};
 use crate::model::{Data, Model};
+use crate::spatial::Motion;
 
 /// `q̈` into `data.ddq`; `data.m` and `data.nle` hold `M(q)` and `C q̇ + g` afterwards.
 pub fn forward_dynamics<'d>(
@@ -14,9 +23,12 @@ pub fn forward_dynamics<'d>(
     qd: &[Real],
     tau: &[Real],
 ) -> Result<&'d DVector, DynamicsError> {
+    check_vector("q", q, model.nv())?;
+    check_vector("qd", qd, model.nv())?;
     check_vector("tau", tau, model.nv())?;
-    // The RNEA leaves the joint placements `ᵖMᵢ(q)` in `data.li_m_i` for the CRBA.
-    nonlinear_effects(model, data, q, qd)?;
+    place_joints(model, data, q);
+    bodies_in_world(model, data);
+    bias_forces_in_world(model, data, qd);
     composite_rigid_body(model, data);
     data.cholesky.copy_from(&data.m);
     cholesky_in_place(&mut data.cholesky)?;
@@ -27,46 +39,80 @@ pub fn forward_dynamics<'d>(
     Ok(&data.ddq)
 }
 
-/// Overwrites the lower triangle of the symmetric `matrix` with `L`, `matrix = L Lᵀ`.
+/// `C q̇ + g` into `data.nle` by the RNEA in world coordinates, on the bodies' own world
+/// inertias and motion subspaces of [`bodies_in_world`].
+fn bias_forces_in_world(model: &Model, data: &mut Data, qd: &[Real]) {
+    let n = model.nv();
+    let (mut v, mut a) = (
+        Motion::zero(),
+        Motion::new(-model.gravity(), Vector3::zeros()),
+    );
+    let bodies = data.s_world.iter().zip(&data.ic_world).zip(qd);
+    for (f, ((s, inertia), qd)) in data.f.iter_mut().zip(bodies) {
+        let joint_velocity = *s * *qd;
+        v += joint_velocity;
+        a += v.cross(&joint_velocity);
+        *f = *inertia * a + v.cross_force(&(*inertia * v));
+    }
+    for i in (0..n).rev() {
+        data.nle[i] = data.f[i].dot(&data.s_world[i]);
+        if i > 0 {
+            let child = data.f[i];
+            data.f[i - 1] += child;
+        }
+    }
+}
+
+/// Overwrites the lower triangle of the symmetric `matrix` with `L`, `matrix = L Lᵀ`,
+/// except that the diagonal holds `1 / Lⱼⱼ`: divisions are the slow operations of a small
+/// factorisation and its solve, so each pivot is inverted once and then multiplied by.
+/// Column-major storage: `Lᵢⱼ` at `a[i + j n]`.
 fn cholesky_in_place(matrix: &mut DMatrix) -> Result<(), DynamicsError> {
     let n = matrix.nrows();
+    let a = matrix.as_mut_slice();
+    assert_eq!(a.len(), n * n);
     for j in 0..n {
-        let mut diagonal = matrix[(j, j)];
+        let mut diagonal = a[j + j * n];
         for k in 0..j {
-            diagonal -= matrix[(j, k)] * matrix[(j, k)];
+            let l_jk = a[j + k * n];
+            diagonal -= l_jk * l_jk;
         }
         // Also rejects a NaN pivot.
         if diagonal.is_nan() || diagonal <= 0.0 {
             return Err(DynamicsError::NotPositiveDefinite);
         }
-        let l_jj = diagonal.sqrt();
-        matrix[(j, j)] = l_jj;
+        let inverse = 1.0 / diagonal.sqrt();
+        a[j + j * n] = inverse;
         for i in j + 1..n {
-            let mut value = matrix[(i, j)];
+            let mut value = a[i + j * n];
             for k in 0..j {
-                value -= matrix[(i, k)] * matrix[(j, k)];
+                value -= a[i + k * n] * a[j + k * n];
             }
-            matrix[(i, j)] = value / l_jj;
+            a[i + j * n] = value * inverse;
         }
     }
     Ok(())
 }
 
-/// Solves `L Lᵀ x = b` in place (`b` becomes `x`), `L` the lower triangle of `factor`.
+/// Solves `L Lᵀ x = b` in place (`b` becomes `x`), `factor` as
+/// [`cholesky_in_place`] leaves it.
 fn cholesky_solve_in_place(factor: &DMatrix, b: &mut DVector) {
     let n = b.len();
+    let l = factor.as_slice();
+    let x = b.as_mut_slice();
+    assert!(l.len() == n * n && x.len() == n);
     for i in 0..n {
-        let mut value = b[i];
+        let mut value = x[i];
         for k in 0..i {
-            value -= factor[(i, k)] * b[k];
+            value -= l[i + k * n] * x[k];
         }
-        b[i] = value / factor[(i, i)];
+        x[i] = value * l[i + i * n];
     }
     for i in (0..n).rev() {
-        let mut value = b[i];
+        let mut value = x[i];
         for k in i + 1..n {
-            value -= factor[(k, i)] * b[k];
+            value -= l[k + i * n] * x[k];
         }
-        b[i] = value / factor[(i, i)];
+        x[i] = value * l[i + i * n];
     }
 }

@@ -30,7 +30,8 @@ pub struct Data {
     pub(crate) ic_world: Vec<Inertia>,
     pub(crate) ic_dot_world: Vec<Inertia>,
     pub(crate) hc_world: Vec<Force>,
-    /// Cholesky factor `L` of `M` (lower triangle), forward dynamics.
+    /// Cholesky factor `L` of `M` (lower triangle, the diagonal inverted), forward
+    /// dynamics.
     pub(crate) cholesky: DMatrix,
     pub tau: DVector,
     pub nle: DVector,
