@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{Scratch, ciflow, succeed};
+use common::{Scratch, ciflow, small_obstacle_policy, succeed};
 use serde_json::Value;
 
 fn json(path: &str) -> Value {
@@ -21,31 +21,8 @@ fn rate(v: &Value) -> f64 {
 #[test]
 fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
     let scratch = Scratch::new("evaluate-cli");
-    let (demos, policy) = (scratch.arg("demos"), scratch.arg("policy"));
+    let (demos, policy) = small_obstacle_policy(&scratch);
     let kwargs = ["--kwarg", "obstacles=1"];
-    succeed(
-        &[
-            &["demos", "--task", "obstacle-avoidance", "--episodes", "6"][..],
-            &kwargs,
-            &["--out", &demos],
-        ]
-        .concat(),
-    );
-    succeed(&[
-        "train",
-        "--task",
-        "obstacle-avoidance",
-        "--demos",
-        &demos,
-        "--out",
-        &policy,
-        "--epochs",
-        "2",
-        "--layers",
-        "2",
-        "--hidden",
-        "16,16",
-    ]);
     // By default the policy contracts about the obstacle centre (`flow::radial`) with
     // the task's 8 layers.
     let config = json(&format!("{policy}/config.json"));

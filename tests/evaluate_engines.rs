@@ -8,7 +8,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{Scratch, ciflow, endpoint, line_with, spawn_ciflow, succeed};
+use common::{Scratch, ciflow, endpoint, line_with, small_obstacle_policy, spawn_ciflow, succeed};
 use serde_json::Value;
 
 const PORT: u16 = 17_931;
@@ -20,33 +20,7 @@ fn json(path: &str) -> Value {
 #[test]
 fn episodes_spread_over_engines_give_the_in_process_report() {
     let scratch = Scratch::new("evaluate-engines");
-    let (demos, policy) = (scratch.arg("demos"), scratch.arg("policy"));
-    succeed(&[
-        "demos",
-        "--task",
-        "obstacle-avoidance",
-        "--kwarg",
-        "obstacles=1",
-        "--episodes",
-        "6",
-        "--out",
-        &demos,
-    ]);
-    succeed(&[
-        "train",
-        "--task",
-        "obstacle-avoidance",
-        "--demos",
-        &demos,
-        "--out",
-        &policy,
-        "--epochs",
-        "2",
-        "--layers",
-        "2",
-        "--hidden",
-        "16,16",
-    ]);
+    let (_, policy) = small_obstacle_policy(&scratch);
 
     let router = endpoint(PORT);
     let ready = Duration::from_secs(30);
@@ -94,7 +68,7 @@ fn episodes_spread_over_engines_give_the_in_process_report() {
     let printed = String::from_utf8_lossy(&output.stdout).to_string()
         + &String::from_utf8_lossy(&output.stderr);
     assert!(
-        printed.contains("8 episodes on 2 engine(s): spread-a, spread-b"),
+        printed.contains("on 2 engine(s): spread-a, spread-b"),
         "`*` finds both engines: {printed}"
     );
     let (local, spread) = (json(&local), json(&spread));
@@ -141,37 +115,27 @@ fn episodes_spread_over_engines_give_the_in_process_report() {
         "the engines' stability report equals the in-process one"
     );
 
-    let missing = ciflow(&[
-        "evaluate",
-        "--checkpoint",
-        &policy,
-        "--episodes",
-        "2",
-        "--engines",
-        "spread-a,nowhere",
-        "--connect",
-        &router,
-    ]);
-    let stderr = String::from_utf8_lossy(&missing.stderr);
-    assert!(!missing.status.success());
-    assert!(stderr.contains("engine `nowhere`"), "{stderr}");
-
-    // An engine that goes away is named, and the evaluation ends instead of waiting.
+    // An engine that is not there, and one that went away, are named; the work ends
+    // instead of waiting.
+    let fails_naming = |engines: &str, engine: &str| {
+        let output = ciflow(&[
+            "evaluate",
+            "--checkpoint",
+            &policy,
+            "--episodes",
+            "4",
+            "--engines",
+            engines,
+            "--connect",
+            &router,
+        ]);
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success());
+        assert!(stderr.contains(&format!("engine `{engine}`")), "{stderr}");
+    };
+    fails_naming("spread-a,nowhere", "nowhere");
     let (mut gone, _) = engines.pop().expect("two engines");
     gone.0.kill().expect("kill an engine");
     gone.0.wait().expect("the engine exits");
-    let after = ciflow(&[
-        "evaluate",
-        "--checkpoint",
-        &policy,
-        "--episodes",
-        "4",
-        "--engines",
-        "spread-a,spread-b",
-        "--connect",
-        &router,
-    ]);
-    let stderr = String::from_utf8_lossy(&after.stderr);
-    assert!(!after.status.success());
-    assert!(stderr.contains("engine `spread-b`"), "{stderr}");
+    fails_naming("spread-a,spread-b", "spread-b");
 }

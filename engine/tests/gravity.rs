@@ -5,23 +5,12 @@
 mod common;
 
 use ciflow_engine::math::{DVector, Vector3};
-use ciflow_engine::robot::{LockedJoint, PANDA_ARMATURE, Robot, SerialChain, UrdfOptions};
+use ciflow_engine::robot::{Robot, SerialChain};
 use common::*;
 
 fn panda_with_finger() -> SerialChain {
-    let options = UrdfOptions {
-        locked: vec![LockedJoint {
-            name: "panda_finger_joint2".into(),
-            position: 0.02,
-        }],
-        tool: Some("panda_leftfinger".into()),
-        armature: Some([PANDA_ARMATURE.as_slice(), &[0.01]].concat()),
-    };
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/assets/panda_gripper.urdf"
-    );
-    SerialChain::from_urdf_file(path, &options).expect("the URDF loads")
+    let path = format!("{}/{PANDA_GRIPPER_URDF}", env!("CARGO_MANIFEST_DIR"));
+    SerialChain::from_urdf_file(path, &panda_finger_options()).expect("the URDF loads")
 }
 
 #[test]

@@ -14,10 +14,10 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use ciflow_engine::math::{DMatrix, DVector, Real, Vector3};
-use ciflow_engine::robot::{LockedJoint, PANDA_ARMATURE, Robot, SerialChain, UrdfOptions};
+use ciflow_engine::robot::{PANDA_ARMATURE, Robot, SerialChain, UrdfOptions};
 use common::{
-    assert_close, assert_matrix_close, forward_dynamics, gravity, inverse_dynamics, mass_matrix,
-    random_state, rng,
+    PANDA_GRIPPER_URDF, assert_close, assert_matrix_close, forward_dynamics, gravity,
+    inverse_dynamics, mass_matrix, panda_finger_options, random_state, rng,
 };
 use rand::RngExt;
 use serde_json::{Value, json};
@@ -201,13 +201,5 @@ fn iiwa14_matches_pinocchio() {
 
 #[test]
 fn a_gripper_finger_moves_as_a_prismatic_joint_as_in_pinocchio() {
-    let options = UrdfOptions {
-        locked: vec![LockedJoint {
-            name: "panda_finger_joint2".into(),
-            position: 0.02,
-        }],
-        tool: Some("panda_leftfinger".into()),
-        armature: Some([PANDA_ARMATURE.as_slice(), &[0.01]].concat()),
-    };
-    compare_with_pinocchio("tests/assets/panda_gripper.urdf", options, 10);
+    compare_with_pinocchio(PANDA_GRIPPER_URDF, panda_finger_options(), 10);
 }

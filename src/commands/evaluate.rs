@@ -13,7 +13,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use ciflow_bridge::{CheckpointSigner, Client, spread};
+use ciflow_bridge::spread;
 use ciflow_engine::flow::Policy;
 use ciflow_envs::actor::{DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::dataset::{self, Episode};
@@ -26,7 +26,7 @@ use ciflow_evaluation::{
 use clap::ValueEnum;
 use serde::Serialize;
 
-use super::network::NetworkArgs;
+use super::network::EnginesArgs;
 use crate::parse::{parse_contexts, parse_key_value};
 use crate::progress;
 
@@ -101,23 +101,8 @@ pub struct EvaluateArgs {
     /// Keep the traces of the first K episodes in the JSON.
     #[arg(long, default_value_t = 0)]
     pub trajectories: usize,
-    /// Run the episodes on these engines instead of in this process: names, comma-separated,
-    /// or `*` for every engine reachable on Zenoh. The checkpoint is published to them;
-    /// the report equals the in-process one for the same seeds.
-    #[arg(
-        long,
-        value_delimiter = ',',
-        value_name = "ENGINES",
-        requires = "checkpoint",
-        conflicts_with_all = ["nll", "field"]
-    )]
-    pub engines: Vec<String>,
-    /// With --engines: sign the published checkpoint with this ed25519 private key (PKCS#8
-    /// PEM), for engines that load only signed checkpoints (`ciflow serve --trusted-key`).
-    #[arg(long, value_name = "PEM", requires = "engines")]
-    pub signing_key: Option<PathBuf>,
     #[command(flatten)]
-    pub network: NetworkArgs,
+    pub on: EnginesArgs,
     /// JSON file to write (episodes or --nll); the summary is printed either way.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -204,6 +189,11 @@ fn disturbance(
 }
 
 pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.on.engines.is_empty()
+            || (args.checkpoint.is_some() && args.nll.is_none() && args.field.is_none()),
+        "--engines runs a checkpoint's episodes (--checkpoint, without --nll or --field)"
+    );
     let Some(dir) = &args.checkpoint else {
         let task = registry::entry(args.task.as_deref().expect("clap requires --task"))?;
         return episodes(&args, task, Acting::Expert);
@@ -286,37 +276,22 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
         trajectories: args.trajectories,
     };
     let progress = progress::bar(args.episodes as u64, "evaluate", "episodes");
-    let report = match (&args.engines[..], acting, &args.checkpoint) {
-        ([], ..) => evaluate(env.as_mut(), acting, &config, |done| {
+    let on_engines = match (acting, &args.checkpoint) {
+        (Acting::Model(_), Some(dir)) => args.on.serve_checkpoint(dir, &kwargs)?,
+        _ => None,
+    };
+    let report = match on_engines {
+        None => evaluate(env.as_mut(), acting, &config, |done| {
             progress.set_position(done as u64)
         })
         .context("evaluating")?,
-        (engines, Acting::Model(_), Some(dir)) => {
-            let client = Client::open(&args.network.options()?).context("joining Zenoh")?;
-            let engines = spread::resolve_engines(&client, engines)?;
-            let signer = args
-                .signing_key
-                .as_deref()
-                .map(CheckpointSigner::from_pem_file)
-                .transpose()
-                .context("--signing-key")?;
-            let policy = spread::load_checkpoint(&client, &engines, dir, &kwargs, signer)
-                .context("handing the checkpoint to the engines")?;
-            progress.suspend(|| {
-                eprintln!(
-                    "{} episodes on {} engine(s): {}",
-                    config.episodes,
-                    engines.len(),
-                    engines.join(", ")
-                )
-            });
-            let batches = spread::evaluate(&client, &engines, &policy, &config, |done| {
+        Some(on) => {
+            let batches = spread::evaluate(&on.client, &on.engines, &on.policy, &config, |done| {
                 progress.set_position(done as u64)
             })
             .context("evaluating on the engines")?;
             summarize(env.spec(), acting, &config, batches)?
         }
-        _ => anyhow::bail!("--engines evaluates a checkpoint (--checkpoint)"),
     };
     progress.finish_and_clear();
     print!("{report}");

@@ -1,8 +1,10 @@
-//! How a command joins Zenoh: the flags every networked command takes.
+//! How a command joins Zenoh: the flags every networked command takes, and those of the
+//! commands that can run their work on engines (`evaluate`, `stability`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use ciflow_bridge::{Mode, NetworkOptions};
+use anyhow::Context;
+use ciflow_bridge::{CheckpointSigner, Client, Kwargs, Mode, NetworkOptions, spread};
 
 /// Zenoh flags. With none, the zero-configuration loopback default applies (an engine
 /// listens on tcp/127.0.0.1:7447, everything else connects there).
@@ -35,5 +37,59 @@ impl NetworkArgs {
             listen: self.listen.clone(),
             identity: self.identity.clone(),
         })
+    }
+}
+
+/// `--engines` and what it needs: run the work on engines instead of in this process.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct EnginesArgs {
+    /// Run on these engines instead of in this process: names, comma-separated, or `*` for
+    /// every engine reachable on Zenoh. The checkpoint is published to them; the report
+    /// equals the in-process one.
+    #[arg(long, value_delimiter = ',', value_name = "ENGINES")]
+    pub engines: Vec<String>,
+    /// With --engines: sign the published checkpoint with this ed25519 private key (PKCS#8
+    /// PEM), for engines that load only signed checkpoints (`ciflow serve --trusted-key`).
+    #[arg(long, value_name = "PEM", requires = "engines")]
+    pub signing_key: Option<PathBuf>,
+    #[command(flatten)]
+    pub network: NetworkArgs,
+}
+
+/// Engines serving a checkpoint, ready for [`spread`]'s work.
+pub struct OnEngines {
+    pub client: Client,
+    pub engines: Vec<String>,
+    /// The name the checkpoint is served under.
+    pub policy: String,
+}
+
+impl EnginesArgs {
+    /// Joins Zenoh, finds the engines and hands them the checkpoint `dir` built for the
+    /// task with `kwargs`; `None` without `--engines`.
+    pub fn serve_checkpoint(
+        &self,
+        dir: &Path,
+        kwargs: &Kwargs,
+    ) -> anyhow::Result<Option<OnEngines>> {
+        if self.engines.is_empty() {
+            return Ok(None);
+        }
+        let client = Client::open(&self.network.options()?).context("joining Zenoh")?;
+        let engines = spread::resolve_engines(&client, &self.engines)?;
+        let signer = self
+            .signing_key
+            .as_deref()
+            .map(CheckpointSigner::from_pem_file)
+            .transpose()
+            .context("--signing-key")?;
+        let policy = spread::load_checkpoint(&client, &engines, dir, kwargs, signer)
+            .context("handing the checkpoint to the engines")?;
+        eprintln!("on {} engine(s): {}", engines.len(), engines.join(", "));
+        Ok(Some(OnEngines {
+            client,
+            engines,
+            policy,
+        }))
     }
 }

@@ -16,7 +16,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use ciflow_bridge::{CheckpointSigner, Client, spread};
+use ciflow_bridge::spread;
 use ciflow_envs::actor::Model;
 use ciflow_envs::registry;
 use ciflow_evaluation::EvaluationError;
@@ -26,7 +26,7 @@ use ciflow_evaluation::stability_check::{
     StabilityCheck, Stage, check_stability, check_stability_with,
 };
 
-use super::network::NetworkArgs;
+use super::network::EnginesArgs;
 use crate::progress;
 
 #[derive(clap::Args, Debug)]
@@ -82,18 +82,10 @@ pub struct StabilityArgs {
     /// Simulated seconds per robot-loop rollout.
     #[arg(long, default_value_t = 60.0)]
     pub robot_duration: f64,
-    /// Run the observation-space rollouts (training and far contexts, negative control) on
-    /// these engines instead of in this process: names, comma-separated, or `*` for every
-    /// engine reachable on Zenoh. The checkpoint is published to them; the report equals
-    /// the in-process one. The robot loop stays in this process.
-    #[arg(long, value_delimiter = ',', value_name = "ENGINES")]
-    pub engines: Vec<String>,
-    /// With --engines: sign the published checkpoint with this ed25519 private key (PKCS#8
-    /// PEM), for engines that load only signed checkpoints (`ciflow serve --trusted-key`).
-    #[arg(long, value_name = "PEM", requires = "engines")]
-    pub signing_key: Option<PathBuf>,
+    /// The observation-space rollouts (training and far contexts, negative control) on
+    /// engines; the robot loop stays in this process.
     #[command(flatten)]
-    pub network: NetworkArgs,
+    pub on: EnginesArgs,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -147,30 +139,23 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
     };
     let mut bars = progress::StageBars::new("rollouts");
     let progress = |stage: Stage, total, done| bars.update(stage, stage.name(), total, done);
-    let report = if args.engines.is_empty() {
-        check_stability(&model, &check, progress)
-    } else {
-        let client = Client::open(&args.network.options()?).context("joining Zenoh")?;
-        let engines = spread::resolve_engines(&client, &args.engines)?;
-        let signer = args
-            .signing_key
-            .as_deref()
-            .map(CheckpointSigner::from_pem_file)
-            .transpose()
-            .context("--signing-key")?;
-        let kwargs = model.task_kwargs()?;
-        let policy = spread::load_checkpoint(&client, &engines, dir, &kwargs, signer)
-            .context("handing the checkpoint to the engines")?;
-        eprintln!(
-            "rollouts on {} engine(s): {}",
-            engines.len(),
-            engines.join(", ")
-        );
-        let on_engines = |subject, config: &StabilityConfig, done: &mut dyn FnMut(usize)| {
-            spread::stability_rollouts(&client, &engines, &policy, subject, config, done)
+    let on_engines = args.on.serve_checkpoint(dir, &model.task_kwargs()?)?;
+    let report = match on_engines {
+        None => check_stability(&model, &check, progress),
+        Some(on) => {
+            let rollouts = |subject, config: &StabilityConfig, done: &mut dyn FnMut(usize)| {
+                spread::stability_rollouts(
+                    &on.client,
+                    &on.engines,
+                    &on.policy,
+                    subject,
+                    config,
+                    done,
+                )
                 .map_err(|e| EvaluationError::Remote(Box::new(e)))
-        };
-        check_stability_with(&model, &check, on_engines, progress)
+            };
+            check_stability_with(&model, &check, rollouts, progress)
+        }
     }
     .context("the stability check")?;
     bars.finish();

@@ -161,6 +161,40 @@ pub fn python() -> PathBuf {
     path
 }
 
+/// A small obstacle-avoidance policy (one obstacle) made by the command line in
+/// `scratch`: six expert demonstrations, then two epochs of a two-layer flow with 16 × 16
+/// hidden units. Returns the dataset's and the checkpoint's directories.
+pub fn small_obstacle_policy(scratch: &Scratch) -> (String, String) {
+    let (demos, policy) = (scratch.arg("demos"), scratch.arg("policy"));
+    succeed(&[
+        "demos",
+        "--task",
+        "obstacle-avoidance",
+        "--kwarg",
+        "obstacles=1",
+        "--episodes",
+        "6",
+        "--out",
+        &demos,
+    ]);
+    succeed(&[
+        "train",
+        "--task",
+        "obstacle-avoidance",
+        "--demos",
+        &demos,
+        "--out",
+        &policy,
+        "--epochs",
+        "2",
+        "--layers",
+        "2",
+        "--hidden",
+        "16,16",
+    ]);
+    (demos, policy)
+}
+
 /// The Zenoh endpoint of a test engine: loopback TCP on `port`. Each test picks its own
 /// port so that parallel tests never meet.
 pub fn endpoint(port: u16) -> String {

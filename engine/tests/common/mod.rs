@@ -2,9 +2,25 @@
 #![allow(dead_code)]
 
 use ciflow_engine::math::{DMatrix, DVector, Real};
-use ciflow_engine::robot::Robot;
+use ciflow_engine::robot::{LockedJoint, PANDA_ARMATURE, Robot, UrdfOptions};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+
+/// The Panda with its gripper, relative to the engine crate.
+pub const PANDA_GRIPPER_URDF: &str = "tests/assets/panda_gripper.urdf";
+
+/// [`PANDA_GRIPPER_URDF`] as an 8-joint chain ending in the left finger (prismatic), the
+/// right one locked at 2 cm, as Pinocchio's `buildReducedModel` would lock it.
+pub fn panda_finger_options() -> UrdfOptions {
+    UrdfOptions {
+        locked: vec![LockedJoint {
+            name: "panda_finger_joint2".into(),
+            position: 0.02,
+        }],
+        tool: Some("panda_leftfinger".into()),
+        armature: Some([PANDA_ARMATURE.as_slice(), &[0.01]].concat()),
+    }
+}
 
 pub fn rng(seed: u64) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(seed)
