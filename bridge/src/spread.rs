@@ -88,7 +88,7 @@ pub fn load_checkpoint(
             .hash(&mut hasher);
     }
     serde_json::to_string(kwargs)
-        .expect("construction arguments serialise")
+        .map_err(|e| BridgeError::InvalidArgument(format!("construction arguments: {e}")))?
         .hash(&mut hasher);
     let name = format!("eval-{:016x}", hasher.finish());
     let publisher = CheckpointPublisher::new(client.zenoh_session(), &name)?
