@@ -16,11 +16,12 @@
 //! Then `C q̇` is the velocity product of the RNEA and `Ṁ = C + Cᵀ`. Every product is a
 //! structured spatial operation (no 6 × 6 matrix is formed).
 
+use super::crba::bodies_in_world;
 use super::kinematics::place_joints;
 use super::{DynamicsError, check_vector};
 use crate::math::{DMatrix, Real};
 use crate::model::{Data, Model};
-use crate::spatial::{Force, Motion, Se3};
+use crate::spatial::{Force, Motion};
 
 /// `C(q, q̇)` (n × n) into `data.c`; also leaves `⁰Mᵢ` in `data.o_m_i`.
 pub fn coriolis_matrix<'d>(
@@ -33,19 +34,18 @@ pub fn coriolis_matrix<'d>(
     check_vector("qd", qd, model.nv())?;
     let n = model.nv();
     place_joints(model, data, q);
-    let mut o_m_i = Se3::identity();
+    bodies_in_world(model, data);
     let mut v = Motion::zero();
-    for (i, body) in model.bodies().iter().enumerate() {
-        o_m_i = o_m_i * data.li_m_i[i];
-        let s = o_m_i.act_motion(&body.joint.motion_subspace());
-        v += s * qd[i];
-        let inertia = o_m_i.act_inertia(&body.inertia);
-        data.o_m_i[i] = o_m_i;
-        data.s_world[i] = s;
-        data.s_dot_world[i] = v.cross(&s);
-        data.ic_world[i] = inertia;
-        data.ic_dot_world[i] = inertia.variation(&v);
-        data.hc_world[i] = inertia * v;
+    let bodies = data.s_world.iter().zip(&data.ic_world).zip(qd);
+    let rates = data
+        .s_dot_world
+        .iter_mut()
+        .zip(data.ic_dot_world.iter_mut().zip(data.hc_world.iter_mut()));
+    for (((s, inertia), qd), (s_dot, (ic_dot, hc))) in bodies.zip(rates) {
+        v += *s * *qd;
+        *s_dot = v.cross(s);
+        *ic_dot = inertia.variation(&v);
+        *hc = *inertia * v;
     }
     for k in (0..n.saturating_sub(1)).rev() {
         let (ic, ic_dot, hc) = (

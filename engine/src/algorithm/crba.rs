@@ -10,14 +10,13 @@
 //! independent 6-vector dot product and the composites are plain sums, at the price of
 //! one inertia transform per body (the body-frame form needs `n − 1`).
 
-use super::kinematics::place_joints;
+use super::kinematics::{place_bodies, place_joints};
 use super::{DynamicsError, check_vector};
 use crate::math::{DMatrix, Real};
 use crate::model::{Data, Model};
-use crate::spatial::Se3;
 
 /// The joint-space inertia matrix `M(q)` (n × n, both triangles filled) into `data.m`;
-/// also leaves `ᵖMᵢ` in `data.li_m_i`.
+/// also leaves `ᵖMᵢ` in `data.li_m_i` and `⁰Mᵢ` in `data.o_m_i`.
 pub fn crba<'d>(
     model: &Model,
     data: &'d mut Data,
@@ -30,18 +29,17 @@ pub fn crba<'d>(
     Ok(&data.m)
 }
 
-/// Every body in world coordinates, from the placements `ᵖMᵢ(q)` in `data.li_m_i`: its
-/// joint's motion subspace `Sᵢ` into `data.s_world` and its own inertia `Iᵢ` (not yet the
-/// composite) into `data.ic_world`. Forward dynamics runs its bias forces on them too.
+/// Every body in world coordinates: its placement `⁰Mᵢ` into `data.o_m_i` (from the
+/// joints' placements in `data.li_m_i`), its joint's motion subspace `Sᵢ` into
+/// `data.s_world` and its own inertia `Iᵢ` (not yet the composite) into `data.ic_world`.
+/// Forward dynamics runs its bias forces on them, the Coriolis matrix its rates.
 pub(crate) fn bodies_in_world(model: &Model, data: &mut Data) {
-    let mut o_m_i = Se3::identity();
-    for ((body, li_m_i), (s_world, ic_world)) in model
-        .bodies()
-        .iter()
-        .zip(&data.li_m_i)
-        .zip(data.s_world.iter_mut().zip(data.ic_world.iter_mut()))
-    {
-        o_m_i = o_m_i * *li_m_i;
+    place_bodies(data);
+    for (body, (o_m_i, (s_world, ic_world))) in model.bodies().iter().zip(
+        data.o_m_i
+            .iter()
+            .zip(data.s_world.iter_mut().zip(data.ic_world.iter_mut())),
+    ) {
         *s_world = o_m_i.act_motion(&body.joint.motion_subspace());
         *ic_world = o_m_i.act_inertia(&body.inertia);
     }

@@ -16,11 +16,10 @@
 //! through every joint, where one pass of forward kinematics and a suffix sum of 3-vectors
 //! suffice. `tests/rnea.rs` checks the two against each other.
 
-use super::kinematics::place_joints;
+use super::kinematics::{place_bodies, place_joints};
 use super::{DynamicsError, check_vector};
 use crate::math::{DVector, Real, Vector3};
 use crate::model::{Data, JointKind, Model};
-use crate::spatial::Se3;
 
 /// Generalized gravity `g(q)` (n) into `data.g`; also leaves `ᵖMᵢ` in `data.li_m_i` and
 /// `⁰Mᵢ` in `data.o_m_i`.
@@ -32,12 +31,11 @@ pub fn generalized_gravity<'d>(
     check_vector("q", q, model.nv())?;
     let bodies = model.bodies();
     place_joints(model, data, q);
-    let mut o_m_i = Se3::identity();
+    place_bodies(data);
     // Each body's first moment `mₖ cₖ` in the base frame, in `data.first_moments`.
-    for (i, body) in bodies.iter().enumerate() {
-        o_m_i = o_m_i * data.li_m_i[i];
-        data.o_m_i[i] = o_m_i;
-        data.first_moments[i] =
+    for ((body, o_m_i), first_moment) in bodies.iter().zip(&data.o_m_i).zip(&mut data.first_moments)
+    {
+        *first_moment =
             o_m_i.rotation * body.inertia.first_moment + o_m_i.translation * body.inertia.mass;
     }
     let gravity = model.gravity();

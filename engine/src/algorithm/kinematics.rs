@@ -10,11 +10,7 @@ use crate::spatial::Se3;
 pub fn forward_kinematics(model: &Model, data: &mut Data, q: &[Real]) -> Result<(), DynamicsError> {
     check_vector("q", q, model.nv())?;
     place_joints(model, data, q);
-    let mut o_m_i = Se3::identity();
-    for (li_m_i, o_m) in data.li_m_i.iter().zip(&mut data.o_m_i) {
-        o_m_i = o_m_i * *li_m_i;
-        *o_m = o_m_i;
-    }
+    place_bodies(data);
     Ok(())
 }
 
@@ -27,6 +23,16 @@ pub(crate) fn place_joints(model: &Model, data: &mut Data, q: &[Real]) {
         data.li_m_i[i] = body
             .joint
             .transform_from(q[i], data.sin_q[i], data.cos_q[i]);
+    }
+}
+
+/// `⁰Mᵢ = ⁰Mₚ ᵖMᵢ` of every body into `data.o_m_i`, from the joints' placements in
+/// `data.li_m_i` ([`place_joints`]).
+pub(crate) fn place_bodies(data: &mut Data) {
+    let mut o_m_i = Se3::identity();
+    for (li_m_i, o_m) in data.li_m_i.iter().zip(&mut data.o_m_i) {
+        o_m_i = o_m_i * *li_m_i;
+        *o_m = o_m_i;
     }
 }
 
