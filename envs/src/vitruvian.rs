@@ -329,13 +329,10 @@ mod tests {
             for i in 0..400 {
                 let x = Vector2::new(-1.3 + 0.0065 * i as f64, 1.1 - 0.0057 * i as f64);
                 let brute = (0..n)
+                    // One square root per segment, the nearest kept.
                     .map(|j| {
                         let (a, b) = (&outline.points[j], &outline.points[(j + 1) % n]);
-                        let chord = b - a;
-                        let along = ((x - a).dot(&chord)
-                            / chord.norm_squared().max(f64::MIN_POSITIVE))
-                        .clamp(0.0, 1.0);
-                        (x - (a + along * chord)).norm()
+                        segment_distance_squared(&x, a, b).sqrt()
                     })
                     .fold(f64::INFINITY, f64::min);
                 assert_eq!(outline.distance(&x), brute, "c = {c}, {x:?}");
