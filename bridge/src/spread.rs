@@ -24,7 +24,7 @@ use ciflow_evaluation::stability::{Ending, StabilityConfig};
 use ciflow_evaluation::stability_check::Subject;
 use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 
-use crate::client::Client;
+use crate::client::{Client, EngineInfo};
 use crate::error::BridgeError;
 use crate::publisher::CheckpointPublisher;
 use crate::signing::CheckpointSigner;
@@ -43,23 +43,44 @@ pub const LOAD_TIMEOUT: Duration = Duration::from_secs(15);
 /// before Zenoh has routed the engines' subscriptions reaches nobody.
 const REPUBLISH_INTERVAL: Duration = Duration::from_millis(500);
 
-/// The engines `wanted` names: every reachable engine for `["*"]` (at least one must
-/// answer), else the names given, each asked whether it is there.
-pub fn resolve_engines(client: &Client, wanted: &[String]) -> Result<Vec<String>, BridgeError> {
+/// The engines `wanted` names, to run work of `task` (Gymnasium id or short name): every
+/// reachable engine that serves it for `["*"]` (at least one must), else the names given,
+/// each asked whether it is there and serves it.
+pub fn resolve_engines(
+    client: &Client,
+    wanted: &[String],
+    task: &str,
+) -> Result<Vec<String>, BridgeError> {
+    let serves = |info: &EngineInfo| {
+        info.tasks
+            .iter()
+            .any(|t| t.name == task || t.spec.id == task)
+    };
     if wanted.iter().any(|w| w == "*") {
-        let engines: Vec<String> = client.discover()?.into_iter().map(|e| e.name).collect();
+        let engines: Vec<String> = client
+            .discover()?
+            .into_iter()
+            .filter(serves)
+            .map(|e| e.name)
+            .collect();
         if engines.is_empty() {
-            return Err(BridgeError::InvalidArgument(
-                "no engine answered; start some with `ciflow serve`".into(),
-            ));
+            return Err(BridgeError::InvalidArgument(format!(
+                "no engine serving {task} answered; start some with `ciflow serve`"
+            )));
         }
         return Ok(engines);
     }
     let mut engines = Vec::with_capacity(wanted.len());
     for engine in wanted {
-        client
+        let info = client
             .engine_info(engine)
             .map_err(|source| engine_error(engine, source))?;
+        if !serves(&info) {
+            return Err(engine_error(
+                engine,
+                BridgeError::InvalidArgument(format!("it does not serve {task}")),
+            ));
+        }
         if !engines.contains(engine) {
             engines.push(engine.clone());
         }

@@ -277,7 +277,9 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
     };
     let progress = progress::bar(args.episodes as u64, "evaluate", "episodes");
     let on_engines = match (acting, &args.checkpoint) {
-        (Acting::Model(_), Some(dir)) => args.on.serve_checkpoint(dir, &kwargs)?,
+        (Acting::Model(model), Some(dir)) => {
+            args.on.serve_checkpoint(dir, model.task(), &kwargs)?
+        }
         _ => None,
     };
     let report = match on_engines {

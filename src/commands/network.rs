@@ -65,18 +65,19 @@ pub struct OnEngines {
 }
 
 impl EnginesArgs {
-    /// Joins Zenoh, finds the engines and hands them the checkpoint `dir` built for the
-    /// task with `kwargs`; `None` without `--engines`.
+    /// Joins Zenoh, finds the engines that serve `task` and hands them the checkpoint
+    /// `dir` of that task, built with `kwargs`; `None` without `--engines`.
     pub fn serve_checkpoint(
         &self,
         dir: &Path,
+        task: &str,
         kwargs: &Kwargs,
     ) -> anyhow::Result<Option<OnEngines>> {
         if self.engines.is_empty() {
             return Ok(None);
         }
         let client = Client::open(&self.network.options()?).context("joining Zenoh")?;
-        let engines = spread::resolve_engines(&client, &self.engines)?;
+        let engines = spread::resolve_engines(&client, &self.engines, task)?;
         let signer = self
             .signing_key
             .as_deref()

@@ -139,7 +139,9 @@ pub fn run(args: StabilityArgs) -> anyhow::Result<()> {
     };
     let mut bars = progress::StageBars::new("rollouts");
     let progress = |stage: Stage, total, done| bars.update(stage, stage.name(), total, done);
-    let on_engines = args.on.serve_checkpoint(dir, &model.task_kwargs()?)?;
+    let on_engines = args
+        .on
+        .serve_checkpoint(dir, model.task(), &model.task_kwargs()?)?;
     let report = match on_engines {
         None => check_stability(&model, &check, progress),
         Some(on) => {

@@ -24,6 +24,7 @@ mod usage;
 mod workers;
 
 use std::collections::HashMap;
+use std::ops::Range;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::atomic::AtomicU32;
 use std::sync::{Arc, Mutex, RwLock};
@@ -32,7 +33,7 @@ use std::time::{Duration, Instant};
 use ciflow_envs::actor::Model;
 use ciflow_envs::registry::Kwargs;
 use ciflow_evaluation::stability::StabilityConfig;
-use ciflow_evaluation::{Acting, EpisodeBatch, EvaluationError, run_episodes};
+use ciflow_evaluation::{Acting, EpisodeBatch, run_episodes};
 use rayon::prelude::*;
 use zenoh::Wait;
 use zenoh::liveliness::LivelinessToken;
@@ -814,21 +815,14 @@ impl Shared {
         let policy = self.policy(name)?;
         let model = checkpoint_model(name, policy.as_ref())?;
         let config = &request.config;
-        let (first, end) = share(request.first, request.count, config.episodes, "episodes")?;
-        let count = end - first;
-        let invalid =
-            |e: EvaluationError| ErrorReply::new(ErrorCode::InvalidRequest, full_message(&e));
-        config.validate().map_err(invalid)?;
+        let episodes = share(request.first, request.count, config.episodes, "episodes")?;
+        config
+            .validate()
+            .map_err(|e| ErrorReply::new(ErrorCode::InvalidRequest, full_message(&e)))?;
         let mut env = (self.factory(&policy.info().task)?.make)(&policy.task_kwargs())
             .map_err(ErrorReply::from)?;
         let mut batch: Option<EpisodeBatch> = None;
-        for episode in first..end {
-            if deadline.passed() {
-                return Err(deadline_exceeded(&format!(
-                    "after {} of {count} episodes; ask for fewer at a time",
-                    episode - first
-                )));
-            }
+        one_at_a_time(episodes, deadline, "episodes", |episode| {
             let one = run_episodes(
                 env.as_mut(),
                 Acting::Model(model),
@@ -841,10 +835,11 @@ impl Shared {
                 None => batch = Some(one),
                 Some(batch) => batch.append(one),
             }
-        }
+            Ok(())
+        })?;
         Ok(encode(&EvaluateReply {
             v: PROTOCOL_VERSION,
-            batch: batch.expect("at least one episode"),
+            batch: batch.expect("a share holds at least one episode"),
         }))
     }
 
@@ -859,22 +854,16 @@ impl Shared {
             threads: 1,
             ..request.config
         };
-        let (first, end) = share(request.first, request.count, config.starts, "rollouts")?;
-        let mut endings = Vec::with_capacity(end - first);
-        for trial in first..end {
-            if deadline.passed() {
-                return Err(deadline_exceeded(&format!(
-                    "after {} of {} rollouts; ask for fewer at a time",
-                    trial - first,
-                    end - first
-                )));
-            }
+        let trials = share(request.first, request.count, config.starts, "rollouts")?;
+        let mut endings = Vec::with_capacity(trials.len());
+        one_at_a_time(trials, deadline, "rollouts", |trial| {
             let ending = request
                 .subject
                 .rollouts(model, &config, trial..trial + 1, |_| {})
                 .map_err(|e| ErrorReply::new(ErrorCode::InvalidRequest, full_message(&e)))?;
             endings.extend(ending);
-        }
+            Ok(())
+        })?;
         Ok(encode(&StabilityReply {
             v: PROTOCOL_VERSION,
             endings,
@@ -969,18 +958,39 @@ fn checkpoint_model<'p>(name: &str, policy: &'p dyn Policy) -> Result<&'p Model,
 }
 
 /// `first..first + count` as indices, if it is a non-empty part of `0..total` `what`.
-fn share(first: u64, count: u64, total: usize, what: &str) -> Result<(usize, usize), ErrorReply> {
+fn share(first: u64, count: u64, total: usize, what: &str) -> Result<Range<usize>, ErrorReply> {
     usize::try_from(first)
         .ok()
         .zip(usize::try_from(count).ok())
-        .and_then(|(first, count)| Some((first, first.checked_add(count)?)))
-        .filter(|&(first, end)| first < end && end <= total)
+        .and_then(|(first, count)| Some(first..first.checked_add(count)?))
+        .filter(|share| !share.is_empty() && share.end <= total)
         .ok_or_else(|| {
             ErrorReply::new(
                 ErrorCode::InvalidRequest,
                 format!("{what} {first}..{first}+{count} are not a non-empty part of 0..{total}"),
             )
         })
+}
+
+/// `run(i)` for each `i` of `items` in order, the deadline looked at before each: a
+/// request of several episodes or rollouts stops between two of them.
+fn one_at_a_time(
+    items: Range<usize>,
+    deadline: Deadline,
+    what: &str,
+    mut run: impl FnMut(usize) -> Result<(), ErrorReply>,
+) -> Result<(), ErrorReply> {
+    for item in items.clone() {
+        if deadline.passed() {
+            return Err(deadline_exceeded(&format!(
+                "after {} of {} {what}; ask for fewer at a time",
+                item - items.start,
+                items.len()
+            )));
+        }
+        run(item)?;
+    }
+    Ok(())
 }
 
 fn deadline_exceeded(when: &str) -> ErrorReply {
