@@ -104,3 +104,27 @@ fn hand_mass_is_lumped_into_link_7() {
         4.970684 + 0.646926 + 3.228604 + 3.587895 + 1.225946 + 1.666555 + 0.735522 + 0.73;
     assert!((total(panda().model()) - expected).abs() < 1e-12);
 }
+
+/// Thousands of environments hold a Panda each: they share one model and own only their
+/// workspace, and changing one arm's model copies it instead of changing the others.
+#[test]
+fn pandas_share_one_model_until_one_is_changed() {
+    let (first, mut second) = (panda(), panda());
+    assert!(std::ptr::eq(first.model(), second.model()));
+    second
+        .set_gravity(ciflow_engine::math::Vector3::new(0.0, 0.0, -1.62))
+        .unwrap();
+    assert!(!std::ptr::eq(first.model(), second.model()));
+    assert_eq!(
+        first.model(),
+        panda().model(),
+        "the shared model is untouched"
+    );
+    let mut rng = rng(41);
+    let s = random_state(&first, &mut rng);
+    let (mut earth, mut moon) = (DVector::zeros(7), DVector::zeros(7));
+    let mut first = first;
+    first.gravity(s.q.as_slice(), &mut earth).unwrap();
+    second.gravity(s.q.as_slice(), &mut moon).unwrap();
+    assert!((earth * (1.62 / 9.81) - moon).amax() < 1e-9);
+}

@@ -13,6 +13,7 @@
 //! a push meets.
 
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
+use std::sync::OnceLock;
 
 use super::{JointLimits, SerialChain};
 use crate::math::{DVector, Matrix3, Real, Vector3};
@@ -147,16 +148,23 @@ pub fn panda_limits() -> JointLimits {
 
 /// The Panda from the shipped URDF, with [`panda_limits`], [`PANDA_ARMATURE`] and the hand
 /// as tool frame.
+///
+/// The URDF is parsed once per process; every call returns a clone sharing that model.
 pub fn panda() -> SerialChain {
-    let mut robot =
-        SerialChain::from_urdf_str(PANDA_URDF).expect("the shipped Panda URDF is valid (tested)");
-    robot
-        .set_limits(panda_limits())
-        .expect("the Panda limits are valid (tested)");
-    robot
-        .set_armature(DVector::from_row_slice(&PANDA_ARMATURE))
-        .expect("the Panda armature is valid (tested)");
-    robot
+    static PANDA: OnceLock<SerialChain> = OnceLock::new();
+    PANDA
+        .get_or_init(|| {
+            let mut robot = SerialChain::from_urdf_str(PANDA_URDF)
+                .expect("the shipped Panda URDF is valid (tested)");
+            robot
+                .set_limits(panda_limits())
+                .expect("the Panda limits are valid (tested)");
+            robot
+                .set_armature(DVector::from_row_slice(&PANDA_ARMATURE))
+                .expect("the Panda armature is valid (tested)");
+            robot
+        })
+        .clone()
 }
 
 /// The same Panda built directly from the modified-DH table and the inertia tables (the

@@ -1,6 +1,10 @@
 //! A serial chain robot: a [`Model`] with its own [`Data`] workspace.
+//!
+//! Clones share the model and copy only the workspace: thousands of environments of one
+//! arm then read one model that stays in cache, and each costs only its `Data`.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use super::{DynamicsError, Frame, JointLimits, Robot};
 use crate::algorithm;
@@ -23,7 +27,7 @@ pub struct UrdfOptions {
 /// forward-dynamics algorithms in a preallocated workspace.
 #[derive(Clone, Debug)]
 pub struct SerialChain {
-    model: Model,
+    model: Arc<Model>,
     data: Data,
     end_effector: usize,
 }
@@ -35,7 +39,7 @@ impl SerialChain {
         let data = Data::new(&model);
         let end_effector = model.frames().len() - 1;
         Self {
-            model,
+            model: Arc::new(model),
             data,
             end_effector,
         }
@@ -79,17 +83,17 @@ impl SerialChain {
     }
 
     pub fn set_limits(&mut self, limits: JointLimits) -> Result<(), ModelError> {
-        self.model.set_limits(limits)
+        Arc::make_mut(&mut self.model).set_limits(limits)
     }
 
     /// Reflected rotor inertias, one per joint ([`Model::armature`]).
     pub fn set_armature(&mut self, armature: DVector) -> Result<(), ModelError> {
-        self.model.set_armature(armature)
+        Arc::make_mut(&mut self.model).set_armature(armature)
     }
 
     /// Gravity acceleration in the base frame (default `(0, 0, −9.81)`).
     pub fn set_gravity(&mut self, gravity: Vector3) -> Result<(), ModelError> {
-        self.model.set_gravity(gravity)
+        Arc::make_mut(&mut self.model).set_gravity(gravity)
     }
 
     /// Selects the tool frame by name.
