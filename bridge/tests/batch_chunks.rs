@@ -48,7 +48,7 @@ fn a_batch_of_many_chunks_matches_single_environments() {
             assert_eq!(out.rewards[*i], one.reward, "env {i}");
             assert_eq!(out.terminated[*i], one.terminated, "env {i}");
             for (key, value) in &one.info {
-                assert_eq!(out.info[key][*i], *value, "env {i} info {key}");
+                assert_eq!(out.info[key.as_ref()][*i], *value, "env {i} info {key}");
             }
         }
         for column in out.info.values() {

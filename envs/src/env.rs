@@ -1,5 +1,6 @@
 //! The environment interface shared by every task, the bridge and the Python client.
 
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 
 use ciflow_engine::sim::Perturbation;
@@ -12,7 +13,7 @@ pub use crate::error::EnvError;
 
 /// Extra per-step or per-reset values, as in Gymnasium's `info` dict. Numbers only, so
 /// that every wire format carries them.
-pub type Info = BTreeMap<String, f64>;
+pub type Info = BTreeMap<Cow<'static, str>, f64>;
 
 /// Info key, 0/1: the task is achieved (Gymnasium's convention; each task documents when).
 pub const SUCCESS_INFO: &str = "is_success";

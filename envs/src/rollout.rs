@@ -18,7 +18,10 @@ pub fn expert_episode(
         seed,
         contexts: vec![context_of(&observation)],
         observations: vec![observation],
-        infos: info.into_iter().map(|(k, v)| (k, vec![v])).collect(),
+        infos: info
+            .into_iter()
+            .map(|(k, v)| (k.into_owned(), vec![v]))
+            .collect(),
         ..Episode::default()
     };
     loop {
@@ -31,7 +34,11 @@ pub fn expert_episode(
         episode.terminations.push(step.terminated);
         episode.truncations.push(step.truncated);
         for (key, value) in step.info {
-            episode.infos.entry(key).or_default().push(value);
+            episode
+                .infos
+                .entry(key.into_owned())
+                .or_default()
+                .push(value);
         }
         if step.terminated || step.truncated {
             return Ok(episode);

@@ -1,6 +1,7 @@
 //! A session: `num_envs` environments of one task, owned by one client, guarded by a
 //! secret token. Each method implements one operation and returns the encoded reply.
 
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -310,7 +311,7 @@ impl Session {
         Ok(encode(&BatchResetReply {
             v: PROTOCOL_VERSION,
             observations: F64s(observations),
-            info: InfoColumns::from_infos(&infos).columns,
+            info: InfoColumns::from_infos(&infos).into_map(),
         }))
     }
 
@@ -373,7 +374,7 @@ impl Session {
             rewards: F64s(rewards),
             terminated: ByteBuf::from(terminated),
             truncated: ByteBuf::from(truncated),
-            info: info.columns,
+            info: info.into_map(),
         }))
     }
 
@@ -512,44 +513,59 @@ fn in_env(index: usize, error: EnvError) -> ErrorReply {
 }
 
 /// Gymnasium-style vector info: key → one value per environment, NaN where missing.
+///
+/// Every environment of a task reports the same keys in the same order, so a value is
+/// first tried against the column at its position: one key comparison per value, no map
+/// lookup, and a task's `'static` keys are never copied.
 struct InfoColumns {
     len: usize,
-    columns: BTreeMap<String, F64s>,
+    columns: Vec<(Cow<'static, str>, Vec<f64>)>,
 }
 
 impl InfoColumns {
     fn new(len: usize) -> Self {
         Self {
             len,
-            columns: BTreeMap::new(),
+            columns: Vec::new(),
         }
     }
 
     /// Sets environment `index`'s values.
     fn set(&mut self, index: usize, info: &Info) {
-        for (key, value) in info {
-            // Look up before inserting: the key is cloned once per column, not per env.
-            match self.columns.get_mut(key) {
-                Some(column) => column.0[index] = *value,
-                None => {
-                    let mut column = vec![f64::NAN; self.len];
-                    column[index] = *value;
-                    self.columns.insert(key.clone(), F64s(column));
-                }
-            }
+        for (position, (key, value)) in info.iter().enumerate() {
+            let column = match self.columns.get(position) {
+                Some((name, _)) if name == key => &mut self.columns[position].1,
+                _ => self.column(key),
+            };
+            column[index] = *value;
         }
+    }
+
+    /// The column of `key`, added (all NaN) if there is none yet.
+    fn column(&mut self, key: &Cow<'static, str>) -> &mut Vec<f64> {
+        let at = match self.columns.iter().position(|(name, _)| name == key) {
+            Some(at) => at,
+            None => {
+                self.columns.push((key.clone(), vec![f64::NAN; self.len]));
+                self.columns.len() - 1
+            }
+        };
+        &mut self.columns[at].1
     }
 
     /// Copies the columns of the environments `offset..offset + part.len`.
     fn splice(&mut self, offset: usize, part: InfoColumns) {
-        for (key, values) in part.columns {
-            let len = self.len;
-            let column = self
-                .columns
-                .entry(key)
-                .or_insert_with(|| F64s(vec![f64::NAN; len]));
-            column.0[offset..offset + part.len].copy_from_slice(&values.0);
+        for (key, values) in &part.columns {
+            self.column(key)[offset..offset + part.len].copy_from_slice(values);
         }
+    }
+
+    /// The columns as the protocol carries them.
+    fn into_map(self) -> BTreeMap<String, F64s> {
+        self.columns
+            .into_iter()
+            .map(|(key, values)| (key.into_owned(), F64s(values)))
+            .collect()
     }
 
     fn from_infos(infos: &[Info]) -> Self {
@@ -558,5 +574,47 @@ impl InfoColumns {
             columns.set(i, info);
         }
         columns
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn info(pairs: &[(&'static str, f64)]) -> Info {
+        pairs.iter().map(|(k, v)| (Cow::Borrowed(*k), *v)).collect()
+    }
+
+    /// Keys an environment does not report are NaN in its row, whatever the order in
+    /// which the keys first appear, within a chunk and across spliced chunks.
+    #[test]
+    fn columns_hold_every_key_and_nan_where_an_environment_has_none() {
+        let first = [
+            info(&[("a", 1.0), ("b", 2.0)]),
+            info(&[("b", 3.0), ("c", 4.0)]),
+            info(&[("a", 5.0), ("b", 6.0), ("c", 7.0)]),
+        ];
+        let second = [info(&[("d", 8.0)]), info(&[("a", 9.0), ("b", 10.0)])];
+        let mut all = InfoColumns::new(5);
+        all.splice(0, InfoColumns::from_infos(&first));
+        all.splice(3, InfoColumns::from_infos(&second));
+        let map = all.into_map();
+        let nan = f64::NAN;
+        let expected = [
+            ("a", [1.0, nan, 5.0, nan, 9.0]),
+            ("b", [2.0, 3.0, 6.0, nan, 10.0]),
+            ("c", [nan, 4.0, 7.0, nan, nan]),
+            ("d", [nan, nan, nan, 8.0, nan]),
+        ];
+        assert_eq!(map.len(), expected.len());
+        for (key, values) in expected {
+            let column = &map[key].0;
+            for (got, want) in column.iter().zip(values) {
+                assert!(
+                    got == &want || (got.is_nan() && want.is_nan()),
+                    "{key}: {column:?}"
+                );
+            }
+        }
     }
 }

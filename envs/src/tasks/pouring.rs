@@ -261,8 +261,8 @@ impl Pouring {
     }
 
     /// Reward, termination and info of the current state.
-    fn outcome(&self) -> Result<(f64, bool, Info), EnvError> {
-        let cup = self.cup()?;
+    /// Reward, termination and info with the cup at `cup` (the cup now).
+    fn outcome(&self, cup: &CupPose) -> (f64, bool, Info) {
         let tilt = cup.tilt();
         let distance = (cup.spout - self.target.point).norm();
         let over = over_opening(&self.pot, &cup.spout);
@@ -282,7 +282,7 @@ impl Pouring {
             ("time".into(), self.simulator.time()),
         ]);
         let reward = if spill { SPILL_REWARD } else { -distance };
-        Ok((reward, spill, info))
+        (reward, spill, info)
     }
 
     fn apply_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
@@ -349,8 +349,9 @@ impl Env for Pouring {
         }
         self.phase = Phase::Running;
         self.steps = 0;
-        self.spout_trail = vec![self.cup()?.spout];
-        Ok((self.observation(), self.outcome()?.2))
+        let cup = self.cup()?;
+        self.spout_trail = vec![cup.spout];
+        Ok((self.observation(), self.outcome(&cup).2))
     }
 
     fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
@@ -358,8 +359,9 @@ impl Env for Pouring {
         self.spec.action_space.check("action", action)?;
         self.simulator.step(action).map_err(EnvError::Simulation)?;
         self.steps += 1;
-        self.spout_trail.push(self.cup()?.spout);
-        let (reward, terminated, info) = self.outcome()?;
+        let cup = self.cup()?;
+        self.spout_trail.push(cup.spout);
+        let (reward, terminated, info) = self.outcome(&cup);
         let truncated = !terminated && self.steps >= self.spec.max_episode_steps;
         if terminated || truncated {
             self.phase = Phase::Ended;
