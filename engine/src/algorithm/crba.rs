@@ -33,6 +33,7 @@ pub fn crba<'d>(
 /// joints' placements in `data.li_m_i`), its joint's motion subspace `Sᵢ` into
 /// `data.s_world` and its own inertia `Iᵢ` (not yet the composite) into `data.ic_world`.
 /// Forward dynamics runs its bias forces on them, the Coriolis matrix its rates.
+#[inline(always)]
 pub(crate) fn bodies_in_world(model: &Model, data: &mut Data) {
     place_bodies(data);
     for (body, (o_m_i, (s_world, ic_world))) in model.bodies().iter().zip(
@@ -47,6 +48,7 @@ pub(crate) fn bodies_in_world(model: &Model, data: &mut Data) {
 
 /// The CRBA proper on [`bodies_in_world`]'s quantities: the composites `Iᶜᵢ` (in
 /// `data.ic_world`, replacing the bodies' own inertias) and `M` into `data.m`.
+#[inline(always)]
 pub(crate) fn composite_rigid_body(model: &Model, data: &mut Data) {
     let n = model.nv();
     for i in (1..n).rev() {

@@ -11,6 +11,7 @@
 use super::crba::{bodies_in_world, composite_rigid_body};
 use super::kinematics::place_joints;
 use super::{DynamicsError, check_vector};
+use crate::math::simd::with_avx2_fma;
 use crate::math::{DMatrix, DVector, Real, Vector3};
 use crate::model::{Data, Model};
 use crate::spatial::Motion;
@@ -26,6 +27,23 @@ pub fn forward_dynamics<'d>(
     check_vector("q", q, model.nv())?;
     check_vector("qd", qd, model.nv())?;
     check_vector("tau", tau, model.nv())?;
+    // The inner loop of every simulation: ~8 % faster with AVX2, and the same bits.
+    with_avx2_fma(
+        #[inline(always)]
+        || solve(model, data, q, qd, tau),
+    )?;
+    Ok(&data.ddq)
+}
+
+/// [`forward_dynamics`] on checked inputs.
+#[inline(always)]
+fn solve(
+    model: &Model,
+    data: &mut Data,
+    q: &[Real],
+    qd: &[Real],
+    tau: &[Real],
+) -> Result<(), DynamicsError> {
     place_joints(model, data, q);
     bodies_in_world(model, data);
     bias_forces_in_world(model, data, qd);
@@ -36,11 +54,12 @@ pub fn forward_dynamics<'d>(
         *ddq = tau[i] - data.nle[i];
     }
     cholesky_solve_in_place(&data.cholesky, &mut data.ddq);
-    Ok(&data.ddq)
+    Ok(())
 }
 
 /// `C q̇ + g` into `data.nle` by the RNEA in world coordinates, on the bodies' own world
 /// inertias and motion subspaces of [`bodies_in_world`].
+#[inline(always)]
 fn bias_forces_in_world(model: &Model, data: &mut Data, qd: &[Real]) {
     let n = model.nv();
     let (mut v, mut a) = (
@@ -67,6 +86,7 @@ fn bias_forces_in_world(model: &Model, data: &mut Data, qd: &[Real]) {
 /// except that the diagonal holds `1 / Lⱼⱼ`: divisions are the slow operations of a small
 /// factorisation and its solve, so each pivot is inverted once and then multiplied by.
 /// Column-major storage: `Lᵢⱼ` at `a[i + j n]`.
+#[inline(always)]
 fn cholesky_in_place(matrix: &mut DMatrix) -> Result<(), DynamicsError> {
     let n = matrix.nrows();
     let a = matrix.as_mut_slice();
@@ -96,6 +116,7 @@ fn cholesky_in_place(matrix: &mut DMatrix) -> Result<(), DynamicsError> {
 
 /// Solves `L Lᵀ x = b` in place (`b` becomes `x`), `factor` as
 /// [`cholesky_in_place`] leaves it.
+#[inline(always)]
 fn cholesky_solve_in_place(factor: &DMatrix, b: &mut DVector) {
     let n = b.len();
     let l = factor.as_slice();
@@ -114,5 +135,38 @@ fn cholesky_solve_in_place(factor: &DMatrix, b: &mut DVector) {
             value -= l[k + i * n] * x[k];
         }
         x[i] = value * l[i + i * n];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::*;
+    use crate::robot::panda;
+
+    /// The AVX2 build [`forward_dynamics`] picks on this CPU and the baseline build
+    /// (`solve` inlined into this test, compiled without AVX2) agree to the bit: wider
+    /// registers, same operations. Code that picks its arithmetic by instruction set (as
+    /// the MLP's `tanh` fuses its multiply-adds under FMA) would break it.
+    #[test]
+    fn the_avx2_build_returns_the_bits_of_the_baseline_build() {
+        let robot = panda();
+        let model = robot.model();
+        let (mut dispatched, mut baseline) = (Data::new(model), Data::new(model));
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for _ in 0..200 {
+            let mut draw = |scale: f64| -> Vec<Real> {
+                (0..model.nv())
+                    .map(|_| scale * rng.random_range(-1.0..1.0))
+                    .collect()
+            };
+            let (q, qd, tau) = (draw(2.5), draw(3.0), draw(40.0));
+            let fast = forward_dynamics(model, &mut dispatched, &q, &qd, &tau).unwrap();
+            solve(model, &mut baseline, &q, &qd, &tau).unwrap();
+            let bits = |v: &DVector| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(fast), bits(&baseline.ddq));
+        }
     }
 }

@@ -17,6 +17,7 @@ pub fn forward_kinematics(model: &Model, data: &mut Data, q: &[Real]) -> Result<
 /// `ᵖMᵢ(qᵢ)` of every joint into `data.li_m_i`, the first step of every algorithm; the
 /// sines and cosines of all joint angles are taken together ([`sin_cos_slice`]). `q` is
 /// already checked.
+#[inline(always)]
 pub(crate) fn place_joints(model: &Model, data: &mut Data, q: &[Real]) {
     sin_cos_slice(q, &mut data.sin_q, &mut data.cos_q);
     for (i, body) in model.bodies().iter().enumerate() {
@@ -28,6 +29,7 @@ pub(crate) fn place_joints(model: &Model, data: &mut Data, q: &[Real]) {
 
 /// `⁰Mᵢ = ⁰Mₚ ᵖMᵢ` of every body into `data.o_m_i`, from the joints' placements in
 /// `data.li_m_i` ([`place_joints`]).
+#[inline(always)]
 pub(crate) fn place_bodies(data: &mut Data) {
     let mut o_m_i = Se3::identity();
     for (li_m_i, o_m) in data.li_m_i.iter().zip(&mut data.o_m_i) {

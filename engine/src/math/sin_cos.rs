@@ -56,6 +56,7 @@ pub fn sin_cos(x: f64) -> (f64, f64) {
 ///
 /// # Panics
 /// If the lengths differ.
+#[inline(always)]
 pub fn sin_cos_slice(x: &[f64], sin: &mut [f64], cos: &mut [f64]) {
     assert!(
         x.len() == sin.len() && x.len() == cos.len(),

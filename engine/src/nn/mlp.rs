@@ -22,6 +22,8 @@ use std::marker::PhantomData;
 use crate::flow::checkpoint::names::{self, BIAS, WEIGHT};
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::FlowResult;
+#[cfg(target_arch = "x86_64")]
+use crate::math::simd::has_avx2_fma;
 use crate::nn::scalar::{Dual, Scalar, tanh_with};
 
 /// Names and shapes `{prefix}.{j}.weight: [out, in]`, `{prefix}.{j}.bias: [out]`, as
@@ -188,12 +190,6 @@ enum Simd {
     Portable,
     #[cfg(target_arch = "x86_64")]
     Avx2Fma,
-}
-
-/// Whether this CPU has AVX2 and FMA (detected once, then cached by the standard library).
-#[cfg(target_arch = "x86_64")]
-pub(crate) fn has_avx2_fma() -> bool {
-    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
 impl Simd {

@@ -20,7 +20,7 @@ use crate::flow::layers::conditioner::{
 };
 use crate::flow::layers::spline::SplineTransform;
 #[cfg(target_arch = "x86_64")]
-use crate::nn::mlp::has_avx2_fma;
+use crate::math::simd::has_avx2_fma;
 use crate::nn::scalar::{Dual, Scalar};
 
 #[derive(Clone, Copy, Debug)]

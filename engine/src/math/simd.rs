@@ -1,0 +1,32 @@
+//! Run-time choice of the instruction set.
+//!
+//! The release build targets baseline x86-64 (SSE2) so that it runs on any x86-64 CPU;
+//! hot loops get AVX2 and fused multiply-adds where the CPU has them by being compiled a
+//! second time for those features and picked at run time.
+
+/// Whether this CPU has AVX2 and FMA (detected once, then cached by the standard library).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+pub(crate) fn has_avx2_fma() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+/// `run()`, compiled for AVX2 and FMA when the CPU has them (`run` and everything it
+/// inlines, so its helpers should be `#[inline(always)]`).
+///
+/// No multiply-add is fused unless the code asks for it (`mul_add`), so both versions
+/// round alike and return the same bits: the wider registers only process more lanes of
+/// the same operations at once.
+#[inline(always)]
+pub(crate) fn with_avx2_fma<R>(run: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2_fma() {
+        #[target_feature(enable = "avx2,fma")]
+        fn compiled_for_avx2_fma<R>(run: impl FnOnce() -> R) -> R {
+            run()
+        }
+        // SAFETY: both features were detected.
+        return unsafe { compiled_for_avx2_fma(run) };
+    }
+    run()
+}
