@@ -42,6 +42,42 @@ pub struct Data {
 }
 
 impl Data {
+    /// Asks the CPU to bring the buffers the dynamics of a time step use into cache, all
+    /// at once: a workspace idle while thousands of others ran is out of cache, and
+    /// its buffers are separate allocations the first algorithm would otherwise miss on
+    /// one after another. Only a hint: it changes no value.
+    pub fn prefetch(&self) {
+        fn lines<T>(buffer: &[T]) {
+            #[cfg(target_arch = "x86_64")]
+            {
+                let start = buffer.as_ptr().cast::<i8>();
+                for offset in (0..size_of_val(buffer)).step_by(64) {
+                    // SAFETY: a prefetch reads nothing and never faults; the address is
+                    // inside `buffer` anyway.
+                    unsafe {
+                        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                            start.add(offset),
+                        )
+                    };
+                }
+            }
+        }
+        lines(&self.sin_q);
+        lines(&self.cos_q);
+        lines(&self.li_m_i);
+        lines(&self.o_m_i);
+        lines(&self.v);
+        lines(&self.a);
+        lines(&self.f);
+        lines(&self.s_world);
+        lines(&self.ic_world);
+        lines(self.cholesky.as_slice());
+        lines(self.tau.as_slice());
+        lines(self.nle.as_slice());
+        lines(self.m.as_slice());
+        lines(self.ddq.as_slice());
+    }
+
     pub fn new(model: &Model) -> Self {
         let n = model.nv();
         Self {

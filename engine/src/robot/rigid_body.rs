@@ -112,6 +112,10 @@ pub trait Robot: Send + Sync {
         qdd: &mut DVector,
     ) -> Result<(), DynamicsError>;
 
+    /// A hint before a burst of dynamics calls (a control period): bring the workspace
+    /// into cache now. Changes no value; by default it does nothing.
+    fn prefetch_workspace(&self) {}
+
     fn boxed_clone(&self) -> Box<dyn Robot>;
 }
 

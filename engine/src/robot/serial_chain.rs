@@ -222,6 +222,10 @@ impl Robot for SerialChain {
         )
     }
 
+    fn prefetch_workspace(&self) {
+        self.data.prefetch();
+    }
+
     fn boxed_clone(&self) -> Box<dyn Robot> {
         Box::new(self.clone())
     }

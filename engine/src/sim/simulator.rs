@@ -159,6 +159,8 @@ impl Simulator {
 
     /// One control period driven by the desired joint accelerations `q̈_des`.
     pub fn step(&mut self, qdd_desired: &[Real]) -> Result<StepReport, SimError> {
+        // Among thousands of environments this one's workspace has left the cache.
+        self.robot.prefetch_workspace();
         let saturation = self.controller.compute(
             self.robot.as_mut(),
             self.q.as_slice(),
@@ -171,6 +173,7 @@ impl Simulator {
     /// One control period with the joint torque `τ` applied as given (open loop, no torque
     /// limits); the computed-torque rate limiter continues from `τ`.
     pub fn step_torque(&mut self, tau: &[Real]) -> Result<StepReport, SimError> {
+        self.robot.prefetch_workspace();
         self.controller.hold(tau)?;
         self.advance(Saturation::default())
     }
