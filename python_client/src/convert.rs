@@ -55,7 +55,7 @@ pub fn floats_from_bytes(what: &str, bytes: &[u8]) -> PyResult<Vec<f64>> {
 }
 
 pub fn floats_to_bytes<'py>(py: Python<'py>, values: &[f64]) -> Bound<'py, PyBytes> {
-    PyBytes::new(py, &F64s::to_le_bytes(values))
+    PyBytes::new(py, &F64s::le_bytes(values))
 }
 
 pub fn columns_to_dict<'py>(

@@ -11,6 +11,7 @@
 //! writes it from a byte string. Hand-written clients may send a plain MessagePack array
 //! of numbers instead; it is accepted too.
 
+use std::borrow::Cow;
 use std::fmt;
 
 use serde::de::{self, SeqAccess, Visitor};
@@ -21,13 +22,18 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 pub struct F64s(pub Vec<f64>);
 
 impl F64s {
-    /// Encodes `values` into a fresh little-endian byte buffer.
-    pub fn to_le_bytes(values: &[f64]) -> Vec<u8> {
-        let mut bytes = Vec::with_capacity(values.len() * 8);
-        for v in values {
-            bytes.extend_from_slice(&v.to_le_bytes());
+    /// `values` as little-endian bytes: their own memory on a little-endian CPU (a batch
+    /// reply carries megabytes of them), a converted copy elsewhere.
+    pub fn le_bytes(values: &[f64]) -> Cow<'_, [u8]> {
+        if cfg!(target_endian = "little") {
+            // SAFETY: any initialised memory is valid as bytes, `u8` has no alignment
+            // requirement, and the length covers exactly the slice's `8 len` bytes.
+            Cow::Borrowed(unsafe {
+                std::slice::from_raw_parts(values.as_ptr().cast::<u8>(), size_of_val(values))
+            })
+        } else {
+            Cow::Owned(values.iter().flat_map(|v| v.to_le_bytes()).collect())
         }
-        bytes
     }
 
     /// Decodes little-endian `f64` bytes; `None` if the length is not a multiple of 8.
@@ -52,7 +58,7 @@ impl From<Vec<f64>> for F64s {
 
 impl Serialize for F64s {
     fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serializer.serialize_bytes(&Self::to_le_bytes(&self.0))
+        serializer.serialize_bytes(&Self::le_bytes(&self.0))
     }
 }
 
@@ -101,6 +107,23 @@ mod tests {
         assert_eq!(rmp_serde::from_slice::<F64s>(&bin).unwrap().0, values);
         let array = rmp_serde::to_vec(&values).unwrap();
         assert_eq!(rmp_serde::from_slice::<F64s>(&array).unwrap().0, values);
+    }
+
+    /// The wire bytes are each value's own little-endian bytes, in order, whatever the
+    /// CPU's byte order (NaN payloads and signed zeros included).
+    #[test]
+    fn le_bytes_are_the_values_little_endian_bytes_in_order() {
+        let values = [
+            1.5,
+            -0.0,
+            f64::from_bits(0x7ff8_dead_beef_0001),
+            -3e-310,
+            1e300,
+        ];
+        let expected: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        assert_eq!(&*F64s::le_bytes(&values), &expected[..]);
+        let bin = rmp_serde::to_vec(&F64s(values.to_vec())).unwrap();
+        assert_eq!(&bin[2..], &expected[..], "after the bin 8 header");
     }
 
     #[test]

@@ -24,7 +24,19 @@ use serde::de::DeserializeOwned;
 
 /// Encodes a message as a MessagePack map with named fields.
 pub fn encode<T: Serialize>(message: &T) -> Vec<u8> {
-    rmp_serde::to_vec_named(message).expect("protocol messages always serialize")
+    encode_into(Vec::new(), message)
+}
+
+/// [`encode`] into a buffer of `capacity` bytes: a reply of megabytes then grows without
+/// being copied again.
+pub fn encode_with_capacity<T: Serialize>(message: &T, capacity: usize) -> Vec<u8> {
+    encode_into(Vec::with_capacity(capacity), message)
+}
+
+fn encode_into<T: Serialize>(mut buffer: Vec<u8>, message: &T) -> Vec<u8> {
+    rmp_serde::encode::write_named(&mut buffer, message)
+        .expect("protocol messages always serialize");
+    buffer
 }
 
 /// Decodes a request, telling a bad version from a malformed or oversized payload.

@@ -20,6 +20,7 @@ use crate::protocol::{
     AckReply, ActionReply, BatchResetReply, BatchStepReply, ContextCheckReply, ContextRequest,
     DescribeReply, ErrorCode, ErrorReply, F64s, FrameHeader, PROTOCOL_VERSION, PerturbRequest,
     PerturbationKindMsg, ResetReply, ResetRequest, RunRequest, StepReply, TOKEN_BYTES, encode,
+    encode_with_capacity,
 };
 
 /// Environments per rayon task in `step_batch`: below this, threads cost more than they
@@ -368,14 +369,18 @@ impl Session {
             info.splice(chunk * BATCH_CHUNK, columns?);
         }
         self.telemetry.offer(&self.id, &self.envs[0]);
-        Ok(encode(&BatchStepReply {
+        // The columns' bytes, and room for the field names and headers.
+        let reals = observations.len() + rewards.len() + info.columns.len() * n;
+        let capacity = 8 * reals + 2 * n + 1024;
+        let reply = BatchStepReply {
             v: PROTOCOL_VERSION,
             observations: F64s(observations),
             rewards: F64s(rewards),
             terminated: ByteBuf::from(terminated),
             truncated: ByteBuf::from(truncated),
             info: info.into_map(),
-        }))
+        };
+        Ok(encode_with_capacity(&reply, capacity))
     }
 
     pub fn expert(&mut self, index: u32) -> Result<Vec<u8>, ErrorReply> {
