@@ -546,7 +546,9 @@ impl InfoColumns {
         }
     }
 
-    /// The column of `key`, added (all NaN) if there is none yet.
+    /// The column of `key`, added (all NaN) if there is none yet. Takes the `Cow` itself
+    /// (not `&str`) so that a task's `'static` key is kept as a pointer, not copied.
+    #[allow(clippy::ptr_arg)]
     fn column(&mut self, key: &Cow<'static, str>) -> &mut Vec<f64> {
         let at = match self.columns.iter().position(|(name, _)| name == key) {
             Some(at) => at,
