@@ -47,21 +47,22 @@ impl Data {
     /// its buffers are separate allocations the first algorithm would otherwise miss on
     /// one after another. Only a hint: it changes no value.
     pub fn prefetch(&self) {
+        #[cfg(target_arch = "x86_64")]
         fn lines<T>(buffer: &[T]) {
-            #[cfg(target_arch = "x86_64")]
-            {
-                let start = buffer.as_ptr().cast::<i8>();
-                for offset in (0..size_of_val(buffer)).step_by(64) {
-                    // SAFETY: a prefetch reads nothing and never faults; the address is
-                    // inside `buffer` anyway.
-                    unsafe {
-                        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
-                            start.add(offset),
-                        )
-                    };
-                }
+            let start = buffer.as_ptr().cast::<i8>();
+            for offset in (0..size_of_val(buffer)).step_by(64) {
+                // SAFETY: a prefetch reads nothing and never faults; the address is
+                // inside `buffer` anyway.
+                unsafe {
+                    std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                        start.add(offset),
+                    )
+                };
             }
         }
+        // Elsewhere the hardware prefetchers are left to it.
+        #[cfg(not(target_arch = "x86_64"))]
+        fn lines<T>(_: &[T]) {}
         lines(&self.sin_q);
         lines(&self.cos_q);
         lines(&self.li_m_i);
