@@ -1,11 +1,14 @@
-//! One full policy action at the pouring size (d = 7, context 6, 10 coupling layers of
-//! 2×64 hidden): inverse, latent step, forward and the Jacobian-vector product of the
-//! desired velocity (`Policy::act`), plus the second-order `Policy::acceleration`.
-//! Target: `act` < 20 µs. The tch eager figure is printed beside it by
-//! `cargo bench -p ciflow-train --bench flow_tch`. The affine network also with the
-//! Panda's joint range as its last layer (`--joint-range true`).
+//! One policy action at the pouring size (d = 7, context 6, 10 coupling layers of 2×64
+//! hidden). The action a robot gets is `Policy::acceleration`, `flow/acceleration/*`:
+//! the desired acceleration `q̈_des` and velocity `v_des` of the second-order controller
+//! that every environment, served policy and evaluation runs (`envs::actor::Actor`).
+//! `flow/act/*` is the first-order step (`Policy::act`: inverse, latent step, forward
+//! and the Jacobian-vector product of the desired velocity), the figure the tch eager
+//! comparison prints beside it (`cargo bench -p ciflow-train --bench flow_tch`). The
+//! affine network also with the Panda's joint range as its last layer
+//! (`--joint-range true`).
 //!
-//! Also `act` at the obstacle-avoidance size (d = 2, 3 obstacles + target, 6 spline
+//! Also both at the obstacle-avoidance size (d = 2, 3 obstacles + target, 6 spline
 //! layers) with and without the radial contractions about the obstacles, side by side:
 //! their cost is the eight layers' iterative inverses in the forward pass (the layer count
 //! `ciflow train` gives obstacle avoidance).
@@ -79,7 +82,6 @@ fn obstacle_policy(contracted: bool) -> Policy {
 
 fn bench(c: &mut Criterion) {
     let y = [0.1, -0.3, 0.2, -1.5, 0.05, 1.2, 0.4];
-    let qd = [0.01, 0.02, -0.03, 0.0, 0.1, -0.05, 0.02];
     let context = [0.5, 0.2, 0.3, 0.0, 0.1, -0.2];
     let affine = CouplingKind::Affine { scale_bound: 2.0 };
     for (name, coupling, joint_range) in [
@@ -88,25 +90,7 @@ fn bench(c: &mut Criterion) {
         ("spline", SPLINE, false),
     ] {
         let policy = pouring_policy(coupling, joint_range);
-        bench_act(c, &format!("flow/act/{name}"), &policy, &y, &context);
-        let mut ws = policy.workspace();
-        let (mut velocity, mut acceleration) = ([0.0; 7], [0.0; 7]);
-        c.bench_function(&format!("flow/acceleration/{name}"), |b| {
-            b.iter(|| {
-                policy
-                    .acceleration(
-                        black_box(&y),
-                        &qd,
-                        &context,
-                        5.0,
-                        &mut ws,
-                        &mut acceleration,
-                        &mut velocity,
-                    )
-                    .unwrap();
-                black_box(&acceleration);
-            })
-        });
+        bench_actions(c, name, &policy, &y, &context);
     }
 }
 
@@ -115,21 +99,32 @@ fn bench_obstacle(c: &mut Criterion) {
     let context = [-0.2, 0.3, 0.1, -0.4, 0.3, 0.5, 0.8, 0.0];
     for (name, contracted) in [("plain", false), ("contracted", true)] {
         let policy = obstacle_policy(contracted);
-        bench_act(
-            c,
-            &format!("flow/act/obstacle-3/{name}"),
-            &policy,
-            &y,
-            &context,
-        );
+        bench_actions(c, &format!("obstacle-3/{name}"), &policy, &y, &context);
     }
 }
 
-/// `Policy::act` at `(y, c)`.
-fn bench_act(c: &mut Criterion, name: &str, policy: &Policy, y: &[f64], context: &[f64]) {
+/// `Policy::acceleration` at `(q = y, q̇, c)` and `Policy::act` at `(y, c)`.
+fn bench_actions(c: &mut Criterion, name: &str, policy: &Policy, y: &[f64], context: &[f64]) {
     let mut ws = policy.workspace();
+    let qd: Vec<f64> = (0..y.len()).map(|i| 0.02 * (i as f64 - 2.0)).collect();
     let (mut next, mut velocity) = (vec![0.0; y.len()], vec![0.0; y.len()]);
-    c.bench_function(name, |b| {
+    c.bench_function(&format!("flow/acceleration/{name}"), |b| {
+        b.iter(|| {
+            policy
+                .acceleration(
+                    black_box(y),
+                    &qd,
+                    black_box(context),
+                    5.0,
+                    &mut ws,
+                    &mut next,
+                    &mut velocity,
+                )
+                .unwrap();
+            black_box(&next);
+        })
+    });
+    c.bench_function(&format!("flow/act/{name}"), |b| {
         b.iter(|| {
             policy
                 .act(

@@ -206,3 +206,61 @@ fn goal_conditioned_attractor_sits_on_the_target_for_every_context() {
         }
     }
 }
+
+/// `Policy::acceleration` takes its forward pass's conditioner values from the inverse
+/// pass's record; the plain nested-dual forward pass at the same point must give the
+/// same `v_des` and `d/dt v_des`. The two meet the couplings at points that differ by
+/// the inverse's round-trip error (1e-9 relative above), which the derivatives amplify
+/// on the steepest random variants: 1e-8 relative. A wrong record or chain rule is off
+/// by O(1).
+#[test]
+fn recorded_second_order_pass_is_the_nested_dual_forward_pass() {
+    for (k, config) in all_variants().iter().enumerate() {
+        if config.joint_range.is_some() {
+            // Its speed and acceleration scaling act after the pass; covered above.
+            continue;
+        }
+        let policy = random_policy(config, k as u64);
+        let flow = policy.network();
+        let mut ws = policy.workspace();
+        let mut r = rng(500 + k as u64);
+        let (d, m) = (config.state_dim, config.context_dim);
+        let gain = 3.0;
+        for _ in 0..5 {
+            let (q, qd, c) = (
+                uniform(&mut r, d, 2.0),
+                uniform(&mut r, d, 1.0),
+                uniform(&mut r, m, 1.0),
+            );
+            let mut conditioning = flow.conditioning();
+            flow.condition(&c, &mut conditioning, &mut flow.scratch())
+                .unwrap();
+            let y: Vec<Dual<f64>> = q.iter().zip(&qd).map(|(a, b)| Dual::new(*a, *b)).collect();
+            let mut z = vec![Dual::new(0.0, 0.0); d];
+            flow.inverse(&y, &conditioning, &mut flow.scratch(), &mut z);
+            let mut v = vec![Dual::new(0.0, 0.0); d];
+            policy.latent().velocity(&z, &mut v);
+            let nested: Vec<_> = z.iter().zip(&v).map(|(z, v)| Dual::new(*z, *v)).collect();
+            let mut out = nested.clone();
+            flow.forward(&nested, &conditioning, &mut flow.scratch(), &mut out);
+            let expected: Vec<f64> = (0..d)
+                .map(|i| out[i].du.du + gain * (out[i].du.re - qd[i]))
+                .collect();
+            let v_des: Vec<f64> = out.iter().map(|o| o.du.re).collect();
+
+            let (mut acc, mut velocity) = (vec![0.0; d], vec![0.0; d]);
+            policy
+                .acceleration(&q, &qd, &c, gain, &mut ws, &mut acc, &mut velocity)
+                .unwrap();
+            let scale = |v: &[f64]| 1.0 + v.iter().fold(0.0f64, |a, x| a.max(x.abs()));
+            assert!(
+                max_abs_diff(&velocity, &v_des) < 1e-8 * scale(&v_des),
+                "variant {k}: {velocity:?} vs {v_des:?}"
+            );
+            assert!(
+                max_abs_diff(&acc, &expected) < 1e-8 * scale(&expected),
+                "variant {k}: {acc:?} vs {expected:?}"
+            );
+        }
+    }
+}

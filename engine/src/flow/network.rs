@@ -23,7 +23,7 @@ use crate::flow::layers::context_set::{ContextEncoder, EncoderScratch};
 use crate::flow::layers::coupling::{Coupling, CouplingRecord, CouplingScratch, TangentScratch};
 use crate::flow::layers::mixing::LuMixing;
 use crate::flow::layers::radial::{ContractionTape, RadialContractions};
-use crate::nn::scalar::Scalar;
+use crate::nn::scalar::{Dual, Scalar};
 
 #[derive(Clone, Debug)]
 pub struct ConditionalFlow {
@@ -160,11 +160,21 @@ impl ConditionalFlow {
 
     /// A tape for [`inverse_recorded`](Self::inverse_recorded).
     pub fn tape(&self) -> FlowTape {
+        self.tape_of(1)
+    }
+
+    /// A tape for [`inverse_recorded_dual`](Self::inverse_recorded_dual).
+    pub fn dual_tape(&self) -> FlowTape {
+        self.tape_of(2)
+    }
+
+    /// A tape for a recorded inverse in a scalar type of `lanes` components.
+    fn tape_of(&self, lanes: usize) -> FlowTape {
         FlowTape {
             couplings: self
                 .blocks
                 .iter()
-                .map(|(_, c)| CouplingRecord::new(c))
+                .map(|(_, c)| CouplingRecord::new(c, lanes))
                 .collect(),
             contraction: ContractionTape::default(),
             joint_range: vec![0.0; self.config.state_dim],
@@ -192,12 +202,12 @@ impl ConditionalFlow {
         log_det
     }
 
-    /// `x ← g⁻¹(x, c̃)`, recording into `tape` (no log-determinant).
-    fn g_inverse_recorded(
+    /// `x ← g⁻¹(x, c̃)`, recording the couplings into `tape` (no log-determinant).
+    fn g_inverse_recorded<S: Scalar>(
         &self,
-        x: &mut [f64],
+        x: &mut [S],
         conditioning: &Conditioning,
-        scratch: &mut CouplingScratch<f64>,
+        scratch: &mut CouplingScratch<S>,
         tape: &mut FlowTape,
     ) {
         let biases = conditioning.context_biases(self.blocks.len());
@@ -326,6 +336,45 @@ impl ConditionalFlow {
         self.normalise_state(z);
         self.g_inverse_recorded(z, conditioning, scratch, tape);
         self.unanchor(z, conditioning);
+    }
+
+    /// `z + ż ε = f⁻¹(y + ẏ ε, c)`, recording in `tape` (a [`dual_tape`](Self::dual_tape))
+    /// what [`forward_second`](Self::forward_second) needs at that point.
+    pub fn inverse_recorded_dual(
+        &self,
+        y: &[Dual<f64>],
+        conditioning: &Conditioning,
+        scratch: &mut CouplingScratch<Dual<f64>>,
+        z: &mut [Dual<f64>],
+        tape: &mut FlowTape,
+    ) {
+        z.copy_from_slice(y);
+        self.enter(z, conditioning);
+        self.g_inverse_recorded(z, conditioning, scratch, tape);
+        self.unanchor(z, conditioning);
+    }
+
+    /// `y = f(z, c)` in nested dual numbers, at the `z + ż ε₂` whose
+    /// [`inverse_recorded_dual`](Self::inverse_recorded_dual) filled `tape`: `z` is
+    /// `(z + ż ε₂) + (dz + dż ε₂) ε₁`, and `y` comes out the same as from
+    /// [`forward`](Self::forward), with the couplings' conditioners evaluated only along
+    /// `ε₁` (their value and `ε₂` part are the recorded ones).
+    pub fn forward_second(
+        &self,
+        z: &[Dual<Dual<f64>>],
+        conditioning: &Conditioning,
+        tape: &FlowTape,
+        scratch: &mut TangentScratch,
+        y: &mut [Dual<Dual<f64>>],
+    ) {
+        for ((yi, &zi), a) in y.iter_mut().zip(z).zip(&conditioning.anchor) {
+            *yi = zi + *a;
+        }
+        for ((mixing, coupling), record) in self.blocks.iter().zip(&tape.couplings) {
+            mixing.forward(y, &mut scratch.state_second);
+            coupling.forward_second(y, record, scratch);
+        }
+        self.leave(y, conditioning);
     }
 
     /// `x ← (P_c(R⁻¹(x)) - μ_y) ⊘ σ_y`, an observation to the input of `g⁻¹`; returns

@@ -32,9 +32,10 @@ pub struct PolicyWorkspace {
     conditioning: Conditioning,
     scratch: CouplingScratch<f64>,
     scratch_dual: CouplingScratch<Dual<f64>>,
-    scratch_dual2: CouplingScratch<Dual2>,
     /// The last inverse pass, for Jacobian-vector products at its `z`.
     tape: FlowTape,
+    /// The last inverse pass in dual numbers, for [`Policy::acceleration`]'s forward pass.
+    dual_tape: FlowTape,
     tangent: TangentScratch,
     z: Vec<f64>,
     z_next: Vec<f64>,
@@ -100,8 +101,8 @@ impl Policy {
             conditioning: self.flow.conditioning(),
             scratch: self.flow.scratch(),
             scratch_dual: self.flow.scratch(),
-            scratch_dual2: self.flow.scratch(),
             tape: self.flow.tape(),
+            dual_tape: self.flow.dual_tape(),
             tangent: self.flow.tangent_scratch(),
             z: vec![0.0; d],
             z_next: vec![0.0; d],
@@ -284,7 +285,10 @@ impl Policy {
     /// The first term is `d/dt v_des(q(t))` along the actual motion, so under
     /// `q̈ = q̈_des` the velocity error `e = q̇ - v_des(q)` obeys `ė = -K_v e` exactly.
     /// Computed with nested dual numbers: the inverse is differentiated along `q̇`, the
-    /// forward pass along `v(z)` and along that time direction at once.
+    /// forward pass along `v(z)` and along that time direction at once. The forward
+    /// pass retraces the inverse pass's points, so it takes the conditioners' values and
+    /// time derivatives from the inverse pass's record and evaluates them only along
+    /// `v(z)` ([`ConditionalFlow::forward_second`]).
     /// Writes `q̈_des` to `acceleration` and `v_des(q)` to `velocity`.
     ///
     /// Under a joint range, `v_des` is the time-scaled `s(q, v) v` (its `d/dt` through `s`
@@ -316,20 +320,22 @@ impl Policy {
         for ((d, q), qd) in ws.dual.iter_mut().zip(q).zip(qd) {
             *d = Dual::new(*q, *qd);
         }
-        self.flow.inverse(
+        self.flow.inverse_recorded_dual(
             &ws.dual,
             &ws.conditioning,
             &mut ws.scratch_dual,
             &mut ws.dual_z,
+            &mut ws.dual_tape,
         );
         self.latent.velocity(&ws.dual_z, &mut ws.dual_velocity);
         for ((x, z), v) in ws.dual2.iter_mut().zip(&ws.dual_z).zip(&ws.dual_velocity) {
             *x = Dual::new(*z, *v);
         }
-        self.flow.forward(
+        self.flow.forward_second(
             &ws.dual2,
             &ws.conditioning,
-            &mut ws.scratch_dual2,
+            &ws.dual_tape,
+            &mut ws.tangent,
             &mut ws.dual2_y,
         );
         // `(v_des, d/dt v_des)` per joint, in `dual_velocity` (free once the forward pass

@@ -449,7 +449,8 @@ impl Mlp {
         }
     }
 
-    /// Length of the record [`eval_folded`](Self::eval_folded) keeps.
+    /// Length of the record [`eval_folded`](Self::eval_folded) keeps per component
+    /// ([`Scalar::LANES`]) of its scalar type.
     pub fn record_len(&self) -> usize {
         self.layers[..self.layers.len() - 1]
             .iter()
@@ -458,9 +459,11 @@ impl Mlp {
     }
 
     /// `out = MLP([head, t])` with the trailing inputs `t` folded into `first_bias`
-    /// ([`fold_trailing_inputs`](Self::fold_trailing_inputs)); keeps the (primal) hidden
-    /// activations in `record` (of [`record_len`](Self::record_len)) when given, for
-    /// [`tangent`](Self::tangent).
+    /// ([`fold_trailing_inputs`](Self::fold_trailing_inputs)); keeps the hidden
+    /// activations in `record` (`S::LANES ×` [`record_len`](Self::record_len), layer by
+    /// layer, each layer's component planes in turn) when given, for
+    /// [`tangent`](Self::tangent) (`f64`) or [`second_tangent`](Self::second_tangent)
+    /// (`Dual<f64>`).
     pub fn eval_folded<S: Scalar>(
         &self,
         head: &[S],
@@ -511,6 +514,78 @@ impl Mlp {
             out,
         };
         self.sweep_dispatch(record, dx, dout, Some(primal), scratch)
+    }
+
+    /// The second-order tangent at the input `x + ẋ ε₂` of the `Dual<f64>`
+    /// [`eval_folded`](Self::eval_folded) call that wrote `record`: along `dx + dẋ ε₂`,
+    /// `dout + dȯut ε₂ = ∂MLP/∂x (x + ẋ ε₂) · (dx + dẋ ε₂)`. Per hidden layer, with the
+    /// recorded `h` and `ḣ`: `a = W_j dh_j`, `ȧ = W_j dḣ_j`, `dh_{j+1} = (1 - h²) ⊙ a`,
+    /// `dḣ_{j+1} = (1 - h²) ⊙ ȧ - 2 h ⊙ ḣ ⊙ a`. Two planes and no `tanh`, against the
+    /// four planes of a nested dual-number pass.
+    pub fn second_tangent(
+        &self,
+        record: &[f64],
+        dx: [&[f64]; 2],
+        scratch: &mut MlpScratch<Dual<f64>>,
+        dout: [&mut [f64]; 2],
+    ) {
+        let stride = scratch.stride;
+        for (plane, d) in scratch.front.chunks_exact_mut(stride).zip(dx) {
+            plane[..d.len()].copy_from_slice(d);
+        }
+        let inputs = dx[0].len();
+        match Simd::detect() {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: AVX2 and FMA support were detected.
+            Simd::Avx2Fma => unsafe { self.second_avx2(record, inputs, scratch) },
+            Simd::Portable => self.second_with(Simd::Portable, record, inputs, scratch),
+        }
+        for (plane, d) in scratch.back.chunks_exact(stride).zip(dout) {
+            let n = d.len();
+            d.copy_from_slice(&plane[..n]);
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn second_avx2(&self, record: &[f64], inputs: usize, scratch: &mut MlpScratch<Dual<f64>>) {
+        self.second_with(Simd::Avx2Fma, record, inputs, scratch)
+    }
+
+    #[inline(always)]
+    fn second_with(
+        &self,
+        simd: Simd,
+        mut record: &[f64],
+        inputs: usize,
+        scratch: &mut MlpScratch<Dual<f64>>,
+    ) {
+        let planes = Planes {
+            lanes: 2,
+            stride: scratch.stride,
+        };
+        let MlpScratch { front, back, .. } = scratch;
+        let first = LayerInput { inputs, bias: None };
+        let last = self.layers.len() - 1;
+        for (j, (layer, mut layer_input)) in self.layer_inputs(first).enumerate() {
+            layer_input.bias = None;
+            layer.apply(planes, front, back, layer_input, simd);
+            if j == last {
+                break;
+            }
+            let n = layer.padded_outputs;
+            let (kept, rest) = record.split_at(2 * n);
+            let (h, h_dot) = kept.split_at(n);
+            let (a, a_dot) = back.split_at_mut(planes.stride);
+            for (((a, a_dot), h), h_dot) in a[..n].iter_mut().zip(&mut a_dot[..n]).zip(h).zip(h_dot)
+            {
+                let slope = 1.0 - h * h;
+                *a_dot = slope * *a_dot - 2.0 * h * h_dot * *a;
+                *a *= slope;
+            }
+            record = rest;
+            std::mem::swap(front, back);
+        }
     }
 
     /// Runs [`eval_with`](Self::eval_with) on the best instruction set of this CPU.
@@ -583,8 +658,10 @@ impl Mlp {
             let n = layer.padded_outputs;
             activate::<S>(simd, planes, n, back);
             if let Some(rest) = record.take() {
-                let (kept, rest) = rest.split_at_mut(n);
-                kept.copy_from_slice(&back[..n]);
+                let (kept, rest) = rest.split_at_mut(planes.lanes * n);
+                for (l, kept) in kept.chunks_exact_mut(n).enumerate() {
+                    kept.copy_from_slice(&back[l * planes.stride..][..n]);
+                }
                 record = Some(rest);
             }
             std::mem::swap(front, back);
@@ -883,5 +960,44 @@ mod tests {
         mlp.eval(&full, &mut scratch, &mut other_expected);
         assert_close(&other_out, &other_expected, 1e-12);
         assert_close(&fused_tangent, &expected_tangent, 1e-12);
+    }
+
+    /// The second-order tangent from a `Dual<f64>` record against a nested dual-number
+    /// evaluation at `(x + ẋ ε₂) + (dx + dẋ ε₂) ε₁` (the folded inputs fixed).
+    #[test]
+    fn second_tangents_match_nested_dual_numbers() {
+        let mlp = random_mlp(&[6, 37, 70, 13], 9);
+        let (n, m, head) = (mlp.input_dim(), mlp.output_dim(), 4);
+        let x = inputs::<Dual<f64>>(n, 0.3);
+        let (dx, dx_dot) = (inputs::<f64>(head, 1.1), inputs::<f64>(head, 2.7));
+        let context: Vec<f64> = x[head..].iter().map(|v| v.re).collect();
+        let point: Vec<Dual<f64>> = x[..head].to_vec();
+        let mut bias = vec![0.0; mlp.folded_bias_len()];
+        mlp.fold_trailing_inputs(&context, &mut bias);
+        let mut record = vec![0.0; 2 * mlp.record_len()];
+        let mut scratch = MlpScratch::new(&mlp);
+        let mut out = vec![Dual::new(0.0, 0.0); m];
+        mlp.eval_folded(&point, &bias, &mut scratch, &mut out, Some(&mut record));
+        let (mut dout, mut dout_dot) = (vec![0.0; m], vec![0.0; m]);
+        mlp.second_tangent(
+            &record,
+            [&dx, &dx_dot],
+            &mut scratch,
+            [&mut dout, &mut dout_dot],
+        );
+
+        let nested: Vec<Dual2> = (0..n)
+            .map(|i| match i < head {
+                true => Dual::new(x[i], Dual::new(dx[i], dx_dot[i])),
+                false => Dual::new(Dual::new(context[i - head], 0.0), Dual::new(0.0, 0.0)),
+            })
+            .collect();
+        let mut expected = vec![Dual::new(Dual::new(0.0, 0.0), Dual::new(0.0, 0.0)); m];
+        mlp.eval(&nested, &mut MlpScratch::new(&mlp), &mut expected);
+        let tangent: Vec<f64> = expected.iter().map(|e| e.du.re).collect();
+        let tangent_dot: Vec<f64> = expected.iter().map(|e| e.du.du).collect();
+        assert_close(&dout, &tangent, 1e-12);
+        assert_close(&dout_dot, &tangent_dot, 1e-12);
+        assert!(dout_dot.iter().any(|v| v.abs() > 1e-3));
     }
 }

@@ -58,12 +58,15 @@ impl<S: Scalar> ConditionerScratch<S> {
     }
 }
 
-/// Buffers of [`Conditioner::tangent`] and [`Conditioner::eval_and_tangent`].
+/// Buffers of [`Conditioner::tangent`], [`Conditioner::eval_and_tangent`] and
+/// [`Conditioner::second_tangent`].
 #[derive(Clone, Debug)]
 pub struct ConditionerTangentScratch {
     primal: ConditionerScratch<f64>,
-    input_tangent: Vec<f64>,
-    feature_tangent: Vec<f64>,
+    /// The MLP's leading inputs along the tangent, and their time derivatives.
+    input_tangent: [Vec<f64>; 2],
+    /// One `ψ` output along the tangent, and its time derivative.
+    feature_tangent: [Vec<f64>; 2],
     mlp: MlpScratch<Dual<f64>>,
     local: Vec<MlpScratch<Dual<f64>>>,
 }
@@ -72,8 +75,8 @@ impl ConditionerTangentScratch {
     pub fn new(conditioner: &Conditioner) -> Self {
         Self {
             primal: ConditionerScratch::new(conditioner),
-            input_tangent: vec![0.0; conditioner.leading_dim()],
-            feature_tangent: vec![0.0; conditioner.local_width],
+            input_tangent: std::array::from_fn(|_| vec![0.0; conditioner.leading_dim()]),
+            feature_tangent: std::array::from_fn(|_| vec![0.0; conditioner.local_width]),
             mlp: MlpScratch::new(&conditioner.mlp),
             local: conditioner.local_scratches(),
         }
@@ -143,7 +146,7 @@ impl Conditioner {
         self.mlp.folded_bias_len() + self.per_element(Mlp::folded_bias_len)
     }
 
-    /// Length of the record of a recorded evaluation.
+    /// Length of the record of a recorded evaluation, per component of its scalar type.
     pub fn record_len(&self) -> usize {
         self.mlp.record_len() + self.per_element(Mlp::record_len)
     }
@@ -186,7 +189,8 @@ impl Conditioner {
             for _ in 0..set.count {
                 let (bias, rest) = biases.split_at(net.folded_bias_len());
                 biases = rest;
-                let element_record = record.take().map(|r| r.split_at_mut(net.record_len()));
+                let len = S::LANES * net.record_len();
+                let element_record = record.take().map(|r| r.split_at_mut(len));
                 let element_record = element_record.map(|(mine, rest)| {
                     record = Some(rest);
                     mine
@@ -243,7 +247,7 @@ impl Conditioner {
         }
         let (mlp_record, local_record) = match record {
             Some(r) => {
-                let (m, l) = r.split_at_mut(self.mlp.record_len());
+                let (m, l) = r.split_at_mut(S::LANES * self.mlp.record_len());
                 (Some(m), Some(l))
             }
             None => (None, None),
@@ -274,12 +278,16 @@ impl Conditioner {
         if self.local.is_empty() {
             return self.mlp.tangent(mlp_record, dx, &mut scratch.mlp, dtheta);
         }
-        let (head, features) = scratch.input_tangent.split_at_mut(self.kept);
+        let (head, features) = scratch.input_tangent[0].split_at_mut(self.kept);
         head.copy_from_slice(dx);
-        let feature = &mut scratch.feature_tangent;
+        let feature = &mut scratch.feature_tangent[0];
         self.pool_tangent(local_record, dx, features, feature, &mut scratch.local);
-        self.mlp
-            .tangent(mlp_record, &scratch.input_tangent, &mut scratch.mlp, dtheta);
+        self.mlp.tangent(
+            mlp_record,
+            &scratch.input_tangent[0],
+            &mut scratch.mlp,
+            dtheta,
+        );
     }
 
     /// [`eval`](Self::eval) at `kept` and the [`tangent`](Self::tangent) `dθ` at the
@@ -313,18 +321,78 @@ impl Conditioner {
         head.copy_from_slice(kept);
         let feature = &mut primal.feature;
         self.pool(kept, local_bias, features, feature, &mut primal.local, None);
-        let (head, features) = scratch.input_tangent.split_at_mut(self.kept);
+        let (head, features) = scratch.input_tangent[0].split_at_mut(self.kept);
         head.copy_from_slice(dx);
-        let feature = &mut scratch.feature_tangent;
+        let feature = &mut scratch.feature_tangent[0];
         self.pool_tangent(local_record, dx, features, feature, &mut scratch.local);
         self.mlp.eval_and_tangent(
             &primal.input,
             mlp_bias,
             theta,
             mlp_record,
-            &scratch.input_tangent,
+            &scratch.input_tangent[0],
             dtheta,
             &mut scratch.mlp,
         );
+    }
+
+    /// `p`'s second-order tangent along `dx + dẋ ε₂` at the recorded `Dual<f64>` point,
+    /// into `features` (both planes).
+    fn pool_second_tangent(
+        &self,
+        local_record: &[f64],
+        dx: [&[f64]; 2],
+        features: [&mut [f64]; 2],
+        feature: &mut [Vec<f64>; 2],
+        scratches: &mut [MlpScratch<Dual<f64>>],
+    ) {
+        let mut record = local_record;
+        let [pooled, pooled_dot] = features.map(|f| f.chunks_exact_mut(self.local_width));
+        let sets = self.local.iter().zip(scratches);
+        for (((set, net), scratch), (pooled, pooled_dot)) in sets.zip(pooled.zip(pooled_dot)) {
+            pooled.fill(0.0);
+            pooled_dot.fill(0.0);
+            let weight = 1.0 / set.count as f64;
+            for _ in 0..set.count {
+                let (mine, rest) = record.split_at(2 * net.record_len());
+                record = rest;
+                let [f, f_dot] = feature;
+                net.second_tangent(mine, dx, scratch, [&mut f[..], &mut f_dot[..]]);
+                for (p, f) in pooled.iter_mut().zip(f.iter()) {
+                    *p += f * weight;
+                }
+                for (p, f) in pooled_dot.iter_mut().zip(f_dot.iter()) {
+                    *p += f * weight;
+                }
+            }
+        }
+    }
+
+    /// The second-order tangent `dθ + dθ̇ ε₂ = ∂θ/∂x_k (x_k + ẋ_k ε₂) · (dx + dẋ ε₂)` at
+    /// the point of a recorded `Dual<f64>` [`eval`](Self::eval) (the context is fixed).
+    pub fn second_tangent(
+        &self,
+        record: &[f64],
+        dx: [&[f64]; 2],
+        scratch: &mut ConditionerTangentScratch,
+        dtheta: [&mut [f64]; 2],
+    ) {
+        let (mlp_record, local_record) = record.split_at(2 * self.mlp.record_len());
+        if self.local.is_empty() {
+            return self
+                .mlp
+                .second_tangent(mlp_record, dx, &mut scratch.mlp, dtheta);
+        }
+        let [input, input_dot] = &mut scratch.input_tangent;
+        let (head, features) = input.split_at_mut(self.kept);
+        let (head_dot, features_dot) = input_dot.split_at_mut(self.kept);
+        head.copy_from_slice(dx[0]);
+        head_dot.copy_from_slice(dx[1]);
+        let feature = &mut scratch.feature_tangent;
+        let pooled = [features, features_dot];
+        self.pool_second_tangent(local_record, dx, pooled, feature, &mut scratch.local);
+        let [input, input_dot] = &scratch.input_tangent;
+        self.mlp
+            .second_tangent(mlp_record, [input, input_dot], &mut scratch.mlp, dtheta);
     }
 }

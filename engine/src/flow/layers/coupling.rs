@@ -96,52 +96,69 @@ impl<S: Scalar> CouplingScratch<S> {
     }
 }
 
-/// Primal values of one coupling evaluation that its forward tangent reuses.
+/// Values of one recorded coupling evaluation that its forward tangents reuse, for a
+/// scalar type of `lanes` components: `f64` for [`Coupling::tangent`], `Dual<f64>`
+/// for [`Coupling::forward_second`].
 #[derive(Clone, Debug)]
 pub struct CouplingRecord {
-    /// Hidden activations of the conditioner.
+    /// Hidden activations of the conditioner, every component.
     activations: Vec<f64>,
-    /// `θ`.
+    /// `θ`, component after component.
     params: Vec<f64>,
-    /// The transformed coordinates on the input side of the forward transform `h`.
+    /// The transformed coordinates on the input side of the forward transform `h`
+    /// (primal component).
     input: Vec<f64>,
 }
 
 impl CouplingRecord {
-    pub fn new(coupling: &Coupling) -> Self {
+    pub fn new(coupling: &Coupling, lanes: usize) -> Self {
         Self {
-            activations: vec![0.0; coupling.conditioner.record_len()],
-            params: vec![0.0; coupling.conditioner.output_dim()],
+            activations: vec![0.0; lanes * coupling.conditioner.record_len()],
+            params: vec![0.0; lanes * coupling.conditioner.output_dim()],
             input: vec![0.0; coupling.transformed.len()],
         }
     }
 }
 
-/// Buffers of [`Coupling::tangent`] and [`Coupling::forward_with_tangent`].
+/// Buffers of [`Coupling::tangent`], [`Coupling::forward_with_tangent`] and
+/// [`Coupling::forward_second`].
 #[derive(Clone, Debug)]
 pub struct TangentScratch {
     /// Two state-sized buffers for the layers around the coupling (the mixing).
     pub(crate) state: Vec<f64>,
+    /// A state-sized buffer for the mixing in nested dual numbers.
+    pub(crate) state_second: Vec<Dual<Dual<f64>>>,
     params: Vec<f64>,
     params_tangent: Vec<f64>,
     dual_params: Vec<Dual<f64>>,
     transform: Vec<f64>,
     dual_transform: Vec<Dual<f64>>,
+    /// The kept coordinates' second-order tangent `(dx, dẋ)`, and `(dθ, dθ̇)`.
+    kept_second: [Vec<f64>; 2],
+    params_second: [Vec<f64>; 2],
+    nested_params: Vec<Dual<Dual<f64>>>,
+    nested_transform: Vec<Dual<Dual<f64>>>,
     conditioner: ConditionerTangentScratch,
 }
 
 impl TangentScratch {
     pub fn new(coupling: &Coupling) -> Self {
         let zero = Dual::new(0.0, 0.0);
+        let nested_zero = Dual::new(zero, zero);
         let outputs = coupling.conditioner.output_dim();
         let transform = coupling.transform.scratch_len();
         Self {
             state: vec![0.0; 2 * coupling.state_dim()],
+            state_second: vec![nested_zero; coupling.state_dim()],
             params: vec![0.0; outputs],
             params_tangent: vec![0.0; outputs],
             dual_params: vec![zero; outputs],
             transform: vec![0.0; transform],
             dual_transform: vec![zero; transform],
+            kept_second: std::array::from_fn(|_| vec![0.0; coupling.kept.len()]),
+            params_second: std::array::from_fn(|_| vec![0.0; outputs]),
+            nested_params: vec![nested_zero; outputs],
+            nested_transform: vec![nested_zero; transform],
             conditioner: ConditionerTangentScratch::new(&coupling.conditioner),
         }
     }
@@ -282,8 +299,11 @@ impl Coupling {
             log_det += ld;
         }
         if let Some(record) = record {
-            for (r, p) in record.params.iter_mut().zip(&scratch.params) {
-                *r = p.value();
+            let planes = record.params.chunks_exact_mut(scratch.params.len());
+            for (l, plane) in planes.enumerate() {
+                for (r, p) in plane.iter_mut().zip(&scratch.params) {
+                    *r = p.lane(l);
+                }
             }
         }
         log_det
@@ -339,6 +359,75 @@ impl Coupling {
         scratch: &mut TangentScratch,
     ) {
         self.sweep(record, dx, Some((x, context_bias)), scratch);
+    }
+
+    /// `x ← coupling(x)` in nested dual numbers `(x + ẋ ε₂) + (dx + dẋ ε₂) ε₁` at the
+    /// point whose `Dual<f64>` inverse pass (`x + ẋ ε₂`) filled `record`: the forward
+    /// pass meets the coupling input the inverse pass returned, so `θ + θ̇ ε₂` is read
+    /// from the record and only the conditioner's second-order tangent is computed
+    /// ([`Conditioner::second_tangent`]).
+    pub fn forward_second(
+        &self,
+        x: &mut [Dual<Dual<f64>>],
+        record: &CouplingRecord,
+        scratch: &mut TangentScratch,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if has_avx2_fma() {
+            // SAFETY: AVX2 and FMA support were detected.
+            return unsafe { self.forward_second_avx2(x, record, scratch) };
+        }
+        self.forward_second_with(x, record, scratch)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn forward_second_avx2(
+        &self,
+        x: &mut [Dual<Dual<f64>>],
+        record: &CouplingRecord,
+        scratch: &mut TangentScratch,
+    ) {
+        self.forward_second_with(x, record, scratch)
+    }
+
+    #[inline(always)]
+    fn forward_second_with(
+        &self,
+        x: &mut [Dual<Dual<f64>>],
+        record: &CouplingRecord,
+        scratch: &mut TangentScratch,
+    ) {
+        let [dx, dx_dot] = &mut scratch.kept_second;
+        for ((d, d_dot), xi) in dx
+            .iter_mut()
+            .zip(dx_dot.iter_mut())
+            .zip(&x[self.kept.clone()])
+        {
+            (*d, *d_dot) = (xi.du.re, xi.du.du);
+        }
+        let [dtheta, dtheta_dot] = &mut scratch.params_second;
+        self.conditioner.second_tangent(
+            &record.activations,
+            [dx, dx_dot],
+            &mut scratch.conditioner,
+            [dtheta, dtheta_dot],
+        );
+        let (theta, theta_dot) = record.params.split_at(dtheta.len());
+        let nested = theta
+            .iter()
+            .zip(theta_dot)
+            .zip(dtheta.iter().zip(dtheta_dot.iter()));
+        for (t, ((p, p_dot), (dp, dp_dot))) in scratch.nested_params.iter_mut().zip(nested) {
+            *t = Dual::new(Dual::new(*p, *p_dot), Dual::new(*dp, *dp_dot));
+        }
+        let params = scratch.nested_params.chunks_exact(self.params_per_dim);
+        for (xi, theta) in x[self.transformed.clone()].iter_mut().zip(params) {
+            *xi = self
+                .transform
+                .apply(*xi, theta, &mut scratch.nested_transform, false, false)
+                .0;
+        }
     }
 
     /// Tangent, and primal when given, in place; dispatched like [`apply`](Self::apply).
