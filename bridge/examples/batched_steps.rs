@@ -23,11 +23,7 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     let engine = client
         .discover()?
         .into_iter()
-        .find(|e| {
-            e.tasks
-                .iter()
-                .any(|t| t.spec.id == *task || t.name == *task)
-        })
+        .find(|e| e.tasks.iter().any(|t| t.is_named(task)))
         .ok_or_else(|| format!("no engine at {endpoint} serves {task}"))?
         .name;
     let batch = client.make(&engine, task, num_envs, &BTreeMap::new())?;

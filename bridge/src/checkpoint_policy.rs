@@ -66,7 +66,7 @@ impl CheckpointPolicy {
         }
         let factory = tasks
             .iter()
-            .find(|t| t.name == model.task() || t.id == model.task())
+            .find(|t| t.is_named(model.task()))
             .ok_or_else(|| PolicyLoadError::UnknownTask {
                 task: model.task().to_owned(),
                 available: tasks
@@ -132,10 +132,9 @@ impl CheckpointPolicy {
         // or its short name, whichever the configuration holds.
         let names_task = |task: &str| {
             task == model.task()
-                || tasks.iter().any(|t| {
-                    (t.name == model.task() || t.id == model.task())
-                        && (t.name == task || t.id == task)
-                })
+                || tasks
+                    .iter()
+                    .any(|t| t.is_named(model.task()) && t.is_named(task))
         };
         if !names_task(&message.task) {
             return Err(PolicyLoadError::TaskMismatch {

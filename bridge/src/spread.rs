@@ -51,11 +51,7 @@ pub fn resolve_engines(
     wanted: &[String],
     task: &str,
 ) -> Result<Vec<String>, BridgeError> {
-    let serves = |info: &EngineInfo| {
-        info.tasks
-            .iter()
-            .any(|t| t.name == task || t.spec.id == task)
-    };
+    let serves = |info: &EngineInfo| info.tasks.iter().any(|t| t.is_named(task));
     if wanted.iter().any(|w| w == "*") {
         let engines: Vec<String> = client
             .discover()?

@@ -31,4 +31,9 @@ impl TaskFactory {
             })
             .collect()
     }
+
+    /// Whether `task` names this task: its Gymnasium id or its short name.
+    pub fn is_named(&self, task: &str) -> bool {
+        self.id == task || self.name == task
+    }
 }

@@ -53,6 +53,13 @@ pub struct TaskInfo {
     pub spec: EnvSpec,
 }
 
+impl TaskInfo {
+    /// Whether `task` names this task: its Gymnasium id or its short name.
+    pub fn is_named(&self, task: &str) -> bool {
+        self.spec.id == task || self.name == task
+    }
+}
+
 /// One policy an engine evaluates with `…/policy/<name>/act`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PolicyInfo {

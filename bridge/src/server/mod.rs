@@ -793,7 +793,7 @@ impl Shared {
     fn factory(&self, task: &str) -> Result<&TaskFactory, ErrorReply> {
         self.factories
             .iter()
-            .find(|f| f.id == task || f.name == task)
+            .find(|f| f.is_named(task))
             .ok_or_else(|| {
                 ErrorReply::new(
                     ErrorCode::UnknownTask,
