@@ -11,6 +11,10 @@
 //! once, and [`Mlp::eval_and_tangent`] evaluates one point and a Jacobian-vector product
 //! at another (recorded) point in the same sweep.
 //!
+//! A recorded evaluation also spares later passes at the same point their `tanh` and
+//! their value planes: [`Mlp::tangent`] sweeps one plane and [`Mlp::second_tangent`] (the
+//! policy's acceleration) two, where a dual-number pass would sweep two and four.
+//!
 //! The weights are kept in `f32` and widened as they are loaded; activations, biases and
 //! sums stay `f64`. Halving the bytes streamed per sweep took the pouring policy's action
 //! from 19.6 to 14.3 µs (`cargo bench --bench flow`); rounding the trained weights to
