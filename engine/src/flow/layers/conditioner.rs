@@ -203,29 +203,57 @@ impl Conditioner {
         }
     }
 
-    /// The tangent of `p` along `dx` at the recorded point, into `features`.
-    fn pool_tangent(
+    /// `p`'s `P` tangent planes at the recorded point into `features`: per element, its
+    /// `ψ_k`'s planes from `sweep` (given the element's `P` record planes) into `feature`,
+    /// averaged over the set. `P = 1`: along `dx` from an `f64` record
+    /// ([`Mlp::tangent`]); `P = 2`: along `dx + dẋ ε₂` from a `Dual<f64>` one
+    /// ([`Mlp::second_tangent`]).
+    fn pool_tangents<const P: usize>(
         &self,
         local_record: &[f64],
-        dx: &[f64],
-        features: &mut [f64],
-        feature: &mut [f64],
+        features: [&mut [f64]; P],
+        feature: &mut [Vec<f64>; P],
         scratches: &mut [MlpScratch<Dual<f64>>],
+        sweep: impl Fn(&Mlp, &[f64], &mut MlpScratch<Dual<f64>>, [&mut [f64]; P]),
     ) {
         let mut record = local_record;
-        let pooled = features.chunks_exact_mut(self.local_width);
-        for (((set, net), pooled), scratch) in self.local.iter().zip(pooled).zip(scratches) {
-            pooled.fill(0.0);
+        let mut pooled = features.map(|f| f.chunks_exact_mut(self.local_width));
+        for ((set, net), scratch) in self.local.iter().zip(scratches) {
+            let mut sums = pooled
+                .each_mut()
+                .map(|p| p.next().expect("one pooled feature per set"));
+            sums.iter_mut().for_each(|sum| sum.fill(0.0));
             let weight = 1.0 / set.count as f64;
             for _ in 0..set.count {
-                let (mine, rest) = record.split_at(net.record_len());
+                let (mine, rest) = record.split_at(P * net.record_len());
                 record = rest;
-                net.tangent(mine, dx, scratch, feature);
-                for (p, f) in pooled.iter_mut().zip(feature.iter()) {
-                    *p += f * weight;
+                sweep(net, mine, scratch, feature.each_mut().map(|f| &mut f[..]));
+                for (sum, f) in sums.iter_mut().zip(feature.iter()) {
+                    for (s, f) in sum.iter_mut().zip(f) {
+                        *s += f * weight;
+                    }
                 }
             }
         }
+    }
+
+    /// The MLP's leading inputs along `dx`, `[dx, ∂p/∂x_k dx]`, into
+    /// `scratch.input_tangent[0]`.
+    fn tangent_input(
+        &self,
+        local_record: &[f64],
+        dx: &[f64],
+        scratch: &mut ConditionerTangentScratch,
+    ) {
+        let (head, features) = scratch.input_tangent[0].split_at_mut(self.kept);
+        head.copy_from_slice(dx);
+        self.pool_tangents(
+            local_record,
+            [features],
+            std::array::from_mut(&mut scratch.feature_tangent[0]),
+            &mut scratch.local,
+            |net, record, scratch, [out]| net.tangent(record, dx, scratch, out),
+        );
     }
 
     /// `θ` at the kept coordinates `kept` for the context folded into `bias`; keeps the
@@ -278,10 +306,7 @@ impl Conditioner {
         if self.local.is_empty() {
             return self.mlp.tangent(mlp_record, dx, &mut scratch.mlp, dtheta);
         }
-        let (head, features) = scratch.input_tangent[0].split_at_mut(self.kept);
-        head.copy_from_slice(dx);
-        let feature = &mut scratch.feature_tangent[0];
-        self.pool_tangent(local_record, dx, features, feature, &mut scratch.local);
+        self.tangent_input(local_record, dx, scratch);
         self.mlp.tangent(
             mlp_record,
             &scratch.input_tangent[0],
@@ -316,15 +341,12 @@ impl Conditioner {
                 &mut scratch.mlp,
             );
         }
+        self.tangent_input(local_record, dx, scratch);
         let primal = &mut scratch.primal;
         let (head, features) = primal.input.split_at_mut(self.kept);
         head.copy_from_slice(kept);
         let feature = &mut primal.feature;
         self.pool(kept, local_bias, features, feature, &mut primal.local, None);
-        let (head, features) = scratch.input_tangent[0].split_at_mut(self.kept);
-        head.copy_from_slice(dx);
-        let feature = &mut scratch.feature_tangent[0];
-        self.pool_tangent(local_record, dx, features, feature, &mut scratch.local);
         self.mlp.eval_and_tangent(
             &primal.input,
             mlp_bias,
@@ -334,38 +356,6 @@ impl Conditioner {
             dtheta,
             &mut scratch.mlp,
         );
-    }
-
-    /// `p`'s second-order tangent along `dx + dẋ ε₂` at the recorded `Dual<f64>` point,
-    /// into `features` (both planes).
-    fn pool_second_tangent(
-        &self,
-        local_record: &[f64],
-        dx: [&[f64]; 2],
-        features: [&mut [f64]; 2],
-        feature: &mut [Vec<f64>; 2],
-        scratches: &mut [MlpScratch<Dual<f64>>],
-    ) {
-        let mut record = local_record;
-        let [pooled, pooled_dot] = features.map(|f| f.chunks_exact_mut(self.local_width));
-        let sets = self.local.iter().zip(scratches);
-        for (((set, net), scratch), (pooled, pooled_dot)) in sets.zip(pooled.zip(pooled_dot)) {
-            pooled.fill(0.0);
-            pooled_dot.fill(0.0);
-            let weight = 1.0 / set.count as f64;
-            for _ in 0..set.count {
-                let (mine, rest) = record.split_at(2 * net.record_len());
-                record = rest;
-                let [f, f_dot] = feature;
-                net.second_tangent(mine, dx, scratch, [&mut f[..], &mut f_dot[..]]);
-                for (p, f) in pooled.iter_mut().zip(f.iter()) {
-                    *p += f * weight;
-                }
-                for (p, f) in pooled_dot.iter_mut().zip(f_dot.iter()) {
-                    *p += f * weight;
-                }
-            }
-        }
     }
 
     /// The second-order tangent `dθ + dθ̇ ε₂ = ∂θ/∂x_k (x_k + ẋ_k ε₂) · (dx + dẋ ε₂)` at
@@ -388,9 +378,13 @@ impl Conditioner {
         let (head_dot, features_dot) = input_dot.split_at_mut(self.kept);
         head.copy_from_slice(dx[0]);
         head_dot.copy_from_slice(dx[1]);
-        let feature = &mut scratch.feature_tangent;
-        let pooled = [features, features_dot];
-        self.pool_second_tangent(local_record, dx, pooled, feature, &mut scratch.local);
+        self.pool_tangents(
+            local_record,
+            [features, features_dot],
+            &mut scratch.feature_tangent,
+            &mut scratch.local,
+            |net, record, scratch, out| net.second_tangent(record, dx, scratch, out),
+        );
         let [input, input_dot] = &scratch.input_tangent;
         self.mlp
             .second_tangent(mlp_record, [input, input_dot], &mut scratch.mlp, dtheta);
