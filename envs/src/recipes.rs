@@ -42,10 +42,11 @@ const LASA_MIN_RATE: f64 = 0.2;
 /// Pouring's guaranteed latent rate (1/s). A pushed policy returns to its path about as
 /// fast as its latent contracts across the path, and the likelihood leaves that rate at
 /// this floor: the trained `F` of `A = −(F Fᵀ + ε I) + Ω` goes to zero (at 1 /s, back on
-/// the path within 2 s after 86–95 % of the pushes over five training seeds). The demonstrations' final approach runs at about 1.8 /s (joints and spout
-/// alike), which bounds the floor from above: at 2 /s the flow must slow the latent down
-/// to fit them and the pot-moved success fell to 63–87 %. 1.25 /s keeps a margin below it
-/// and brought recovery to 97–100 % with every other figure ≥ 97 % (README "Pouring").
+/// the path within 2 s after 86–95 % of the pushes over five training seeds). The
+/// demonstrations' final approach runs at about 1.8 /s (joints and spout alike), which
+/// bounds the floor from above: at 2 /s the flow must slow the latent down to fit them and
+/// the pot-moved success fell to 63–87 %. 1.25 /s keeps a margin below it and brought
+/// recovery to 97–100 % with every other figure ≥ 97 % (README "Pouring").
 const POURING_MIN_RATE: f64 = 1.25;
 
 /// The generic go-to recipe, with the target at `goal_context_indices` of the context.
