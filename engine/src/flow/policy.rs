@@ -292,8 +292,8 @@ impl Policy {
     /// Writes `q̈_des` to `acceleration` and `v_des(q)` to `velocity`.
     ///
     /// Under a joint range, `v_des` is the time-scaled `s(q, v) v` (its `d/dt` through `s`
-    /// included) and `q̈_des` is scaled into the acceleration bounds
-    /// ([`crate::flow::layers::joint_range`]).
+    /// included), and `q̈_des` is scaled into a share of the acceleration bounds and kept
+    /// off the end stops at the measured `(q, q̇)` ([`crate::flow::layers::joint_range`]).
     #[allow(clippy::too_many_arguments)]
     pub fn acceleration(
         &self,
@@ -349,7 +349,7 @@ impl Policy {
             acceleration[i] = v_des.du + velocity_gain * (v_des.re - qd[i]);
         }
         if let Some(range) = &self.config().joint_range {
-            range.scale_acceleration(acceleration);
+            range.limit_acceleration(q, qd, acceleration);
         }
         Ok(())
     }
