@@ -2,12 +2,13 @@
 //! the noise-free policy stays inside the position limits from every start, its desired
 //! velocity is the field slowed by a common factor into the speed bounds (with the exact
 //! time derivative) and within braking distance of the limits, and its desired
-//! acceleration is scaled into a share of its bounds along its own direction. The same
-//! weights without the range are the negative control: they leave the limits.
+//! acceleration is scaled into a share of its bounds (by the latent norm) along its own
+//! direction. The same weights without the range are the negative control: they leave
+//! the limits.
 
 mod flow_common;
 
-use ciflow_engine::flow::layers::joint_range::{BRAKING_SHARE, PLANNING_SHARE};
+use ciflow_engine::flow::layers::joint_range::BRAKING_SHARE;
 use ciflow_engine::flow::{
     CouplingKind, FlowConfig, JointRange, LatentKind, Policy, PolicyWorkspace, Weights,
 };
@@ -196,12 +197,15 @@ fn near_limits_speed_leaves_braking_room_and_acceleration_keeps_its_direction() 
             .acceleration(&q, &qd, &c, gain, &mut ws, &mut a, &mut v_des)
             .unwrap();
         let unbounded = feedforward_by_differences(&policy, &mut ws, &q, &qd, &c, gain);
-        let excess = (largest(&unbounded) / (PLANNING_SHARE * acceleration_max)).max(1.0);
+        let mut z = vec![0.0; 3];
+        policy.latent_state(&q, &c, &mut ws, &mut z).unwrap();
+        let share = JointRange::acceleration_share(z.iter().map(|x| x * x).sum::<f64>().sqrt());
+        let excess = (largest(&unbounded) / (share * acceleration_max)).max(1.0);
         let expected: Vec<f64> = unbounded.iter().map(|x| x / excess).collect();
         assert!(max_abs_diff(&a, &expected) < 1e-6 * (1.0 + largest(&unbounded)));
         assert!(
             a.iter()
-                .all(|x| x.abs() <= PLANNING_SHARE * acceleration_max * (1.0 + 1e-12))
+                .all(|x| x.abs() <= share * acceleration_max * (1.0 + 1e-12))
         );
         scaled += usize::from(excess > 1.0);
     }

@@ -38,13 +38,17 @@
 //! `‖v ⊘ v̄‖₈ ≤ ½`, and `s = 0.975` at 0.83.
 //!
 //! **Acceleration: a common factor.** The field's desired acceleration `a` is divided by
-//! `max(1, max_i |a_i| / (α ā_i))`, `α` = [`PLANNING_SHARE`]: its direction is kept and it
-//! is unchanged near the attractor (where `a → 0`). The other `(1 − α) ā` is headroom:
-//! for the barrier below, and for the torque-rate limit, which a command swinging over
-//! its whole bound within a few periods runs into. (Clipping each joint instead, as the
-//! pouring action space does, measured worse through the Panda.) Unlike the two maps
-//! above this is not a reparametrisation of the field, so convergence through it is
-//! measured (`ciflow stability --robot-loop`), not proved.
+//! `max(1, max_i |a_i| / (α ā_i))`: its direction is kept and it is unchanged near the
+//! attractor (where `a → 0`). The share `α` of the bound depends on how far the latent
+//! state is from the data: `α = 1` while `‖z‖ ≤ r₁`, falling linearly to
+//! [`PLANNING_SHARE`] at `r₂` and beyond ([`SHARE_RADII`]; the network's input is
+//! normalised, so the demonstrations' latent states lie within a few units). Near the data
+//! a pushed robot returns with the whole bound; far from it, where the learned field turns
+//! within tens of milliseconds, the rest is headroom for the barrier below and for the
+//! torque-rate limit. (Clipping each joint instead, as the pouring action space does,
+//! measured worse through the Panda.) Unlike the two maps above this is not a
+//! reparametrisation of the field, so convergence through it is measured (`ciflow
+//! stability --robot-loop`), not proved.
 //!
 //! **End stops: a barrier on the measured state.** The field stays inside the limits, but
 //! far from the data it can run along one within micrometres, and the robot's tracking
@@ -78,10 +82,15 @@ pub const EDGE: f64 = 1e-12;
 /// the rest is for following the field's curvature and the velocity feedback.
 pub const BRAKING_SHARE: f64 = 0.5;
 
-/// Share `α` of the acceleration bound the field's own acceleration is scaled into. Through
-/// the Panda, 0.5 took the saturated control steps from 1.2–2.5 % to 0.2–1.2 %; pushed
-/// pouring returns a little more slowly (README "Joint limits").
+/// Share `α` of the acceleration bound the field's own acceleration is scaled into far
+/// from the data. Through the Panda, 0.5 took the saturated control steps from 1.2–2.5 %
+/// to 0.2–1.2 % (README "Joint limits").
 pub const PLANNING_SHARE: f64 = 0.5;
+
+/// `(r₁, r₂)`: latent norms up to which the field may use the whole acceleration bound,
+/// and from which it gets [`PLANNING_SHARE`]. Pushed pouring states reach `‖z‖ ≈ 12` (99th
+/// percentile); the robot loop's far starts 80 and more.
+pub const SHARE_RADII: (f64, f64) = (5.0, 20.0);
 
 /// `γ` (1/s): how fast the braking barrier `h = 2 b δ − q̇²` may shrink, `ḣ ≥ −γ h`.
 pub const BARRIER_RATE: f64 = 3.0;
@@ -234,13 +243,28 @@ impl JointRange {
         ((sum + 1.0).ln() * (-1.0 / 8.0)).exp()
     }
 
-    /// The commanded acceleration at the measured `(q, q̇)`: `a` scaled into `α ā` along
-    /// its direction, then each joint kept within its end-stop barrier and `±ā`.
-    pub fn limit_acceleration(&self, position: &[f64], velocity: &[f64], acceleration: &mut [f64]) {
+    /// `α(‖z‖)`: the share of the acceleration bound the field gets at latent norm `‖z‖`.
+    pub fn acceleration_share(latent_norm: f64) -> f64 {
+        let (near, far) = SHARE_RADII;
+        let farness = ((latent_norm - near) / (far - near)).clamp(0.0, 1.0);
+        1.0 - (1.0 - PLANNING_SHARE) * farness
+    }
+
+    /// The commanded acceleration at the measured `(q, q̇)`, whose latent state has norm
+    /// `latent_norm`: `a` scaled into `α(‖z‖) ā` along its direction, then each joint kept
+    /// within its end-stop barrier and `±ā`.
+    pub fn limit_acceleration(
+        &self,
+        position: &[f64],
+        velocity: &[f64],
+        latent_norm: f64,
+        acceleration: &mut [f64],
+    ) {
+        let share = Self::acceleration_share(latent_norm);
         let excess = acceleration
             .iter()
             .zip(&self.acceleration_max)
-            .map(|(a, bound)| a.abs() / (PLANNING_SHARE * bound))
+            .map(|(a, bound)| a.abs() / (share * bound))
             .fold(1.0, f64::max);
         for (i, a) in acceleration.iter_mut().enumerate() {
             let (least, most) = self.barrier(i, position[i], velocity[i]);
@@ -282,7 +306,7 @@ fn clamp_inside<S: Scalar>(t: S) -> S {
 
 #[cfg(test)]
 mod tests {
-    use super::{BARRIER_MARGIN, BRAKING_SHARE, JointRange, PLANNING_SHARE};
+    use super::{BARRIER_MARGIN, BRAKING_SHARE, JointRange, PLANNING_SHARE, SHARE_RADII};
     use crate::nn::scalar::Dual;
 
     fn range() -> JointRange {
@@ -386,27 +410,39 @@ mod tests {
     }
 
     #[test]
-    fn acceleration_keeps_its_direction_within_the_planning_share() {
+    fn acceleration_keeps_its_direction_within_its_share() {
         let range = range();
         // At rest in the middle of both ranges the barrier is inactive.
         let (middle, rest) = ([-0.5, 2.0], [0.0, 0.0]);
-        let mut a = [20.0, -2.0];
-        range.limit_acceleration(&middle, &rest, &mut a);
-        let excess = 20.0 / (PLANNING_SHARE * 10.0);
-        assert_eq!(a, [20.0 / excess, -2.0 / excess]);
-        let mut small = [1.0, -2.0];
-        range.limit_acceleration(&middle, &rest, &mut small);
-        assert_eq!(small, [1.0, -2.0]);
+        let (near, far) = SHARE_RADII;
+        for (latent_norm, share) in [
+            (0.0, 1.0),
+            (near, 1.0),
+            (far, PLANNING_SHARE),
+            (1e3, PLANNING_SHARE),
+        ] {
+            let mut a = [20.0, -2.0];
+            range.limit_acceleration(&middle, &rest, latent_norm, &mut a);
+            let excess = 20.0 / (share * 10.0);
+            assert_eq!(a, [20.0 / excess, -2.0 / excess], "at |z| = {latent_norm}");
+            let mut small = [1.0, -2.0];
+            range.limit_acceleration(&middle, &rest, latent_norm, &mut small);
+            assert_eq!(small, [1.0, -2.0]);
+        }
+        // Continuous in between.
+        let middle_share = JointRange::acceleration_share(0.5 * (near + far));
+        assert!((middle_share - 0.5 * (1.0 + PLANNING_SHARE)).abs() < 1e-12);
     }
 
     /// Joint 0 driven towards its upper limit with the largest demand, integrated at 1 ms
     /// for 5 s; returns its closest approach, final distance and final speed.
     fn drive_to_the_limit(range: &JointRange, qd0: f64, barrier: bool) -> (f64, f64, f64) {
+        let far = SHARE_RADII.1;
         let (h, mut q, mut qd, mut closest) = (1e-3, [0.0, 2.0], [qd0, 0.0], f64::INFINITY);
         for _ in 0..5000 {
             let mut a = [1e3, 0.0];
             match barrier {
-                true => range.limit_acceleration(&q, &qd, &mut a),
+                true => range.limit_acceleration(&q, &qd, far, &mut a),
                 false => a[0] = PLANNING_SHARE * range.acceleration_max[0],
             }
             qd[0] += h * a[0];
@@ -439,6 +475,7 @@ mod tests {
         range.limit_acceleration(
             &[1.0 - 0.5 * BARRIER_MARGIN, 0.5 + 0.5 * BARRIER_MARGIN],
             &[0.0; 2],
+            0.0,
             &mut a,
         );
         assert!(a[0] < 0.0 && a[1] > 0.0, "{a:?}");
@@ -446,6 +483,7 @@ mod tests {
         range.limit_acceleration(
             &[1.0 - 2.0 * BARRIER_MARGIN, 0.5 + 2.0 * BARRIER_MARGIN],
             &[0.0; 2],
+            0.0,
             &mut a,
         );
         assert_eq!(a, [0.0, 0.0]);
