@@ -42,7 +42,7 @@
 //! attractor (where `a → 0`). The share `α` of the bound depends on how far the latent
 //! state is from the data: `α = 1` while `‖z‖ ≤ r₁`, falling linearly to
 //! [`PLANNING_SHARE`] at `r₂` and beyond ([`SHARE_RADII`]; the network's input is
-//! normalised, so the demonstrations' latent states lie within a few units). Near the data
+//! normalised, and pushed pouring states have `‖z‖ ≈ 0.5` at the median). Near the data
 //! a pushed robot returns with the whole bound; far from it, where the learned field turns
 //! within tens of milliseconds, the rest is headroom for the barrier below and for the
 //! torque-rate limit. (Clipping each joint instead, as the pouring action space does,
@@ -471,22 +471,18 @@ mod tests {
         }
         // At rest within the margin the spring pushes the joint off the stop, mirrored at
         // the lower limit; more than the margin inside, rest stays rest.
-        let mut a = [0.0, 0.0];
-        range.limit_acceleration(
-            &[1.0 - 0.5 * BARRIER_MARGIN, 0.5 + 0.5 * BARRIER_MARGIN],
-            &[0.0; 2],
-            0.0,
-            &mut a,
-        );
-        assert!(a[0] < 0.0 && a[1] > 0.0, "{a:?}");
-        let mut a = [0.0, 0.0];
-        range.limit_acceleration(
-            &[1.0 - 2.0 * BARRIER_MARGIN, 0.5 + 2.0 * BARRIER_MARGIN],
-            &[0.0; 2],
-            0.0,
-            &mut a,
-        );
-        assert_eq!(a, [0.0, 0.0]);
+        let at_rest_off_the_stops = |margins: f64| {
+            let mut a = [0.0, 0.0];
+            let q = [
+                1.0 - margins * BARRIER_MARGIN,
+                0.5 + margins * BARRIER_MARGIN,
+            ];
+            range.limit_acceleration(&q, &[0.0; 2], 0.0, &mut a);
+            a
+        };
+        let within = at_rest_off_the_stops(0.5);
+        assert!(within[0] < 0.0 && within[1] > 0.0, "{within:?}");
+        assert_eq!(at_rest_off_the_stops(2.0), [0.0, 0.0]);
     }
 
     #[test]
