@@ -2,7 +2,6 @@
 
 mod flow_common;
 
-use ciflow_engine::flow::layers::joint_range::{BARRIER_MARGIN, BARRIER_STIFFNESS};
 use ciflow_engine::flow::{FlowConfig, LatentKind};
 use ciflow_engine::nn::scalar::Dual;
 use flow_common::*;
@@ -177,9 +176,9 @@ fn acceleration_feedforward_is_the_time_derivative_of_the_desired_velocity() {
                 .collect();
             let scale = 1.0 + expected.iter().fold(0.0f64, |a, v| a.max(v.abs()));
             for i in 0..d {
-                // Under a joint range the end-stop spring caps the acceleration towards a
-                // limit (`joint_range`'s own tests); random fields reach past that cap.
-                if spring_binds(config, i, q[i], qd[i], expected[i]) {
+                // Under a joint range the end-stop barrier's spring caps the acceleration
+                // towards a limit (`joint_range`'s own tests); random fields reach past it.
+                if barrier_binds(config, i, q[i], qd[i], expected[i]) {
                     capped += 1;
                     continue;
                 }
@@ -197,15 +196,13 @@ fn acceleration_feedforward_is_the_time_derivative_of_the_desired_velocity() {
     );
 }
 
-/// Whether the joint range's end-stop spring, `ω² (δ − m) − 2 ω q̇` towards each limit,
-/// caps acceleration `a` of joint `i` at `(q, q̇)`.
-fn spring_binds(config: &FlowConfig, i: usize, q: f64, qd: f64, a: f64) -> bool {
+/// Whether the joint range's end-stop barrier caps acceleration `a` of joint `i` at
+/// `(q, q̇)`.
+fn barrier_binds(config: &FlowConfig, i: usize, q: f64, qd: f64, a: f64) -> bool {
     let Some(range) = &config.joint_range else {
         return false;
     };
-    let (omega, margin) = (BARRIER_STIFFNESS, BARRIER_MARGIN);
-    let most = omega * omega * (range.position_max[i] - q - margin) - 2.0 * omega * qd;
-    let least = -omega * omega * (q - range.position_min[i] - margin) - 2.0 * omega * qd;
+    let (least, most) = range.barrier(i, q, qd);
     a >= most || a <= least
 }
 

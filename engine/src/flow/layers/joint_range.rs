@@ -274,7 +274,7 @@ impl JointRange {
 
     /// `(lowest, highest)` acceleration of joint `i` at `(q, q̇)` that its end-stop barrier
     /// allows, within `±ā` (the lower bound wins if they cross).
-    fn barrier(&self, i: usize, q: f64, v: f64) -> (f64, f64) {
+    pub fn barrier(&self, i: usize, q: f64, v: f64) -> (f64, f64) {
         let bound = self.acceleration_max[i];
         let braking = BRAKING_SHARE * bound;
         let omega = BARRIER_STIFFNESS;
