@@ -10,10 +10,11 @@
 //! independent 6-vector dot product and the composites are plain sums, at the price of
 //! one inertia transform per body (the body-frame form needs `n − 1`).
 
-use super::kinematics::{place_bodies, place_joints};
+use super::kinematics::place_joints;
 use super::{DynamicsError, check_vector};
 use crate::math::{DMatrix, Real};
 use crate::model::{Data, Model};
+use crate::spatial::{Inertia, Se3};
 
 /// The joint-space inertia matrix `M(q)` (n × n, both triangles filled) into `data.m`;
 /// also leaves `ᵖMᵢ` in `data.li_m_i` and `⁰Mᵢ` in `data.o_m_i`.
@@ -35,13 +36,15 @@ pub fn crba<'d>(
 /// Forward dynamics runs its bias forces on them, the Coriolis matrix its rates.
 #[inline(always)]
 pub(crate) fn bodies_in_world(model: &Model, data: &mut Data) {
-    place_bodies(data);
-    for (body, (o_m_i, (s_world, ic_world))) in model.bodies().iter().zip(
-        data.o_m_i
-            .iter()
-            .zip(data.s_world.iter_mut().zip(data.ic_world.iter_mut())),
-    ) {
-        *s_world = o_m_i.act_motion(&body.joint.motion_subspace());
+    // One pass, placements included: their chain is serial, and each body's own
+    // transforms beside it give the CPU independent work while it waits.
+    let mut o_m_i = Se3::identity();
+    let bodies = (data.li_m_i.iter().zip(&mut data.o_m_i))
+        .zip(data.s_world.iter_mut().zip(&mut data.ic_world));
+    for (body, ((li_m_i, o_m), (s_world, ic_world))) in model.bodies().iter().zip(bodies) {
+        o_m_i = o_m_i * *li_m_i;
+        *o_m = o_m_i;
+        *s_world = body.joint.motion_subspace_in(&o_m_i);
         *ic_world = o_m_i.act_inertia(&body.inertia);
     }
 }
@@ -51,12 +54,13 @@ pub(crate) fn bodies_in_world(model: &Model, data: &mut Data) {
 #[inline(always)]
 pub(crate) fn composite_rigid_body(model: &Model, data: &mut Data) {
     let n = model.nv();
-    for i in (1..n).rev() {
-        let child = data.ic_world[i];
-        data.ic_world[i - 1] += child;
-    }
-    for i in 0..n {
-        let force = data.ic_world[i] * data.s_world[i];
+    // The running composite stays in registers: adding each child into its parent's slot
+    // would reload, every step, what the step before had just stored.
+    let mut composite = Inertia::zero();
+    for i in (0..n).rev() {
+        composite += data.ic_world[i];
+        data.ic_world[i] = composite;
+        let force = composite * data.s_world[i];
         data.m[(i, i)] = force.dot(&data.s_world[i]) + model.armature()[i];
         for j in 0..i {
             let m_ji = force.dot(&data.s_world[j]);

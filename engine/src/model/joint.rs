@@ -88,12 +88,55 @@ impl Joint {
         }
     }
 
+    /// `S` in the frame `placement` maps the child body frame to, `placement.act_motion(S)`,
+    /// without the products by `S`'s zero half: `(p × R a, R a)` (revolute) or `(R a, 0)`
+    /// (prismatic), with `R a` a column of `R` for an axis along z.
+    #[inline(always)]
+    pub(crate) fn motion_subspace_in(&self, placement: &Se3) -> Motion {
+        let r = &placement.rotation;
+        let axis = if self.axis == Vector3::z() {
+            r.column(2).into_owned()
+        } else {
+            r * self.axis
+        };
+        match self.kind {
+            JointKind::Revolute => Motion::new(placement.translation.cross(&axis), axis),
+            JointKind::Prismatic => Motion::new(axis, Vector3::zeros()),
+        }
+    }
+
     /// `Sᵀ f`: the joint's share of a wrench given in the child body frame — the torque
     /// about the axis (revolute) or the force along it (prismatic).
     pub fn project(&self, wrench: &Force) -> Real {
         match self.kind {
             JointKind::Revolute => self.axis.dot(&wrench.angular),
             JointKind::Prismatic => self.axis.dot(&wrench.linear),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shortcut against the full motion transform, for each of its three branches.
+    #[test]
+    fn motion_subspace_in_a_frame_is_the_transformed_subspace() {
+        let placement = Se3::new(
+            Se3::rotation_about(&Vector3::new(0.3, -0.5, 0.8).normalize(), 1.1),
+            Vector3::new(0.2, -0.4, 0.7),
+        );
+        let tilted = Vector3::new(0.6, 0.0, -0.8);
+        for joint in [
+            Joint::revolute("z", Se3::identity(), Vector3::z()),
+            Joint::revolute("tilted", Se3::identity(), tilted),
+            Joint::prismatic("slide", Se3::identity(), tilted),
+        ] {
+            let expected = placement.act_motion(&joint.motion_subspace());
+            let error = (joint.motion_subspace_in(&placement) - expected)
+                .to_vector6()
+                .amax();
+            assert!(error < 1e-15, "{}: off by {error}", joint.name);
         }
     }
 }
