@@ -137,6 +137,7 @@ impl Client {
 
     /// Every engine reachable now, with its tasks and policies.
     pub fn discover(&self) -> Result<Vec<EngineInfo>, BridgeError> {
+        let sent = Instant::now();
         let replies = self
             .zsession
             .get(keys::ALL_ENGINES_TASKS)
@@ -150,7 +151,7 @@ impl Client {
             .map_err(BridgeError::zenoh("asking the engines for their tasks"))?;
         let mut engines: Vec<EngineInfo> = replies
             .iter()
-            .filter_map(|reply| decode_ok::<TasksReply>(keys::ALL_ENGINES_TASKS, &reply).ok())
+            .filter_map(|reply| decode_ok::<TasksReply>(keys::ALL_ENGINES_TASKS, &reply, sent).ok())
             .map(EngineInfo::from)
             .collect();
         engines.sort_by(|a, b| a.name.cmp(&b.name));
@@ -442,13 +443,15 @@ impl RemoteEnv {
         &self,
         request: &impl Serialize,
     ) -> Result<R, BridgeError> {
+        let sent = Instant::now();
         let replies = self
             .stepper
             .get()
             .payload(encode(request))
             .wait()
             .map_err(BridgeError::zenoh("sending the step query"))?;
-        first_reply(self.stepper.key_expr().as_str(), &replies)
+        let key = self.stepper.key_expr().as_str();
+        first_reply(key, &replies, sent)
     }
 
     /// Gymnasium `reset` of a single-environment session.

@@ -1,6 +1,7 @@
 //! Errors of the bridge library: starting an engine, and everything a client can meet.
 
 use std::path::PathBuf;
+use std::time::Duration;
 
 use ciflow_engine::flow::FlowError;
 use ciflow_envs::EnvError;
@@ -61,6 +62,14 @@ pub enum BridgeError {
          at a running engine (`engine=\"tcp/<host>:<port>\"` or CIFLOW_ENGINE)"
     )]
     NoEngine { key: String },
+    /// An engine took the request but its reply did not come before the timeout: it is
+    /// overloaded or stuck, or the link dropped while it worked.
+    #[error(
+        "no reply on `{key}` within {waited:.1?}: an engine serves that key but did not answer \
+         in time (overloaded, stuck, or the link dropped); check the engine's log, or raise \
+         the client's timeout for slow requests"
+    )]
+    NoReply { key: String, waited: Duration },
     /// The engine refused the request with a typed error.
     #[error("engine refused the request: {0}")]
     Remote(#[from] ErrorReply),

@@ -1,6 +1,6 @@
 //! One request, its replies: the query helpers every client of the protocol uses.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use serde::de::DeserializeOwned;
 use zenoh::Wait;
@@ -36,11 +36,12 @@ pub fn query_all(
     payload: Vec<u8>,
     timeout: Duration,
 ) -> Result<Vec<Result<Vec<u8>, ErrorReply>>, BridgeError> {
+    let sent = Instant::now();
     let replies = send(zsession, key, payload, timeout)?;
     replies
         .iter()
         .map(
-            |reply| match decode_ok::<serde::de::IgnoredAny>(key, &reply) {
+            |reply| match decode_ok::<serde::de::IgnoredAny>(key, &reply, sent) {
                 Ok(_) => Ok(Ok(reply
                     .result()
                     .map(|s| s.payload().to_bytes().into_owned())
@@ -59,23 +60,47 @@ pub(crate) fn query<R: DeserializeOwned>(
     payload: Vec<u8>,
     timeout: Duration,
 ) -> Result<R, BridgeError> {
+    let sent = Instant::now();
     let replies = send(zsession, key, payload, timeout)?;
-    first_reply(key, &replies)
+    first_reply(key, &replies, sent)
 }
 
+/// The first reply of a query sent at `sent`. Zenoh ends a query with no reply at all when
+/// no queryable matches it, and with its own error reply `Timeout` when one matched but
+/// did not answer in time (the engine's errors are always encoded [`ErrorReply`]s).
 pub(crate) fn first_reply<R: DeserializeOwned>(
     key: &str,
     replies: &FifoChannelHandler<Reply>,
+    sent: Instant,
 ) -> Result<R, BridgeError> {
     match replies.recv() {
-        Ok(reply) => decode_ok(key, &reply),
+        Ok(reply) => decode_ok(key, &reply, sent),
         Err(_) => Err(BridgeError::NoEngine {
             key: key.to_owned(),
         }),
     }
 }
 
-pub(crate) fn decode_ok<R: DeserializeOwned>(key: &str, reply: &Reply) -> Result<R, BridgeError> {
+/// Whether `reply` is the error Zenoh itself delivers when a query times out.
+fn is_zenoh_timeout(reply: &Reply) -> bool {
+    reply
+        .result()
+        .is_err_and(|error| *error.payload().to_bytes() == *b"Timeout")
+}
+
+/// The payload of `reply` to a query sent at `sent`, or its error: the engine's typed
+/// [`ErrorReply`], or Zenoh's own timeout.
+pub(crate) fn decode_ok<R: DeserializeOwned>(
+    key: &str,
+    reply: &Reply,
+    sent: Instant,
+) -> Result<R, BridgeError> {
+    if is_zenoh_timeout(reply) {
+        return Err(BridgeError::NoReply {
+            key: key.to_owned(),
+            waited: sent.elapsed(),
+        });
+    }
     match reply.result() {
         Ok(sample) => {
             decode_reply(&sample.payload().to_bytes()).map_err(|source| BridgeError::BadReply {

@@ -1,6 +1,7 @@
 //! The engine under pressure and at the edges of the protocol page: bounds and time
 //! budgets refused with typed errors and nothing kept, Zenoh's threads never held by a
-//! long request, runs without a thread each, a frozen client reclaimed within the lease,
+//! long request, runs without a thread each, a frozen client reclaimed within the lease, a
+//! silent engine told apart from a missing one,
 //! contexts checked before use, and requests read exactly as the page writes them.
 
 mod common;
@@ -22,6 +23,7 @@ use ciflow_bridge::{
 };
 use ciflow_envs::{Env, ResetOptions};
 use common::*;
+use zenoh::Wait;
 
 /// The fixture, taking `build` to construct: a task whose `make` is slow.
 fn slow_fixture(build: Duration) -> TaskFactory {
@@ -537,5 +539,65 @@ fn requests_are_read_as_the_protocol_page_writes_them() {
         error.message.contains("needs a `reset`"),
         "{}",
         error.message
+    );
+}
+
+/// A request nobody can serve fails at once as `NoEngine`; one whose engine matched but
+/// never replied fails at the client's timeout as `NoReply`, naming the wait, so that an
+/// engine that is there but stuck is not reported as missing.
+#[test]
+fn a_silent_engine_is_reported_as_silent_not_as_missing() {
+    let _engine = start_engine(27437);
+    // A queryable that keeps every query unanswered: dropping one would end it.
+    let mute = zenoh::open(
+        NetworkOptions::endpoint(Role::Client, &endpoint(27437))
+            .to_zenoh_config(Role::Client)
+            .unwrap(),
+    )
+    .wait()
+    .unwrap();
+    let held = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let keep = Arc::clone(&held);
+    let _queryable = mute
+        .declare_queryable(format!("{}/**", keys::engine("mute")))
+        .callback(move |query| keep.lock().unwrap().push(query))
+        .wait()
+        .unwrap();
+    let mut client = connect(27437);
+    let timeout = Duration::from_millis(700);
+    client.set_timeout(timeout);
+    // Declarations take a moment to reach the client's router.
+    assert!(
+        eventually(5.0, || !matches!(
+            client.make("mute", FIXTURE_ID, 1, &no_kwargs()),
+            Err(BridgeError::NoEngine { .. })
+        )),
+        "the mute queryable is reached"
+    );
+
+    let started = Instant::now();
+    let error = client.make("mute", FIXTURE_ID, 1, &no_kwargs()).err();
+    match error.expect("the mute engine never makes anything") {
+        BridgeError::NoReply { key, waited } => {
+            assert!(key.contains("/mute/"), "{key}");
+            assert!(waited >= timeout, "reported after {waited:?}");
+        }
+        other => panic!("expected NoReply from the mute engine, got {other}"),
+    }
+    assert!(started.elapsed() >= timeout);
+    assert!(
+        !held.lock().unwrap().is_empty(),
+        "the query reached the mute engine"
+    );
+
+    let started = Instant::now();
+    let error = client.make("absent", FIXTURE_ID, 1, &no_kwargs()).err();
+    match error.expect("nobody serves `absent`") {
+        BridgeError::NoEngine { key } => assert!(key.contains("/absent/"), "{key}"),
+        other => panic!("expected NoEngine for an engine nobody serves, got {other}"),
+    }
+    assert!(
+        started.elapsed() < timeout,
+        "no queryable matched, so Zenoh ends the query at once"
     );
 }

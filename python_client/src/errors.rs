@@ -15,7 +15,8 @@ pyo3::create_exception!(
     _native,
     EngineUnreachable,
     PyConnectionError,
-    "No ciflow engine answered; the message says how to start one."
+    "No ciflow engine answered, or the one that took a request did not reply in time; the \
+     message says which."
 );
 
 /// Converts a bridge error into the matching Python exception, whose message names the
@@ -30,14 +31,18 @@ pub fn to_py(error: BridgeError) -> PyErr {
             err
         }),
         BridgeError::NoEngine { .. }
+        | BridgeError::NoReply { .. }
         | BridgeError::Open { .. }
         | BridgeError::Zenoh { .. }
         | BridgeError::Worker(_) => EngineUnreachable::new_err(message),
-        // One engine of several: unreachable if that one was, with its name in the message.
+        // One engine of several: unreachable if that one was (or went silent), with its name
+        // in the message.
         BridgeError::Engine { source, .. }
             if matches!(
                 *source,
-                BridgeError::NoEngine { .. } | BridgeError::Zenoh { .. }
+                BridgeError::NoEngine { .. }
+                    | BridgeError::NoReply { .. }
+                    | BridgeError::Zenoh { .. }
             ) =>
         {
             EngineUnreachable::new_err(message)
