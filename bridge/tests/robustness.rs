@@ -1,8 +1,8 @@
 //! The engine under pressure and at the edges of the protocol page: bounds and time
 //! budgets refused with typed errors and nothing kept, Zenoh's threads never held by a
-//! long request, runs without a thread each, a frozen client reclaimed within the lease, a
-//! silent engine told apart from a missing one,
-//! contexts checked before use, and requests read exactly as the page writes them.
+//! long request, runs without a thread each, a frozen client reclaimed within the lease,
+//! a silent engine told apart from a missing one, contexts checked before use, and
+//! requests read exactly as the page writes them.
 
 mod common;
 
