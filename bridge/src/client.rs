@@ -18,6 +18,7 @@ use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use zenoh::Wait;
+use zenoh::bytes::ZBytes;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Subscriber;
@@ -36,7 +37,7 @@ use crate::protocol::{
     RenderRequest, ResetReply, ResetRequest, StabilityReply, StabilityRequest, StepReply,
     StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply, encode,
 };
-use crate::query::{decode_ok, first_reply, query};
+use crate::query::{decode_ok, first_reply, query, retry_unrouted};
 
 /// Default wait for a reply.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(10);
@@ -443,15 +444,17 @@ impl RemoteEnv {
         &self,
         request: &impl Serialize,
     ) -> Result<R, BridgeError> {
-        let sent = Instant::now();
-        let replies = self
-            .stepper
-            .get()
-            .payload(encode(request))
-            .wait()
-            .map_err(BridgeError::zenoh("sending the step query"))?;
-        let key = self.stepper.key_expr().as_str();
-        first_reply(key, &replies, sent)
+        let payload = ZBytes::from(encode(request));
+        retry_unrouted(self.control.timeout(), || {
+            let sent = Instant::now();
+            let replies = self
+                .stepper
+                .get()
+                .payload(payload.clone())
+                .wait()
+                .map_err(BridgeError::zenoh("sending the step query"))?;
+            first_reply(self.stepper.key_expr().as_str(), &replies, sent)
+        })
     }
 
     /// Gymnasium `reset` of a single-environment session.

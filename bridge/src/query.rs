@@ -4,6 +4,7 @@ use std::time::{Duration, Instant};
 
 use serde::de::DeserializeOwned;
 use zenoh::Wait;
+use zenoh::bytes::ZBytes;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::query::{ConsolidationMode, Reply};
 
@@ -15,7 +16,7 @@ use crate::protocol::{ErrorReply, decode_reply};
 fn send(
     zsession: &zenoh::Session,
     key: &str,
-    payload: Vec<u8>,
+    payload: impl Into<ZBytes>,
     timeout: Duration,
 ) -> Result<FifoChannelHandler<Reply>, BridgeError> {
     zsession
@@ -53,16 +54,48 @@ pub fn query_all(
         .collect()
 }
 
-/// One query, one reply.
+/// One query, one reply (see [`retry_unrouted`]).
 pub(crate) fn query<R: DeserializeOwned>(
     zsession: &zenoh::Session,
     key: &str,
     payload: Vec<u8>,
     timeout: Duration,
 ) -> Result<R, BridgeError> {
-    let sent = Instant::now();
-    let replies = send(zsession, key, payload, timeout)?;
-    first_reply(key, &replies, sent)
+    // Shared, not copied, between attempts.
+    let payload = ZBytes::from(payload);
+    retry_unrouted(timeout, || {
+        let sent = Instant::now();
+        let replies = send(zsession, key, payload.clone(), timeout)?;
+        first_reply(key, &replies, sent)
+    })
+}
+
+/// How long a request that reached no engine is sent again before it fails as
+/// [`BridgeError::NoEngine`], at most half the client's timeout. Zenoh 1.10 can end a
+/// query at once with zero replies while a matching queryable exists, until its routes
+/// settle (eclipse-zenoh/zenoh#2767: ~1 s after a reconnection); the engine answers every
+/// request it receives, so one that got no reply at all never reached it and is safe to
+/// repeat.
+pub(crate) const UNROUTED_RETRY: Duration = Duration::from_secs(1);
+
+/// `attempt`, repeated with doubling pauses from 10 ms while it fails with
+/// [`BridgeError::NoEngine`] and the retry window ([`UNROUTED_RETRY`], at most half of
+/// `timeout`) is open; any other outcome is returned at once.
+pub(crate) fn retry_unrouted<R>(
+    timeout: Duration,
+    mut attempt: impl FnMut() -> Result<R, BridgeError>,
+) -> Result<R, BridgeError> {
+    let give_up = Instant::now() + UNROUTED_RETRY.min(timeout / 2);
+    let mut pause = Duration::from_millis(10);
+    loop {
+        match attempt() {
+            Err(BridgeError::NoEngine { .. }) if Instant::now() + pause < give_up => {
+                std::thread::sleep(pause);
+                pause *= 2;
+            }
+            outcome => return outcome,
+        }
+    }
 }
 
 /// The first reply of a query sent at `sent`. Zenoh ends a query with no reply at all when
@@ -119,5 +152,62 @@ pub(crate) fn decode_ok<R: DeserializeOwned>(
                 }),
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn no_engine() -> BridgeError {
+        BridgeError::NoEngine {
+            key: "ciflow/v2/engine/absent/ping".into(),
+        }
+    }
+
+    #[test]
+    fn a_request_that_reached_nobody_is_sent_again_within_the_window() {
+        let mut attempts = 0;
+        let outcome = retry_unrouted(Duration::from_secs(10), || {
+            attempts += 1;
+            if attempts < 3 {
+                Err(no_engine())
+            } else {
+                Ok(attempts)
+            }
+        });
+        assert_eq!(outcome.unwrap(), 3, "reached on the third attempt");
+    }
+
+    #[test]
+    fn nobody_after_the_window_is_no_engine_and_other_errors_are_not_repeated() {
+        let started = Instant::now();
+        let mut attempts = 0;
+        let outcome: Result<(), _> = retry_unrouted(Duration::from_millis(400), || {
+            attempts += 1;
+            Err(no_engine())
+        });
+        let waited = started.elapsed();
+        assert!(matches!(outcome, Err(BridgeError::NoEngine { .. })));
+        // Half the timeout bounds the window: 10 + 20 + 40 + 80 ms of pauses fit in it.
+        assert!(attempts >= 4, "{attempts} attempts");
+        assert!(
+            waited < Duration::from_millis(400),
+            "gave up after {waited:?}"
+        );
+
+        let mut attempts = 0;
+        let outcome: Result<(), _> = retry_unrouted(Duration::from_secs(10), || {
+            attempts += 1;
+            Err(BridgeError::NoReply {
+                key: "k".into(),
+                waited: Duration::from_secs(10),
+            })
+        });
+        assert!(matches!(outcome, Err(BridgeError::NoReply { .. })));
+        assert_eq!(
+            attempts, 1,
+            "an engine that took the request is not asked twice"
+        );
     }
 }
