@@ -76,7 +76,7 @@ pub(crate) fn query<R: DeserializeOwned>(
 /// settle (eclipse-zenoh/zenoh#2767: ~1 s after a reconnection); the engine answers every
 /// request it receives, so one that got no reply at all never reached it and is safe to
 /// repeat.
-pub(crate) const UNROUTED_RETRY: Duration = Duration::from_secs(1);
+const UNROUTED_RETRY: Duration = Duration::from_secs(1);
 
 /// `attempt`, repeated with doubling pauses from 10 ms while it fails with
 /// [`BridgeError::NoEngine`] and the retry window ([`UNROUTED_RETRY`], at most half of
