@@ -346,22 +346,37 @@ fn sessions_of_a_vanished_client_are_reclaimed() {
 fn make_needs_a_liveliness_token() {
     let engine = start_engine(27416);
     let client = connect(27416);
-    let request = protocol::MakeRequest {
-        v: protocol::PROTOCOL_VERSION,
-        instance: "nobody-declared-me".into(),
-        task: "fixture".into(),
-        num_envs: 1,
-        kwargs: no_kwargs(),
-        deadline_ms: None,
+    let make = |instance: &str| {
+        let request = protocol::MakeRequest {
+            v: protocol::PROTOCOL_VERSION,
+            instance: instance.into(),
+            task: "fixture".into(),
+            num_envs: 1,
+            kwargs: no_kwargs(),
+            deadline_ms: None,
+        };
+        raw_query(
+            client.zenoh_session(),
+            &keys::make(engine.name(), keys::ANONYMOUS),
+            protocol::encode(&request),
+        )
     };
-    let error = raw_query(
-        client.zenoh_session(),
-        &keys::make(engine.name(), keys::ANONYMOUS),
-        protocol::encode(&request),
-    )
-    .unwrap_err();
+    let error = make("nobody-declared-me").unwrap_err();
     assert_eq!(error.code, ErrorCode::NoLiveliness);
     assert_eq!(engine.session_count(), 0);
+
+    // A token that reaches the engine only after the `make` does is still found: an empty
+    // liveliness answer is asked again for a moment before it counts.
+    let zsession = client.zenoh_session().clone();
+    let declare_late = std::thread::spawn(move || {
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        let alive = keys::client_alive(&keys::client(keys::ANONYMOUS, "declared-late"));
+        zsession.liveliness().declare_token(alive).wait().unwrap()
+    });
+    let made = make("declared-late");
+    let _token = declare_late.join().unwrap();
+    assert!(made.is_ok(), "refused: {:?}", made.err().map(|e| e.message));
+    assert_eq!(engine.session_count(), 1);
 }
 
 #[test]

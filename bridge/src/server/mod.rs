@@ -75,6 +75,10 @@ const DEADLINE_CHUNK: usize = 256;
 /// How long `make` waits for Zenoh to confirm a client's liveliness token.
 const LIVELINESS_TIMEOUT: Duration = Duration::from_secs(2);
 
+/// How long a client whose liveliness token is not found is looked for again before its
+/// `make` is refused ([`Shared::confirm_alive`]).
+const LIVELINESS_SETTLE: Duration = Duration::from_millis(500);
+
 /// What an engine serves and how.
 #[derive(Clone)]
 pub struct ServerOptions {
@@ -626,9 +630,25 @@ impl Shared {
     /// Whether `client` holds its liveliness token, asking Zenoh if the subscriber has not
     /// seen it yet. Runs on the worker thread: it may block for a round trip.
     fn confirm_alive(&self, client: &str) -> bool {
-        if self.clients.is_alive(client) {
-            return true;
+        // A token declared just before the `make` may not be routed to this engine yet
+        // (seen through a router: the liveliness query found nothing, the next one would
+        // have), so an empty answer is asked again for a moment before it counts.
+        let give_up = Instant::now() + LIVELINESS_SETTLE;
+        let mut pause = Duration::from_millis(10);
+        loop {
+            if self.clients.is_alive(client) || self.query_alive(client) {
+                return true;
+            }
+            if Instant::now() + pause >= give_up {
+                return false;
+            }
+            std::thread::sleep(pause);
+            pause *= 2;
         }
+    }
+
+    /// Whether a liveliness query finds `client`'s token (recording the client if so).
+    fn query_alive(&self, client: &str) -> bool {
         let Ok(replies) = self
             .zsession
             .liveliness()
