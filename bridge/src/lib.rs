@@ -29,6 +29,7 @@ pub mod policy;
 pub mod protocol;
 pub mod publisher;
 pub mod query;
+mod retry;
 pub mod router;
 pub mod server;
 pub mod signing;

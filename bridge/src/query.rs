@@ -10,6 +10,7 @@ use zenoh::query::{ConsolidationMode, Reply};
 
 use crate::error::BridgeError;
 use crate::protocol::{ErrorReply, decode_reply};
+use crate::retry::retry_within;
 
 /// Sends `payload` to `key`; every matching queryable's reply arrives on the handler
 /// (none are merged), until `timeout`.
@@ -71,31 +72,20 @@ pub(crate) fn query<R: DeserializeOwned>(
 }
 
 /// How long a request that reached no engine is sent again before it fails as
-/// [`BridgeError::NoEngine`], at most half the client's timeout. Zenoh 1.10 can end a
-/// query at once with zero replies while a matching queryable exists, until its routes
-/// settle (eclipse-zenoh/zenoh#2767: ~1 s after a reconnection); the engine answers every
-/// request it receives, so one that got no reply at all never reached it and is safe to
-/// repeat.
+/// [`BridgeError::NoEngine`], at most half the client's timeout ([`crate::retry`]: ~1 s
+/// after a reconnection in eclipse-zenoh/zenoh#2767). The engine answers every request
+/// it receives, so one that got no reply at all never reached it and is safe to repeat.
 const UNROUTED_RETRY: Duration = Duration::from_secs(1);
 
-/// `attempt`, repeated with doubling pauses from 10 ms while it fails with
-/// [`BridgeError::NoEngine`] and the retry window ([`UNROUTED_RETRY`], at most half of
-/// `timeout`) is open; any other outcome is returned at once.
+/// `attempt`, repeated while it fails with [`BridgeError::NoEngine`] within
+/// [`UNROUTED_RETRY`] (at most half of `timeout`); any other outcome is returned at once.
 pub(crate) fn retry_unrouted<R>(
     timeout: Duration,
-    mut attempt: impl FnMut() -> Result<R, BridgeError>,
+    attempt: impl FnMut() -> Result<R, BridgeError>,
 ) -> Result<R, BridgeError> {
-    let give_up = Instant::now() + UNROUTED_RETRY.min(timeout / 2);
-    let mut pause = Duration::from_millis(10);
-    loop {
-        match attempt() {
-            Err(BridgeError::NoEngine { .. }) if Instant::now() + pause < give_up => {
-                std::thread::sleep(pause);
-                pause *= 2;
-            }
-            outcome => return outcome,
-        }
-    }
+    retry_within(UNROUTED_RETRY.min(timeout / 2), attempt, |outcome| {
+        matches!(outcome, Err(BridgeError::NoEngine { .. }))
+    })
 }
 
 /// The first reply of a query sent at `sent`. Zenoh ends a query with no reply at all when

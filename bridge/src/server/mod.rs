@@ -62,6 +62,7 @@ use crate::protocol::{
     SessionRequest, StabilityReply, StabilityRequest, StepRequest, TaskInfo, TasksReply,
     TasksRequest, decode_request, encode, requested_deadline,
 };
+use crate::retry::retry_within;
 use crate::signing::TrustedKeys;
 use crate::task_factory::TaskFactory;
 
@@ -631,20 +632,10 @@ impl Shared {
     /// seen it yet. Runs on the worker thread: it may block for a round trip.
     fn confirm_alive(&self, client: &str) -> bool {
         // A token declared just before the `make` may not be routed to this engine yet
-        // (seen through a router: the liveliness query found nothing, the next one would
+        // (seen through a router: the liveliness query found nothing, a later one would
         // have), so an empty answer is asked again for a moment before it counts.
-        let give_up = Instant::now() + LIVELINESS_SETTLE;
-        let mut pause = Duration::from_millis(10);
-        loop {
-            if self.clients.is_alive(client) || self.query_alive(client) {
-                return true;
-            }
-            if Instant::now() + pause >= give_up {
-                return false;
-            }
-            std::thread::sleep(pause);
-            pause *= 2;
-        }
+        let alive = || self.clients.is_alive(client) || self.query_alive(client);
+        retry_within(LIVELINESS_SETTLE, alive, |alive| !alive)
     }
 
     /// Whether a liveliness query finds `client`'s token (recording the client if so).
