@@ -18,7 +18,6 @@ use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use zenoh::Wait;
-use zenoh::bytes::ZBytes;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Subscriber;
@@ -37,7 +36,7 @@ use crate::protocol::{
     RenderRequest, ResetReply, ResetRequest, StabilityReply, StabilityRequest, StepReply,
     StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply, encode,
 };
-use crate::query::{decode_ok, first_reply, query, retry_unrouted};
+use crate::query::{decode_ok, one_reply, query};
 
 /// Default wait for a reply.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(10);
@@ -444,16 +443,13 @@ impl RemoteEnv {
         &self,
         request: &impl Serialize,
     ) -> Result<R, BridgeError> {
-        let payload = ZBytes::from(encode(request));
-        retry_unrouted(self.control.timeout(), || {
-            let sent = Instant::now();
-            let replies = self
-                .stepper
+        let key = self.stepper.key_expr().as_str();
+        one_reply(key, encode(request), self.control.timeout(), |payload| {
+            self.stepper
                 .get()
-                .payload(payload.clone())
+                .payload(payload)
                 .wait()
-                .map_err(BridgeError::zenoh("sending the step query"))?;
-            first_reply(self.stepper.key_expr().as_str(), &replies, sent)
+                .map_err(BridgeError::zenoh("sending the step query"))
         })
     }
 

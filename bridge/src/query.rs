@@ -62,11 +62,24 @@ pub(crate) fn query<R: DeserializeOwned>(
     payload: Vec<u8>,
     timeout: Duration,
 ) -> Result<R, BridgeError> {
+    one_reply(key, payload, timeout, |payload| {
+        send(zsession, key, payload, timeout)
+    })
+}
+
+/// The one reply to `payload` that `send` (a `get` on `key`, or a declared querier's)
+/// brings back, sent again while it reached no engine ([`retry_unrouted`]).
+pub(crate) fn one_reply<R: DeserializeOwned>(
+    key: &str,
+    payload: Vec<u8>,
+    timeout: Duration,
+    send: impl Fn(ZBytes) -> Result<FifoChannelHandler<Reply>, BridgeError>,
+) -> Result<R, BridgeError> {
     // Shared, not copied, between attempts.
     let payload = ZBytes::from(payload);
     retry_unrouted(timeout, || {
         let sent = Instant::now();
-        let replies = send(zsession, key, payload.clone(), timeout)?;
+        let replies = send(payload.clone())?;
         first_reply(key, &replies, sent)
     })
 }
@@ -79,7 +92,7 @@ const UNROUTED_RETRY: Duration = Duration::from_secs(1);
 
 /// `attempt`, repeated while it fails with [`BridgeError::NoEngine`] within
 /// [`UNROUTED_RETRY`] (at most half of `timeout`); any other outcome is returned at once.
-pub(crate) fn retry_unrouted<R>(
+fn retry_unrouted<R>(
     timeout: Duration,
     attempt: impl FnMut() -> Result<R, BridgeError>,
 ) -> Result<R, BridgeError> {
@@ -91,7 +104,7 @@ pub(crate) fn retry_unrouted<R>(
 /// The first reply of a query sent at `sent`. Zenoh ends a query with no reply at all when
 /// no queryable matches it, and with its own error reply `Timeout` when one matched but
 /// did not answer in time (the engine's errors are always encoded [`ErrorReply`]s).
-pub(crate) fn first_reply<R: DeserializeOwned>(
+fn first_reply<R: DeserializeOwned>(
     key: &str,
     replies: &FifoChannelHandler<Reply>,
     sent: Instant,
