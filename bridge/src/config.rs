@@ -33,7 +33,8 @@ const JOINING_ENGINE_ENDPOINT: &str = "tcp/127.0.0.1:0";
 /// The link lease every ciflow process announces (Zenoh's default is 10 s): a peer that
 /// hears nothing from this process for that long drops its link, so an engine reclaims
 /// the sessions of a frozen client (stopped process, dead machine) this long after it
-/// froze. Zenoh sends a keep-alive every quarter lease.
+/// froze, plus the moment it looks for the token again. Zenoh sends a keep-alive every
+/// quarter lease.
 pub const LEASE_MS: u64 = 3_000;
 
 /// Zenoh's role for this process.

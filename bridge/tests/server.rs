@@ -5,6 +5,7 @@ mod common;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
 
 use ciflow_bridge::protocol::{
     self, ByteBuf, ErrorCode, F64s, PerturbationKindMsg, PerturbationMsg, StepRequest, Telemetry,
@@ -369,7 +370,7 @@ fn make_needs_a_liveliness_token() {
     // liveliness answer is asked again for a moment before it counts.
     let zsession = client.zenoh_session().clone();
     let declare_late = std::thread::spawn(move || {
-        std::thread::sleep(std::time::Duration::from_millis(100));
+        std::thread::sleep(Duration::from_millis(100));
         let alive = keys::client_alive(&keys::client(keys::ANONYMOUS, "declared-late"));
         zsession.liveliness().declare_token(alive).wait().unwrap()
     });
@@ -377,6 +378,49 @@ fn make_needs_a_liveliness_token() {
     let _token = declare_late.join().unwrap();
     assert!(made.is_ok(), "refused: {:?}", made.err().map(|e| e.message));
     assert_eq!(engine.session_count(), 1);
+}
+
+#[test]
+fn a_token_that_comes_back_at_once_keeps_its_sessions() {
+    let engine = start_engine(27438);
+    let client = connect(27438);
+    let zsession = client.zenoh_session();
+    let alive = keys::client_alive(&keys::client(keys::ANONYMOUS, "flickering"));
+    let declare = || zsession.liveliness().declare_token(&alive).wait().unwrap();
+    let token = declare();
+    let request = protocol::MakeRequest {
+        v: protocol::PROTOCOL_VERSION,
+        instance: "flickering".into(),
+        task: "fixture".into(),
+        num_envs: 1,
+        kwargs: no_kwargs(),
+        deadline_ms: None,
+    };
+    let made = raw_query(
+        zsession,
+        &keys::make(engine.name(), keys::ANONYMOUS),
+        protocol::encode(&request),
+    );
+    assert!(made.is_ok(), "refused: {:?}", made.err().map(|e| e.message));
+    assert_eq!(engine.session_count(), 1);
+
+    // The engine hears the token deleted, then declared again: a reconnection, or a
+    // route rebuilt. The client never went away, so its session stays.
+    drop(token);
+    let token = declare();
+    std::thread::sleep(Duration::from_secs(2));
+    assert_eq!(
+        engine.session_count(),
+        1,
+        "a client still alive lost its session"
+    );
+
+    // Negative control: a token that stays away takes the session with it.
+    drop(token);
+    assert!(
+        eventually(5.0, || engine.session_count() == 0),
+        "the vanished client's session was never reclaimed"
+    );
 }
 
 #[test]

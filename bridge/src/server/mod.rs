@@ -76,9 +76,10 @@ const DEADLINE_CHUNK: usize = 256;
 /// How long `make` waits for Zenoh to confirm a client's liveliness token.
 const LIVELINESS_TIMEOUT: Duration = Duration::from_secs(2);
 
-/// How long a client whose liveliness token is not found is looked for again before its
-/// `make` is refused ([`Shared::confirm_alive`]).
-const LIVELINESS_SETTLE: Duration = Duration::from_millis(500);
+/// How long a client whose liveliness token is not found is looked for again before it
+/// counts as absent: before its `make` is refused ([`Shared::confirm_alive`]) and before
+/// its sessions are reclaimed after its token was deleted ([`Shared::client_token_deleted`]).
+const LIVELINESS_SETTLE: Duration = Duration::from_secs(1);
 
 /// What an engine serves and how.
 #[derive(Clone)]
@@ -215,7 +216,7 @@ impl EngineServer {
                     };
                     match sample.kind() {
                         SampleKind::Put => shared.client_appeared(client),
-                        SampleKind::Delete => shared.client_vanished(client),
+                        SampleKind::Delete => Shared::client_token_deleted(&shared, client),
                     }
                 })
                 .wait()
@@ -408,6 +409,32 @@ impl Shared {
 
     fn client_appeared(&self, client: &str) {
         self.clients.appeared(client);
+    }
+
+    /// Believes a deleted client token only once liveliness queries, asked again for
+    /// [`LIVELINESS_SETTLE`], no longer find it, then closes the client's sessions. Zenoh
+    /// also deletes a token it declares again at once (a link re-established, a route
+    /// rebuilt): a client that never went away keeps its sessions. Looked at on a thread
+    /// of its own, since Zenoh's callback must not block; it does not keep the engine up.
+    fn client_token_deleted(shared: &Arc<Self>, client: &str) {
+        let engine = Arc::downgrade(shared);
+        let owner = client.to_owned();
+        let confirm = move || {
+            // `None` once the engine is gone: its sessions went with it.
+            let look = || engine.upgrade().map(|shared| shared.query_alive(&owner));
+            if retry_within(LIVELINESS_SETTLE, look, |alive| *alive == Some(false)) == Some(false)
+                && let Some(shared) = engine.upgrade()
+            {
+                shared.client_vanished(&owner);
+            }
+        };
+        let spawned = std::thread::Builder::new()
+            .name("ciflow-vanished".into())
+            .spawn(confirm);
+        if spawned.is_err() {
+            // No thread to wait on: reclaim now rather than never.
+            shared.client_vanished(client);
+        }
     }
 
     /// Closes every session of a client whose liveliness token went away: a lookup of its
