@@ -18,6 +18,7 @@ use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use zenoh::Wait;
+use zenoh::bytes::ZBytes;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Subscriber;
@@ -36,7 +37,7 @@ use crate::protocol::{
     RenderRequest, ResetReply, ResetRequest, StabilityReply, StabilityRequest, StepReply,
     StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply, encode,
 };
-use crate::query::{decode_ok, one_reply, query};
+use crate::query::{decode_ok, one_reply, query, retry_unanswered};
 
 /// Default wait for a reply.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(10);
@@ -137,23 +138,28 @@ impl Client {
 
     /// Every engine reachable now, with its tasks and policies.
     pub fn discover(&self) -> Result<Vec<EngineInfo>, BridgeError> {
-        let sent = Instant::now();
-        let replies = self
-            .zsession
-            .get(keys::ALL_ENGINES_TASKS)
-            .payload(encode(&TasksRequest {
-                v: PROTOCOL_VERSION,
-            }))
-            .consolidation(ConsolidationMode::None)
-            .target(QueryTarget::All)
-            .timeout(self.timeout)
-            .wait()
-            .map_err(BridgeError::zenoh("asking the engines for their tasks"))?;
-        let mut engines: Vec<EngineInfo> = replies
-            .iter()
-            .filter_map(|reply| decode_ok::<TasksReply>(keys::ALL_ENGINES_TASKS, &reply, sent).ok())
-            .map(EngineInfo::from)
-            .collect();
+        let payload = ZBytes::from(encode(&TasksRequest {
+            v: PROTOCOL_VERSION,
+        }));
+        let mut engines = retry_unanswered(self.timeout, || {
+            let sent = Instant::now();
+            let replies = self
+                .zsession
+                .get(keys::ALL_ENGINES_TASKS)
+                .payload(payload.clone())
+                .consolidation(ConsolidationMode::None)
+                .target(QueryTarget::All)
+                .timeout(self.timeout)
+                .wait()
+                .map_err(BridgeError::zenoh("asking the engines for their tasks"))?;
+            Ok(replies
+                .iter()
+                .filter_map(|reply| {
+                    decode_ok::<TasksReply>(keys::ALL_ENGINES_TASKS, &reply, sent).ok()
+                })
+                .map(EngineInfo::from)
+                .collect::<Vec<_>>())
+        })?;
         engines.sort_by(|a, b| a.name.cmp(&b.name));
         engines.dedup_by(|a, b| a.name == b.name);
         Ok(engines)

@@ -101,6 +101,21 @@ fn retry_unrouted<R>(
     })
 }
 
+/// `attempt`, a query to every engine, repeated while it finds none within
+/// [`UNROUTED_RETRY`] (at most half of `timeout`): right after joining, e.g. as a Zenoh peer
+/// that a router introduces to the engines, the routes are not settled yet and a query
+/// reaches nobody. Answers from some of the engines are returned at once.
+pub(crate) fn retry_unanswered<T>(
+    timeout: Duration,
+    attempt: impl FnMut() -> Result<Vec<T>, BridgeError>,
+) -> Result<Vec<T>, BridgeError> {
+    retry_within(
+        UNROUTED_RETRY.min(timeout / 2),
+        attempt,
+        |outcome| matches!(outcome, Ok(answers) if answers.is_empty()),
+    )
+}
+
 /// The first reply of a query sent at `sent`. Zenoh ends a query with no reply at all when
 /// no queryable matches it, and with its own error reply `Timeout` when one matched but
 /// did not answer in time (the engine's errors are always encoded [`ErrorReply`]s).

@@ -1,8 +1,9 @@
 //! The engine under pressure and at the edges of the protocol page: bounds and time
 //! budgets refused with typed errors and nothing kept, Zenoh's threads never held by a
 //! long request, runs without a thread each, a frozen client reclaimed within the lease,
-//! a silent engine told apart from a missing one, contexts checked before use, and
-//! requests read exactly as the page writes them.
+//! a silent engine told apart from a missing one, contexts checked before use, requests
+//! read exactly as the page writes them, and engines discovered by a peer that has just
+//! joined through a router.
 
 mod common;
 
@@ -599,5 +600,41 @@ fn a_silent_engine_is_reported_as_silent_not_as_missing() {
     assert!(
         started.elapsed() < timeout,
         "no queryable matched, so Zenoh ends the query at once"
+    );
+}
+
+#[test]
+fn a_peer_that_joins_through_a_router_discovers_the_engines_at_once() {
+    let router_endpoint = endpoint(27439);
+    let _router = ciflow_bridge::Router::open(
+        &NetworkOptions::endpoint(Role::Router, &router_endpoint),
+        &ciflow_bridge::AccessPolicy::default(),
+    )
+    .expect("the router starts");
+    let engine_network = NetworkOptions {
+        connect: vec![router_endpoint.clone()],
+        listen: vec![endpoint(27440)],
+        ..NetworkOptions::default()
+    };
+    let mut options = ServerOptions::default();
+    options.tasks.push(fixture_task());
+    options.name = Some("behind-the-router".into());
+    let _engine = EngineServer::open(&engine_network, options).expect("the engine starts");
+    // A process joining as a Zenoh peer (the router gossips the engine to it) asks at
+    // once, before its routes have settled: an empty answer is asked again for a moment.
+    let peer = ciflow_bridge::Client::open(&NetworkOptions {
+        mode: Some(ciflow_bridge::Mode::Peer),
+        ..NetworkOptions::endpoint(Role::Client, &router_endpoint)
+    })
+    .expect("the peer joins");
+    let names: Vec<String> = peer
+        .discover()
+        .unwrap()
+        .into_iter()
+        .map(|e| e.name)
+        .collect();
+    assert!(
+        names.contains(&"behind-the-router".to_owned()),
+        "discovered {names:?}"
     );
 }
