@@ -7,7 +7,9 @@
 //! ```text
 //! cargo bench -p ciflow-bridge --bench sessions
 //! ```
-//! Goal: the step's median within 10 % across the three counts, reclaiming under 1 s.
+//! Goal: the step's median within 10 % across the three counts, reclaiming under 1 s (the
+//! engine first asks Zenoh for the vanished client's token again for up to 1 s; measured
+//! 0.70 s in all).
 
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
