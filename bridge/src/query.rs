@@ -90,27 +90,37 @@ pub(crate) fn one_reply<R: DeserializeOwned>(
 /// it receives, so one that got no reply at all never reached it and is safe to repeat.
 const UNROUTED_RETRY: Duration = Duration::from_secs(1);
 
-/// `attempt`, repeated while it fails with [`BridgeError::NoEngine`] within
-/// [`UNROUTED_RETRY`] (at most half of `timeout`); any other outcome is returned at once.
+/// `attempt`, repeated while it fails with [`BridgeError::NoEngine`] (see
+/// [`retry_while_unrouted`]); any other outcome is returned at once.
 fn retry_unrouted<R>(
     timeout: Duration,
     attempt: impl FnMut() -> Result<R, BridgeError>,
 ) -> Result<R, BridgeError> {
-    retry_within(UNROUTED_RETRY.min(timeout / 2), attempt, |outcome| {
+    retry_while_unrouted(timeout, attempt, |outcome| {
         matches!(outcome, Err(BridgeError::NoEngine { .. }))
     })
 }
 
-/// `attempt`, a query to every engine, repeated while it finds none within
-/// [`UNROUTED_RETRY`] (at most half of `timeout`): right after joining, e.g. as a Zenoh peer
-/// that a router introduces to the engines, the routes are not settled yet and a query
-/// reaches nobody. Answers from some of the engines are returned at once.
+/// `attempt`, repeated while `unrouted` says it reached no engine, within
+/// [`UNROUTED_RETRY`] (at most half of `timeout`).
+fn retry_while_unrouted<R>(
+    timeout: Duration,
+    attempt: impl FnMut() -> Result<R, BridgeError>,
+    unrouted: impl Fn(&Result<R, BridgeError>) -> bool,
+) -> Result<R, BridgeError> {
+    retry_within(UNROUTED_RETRY.min(timeout / 2), attempt, unrouted)
+}
+
+/// `attempt`, a query to every engine, repeated while it finds none (see
+/// [`retry_while_unrouted`]): right after joining, e.g. as a Zenoh peer that a router
+/// introduces to the engines, the routes are not settled yet and a query reaches nobody.
+/// Answers from some of the engines are returned at once.
 pub(crate) fn retry_unanswered<T>(
     timeout: Duration,
     attempt: impl FnMut() -> Result<Vec<T>, BridgeError>,
 ) -> Result<Vec<T>, BridgeError> {
-    retry_within(
-        UNROUTED_RETRY.min(timeout / 2),
+    retry_while_unrouted(
+        timeout,
         attempt,
         |outcome| matches!(outcome, Ok(answers) if answers.is_empty()),
     )
