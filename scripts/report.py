@@ -513,7 +513,7 @@ def joint_limits(report, root):
                "at most. *flow* is the demo's policy; *joint-range* the same recipe trained "
                "with `--joint-range true` (the position ranges as the flow's last layer, the "
                "velocity time-scaled into the speed limits and braking distance, the "
-               "acceleration scaled into its bounds, half of them far from the data, an "
+               "acceleration scaled into its bounds, a quarter of them far from the data, an "
                "end-stop barrier on the measured state; README \"Joint limits\"). Targets of "
                "issue 16: 100 % converged, 0 end-stop hits, ≤ 1 % saturated steps.", "",
                "| policy | push | converged | rollouts at an end stop | control steps with "
