@@ -514,11 +514,14 @@ def joint_limits(report, root):
                "with `--joint-range true` (the position ranges as the flow's last layer, the "
                "velocity time-scaled into the speed limits and braking distance, the "
                "acceleration scaled into its bounds, a quarter of them far from the data, an "
-               "end-stop barrier on the measured state; README \"Joint limits\"). Targets of "
-               "issue 16: 100 % converged, 0 end-stop hits, ≤ 1 % saturated steps.", "",
+               "end-stop barrier on the measured state, and while the barrier holds the robot "
+               "back the policy following its own latent state; README \"Joint limits\"). "
+               "Targets of issue 16: 100 % converged, 0 end-stop hits, ≤ 1 % saturated steps.",
+               "",
                "| policy | push | converged | rollouts at an end stop | control steps with "
-               "torque or rate saturated | steps over a speed limit |",
-               "|---|---|---|---|---|---|")
+               "torque or rate saturated | steps over a speed limit | steps on the latent "
+               "reference |",
+               "|---|---|---|---|---|---|---|")
     for name, run in runs.items():
         loop = run["robot_loop"]
         push = loop.get("push")
@@ -527,7 +530,7 @@ def joint_limits(report, root):
         report.add(f"| {name.removesuffix('-pushed')} | {described} | "
                    f"{loop['converged']} of {loop['rollouts']} | {loop['hit_end_stops']} | "
                    f"{percent(loop['saturated_step_fraction'])} of {loop['steps']} | "
-                   f"{loop['over_speed_steps']} |")
+                   f"{loop['over_speed_steps']} | {loop['held_steps']} |")
     shown = [(name, run["robot_loop"]) for name, run in runs.items()
              if not name.endswith("-pushed") and run["robot_loop"].get("traces")]
     if shown:

@@ -123,7 +123,8 @@ def experiments(tmp_path):
         return {"robot_loop": {"rollouts": 100, "converged": 100, "hit_end_stops": hits,
                                "push": push,
                                "steps": 1000, "saturated_step_fraction": saturated,
-                               "over_speed_steps": 7, "position_min": [-1.0, -1.0],
+                               "over_speed_steps": 7, "held_steps": 130,
+                               "position_min": [-1.0, -1.0],
                                "position_max": [1.0, 1.0], "traces": [trace] * traced}}
     write(root / "robot_loop" / "flow.json", robot_loop(42, 0.065, 2))
     write(root / "robot_loop" / "joint-range-pushed.json",
@@ -171,7 +172,7 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
             "|  |  |") in text
     assert ("| pouring-baseline | training box | 40.0% | 50.0% / 60.0% / 70.0% | 50 | 3 | 5 | "
             "— | not run |") in text
-    assert "| flow | — | 100 of 100 | 42 | 6.5% of 1000 | 7 |" in text
+    assert "| flow | — | 100 of 100 | 42 | 6.5% of 1000 | 7 | 130 |" in text
     assert ("| joint-range | 40 N for 0.2 s on the hand at 1 s | 100 of 100 | 3 | 1.2% of 1000 | 7 |"
             in text)
     assert ("| UR5e | 96.0% (50 goals) | ≥ 90%: **pass** | 4.0 mm (21.0 mm) | 100.0% |"

@@ -185,7 +185,10 @@ impl Policy for CheckpointPolicy {
     }
 
     fn act_into(&self, observation: &[f64], action: &mut [f64]) -> Result<(), PolicyError> {
+        // A query is one observation of any robot: pooled actors keep nothing between
+        // queries, so none is held at an end stop ([`Actor::reset`]).
         let mut actor = self.actor()?;
+        actor.reset();
         let result = actor.act(observation, action).map_err(PolicyError::from);
         self.actors
             .lock()

@@ -9,35 +9,9 @@
 mod flow_common;
 
 use ciflow_engine::flow::layers::joint_range::BRAKING_SHARE;
-use ciflow_engine::flow::{
-    CouplingKind, FlowConfig, JointRange, LatentKind, Policy, PolicyWorkspace, Weights,
-};
+use ciflow_engine::flow::{FlowConfig, JointRange, Policy, PolicyWorkspace};
 use flow_common::*;
 use rand::RngExt;
-
-const LOWER: [f64; 3] = [-0.8, -0.3, -1.2];
-const UPPER: [f64; 3] = [0.6, 0.9, -0.2];
-
-/// A go-to flow in 3-D with narrow joint ranges: random weights map much of the latent
-/// space outside them. Its output is scaled by 0.1, so that they keep `R`'s input where
-/// `tanh` is invertible in `f64` (`|u| < 13`).
-fn narrow(coupling: CouplingKind, speed_max: f64, acceleration_max: f64) -> FlowConfig {
-    let mut config = config(3, 2, LatentKind::GoTo, coupling);
-    config.normalisation.state_std = vec![0.1; 3];
-    config.joint_range = Some(JointRange {
-        position_min: LOWER.to_vec(),
-        position_max: UPPER.to_vec(),
-        speed_max: vec![speed_max; 3],
-        acceleration_max: vec![acceleration_max; 3],
-    });
-    config
-}
-
-/// Weights `N(0, 0.3²)`: far from the identity, not so steep that `R`'s input leaves
-/// `tanh`'s invertible part.
-fn tame_weights(config: &FlowConfig, seed: u64) -> Weights {
-    Weights::random(&config.parameter_shapes(), 0.3, &mut rng(seed))
-}
 
 fn without_range(config: &FlowConfig) -> FlowConfig {
     FlowConfig {
@@ -48,7 +22,7 @@ fn without_range(config: &FlowConfig) -> FlowConfig {
 
 fn inside(y: &[f64]) -> bool {
     y.iter()
-        .zip(LOWER.iter().zip(&UPPER))
+        .zip(NARROW_MIN.iter().zip(&NARROW_MAX))
         .all(|(v, (lo, hi))| lo < v && v < hi)
 }
 
@@ -56,9 +30,9 @@ fn inside(y: &[f64]) -> bool {
 fn start(r: &mut rand_chacha::ChaCha8Rng, k: usize) -> Vec<f64> {
     (0..3)
         .map(|i| match (k % 3, i) {
-            (0, 0) => LOWER[0] + 1e-9,
-            (1, 2) => UPPER[2] - 1e-9,
-            _ => r.random_range(LOWER[i]..UPPER[i]),
+            (0, 0) => NARROW_MIN[0] + 1e-9,
+            (1, 2) => NARROW_MAX[2] - 1e-9,
+            _ => r.random_range(NARROW_MIN[i]..NARROW_MAX[i]),
         })
         .collect()
 }
@@ -67,8 +41,8 @@ fn start(r: &mut rand_chacha::ChaCha8Rng, k: usize) -> Vec<f64> {
 fn interior(r: &mut rand_chacha::ChaCha8Rng) -> Vec<f64> {
     (0..3)
         .map(|i| {
-            let margin = 0.05 * (UPPER[i] - LOWER[i]);
-            r.random_range(LOWER[i] + margin..UPPER[i] - margin)
+            let margin = 0.05 * (NARROW_MAX[i] - NARROW_MIN[i]);
+            r.random_range(NARROW_MIN[i] + margin..NARROW_MAX[i] - margin)
         })
         .collect()
 }
@@ -188,7 +162,11 @@ fn near_limits_speed_leaves_braking_room_and_acceleration_keeps_its_direction() 
         let mut v = vec![0.0; 3];
         policy.velocity(&q, &c, &mut ws, &mut v).unwrap();
         for i in 0..3 {
-            let limit = if v[i] >= 0.0 { UPPER[i] } else { LOWER[i] };
+            let limit = if v[i] >= 0.0 {
+                NARROW_MAX[i]
+            } else {
+                NARROW_MIN[i]
+            };
             let braking = (2.0 * BRAKING_SHARE * acceleration_max * (limit - q[i]).abs()).sqrt();
             assert!(v[i].abs() < braking, "joint {i}: {} at {q:?}", v[i]);
         }

@@ -18,7 +18,7 @@ use std::sync::Arc;
 use ciflow_engine::flow::baseline::BaselineWorkspace;
 use ciflow_engine::flow::checkpoint;
 use ciflow_engine::flow::{
-    BehaviourCloning, CheckpointConfig, FlowError, Policy, PolicyWorkspace, Weights,
+    BehaviourCloning, CheckpointConfig, EndStopHold, FlowError, Policy, PolicyWorkspace, Weights,
 };
 
 use crate::env::EnvSpec;
@@ -152,6 +152,9 @@ enum Controller {
     Flow {
         policy: Arc<Policy>,
         workspace: Box<PolicyWorkspace>,
+        /// The current episode's end-stop hold: the latent reference the policy follows
+        /// while the barrier holds the robot back.
+        hold: EndStopHold,
     },
     Baseline {
         baseline: Arc<BehaviourCloning>,
@@ -162,10 +165,11 @@ enum Controller {
 }
 
 impl Controller {
-    fn new(model: &Model) -> Self {
-        match model {
+    fn new(model: &Model, control_period: f64) -> Result<Self, ActorError> {
+        Ok(match model {
             Model::Flow(policy) => Self::Flow {
                 workspace: Box::new(policy.workspace()),
+                hold: EndStopHold::new(policy.config().state_dim, control_period)?,
                 policy: Arc::clone(policy),
             },
             Model::Baseline(baseline) => Self::Baseline {
@@ -173,7 +177,7 @@ impl Controller {
                 next: vec![0.0; baseline.config().state_dim],
                 baseline: Arc::clone(baseline),
             },
-        }
+        })
     }
 }
 
@@ -209,7 +213,7 @@ impl Actor {
             });
         }
         Ok(Self {
-            controller: Controller::new(model),
+            controller: Controller::new(model, spec.control_dt)?,
             state_dim: d,
             observation_dim,
             velocity_gain,
@@ -222,8 +226,17 @@ impl Actor {
         self.observation_dim
     }
 
+    /// Starts a new episode: a flow's actor releases its end-stop hold ([`EndStopHold`]),
+    /// the one thing it keeps from one [`act`](Self::act) to the next.
+    pub fn reset(&mut self) {
+        if let Controller::Flow { hold, .. } = &mut self.controller {
+            hold.clear();
+        }
+    }
+
     /// Writes the desired acceleration for `observation = [q, q̇, c]`, clipped to the
-    /// action space, to `action`.
+    /// action space, to `action`. Successive calls are one episode of one robot, until
+    /// [`reset`](Self::reset).
     pub fn act(&mut self, observation: &[f64], action: &mut [f64]) -> Result<(), ActorError> {
         let d = self.state_dim;
         if observation.len() != self.observation_dim {
@@ -242,8 +255,14 @@ impl Actor {
         let (qd, context) = rest.split_at(d);
         let gain = self.velocity_gain;
         match &mut self.controller {
-            Controller::Flow { policy, workspace } => {
-                policy.acceleration(q, qd, context, gain, workspace, action, &mut self.velocity)?;
+            Controller::Flow {
+                policy,
+                workspace,
+                hold,
+            } => {
+                let velocity = &mut self.velocity;
+                policy
+                    .acceleration_held(q, qd, context, gain, hold, workspace, action, velocity)?;
             }
             Controller::Baseline {
                 baseline,

@@ -5,12 +5,16 @@
 
 mod common;
 
-use ciflow_engine::flow::{BaselineConfig, BehaviourCloning, Goal, Policy, Weights};
+use ciflow_engine::flow::{
+    BaselineConfig, BehaviourCloning, CouplingKind, FlowConfig, Goal, JointRange, LatentKind,
+    Policy, Weights,
+};
+use ciflow_engine::robot::panda_limits;
 use ciflow_envs::actor::{Actor, ActorError, DEFAULT_VELOCITY_GAIN, Model};
-use ciflow_envs::tasks::{limit_cycle, obstacle_avoidance};
+use ciflow_envs::tasks::{limit_cycle, obstacle_avoidance, pouring};
 use ciflow_envs::{Env, ResetOptions};
 use common::{obstacle_flow, obstacle_flow_checkpoint};
-use rand::SeedableRng;
+use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 #[test]
@@ -194,4 +198,80 @@ fn a_checkpoint_in_memory_loads_like_its_directory() {
         Model::from_bytes(&config_json, &bytes[..bytes.len() / 2], None),
         Err(FlowError::SafeTensors(_))
     ));
+}
+
+/// Under a joint range, an actor that drove a joint at its limit follows its own latent
+/// state on the next observation of the episode (`EndStopHold`); `reset` starts the next
+/// episode memoryless, as a fresh actor does.
+#[test]
+fn an_actor_keeps_its_end_stop_hold_until_reset() {
+    let mut config = FlowConfig::new(
+        "pouring",
+        7,
+        6,
+        LatentKind::GoTo,
+        CouplingKind::Affine { scale_bound: 2.0 },
+        4,
+        vec![16, 16],
+    );
+    let limits = panda_limits();
+    config.joint_range = Some(JointRange::from_limits(&limits));
+    let weights = Weights::random(
+        &config.parameter_shapes(),
+        0.1,
+        &mut ChaCha8Rng::seed_from_u64(7),
+    );
+    let policy = Policy::new(&config, weights).unwrap();
+    let env = pouring::Pouring::new().unwrap();
+    let context: Vec<f64> = {
+        let space = &env.spec().context_space;
+        space
+            .low
+            .iter()
+            .zip(&space.high)
+            .map(|(a, b)| 0.5 * (a + b))
+            .collect()
+    };
+    let middle: Vec<f64> = (0..7)
+        .map(|i| 0.5 * (limits.q_min[i] + limits.q_max[i]))
+        .collect();
+    let observation = |q: &[f64]| [q, &[0.0; 7], &context].concat();
+    // A joint 1 mrad off the limit the field there drives it at, the others anywhere.
+    let mut ws = policy.workspace();
+    let mut velocity = [0.0; 7];
+    let mut r = ChaCha8Rng::seed_from_u64(8);
+    let at_a_limit = (0..1000)
+        .find_map(|k| {
+            let (i, upper) = (k % 7, k % 2 == 0);
+            let mut q: Vec<f64> = (0..7)
+                .map(|j| r.random_range(limits.q_min[j]..limits.q_max[j]))
+                .collect();
+            q[i] = match upper {
+                true => limits.q_max[i] - 1e-3,
+                false => limits.q_min[i] + 1e-3,
+            };
+            policy
+                .velocity(&q, &context, &mut ws, &mut velocity)
+                .unwrap();
+            ((velocity[i] > 0.0) == upper).then_some(q)
+        })
+        .expect("the field drives some joint at one of its limits");
+
+    let model = Model::from(policy);
+    let new_actor = || Actor::new(&model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
+    let act = |actor: &mut Actor, q: &[f64]| {
+        let mut action = [0.0; 7];
+        actor.act(&observation(q), &mut action).unwrap();
+        action
+    };
+    let fresh = act(&mut new_actor(), &middle);
+    let mut actor = new_actor();
+    act(&mut actor, &at_a_limit);
+    let held = act(&mut actor, &middle);
+    assert_ne!(
+        held, fresh,
+        "the hold did not carry over to the next observation"
+    );
+    actor.reset();
+    assert_eq!(act(&mut actor, &middle), fresh);
 }

@@ -73,6 +73,12 @@ enum Driver {
 }
 
 impl Driver {
+    fn reset(&mut self) {
+        if let Self::Actor(actor) = self {
+            actor.reset();
+        }
+    }
+
     fn act(
         &mut self,
         env: &dyn Env,
@@ -236,6 +242,7 @@ fn run_episode(
     schedule: &Schedule,
 ) -> EvaluationResult<Run> {
     let (mut observation, mut info) = env.reset(Some(seed), options)?;
+    driver.reset();
     if let Schedule::Push(perturbation) = schedule {
         env.perturb(perturbation.clone())?;
     }

@@ -1,8 +1,9 @@
 //! Measured closed-loop stability through the computed-torque simulator: the policy's
-//! desired acceleration ([`Policy::acceleration`]) drives [`Simulator::step`] from random
-//! joint configurations drawn uniformly inside the robot's position limits (at rest), for
-//! random contexts. This is where torque and rate saturation and the end stops — which the
-//! module-level claims exclude — are measured rather than assumed.
+//! desired acceleration ([`Policy::acceleration_held`], one end-stop hold per rollout)
+//! drives [`Simulator::step`] from random joint configurations drawn uniformly inside the
+//! robot's position limits (at rest), for random contexts. This is where torque and rate
+//! saturation and the end stops — which the module-level claims exclude — are measured
+//! rather than assumed.
 //!
 //! A rollout converges when, within `duration`, the joint state reaches the attractor:
 //! `‖q - q*‖ ≤ tolerance` and `‖q̇‖ ≤ tolerance`/s for go-to policies, distance to the
@@ -13,7 +14,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use ciflow_engine::flow::{FlowError, Policy};
+use ciflow_engine::flow::{EndStopHold, FlowError, Policy};
 use ciflow_engine::sim::{Perturbation, PerturbationKind, SimError, Simulator};
 
 #[derive(Debug, thiserror::Error)]
@@ -90,6 +91,9 @@ pub struct RobotLoopReport {
     pub saturated_step_fraction: f64,
     /// Control periods that ended with a joint faster than its speed limit.
     pub over_speed_steps: usize,
+    /// Control periods in which the policy followed its own latent state while the
+    /// end-stop barrier held the robot back ([`EndStopHold`]).
+    pub held_steps: usize,
     /// The push every rollout took, if any.
     pub push: Option<RobotPush>,
     /// The robot's position limits and the traced rollouts ([`RobotLoopConfig::traced`]).
@@ -144,6 +148,7 @@ pub fn measure_robot_loop(
     let go_to = policy.latent().kind().is_go_to();
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     let mut ws = policy.workspace();
+    let mut hold = EndStopHold::new(d, simulator.config().control_dt)?;
     let (mut acceleration, mut velocity, mut scratch) = (vec![0.0; d], vec![0.0; d], vec![0.0; d]);
     let mut context = vec![0.0; bounds.context_min.len()];
     let mut report = RobotLoopReport {
@@ -156,6 +161,7 @@ pub fn measure_robot_loop(
         saturated_steps: 0,
         saturated_step_fraction: 0.0,
         over_speed_steps: 0,
+        held_steps: 0,
         push: config.push,
         position_min: limits.q_min.as_slice().to_vec(),
         position_max: limits.q_max.as_slice().to_vec(),
@@ -173,6 +179,7 @@ pub fn measure_robot_loop(
             *c = rng.random_range(*lo..=*hi);
         }
         simulator.reset(&q0, &vec![0.0; d])?;
+        hold.clear();
         if let Some(push) = config.push {
             let heading = rng.random_range(0.0..std::f64::consts::TAU);
             simulator.perturb(Perturbation {
@@ -192,17 +199,19 @@ pub fn measure_robot_loop(
         });
         for period in 1..=periods {
             let (q, qd) = (simulator.q().as_slice(), simulator.qd().as_slice());
-            policy.acceleration(
+            policy.acceleration_held(
                 q,
                 qd,
                 &context,
                 config.velocity_gain,
+                &mut hold,
                 &mut ws,
                 &mut acceleration,
                 &mut velocity,
             )?;
             let step = simulator.step(&acceleration)?;
             report.steps += 1;
+            report.held_steps += usize::from(hold.is_engaged());
             report.saturated_steps += usize::from(step.saturation.is_active());
             report.over_speed_steps += usize::from(!step.over_speed.is_empty());
             saturated |= step.saturation.is_active();

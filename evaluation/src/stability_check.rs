@@ -321,7 +321,8 @@ impl fmt::Display for StabilityCheckReport {
                 f,
                 "robot loop: {:.1}% ({}/{} computed-torque rollouts converged within {:.3e} in \
                  {} s; {} hit end stops; {} saturated the torques, in {:.2}% of {} control \
-                 steps; {} steps over a speed limit)",
+                 steps; {} steps over a speed limit; {} on the latent reference while the \
+                 end-stop barrier held the robot)",
                 100.0 * report.fraction,
                 report.converged,
                 report.rollouts,
@@ -332,6 +333,7 @@ impl fmt::Display for StabilityCheckReport {
                 100.0 * report.saturated_step_fraction,
                 report.steps,
                 report.over_speed_steps,
+                report.held_steps,
             )?;
         }
         Ok(())

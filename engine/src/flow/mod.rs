@@ -58,6 +58,7 @@
 
 pub mod baseline;
 pub mod checkpoint;
+pub mod end_stop_hold;
 pub mod error;
 pub mod latent;
 pub mod layers;
@@ -71,6 +72,7 @@ pub use checkpoint::config::{
     Normalisation,
 };
 pub use checkpoint::weights::{Tensor, Weights};
+pub use end_stop_hold::EndStopHold;
 pub use error::{FlowError, FlowResult};
 pub use layers::context_set::{ContextSet, LocalConfig, SetEncoderConfig};
 pub use layers::joint_range::JointRange;

@@ -12,9 +12,11 @@ use crate::math::distance;
 use crate::flow::checkpoint;
 use crate::flow::checkpoint::config::{CheckpointConfig, FlowConfig};
 use crate::flow::checkpoint::weights::Weights;
+use crate::flow::end_stop_hold::EndStopHold;
 use crate::flow::error::{FlowError, FlowResult, check_input};
 use crate::flow::latent::LatentDynamics;
 use crate::flow::layers::coupling::{CouplingScratch, TangentScratch};
+use crate::flow::layers::joint_range::JointRange;
 use crate::flow::network::{ConditionalFlow, Conditioning, FlowTape};
 use crate::nn::scalar::{Dual, Scalar};
 
@@ -44,6 +46,8 @@ pub struct PolicyWorkspace {
     mean: Vec<f64>,
     origin: Vec<f64>,
     latent_velocity: Vec<f64>,
+    /// The velocity the robot's velocity loop tracks under an engaged [`EndStopHold`].
+    tracked_velocity: Vec<f64>,
     dual: Vec<Dual<f64>>,
     dual_z: Vec<Dual<f64>>,
     dual_velocity: Vec<Dual<f64>>,
@@ -110,6 +114,7 @@ impl Policy {
             mean: vec![0.0; d],
             origin: vec![0.0; d],
             latent_velocity: vec![0.0; d],
+            tracked_velocity: vec![0.0; d],
             dual: vec![Dual::new(0.0, 0.0); d],
             dual_z: vec![Dual::new(0.0, 0.0); d],
             dual_velocity: vec![Dual::new(0.0, 0.0); d],
@@ -294,7 +299,9 @@ impl Policy {
     /// Under a joint range, `v_des` is the time-scaled `s(q, v) v` (its `d/dt` through `s`
     /// included), and `q̈_des` is scaled into a share of the acceleration bounds that
     /// shrinks with the latent norm `‖z‖`, and kept off the end stops at the measured
-    /// `(q, q̇)` ([`crate::flow::layers::joint_range`]).
+    /// `(q, q̇)` ([`crate::flow::layers::joint_range`]). Memoryless: a robot driven by it
+    /// can come to rest with joints held by the barrier; [`Self::acceleration_held`] is the
+    /// controller for a robot.
     #[allow(clippy::too_many_arguments)]
     pub fn acceleration(
         &self,
@@ -306,6 +313,125 @@ impl Policy {
         acceleration: &mut [f64],
         velocity: &mut [f64],
     ) -> FlowResult<()> {
+        self.check_acceleration_arguments(q, qd, velocity_gain, acceleration, velocity)?;
+        self.acceleration_reading(
+            (q, qd),
+            (q, qd),
+            context,
+            velocity_gain,
+            ws,
+            acceleration,
+            velocity,
+        )
+    }
+
+    /// [`Self::acceleration`] for a robot that keeps `hold` from one control period to the
+    /// next (one per robot, [`EndStopHold::clear`]ed at a new episode): under a joint
+    /// range, while the end-stop barrier holds the robot back the policy follows its own
+    /// latent state ([`crate::flow::end_stop_hold`]). Without a hold engaged, or a joint
+    /// range, the command is that of [`Self::acceleration`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn acceleration_held(
+        &self,
+        q: &[f64],
+        qd: &[f64],
+        context: &[f64],
+        velocity_gain: f64,
+        hold: &mut EndStopHold,
+        ws: &mut PolicyWorkspace,
+        acceleration: &mut [f64],
+        velocity: &mut [f64],
+    ) -> FlowResult<()> {
+        self.check_acceleration_arguments(q, qd, velocity_gain, acceleration, velocity)?;
+        let Some(range) = &self.config().joint_range else {
+            return self.acceleration(q, qd, context, velocity_gain, ws, acceleration, velocity);
+        };
+        if hold.dof() != q.len() {
+            return Err(FlowError::InvalidConfig(format!(
+                "end-stop hold for {} joints, the state has {}",
+                hold.dof(),
+                q.len()
+            )));
+        }
+        if !hold.engaged {
+            hold.position.copy_from_slice(q);
+            hold.velocity.copy_from_slice(qd);
+            self.acceleration(q, qd, context, velocity_gain, ws, acceleration, velocity)?;
+            if EndStopHold::drives_into_a_limit(range, q, velocity) {
+                // The reference starts at `z = f⁻¹(q)`, which the pass just made left in
+                // `dual_z`.
+                hold.engaged = true;
+                for (z, dual) in hold.latent.iter_mut().zip(&ws.dual_z) {
+                    *z = dual.re;
+                }
+            }
+            return Ok(());
+        }
+        self.step_reference(range, context, hold, ws)?;
+        let reading = (hold.position.as_slice(), hold.velocity.as_slice());
+        self.acceleration_reading(
+            reading,
+            (q, qd),
+            context,
+            velocity_gain,
+            ws,
+            acceleration,
+            velocity,
+        )?;
+        if hold.caught_up(q)
+            && !EndStopHold::drives_into_a_limit(range, &hold.position, &hold.velocity)
+        {
+            hold.engaged = false;
+        }
+        Ok(())
+    }
+
+    /// Reads the reference of an engaged `hold` — `y_r = f(z_r, c)` and the time-scaled
+    /// `v_r = s J_f(z_r) ż(z_r)`, from one forward pass along `ż(z_r)` — into
+    /// `hold.position` and `hold.velocity`, then moves `z_r` one control period on.
+    fn step_reference(
+        &self,
+        range: &JointRange,
+        context: &[f64],
+        hold: &mut EndStopHold,
+        ws: &mut PolicyWorkspace,
+    ) -> FlowResult<()> {
+        self.flow
+            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        self.latent.velocity(&hold.latent, &mut ws.latent_velocity);
+        for ((d, z), v) in ws
+            .dual
+            .iter_mut()
+            .zip(&hold.latent)
+            .zip(&ws.latent_velocity)
+        {
+            *d = Dual::new(*z, *v);
+        }
+        self.flow.forward(
+            &ws.dual,
+            &ws.conditioning,
+            &mut ws.scratch_dual,
+            &mut ws.dual_velocity,
+        );
+        for (i, y) in ws.dual_velocity.iter().enumerate() {
+            (hold.position[i], hold.velocity[i]) = (y.re, y.du);
+        }
+        let s = range.speed_scale(&hold.position, &hold.velocity);
+        hold.velocity.iter_mut().for_each(|v| *v *= s);
+        for (z, v) in hold.latent.iter_mut().zip(&ws.latent_velocity) {
+            *z += hold.period * s * v;
+        }
+        Ok(())
+    }
+
+    fn check_acceleration_arguments(
+        &self,
+        q: &[f64],
+        qd: &[f64],
+        velocity_gain: f64,
+        acceleration: &[f64],
+        velocity: &[f64],
+    ) -> FlowResult<()> {
         let d = self.config().state_dim;
         check_input("state", d, q)?;
         check_input("velocity", d, qd)?;
@@ -316,10 +442,29 @@ impl Policy {
                 "velocity gain K_v must be finite and > 0".into(),
             ));
         }
+        Ok(())
+    }
+
+    /// The command with the field read at `reading = (y, ẏ)` and the velocity feedback and
+    /// end-stop barrier at the `measured` `(q, q̇)`. A reading that is not the measurement
+    /// (a hold's reference) is tracked: the velocity loop follows
+    /// `s(q, w) w`, `w = v_des + (K_v/4)(y − q)`, a pull towards the reading slowed by the
+    /// joint range's own time scaling at `q` into the speed and braking bounds.
+    #[allow(clippy::too_many_arguments)]
+    fn acceleration_reading(
+        &self,
+        (y, yd): (&[f64], &[f64]),
+        (q, qd): (&[f64], &[f64]),
+        context: &[f64],
+        velocity_gain: f64,
+        ws: &mut PolicyWorkspace,
+        acceleration: &mut [f64],
+        velocity: &mut [f64],
+    ) -> FlowResult<()> {
         self.flow
             .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
-        for ((d, q), qd) in ws.dual.iter_mut().zip(q).zip(qd) {
-            *d = Dual::new(*q, *qd);
+        for ((d, y), yd) in ws.dual.iter_mut().zip(y).zip(yd) {
+            *d = Dual::new(*y, *yd);
         }
         self.flow.inverse_recorded_dual(
             &ws.dual,
@@ -340,14 +485,26 @@ impl Policy {
             &mut ws.dual2_y,
         );
         // `(v_des, d/dt v_des)` per joint, in `dual_velocity` (free once the forward pass
-        // is done); `dual` still holds `(q, q̇)`.
+        // is done); `dual` still holds the reading `(y, ẏ)`.
         for (v, y) in ws.dual_velocity.iter_mut().zip(&ws.dual2_y) {
             *v = y.du;
         }
         self.limit_speed(&ws.dual, &mut ws.dual_velocity);
         for (i, v_des) in ws.dual_velocity.iter().enumerate() {
             velocity[i] = v_des.re;
-            acceleration[i] = v_des.du + velocity_gain * (v_des.re - qd[i]);
+        }
+        let tracked = &mut ws.tracked_velocity;
+        tracked.copy_from_slice(velocity);
+        if let (Some(range), false) = (&self.config().joint_range, y == q) {
+            let pull = 0.25 * velocity_gain;
+            for (w, (y, q)) in tracked.iter_mut().zip(y.iter().zip(q)) {
+                *w += pull * (y - q);
+            }
+            let s = range.speed_scale(q, tracked);
+            tracked.iter_mut().for_each(|w| *w *= s);
+        }
+        for (i, v_des) in ws.dual_velocity.iter().enumerate() {
+            acceleration[i] = v_des.du + velocity_gain * (tracked[i] - qd[i]);
         }
         if let Some(range) = &self.config().joint_range {
             let latent_norm = ws.dual_z.iter().map(|z| z.re * z.re).sum::<f64>().sqrt();

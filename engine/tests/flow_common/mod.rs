@@ -161,3 +161,28 @@ pub fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
         .map(|(x, y)| (x - y).abs())
         .fold(0.0, f64::max)
 }
+
+/// The joint box of [`narrow`], a little over a radian wide or less.
+pub const NARROW_MIN: [f64; 3] = [-0.8, -0.3, -1.2];
+pub const NARROW_MAX: [f64; 3] = [0.6, 0.9, -0.2];
+
+/// A go-to flow in 3-D with narrow joint ranges: random weights map much of the latent
+/// space outside them. Its output is scaled by 0.1, so that they keep `R`'s input where
+/// `tanh` is invertible in `f64` (`|u| < 13`).
+pub fn narrow(coupling: CouplingKind, speed_max: f64, acceleration_max: f64) -> FlowConfig {
+    let mut config = config(3, 2, LatentKind::GoTo, coupling);
+    config.normalisation.state_std = vec![0.1; 3];
+    config.joint_range = Some(JointRange {
+        position_min: NARROW_MIN.to_vec(),
+        position_max: NARROW_MAX.to_vec(),
+        speed_max: vec![speed_max; 3],
+        acceleration_max: vec![acceleration_max; 3],
+    });
+    config
+}
+
+/// Weights `N(0, 0.3²)`: far from the identity, not so steep that `R`'s input leaves
+/// `tanh`'s invertible part.
+pub fn tame_weights(config: &FlowConfig, seed: u64) -> Weights {
+    Weights::random(&config.parameter_shapes(), 0.3, &mut rng(seed))
+}
