@@ -17,9 +17,10 @@
 //! `z_r ← z_r + Δt s(y_r, v_r) ż(z_r)`, `y_r = f(z_r, c)`, `v_r = s J_f(z_r) ż(z_r)`,
 //!
 //! the time-scaled noise-free motion (`s` the speed scaling of the joint range), and reads
-//! the field at `(y_r, v_r)` instead of the measurement; the command adds a position
-//! feedback `K_p (y_r − q)`, `K_p = K_v²/4` (critically damped with the velocity gain), so
-//! the robot is pulled back onto the reference wherever the barrier lets it. The hold
+//! the field at `(y_r, v_r)` instead of the measurement. The velocity loop tracks
+//! `s(q, w) w`, `w = v_r + (K_v/4)(y_r − q)`: a pull back onto the reference wherever the
+//! barrier lets the robot go, slowed by the same time scaling at the measured `q` into
+//! the speed and braking bounds. The hold
 //! **releases** — the policy reads the measurement again — once the robot is within
 //! [`BARRIER_MARGIN`] of the reference in every joint and the reference no longer moves
 //! at a limit within the band.

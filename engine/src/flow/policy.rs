@@ -314,15 +314,9 @@ impl Policy {
         velocity: &mut [f64],
     ) -> FlowResult<()> {
         self.check_acceleration_arguments(q, qd, velocity_gain, acceleration, velocity)?;
-        self.acceleration_reading(
-            (q, qd),
-            (q, qd),
-            context,
-            velocity_gain,
-            ws,
-            acceleration,
-            velocity,
-        )
+        self.flow
+            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        self.acceleration_reading(q, qd, None, velocity_gain, ws, acceleration, velocity)
     }
 
     /// [`Self::acceleration`] for a robot that keeps `hold` from one control period to the
@@ -353,10 +347,25 @@ impl Policy {
                 q.len()
             )));
         }
-        if !hold.engaged {
+        self.flow
+            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        let reference = match hold.engaged {
+            true => {
+                self.step_reference(range, hold, ws);
+                Some((hold.position.as_slice(), hold.velocity.as_slice()))
+            }
+            false => None,
+        };
+        self.acceleration_reading(q, qd, reference, velocity_gain, ws, acceleration, velocity)?;
+        if hold.engaged {
+            if hold.caught_up(q)
+                && !EndStopHold::drives_into_a_limit(range, &hold.position, &hold.velocity)
+            {
+                hold.engaged = false;
+            }
+        } else {
             hold.position.copy_from_slice(q);
             hold.velocity.copy_from_slice(qd);
-            self.acceleration(q, qd, context, velocity_gain, ws, acceleration, velocity)?;
             if EndStopHold::drives_into_a_limit(range, q, velocity) {
                 // The reference starts at `z = f⁻¹(q)`, which the pass just made left in
                 // `dual_z`.
@@ -365,39 +374,15 @@ impl Policy {
                     *z = dual.re;
                 }
             }
-            return Ok(());
-        }
-        self.step_reference(range, context, hold, ws)?;
-        let reading = (hold.position.as_slice(), hold.velocity.as_slice());
-        self.acceleration_reading(
-            reading,
-            (q, qd),
-            context,
-            velocity_gain,
-            ws,
-            acceleration,
-            velocity,
-        )?;
-        if hold.caught_up(q)
-            && !EndStopHold::drives_into_a_limit(range, &hold.position, &hold.velocity)
-        {
-            hold.engaged = false;
         }
         Ok(())
     }
 
     /// Reads the reference of an engaged `hold` — `y_r = f(z_r, c)` and the time-scaled
     /// `v_r = s J_f(z_r) ż(z_r)`, from one forward pass along `ż(z_r)` — into
-    /// `hold.position` and `hold.velocity`, then moves `z_r` one control period on.
-    fn step_reference(
-        &self,
-        range: &JointRange,
-        context: &[f64],
-        hold: &mut EndStopHold,
-        ws: &mut PolicyWorkspace,
-    ) -> FlowResult<()> {
-        self.flow
-            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+    /// `hold.position` and `hold.velocity`, then moves `z_r` one control period on. Needs
+    /// `ws.conditioning` made for the context.
+    fn step_reference(&self, range: &JointRange, hold: &mut EndStopHold, ws: &mut PolicyWorkspace) {
         self.latent.velocity(&hold.latent, &mut ws.latent_velocity);
         for ((d, z), v) in ws
             .dual
@@ -421,7 +406,6 @@ impl Policy {
         for (z, v) in hold.latent.iter_mut().zip(&ws.latent_velocity) {
             *z += hold.period * s * v;
         }
-        Ok(())
     }
 
     fn check_acceleration_arguments(
@@ -445,24 +429,23 @@ impl Policy {
         Ok(())
     }
 
-    /// The command with the field read at `reading = (y, ẏ)` and the velocity feedback and
-    /// end-stop barrier at the `measured` `(q, q̇)`. A reading that is not the measurement
-    /// (a hold's reference) is tracked: the velocity loop follows
-    /// `s(q, w) w`, `w = v_des + (K_v/4)(y − q)`, a pull towards the reading slowed by the
-    /// joint range's own time scaling at `q` into the speed and braking bounds.
+    /// The command at the measured `(q, q̇)`, with `ws.conditioning` made for the context:
+    /// the field is read at the measurement, or at a hold's `reference` `(y, ẏ)`, which is
+    /// then tracked: the velocity loop follows `s(q, w) w`, `w = v_des + (K_v/4)(y − q)`,
+    /// a pull towards the reference slowed by the joint range's own time scaling at `q`
+    /// into the speed and braking bounds. The barrier acts on the measurement either way.
     #[allow(clippy::too_many_arguments)]
     fn acceleration_reading(
         &self,
-        (y, yd): (&[f64], &[f64]),
-        (q, qd): (&[f64], &[f64]),
-        context: &[f64],
+        q: &[f64],
+        qd: &[f64],
+        reference: Option<(&[f64], &[f64])>,
         velocity_gain: f64,
         ws: &mut PolicyWorkspace,
         acceleration: &mut [f64],
         velocity: &mut [f64],
     ) -> FlowResult<()> {
-        self.flow
-            .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
+        let (y, yd) = reference.unwrap_or((q, qd));
         for ((d, y), yd) in ws.dual.iter_mut().zip(y).zip(yd) {
             *d = Dual::new(*y, *yd);
         }
@@ -495,7 +478,7 @@ impl Policy {
         }
         let tracked = &mut ws.tracked_velocity;
         tracked.copy_from_slice(velocity);
-        if let (Some(range), false) = (&self.config().joint_range, y == q) {
+        if let (Some(range), Some(_)) = (&self.config().joint_range, reference) {
             let pull = 0.25 * velocity_gain;
             for (w, (y, q)) in tracked.iter_mut().zip(y.iter().zip(q)) {
                 *w += pull * (y - q);
