@@ -2,7 +2,9 @@
 //!
 //! 1. raw Zenoh query round trip (`…/ping` echoes the payload; same size as a step);
 //! 2. single-environment `step` round trip of a 2-D task through [`RemoteEnv::step`];
-//! 3. batched stepping throughput (env-steps/s) of `step_batch` for several batch sizes.
+//! 3. batched stepping throughput (env-steps/s) of `step_batch` for several batch sizes,
+//!    from a client on the engine's host that takes the replies through Zenoh's shared
+//!    memory and from one whose configuration turns it off (the network path).
 //!
 //! ```text
 //! cargo run --release -p ciflow-bridge --example roundtrip -- [ENDPOINT] [ENGINE]
@@ -29,6 +31,8 @@ const BATCHED_TASKS: [&str; 2] = ["ciflow/LimitCycle-v0", "ciflow/Obstacle-v0"];
 const WARMUP: usize = 500;
 const SAMPLES: usize = 5000;
 const BATCH_SIZES: [u32; 5] = [1024, 4096, 16384, 65536, 262144];
+/// Rounds of every batched measurement (see [`batched_rates`]).
+const BATCH_ROUNDS: usize = 3;
 /// Room for the largest batch (the default limit is 65 536 environments per session);
 /// `bench/roundtrip.sh` gives `ciflow serve` the same flags.
 const LIMITS: Limits = Limits {
@@ -147,46 +151,114 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
         step_p99.as_secs_f64() / raw_p99.as_secs_f64()
     );
 
+    let network_only = network_only_client(&endpoint)?;
+    let clients = [("shared memory", &client), ("network", &network_only)];
     for task in BATCHED_TASKS {
-        batched_rates(&client, &engine, task)?;
+        batched_rates(&clients, &engine, task)?;
     }
     Ok(())
 }
 
-/// Batched env-steps per second of `task` for each of [`BATCH_SIZES`], after the rate of
-/// the task alone for reference.
+/// A client of `endpoint` whose Zenoh configuration file turns shared memory off, so its
+/// payloads cross the loopback socket as they would cross a network.
+fn network_only_client(endpoint: &str) -> Result<Client, Box<dyn std::error::Error + Send + Sync>> {
+    let path = std::env::temp_dir().join(format!(
+        "ciflow-roundtrip-network-only-{}.json5",
+        std::process::id()
+    ));
+    std::fs::write(
+        &path,
+        format!(
+            "{{ mode: \"client\", connect: {{ endpoints: [\"{endpoint}\"] }},\n  \
+             scouting: {{ multicast: {{ enabled: false }} }},\n  \
+             transport: {{ shared_memory: {{ enabled: false }} }} }}\n"
+        ),
+    )?;
+    let client = Client::open(&NetworkOptions {
+        config_file: Some(path.clone()),
+        ..NetworkOptions::default()
+    });
+    std::fs::remove_file(&path)?;
+    Ok(client?)
+}
+
+/// Batched env-steps per second of `task` for each of [`BATCH_SIZES`], from each of
+/// `clients` (named), in [`BATCH_ROUNDS`] rounds that each measure the task alone again
+/// first: the machine's load drifts, so a ratio is taken within one round and the median
+/// over the rounds is printed with its range.
 fn batched_rates(
-    client: &Client,
+    clients: &[(&str, &Client)],
     engine: &str,
     task: &str,
 ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
-    println!("batched stepping ({task}, step_batch, next-step autoreset)");
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let (alone, many) = (local_rate(task, 1)?, local_rate(task, 4096)?);
     println!(
-        "  reference: the task called directly, one thread, no network: {alone:.0} env-steps/s \
-         (4096 environments in turn: {many:.0})"
+        "batched stepping ({task}, step_batch, next-step autoreset; {BATCH_ROUNDS} rounds: median (range))"
     );
-    println!("  ratio: served / ({threads} threads x one environment alone)");
+    println!(
+        "  reference: the task called directly, one thread, no network: {:.0} env-steps/s \
+         (4096 environments in turn: {:.0})",
+        local_rate(task, 1)?,
+        local_rate(task, 4096)?
+    );
+    println!(
+        "  ratio: served / ({threads} threads x one environment alone, measured in the same round)"
+    );
     for n in BATCH_SIZES {
-        let batch = client.make(engine, task, n, &BTreeMap::new())?;
-        batch.reset_batch(Some(0), None)?;
-        let actions = vec![0.0; n as usize * batch.spec().action_space.dim()];
-        batch.step_batch(&actions)?;
-        let rounds = (2_000_000 / n as usize).clamp(5, 200);
-        let start = Instant::now();
-        for _ in 0..rounds {
-            batch.step_batch(&actions)?;
+        let batches = clients
+            .iter()
+            .map(|(_, client)| {
+                let batch = client.make(engine, task, n, &BTreeMap::new())?;
+                batch.reset_batch(Some(0), None)?;
+                Ok(batch)
+            })
+            .collect::<Result<Vec<_>, ciflow_bridge::BridgeError>>()?;
+        let actions = vec![0.0; n as usize * batches[0].spec().action_space.dim()];
+        let mut rates = vec![Vec::new(); batches.len()];
+        let mut ratios = vec![Vec::new(); batches.len()];
+        for _ in 0..BATCH_ROUNDS {
+            let alone = local_rate(task, 1)?;
+            for (k, batch) in batches.iter().enumerate() {
+                let rate = served_rate(batch, &actions)?;
+                rates[k].push(rate);
+                ratios[k].push(rate / (threads as f64 * alone));
+            }
         }
-        let elapsed = start.elapsed();
-        let rate = (rounds as f64 * n as f64) / elapsed.as_secs_f64();
-        println!(
-            "  num_envs {n:>7}: {:>12.0} env-steps/s   ({:.2} ms per request)   ratio {:.2}",
-            rate,
-            elapsed.as_secs_f64() * 1e3 / rounds as f64,
-            rate / (threads as f64 * alone)
-        );
-        batch.close()?;
+        let columns: Vec<String> = clients
+            .iter()
+            .zip(rates.iter_mut().zip(&mut ratios))
+            .map(|((name, _), (rates, ratios))| {
+                let (rate, _) = median_and_range(rates);
+                let (ratio, (low, high)) = median_and_range(ratios);
+                format!("{name} {rate:>9.0}/s ratio {ratio:.2} ({low:.2}-{high:.2})")
+            })
+            .collect();
+        println!("  num_envs {n:>7}: {}", columns.join("   "));
+        for batch in batches {
+            batch.close()?;
+        }
     }
     Ok(())
+}
+
+/// Env-steps per second of `batch` stepped with `actions`, after one untimed step.
+fn served_rate(
+    batch: &ciflow_bridge::RemoteEnv,
+    actions: &[f64],
+) -> Result<f64, ciflow_bridge::BridgeError> {
+    let n = batch.num_envs() as usize;
+    batch.step_batch(actions)?;
+    let requests = (1_000_000 / n).clamp(3, 100);
+    let start = Instant::now();
+    for _ in 0..requests {
+        batch.step_batch(actions)?;
+    }
+    Ok((requests * n) as f64 / start.elapsed().as_secs_f64())
+}
+
+/// The median of `values` (sorted in place) and their range.
+fn median_and_range(values: &mut [f64]) -> (f64, (f64, f64)) {
+    values.sort_by(f64::total_cmp);
+    let median = values[values.len() / 2];
+    (median, (values[0], values[values.len() - 1]))
 }
