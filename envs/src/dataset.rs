@@ -390,7 +390,7 @@ impl Drop for DatasetWriter {
     }
 }
 
-/// Reads a dataset written by [`write`] or by Minari (Arrow format, Box spaces).
+/// Reads a dataset written by [`write()`] or by Minari (Arrow format, Box spaces).
 pub fn read(dir: &Path) -> Result<(DatasetSpec, Vec<Episode>)> {
     let data = dir.join("data");
     let metadata_path = data.join(METADATA_FILE);

@@ -156,7 +156,7 @@ fn arm(task: &'static str) -> TrainConfig {
     .fitting_every_demonstration()
 }
 
-/// The arm's recipe with the latent contracting at least [`POURING_MIN_RATE`], so the
+/// The arm's recipe with the latent contracting at least `POURING_MIN_RATE`, so the
 /// policy returns to its path after a push as fast as the expert does.
 pub fn pouring(
     task: &'static str,

@@ -72,7 +72,7 @@ pub struct Outline {
 
 impl Outline {
     /// The outline at `c`, shared with every holder of the same context in this process.
-    /// An outline holds [`DISTANCE_POINTS`] dense points (32 kB) and takes a few hundred
+    /// An outline holds `DISTANCE_POINTS` dense points (32 kB) and takes a few hundred
     /// microseconds to build: a batch of environments on the task's few scheduled
     /// contexts would otherwise hold a copy each and rebuild it on every reset.
     pub fn shared(c: f64) -> Arc<Outline> {

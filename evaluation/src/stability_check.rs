@@ -1,4 +1,4 @@
-//! The stability check of a checkpoint, as `ciflow stability` runs it: [`measure`]d
+//! The stability check of a checkpoint, as `ciflow stability` runs it: [`measure`](crate::stability::measure)d
 //! rollouts in observation space for contexts from the training box and, as many again,
 //! for contexts from the box scaled by `far_context_scale`; optionally the negative
 //! control that the check must catch — the same flow with its latent run backwards in time

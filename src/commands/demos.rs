@@ -34,7 +34,7 @@ pub struct DemosArgs {
     /// shape=4 or shape=Sshape); repeatable.
     #[arg(long = "option", value_name = "NAME=VALUE", value_parser = parse_key_value)]
     pub options: Vec<(String, String)>,
-    /// Minari dataset id (default: ciflow/<task>-expert-v0).
+    /// Minari dataset id (default: `ciflow/<task>-expert-v0`).
     #[arg(long)]
     pub dataset_id: Option<String>,
     /// Replace an existing dataset at --out.

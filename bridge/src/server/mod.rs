@@ -5,7 +5,7 @@
 //! answered directly in Zenoh's callback, so a step costs one network round trip and
 //! nothing more. Everything whose cost grows with its payload or may wait (`make`,
 //! `render`, `reset_batch`, `evaluate`, `stability`, large `step_batch` and `act`) goes to a
-//! pool of worker threads ([`workers`]): Zenoh's own threads must never be held for long,
+//! pool of worker threads (`workers.rs`): Zenoh's own threads must never be held for long,
 //! or the links they serve miss their lease and Zenoh drops them, with every session of
 //! their clients.
 //!

@@ -103,9 +103,9 @@ impl fmt::Display for Screened {
 pub struct ForeignFields {
     /// Train on a dataset made by another tool — Minari (HDF5 or Arrow storage, Box or
     /// Dict spaces) or LeRobot (v3.0, v2.x) — with this field as the state: a path and an
-    /// optional column range, e.g. observations[0:2], observations/achieved_goal,
-    /// observation.state[0:7]. `python -m ciflow.convert` writes it into
-    /// <out>/demonstrations first; the task names only the training recipe.
+    /// optional column range, e.g. `observations[0:2]`, `observations/achieved_goal`,
+    /// `observation.state[0:7]`. `python -m ciflow.convert` writes it into
+    /// `<out>/demonstrations` first; the task names only the training recipe.
     #[cfg_attr(feature = "clap", arg(long, value_name = "FIELD"))]
     pub state: Option<String>,
     /// With --state: the field that is the context, one row per observation (e.g.

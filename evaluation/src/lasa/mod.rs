@@ -101,7 +101,7 @@ fn vector_field<M: MeanDynamics>(model: &M, shape: &Shape) -> FlowResult<serde_j
     Ok(json!({"x": xs, "y": ys, "u": u, "v": v}))
 }
 
-/// Every [`PLOT_STRIDE`]-th point of a path and its last, finite ones only.
+/// Every `PLOT_STRIDE`-th point of a path and its last, finite ones only.
 pub fn thinned(path: &[Point]) -> Vec<Point> {
     let mut kept: Vec<Point> = path.iter().step_by(PLOT_STRIDE).copied().collect();
     if let Some(last) = path.last()
@@ -315,7 +315,7 @@ fn summary(results: &[ShapeResult]) -> String {
 }
 
 /// The benchmark's report: `settings` (how both models were trained), a table per shape
-/// and the mean, the metrics' definitions and the run's verdicts ([`summary`]).
+/// and the mean, the metrics' definitions and the run's verdicts (`summary`).
 pub fn markdown(results: &[ShapeResult], settings: &str, total_seconds: f64) -> String {
     let mut text = format!(
         "# LASA handwriting benchmark\n\n{}\n{} shapes in {:.0} s.\n\n{METRICS}\n\

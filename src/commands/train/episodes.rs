@@ -18,7 +18,7 @@ use crate::progress;
 #[derive(clap::Args, Debug)]
 pub struct ZenohSource {
     /// Collect this many episodes that recorders (`python -m ciflow.record`) publish on
-    /// ciflow/v2/episodes/<task>/*, instead of reading --demos; with --demos they are also
+    /// `ciflow/v2/episodes/<task>/*`, instead of reading --demos; with --demos they are also
     /// written there as a dataset, so that the run can be repeated from files. Start the
     /// trainer before the recorders: earlier episodes are not replayed.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..), conflicts_with = "state")]
