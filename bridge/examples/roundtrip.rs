@@ -2,9 +2,10 @@
 //!
 //! 1. raw Zenoh query round trip (`…/ping` echoes the payload; same size as a step);
 //! 2. single-environment `step` round trip of a 2-D task through [`RemoteEnv::step`];
-//! 3. batched stepping throughput (env-steps/s) of `step_batch` for several batch sizes,
-//!    from a client on the engine's host that takes the replies through Zenoh's shared
-//!    memory and from one whose configuration turns it off (the network path).
+//! 3. raw round trips of large payloads, and the batched stepping throughput
+//!    (env-steps/s) of `step_batch` for several batch sizes, each from a client on the
+//!    engine's host that takes the payloads through Zenoh's shared memory and from one
+//!    whose configuration turns it off (the network path).
 //!
 //! ```text
 //! cargo run --release -p ciflow-bridge --example roundtrip -- [ENDPOINT] [ENGINE]
@@ -31,6 +32,9 @@ const BATCHED_TASKS: [&str; 2] = ["ciflow/LimitCycle-v0", "ciflow/Obstacle-v0"];
 const WARMUP: usize = 500;
 const SAMPLES: usize = 5000;
 const BATCH_SIZES: [u32; 5] = [1024, 4096, 16384, 65536, 262144];
+/// Echoed payloads of the raw large-payload round trips: a batched reply of 4 096 obstacle
+/// environments, and 4 MiB.
+const LARGE_PAYLOADS: [usize; 2] = [565 * 1024, 4 << 20];
 /// Rounds of every batched measurement (see [`batched_rates`]).
 const BATCH_ROUNDS: usize = 3;
 /// Room for the largest batch (the default limit is 65 536 environments per session);
@@ -153,6 +157,7 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
 
     let network_only = network_only_client(&endpoint)?;
     let clients = [("shared memory", &client), ("network", &network_only)];
+    large_payload_round_trips(&clients, &engine)?;
     for task in BATCHED_TASKS {
         batched_rates(&clients, &engine, task)?;
     }
@@ -180,6 +185,55 @@ fn network_only_client(endpoint: &str) -> Result<Client, Box<dyn std::error::Err
     });
     std::fs::remove_file(&path)?;
     Ok(client?)
+}
+
+/// Raw round trips of [`LARGE_PAYLOADS`] (the engine echoes them) from each of `clients`:
+/// the best median of three interleaved runs.
+fn large_payload_round_trips(
+    clients: &[(&str, &Client)],
+    engine: &str,
+) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
+    println!("raw Zenoh query of a large payload, echoed (best median of 3 interleaved runs)");
+    for bytes in LARGE_PAYLOADS {
+        let payload = vec![7u8; bytes];
+        let queriers = clients
+            .iter()
+            .map(|(_, client)| {
+                client
+                    .zenoh_session()
+                    .declare_querier(keys::ping(engine))
+                    .consolidation(ConsolidationMode::None)
+                    .wait()
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let samples = if bytes > 1 << 20 { 20 } else { 100 };
+        let medians: Vec<String> = (0..3)
+            .flat_map(|_| 0..queriers.len())
+            .map(|k| {
+                let echo = || {
+                    let replies = queriers[k].get().payload(payload.clone()).wait();
+                    replies.expect("ping").recv().expect("ping reply");
+                };
+                (k, time_calls(2, samples, echo).0)
+            })
+            .fold(
+                vec![Duration::MAX; queriers.len()],
+                |mut best, (k, median)| {
+                    best[k] = best[k].min(median);
+                    best
+                },
+            )
+            .iter()
+            .zip(clients)
+            .map(|(median, (name, _))| format!("{name} {:8.2} ms", micros(*median) / 1e3))
+            .collect();
+        println!(
+            "  {:>5} KiB each way: {}",
+            bytes / 1024,
+            medians.join("   ")
+        );
+    }
+    Ok(())
 }
 
 /// Batched env-steps per second of `task` for each of [`BATCH_SIZES`], from each of
@@ -216,10 +270,14 @@ fn batched_rates(
         let actions = vec![0.0; n as usize * batches[0].spec().action_space.dim()];
         let mut rates = vec![Vec::new(); batches.len()];
         let mut ratios = vec![Vec::new(); batches.len()];
-        for _ in 0..BATCH_ROUNDS {
+        for round in 0..BATCH_ROUNDS {
             let alone = local_rate(task, 1)?;
-            for (k, batch) in batches.iter().enumerate() {
-                let rate = served_rate(batch, &actions)?;
+            // The clients take turns going first, so what the first measurement of a round
+            // pays (caches the reference left cold) is not always the same client's.
+            let mut order: Vec<usize> = (0..batches.len()).collect();
+            order.rotate_left(round % batches.len());
+            for k in order {
+                let rate = served_rate(&batches[k], &actions)?;
                 rates[k].push(rate);
                 ratios[k].push(rate / (threads as f64 * alone));
             }
@@ -230,7 +288,10 @@ fn batched_rates(
             .map(|((name, _), (rates, ratios))| {
                 let (rate, _) = median_and_range(rates);
                 let (ratio, (low, high)) = median_and_range(ratios);
-                format!("{name} {rate:>9.0}/s ratio {ratio:.2} ({low:.2}-{high:.2})")
+                let request_ms = 1e3 * n as f64 / rate;
+                format!(
+                    "{name} {rate:>9.0}/s ({request_ms:.2} ms) ratio {ratio:.2} ({low:.2}-{high:.2})"
+                )
             })
             .collect();
         println!("  num_envs {n:>7}: {}", columns.join("   "));
