@@ -135,9 +135,8 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
         raw_runs.push(time_calls(WARMUP, SAMPLES, &mut raw));
         step_runs.push(time_calls(WARMUP, SAMPLES, &mut step));
     }
-    let best = |runs: &[(Duration, Duration)]| *runs.iter().min_by_key(|r| r.0).unwrap();
-    let (raw_median, raw_p99) = best(&raw_runs);
-    let (step_median, step_p99) = best(&step_runs);
+    let (raw_median, raw_p99) = best_run(&raw_runs);
+    let (step_median, step_p99) = best_run(&step_runs);
     println!("round trip ({TASK}, {SAMPLES} samples, best of 3 interleaved runs)");
     println!(
         "  raw Zenoh query (ping)   median {:7.1} µs   p99 {:7.1} µs",
@@ -207,25 +206,19 @@ fn large_payload_round_trips(
             })
             .collect::<Result<Vec<_>, _>>()?;
         let samples = if bytes > 1 << 20 { 20 } else { 100 };
-        let medians: Vec<String> = (0..3)
-            .flat_map(|_| 0..queriers.len())
-            .map(|k| {
-                let echo = || {
-                    let replies = queriers[k].get().payload(payload.clone()).wait();
+        let mut runs = vec![Vec::new(); queriers.len()];
+        for _ in 0..3 {
+            for (querier, runs) in queriers.iter().zip(&mut runs) {
+                runs.push(time_calls(2, samples, || {
+                    let replies = querier.get().payload(payload.clone()).wait();
                     replies.expect("ping").recv().expect("ping reply");
-                };
-                (k, time_calls(2, samples, echo).0)
-            })
-            .fold(
-                vec![Duration::MAX; queriers.len()],
-                |mut best, (k, median)| {
-                    best[k] = best[k].min(median);
-                    best
-                },
-            )
+                }));
+            }
+        }
+        let medians: Vec<String> = runs
             .iter()
             .zip(clients)
-            .map(|(median, (name, _))| format!("{name} {:8.2} ms", micros(*median) / 1e3))
+            .map(|(runs, (name, _))| format!("{name} {:8.2} ms", micros(best_run(runs).0) / 1e3))
             .collect();
         println!(
             "  {:>5} KiB each way: {}",
@@ -315,6 +308,14 @@ fn served_rate(
         batch.step_batch(actions)?;
     }
     Ok((requests * n) as f64 / start.elapsed().as_secs_f64())
+}
+
+/// The `(median, p99)` of the run with the lowest median.
+fn best_run(runs: &[(Duration, Duration)]) -> (Duration, Duration) {
+    *runs
+        .iter()
+        .min_by_key(|run| run.0)
+        .expect("at least one run")
 }
 
 /// The median of `values` (sorted in place) and their range.

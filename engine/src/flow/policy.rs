@@ -349,12 +349,11 @@ impl Policy {
         }
         self.flow
             .condition(context, &mut ws.conditioning, &mut ws.scratch)?;
-        let reference = match hold.engaged {
-            true => {
-                self.step_reference(range, hold, ws);
-                Some((hold.position.as_slice(), hold.velocity.as_slice()))
-            }
-            false => None,
+        let reference = if hold.engaged {
+            self.step_reference(range, hold, ws);
+            Some((hold.position.as_slice(), hold.velocity.as_slice()))
+        } else {
+            None
         };
         self.acceleration_reading(q, qd, reference, velocity_gain, ws, acceleration, velocity)?;
         if hold.engaged {
