@@ -76,6 +76,9 @@ OBSTACLE_MODEL = ["--epochs", "2", "--keep", "last"]
 # encoder and the couplings' local features (README "Obstacle avoidance").
 OBSTACLE_GENERIC = "3-generic"
 OBSTACLE_GENERIC_MODEL = [*OBSTACLE_MODEL, "--contraction-layers", "0"]
+# The behaviour-cloning MLP trained beside the 3-obstacle flow (`--baseline`), evaluated
+# on the same held-out episodes.
+OBSTACLE_BASELINE = "3-baseline"
 # The perturbation script's run as a Rerun recording, beside the report.
 PERTURB_RECORDING = "pouring_perturb.rrd"
 # What the perturbation script does to the running pouring session (simulated seconds):
@@ -377,8 +380,14 @@ def plan(out: pathlib.Path) -> list[Job]:
         evaluate(policy, "--kwarg", f"obstacles={k}", "--field", results / "field.json",
                  "--field-demos", data / f"obstacles-{k}"),
     ], after=[f"record-obstacles-{k}"]))
-    jobs.append(stability(f"obstacles-{k}-baseline", policies / f"obstacles-{k}" / "baseline",
-                          f"obstacles-{k}"))
+    baseline, results = policies / f"obstacles-{k}" / "baseline", exp / "obstacles" / OBSTACLE_BASELINE
+    results.mkdir(parents=True, exist_ok=True)
+    # The unconstrained control on the flows' held-out episodes: what stability costs.
+    jobs.append(Job(f"obstacles-{OBSTACLE_BASELINE}", [
+        evaluate(baseline, "--kwarg", f"obstacles={k}", "--episodes", EVALUATION_EPISODES,
+                 "--seed", TEST_SEED, "--trajectories", 8, "--out", results / "eval.json"),
+    ], after=[f"obstacles-{k}"]))
+    jobs.append(stability(f"obstacles-{k}-baseline", baseline, f"obstacles-{k}"))
 
     # Limit cycle: learning curves over the number of trajectories, held-out contexts, for
     # the paper's star-shaped phases and for the curled outlines (no longer star-shaped).

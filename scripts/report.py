@@ -43,8 +43,15 @@ OBSTACLE_GOAL_TARGET = 0.95
 POURING_TARGET = 0.90
 PUSH_DISPLACEMENT_TARGET = 0.05  # m
 RECOVERY_DEADLINE = 2.0  # s
-# The obstacle-avoidance task's obstacle body radius (m), drawn in the figures.
+# The obstacle-avoidance task's obstacle body radius (m), drawn in the figures, and the
+# margin its expert keeps (envs/src/tasks/obstacle_avoidance.rs `SAFETY_RADIUS`).
 OBSTACLE_RADIUS = 0.1
+SAFETY_RADIUS = 0.16
+# Where an obstacle sits relative to the straight start-target line, by the distance of
+# the nearest centre from it (m): the classes of the collisions-by-geometry table.
+OBSTACLE_GEOMETRY = (("head-on", 0.0, OBSTACLE_RADIUS / 2),
+                     ("grazing", OBSTACLE_RADIUS / 2, SAFETY_RADIUS),
+                     ("clear", SAFETY_RADIUS, math.inf))
 # Pouring's reward on a spill (envs/src/tasks/pouring.rs `SPILL_REWARD`).
 SPILL_REWARD = -100.0
 NLL_NAME = re.compile(r"^(?P<x>[0-9]+(?:\.[0-9]+)?)_seed(?P<seed>[0-9]+)_(?P<split>train|test)\.json$")
@@ -304,6 +311,55 @@ def limit_cycle(report, root):
                        f"{title.split(' (')[0]}: log-likelihood per transition")
 
 
+def straight_line_clearance(start, context):
+    """Distance (m) from the straight segment between `start` and the target of the
+    obstacle-avoidance context `[o1, …, g]` to the nearest obstacle centre."""
+    points = np.array(context, float).reshape(-1, 2)
+    centres, target, start = points[:-1], points[-1], np.asarray(start, float)
+    direction = target - start
+    along = np.clip((centres - start) @ direction / (direction @ direction), 0.0, 1.0)
+    nearest = start + along[:, None] * direction
+    return float(np.min(np.linalg.norm(centres - nearest, axis=1)))
+
+
+def geometry_class(clearance):
+    return next(name for name, low, high in OBSTACLE_GEOMETRY if low <= clearance < high)
+
+
+def collisions_by_geometry(report, evaluations):
+    """Collisions of each evaluation by where the obstacles sit, beside those of the
+    straight start-target line (no avoidance at all) on the first one's contexts: what a
+    model adds over going straight. Needs the results' `start` (older files lack it)."""
+    rows = [(name, [r for r in e["results"] if r.get("start")]) for name, e in evaluations]
+    rows = [(name, results) for name, results in rows if results]
+    if not rows:
+        return
+    names = [name for name, _, _ in OBSTACLE_GEOMETRY]
+
+    def cells(outcomes):
+        counts = [[hit for kind, hit in outcomes if kind == name] for name in names]
+        counts.append([hit for _, hit in outcomes])
+        return " | ".join(f"{sum(c)} of {len(c)}" for c in counts)
+
+    def classified(results, hit):
+        return [(geometry_class(straight_line_clearance(r["start"], r["context"])), hit(r))
+                for r in results]
+
+    report.add("", "Collisions by where the obstacles sit: the nearest obstacle centre's "
+               f"distance from the straight start-target line (head-on: under "
+               f"{OBSTACLE_RADIUS / 2 * 100:.0f} cm, grazing: up to the expert's "
+               f"{SAFETY_RADIUS * 100:.0f} cm margin, clear: farther). The straight line "
+               f"itself collides where it passes within {OBSTACLE_RADIUS * 100:.0f} cm of a "
+               "centre.", "",
+               "| motion | " + " | ".join(names) + " | all |",
+               "|---|" + "---|" * (len(names) + 1))
+    straight = classified(rows[0][1], lambda r: straight_line_clearance(
+        r["start"], r["context"]) < OBSTACLE_RADIUS)
+    report.add(f"| straight start-target line (no avoidance) | {cells(straight)} |")
+    for name, results in rows:
+        report.add(f"| {name} | {cells(classified(results, lambda r: bool(r.get('collision'))))} |")
+
+
 def obstacles(report, root):
     report.add("## Obstacle avoidance", "")
     folder = root / "obstacles"
@@ -339,6 +395,22 @@ def obstacles(report, root):
         plot_trajectories(report, [("3 (generic)", generic_eval)],
                           "obstacles_generic_rollouts.png",
                           "Obstacle avoidance, generic INN: closed-loop rollouts (red: failed)")
+    baseline_eval = load(folder / "3-baseline" / "eval.json")
+    three_models = [(name, e) for name, e in
+                    (("3 obstacles, radial contractions", dict(evaluations).get(3)),
+                     ("3 obstacles, generic INN", generic_eval),
+                     ("3 obstacles, unconstrained MLP (control)", baseline_eval))
+                    if e is not None]
+    if len(three_models) > 1:
+        report.add("", "The same held-out episodes, each model:", "",
+                   "| model | goal reached | collision | final distance (m) |",
+                   "|---|---|---|---|")
+        for name, e in three_models:
+            d = e.get("final_distance") or {}
+            report.add(f"| {name} | {percent(e['success_rate'])} | "
+                       f"{percent(e.get('collision_rate'))} | "
+                       f"{d.get('mean', math.nan):.4f} ± {d.get('std', math.nan):.4f} |")
+    collisions_by_geometry(report, three_models)
     if generic_field is not None:
         plot_field(report, generic_field, "obstacles_3_generic_field.png",
                    "3 obstacles, generic INN: learned field and deformation of a latent grid",

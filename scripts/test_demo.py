@@ -64,7 +64,7 @@ def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
     jobs = demo.plan(tmp_path)
     names = {job.name for job in jobs}
     for name in ("pouring-record-train", "pouring-perturb", "pouring-push", "pouring-context",
-                 "obstacles-3", "stability-obstacles-3-baseline", "limit-cycle-field",
+                 "obstacles-3", "obstacles-3-baseline", "stability-obstacles-3-baseline", "limit-cycle-field",
                  "limit-cycle-10-seed2", "pouring-0.1-seed2", "pouring-joint-range-push",
                  "robot-loop-flow", "robot-loop-joint-range-pushed", "reach-ur5e",
                  "reach-iiwa14"):
@@ -75,4 +75,8 @@ def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
         written = [str(arg) for command in reach[f"reach-{arm}"].commands for arg in command]
         assert str(tmp_path / "experiments" / "reach" / f"{arm}.json") in written
         assert str(tmp_path / "experiments" / "reach" / f"{arm}-expert.json") in written
+    # The unconstrained control is evaluated where the report's obstacle section reads it.
+    control = next(job for job in jobs if job.name == "obstacles-3-baseline")
+    written = [str(arg) for command in control.commands for arg in command]
+    assert str(tmp_path / "experiments" / "obstacles" / "3-baseline" / "eval.json") in written
     assert all(set(job.after) <= names for job in jobs)

@@ -32,8 +32,8 @@ def trace(n, context, with_point=True):
 
 def evaluation(success_rate, episodes, disturbance, push=None, example=True):
     context = [0.0, 0.3, 0.8, -0.1]
-    results = [{"seed": i, "success": i < round(success_rate * episodes), "context": context}
-               for i in range(episodes)]
+    results = [{"seed": i, "success": i < round(success_rate * episodes), "start": [0.0, 0.0],
+                "context": context, "collision": False} for i in range(episodes)]
     return {
         "episodes": episodes,
         "success_rate": success_rate,
@@ -80,6 +80,9 @@ def experiments(tmp_path):
     write(root / "obstacles" / "3" / "eval.json", evaluation(0.96, 100, {"mode": "none"}))
     write(root / "obstacles" / "3-generic" / "eval.json", evaluation(0.7, 100, {"mode": "none"}))
     write(root / "obstacles" / "3-generic" / "field.json", field_json([[0.0, 0.3, 0.8, -0.1]]))
+    baseline = evaluation(0.5, 100, {"mode": "none"})
+    baseline["collision_rate"] = 0.25
+    write(root / "obstacles" / "3-baseline" / "eval.json", baseline)
     write(root / "pouring" / "eval.json", evaluation(0.85, 100, {"mode": "none"}))
     push = {
         "required_displacement": 0.05,
@@ -165,6 +168,11 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert ("| mean (range) | 80.0% (70.0%–90.0%) | 80.0% (70.0%–90.0%) | 70.0% (60.0%–80.0%) | "
             "100.0% (100.0%–100.0%) |") in text
     assert "2 obstacle(s): not run" in text
+    assert ("| 3 obstacles, generic INN | 0 of 0 | 0 of 0 | 0 of 100 | 0 of 100 |") in text
+    assert ("| 3 obstacles, unconstrained MLP (control) | 50.0% | 25.0% | 0.0100 ± 0.0020 |"
+            in text)
+    assert ("| 3 obstacles, unconstrained MLP (control) | 0 of 0 | 0 of 0 | 0 of 100 | "
+            "0 of 100 |") in text
     assert "pot moved mid-motion: not run" in text
     assert ("| pouring-flow | training box | 100.0% | 100.0% / 100.0% / 100.0% | 50 | 0 | 0 | "
             "100.0% of 40 | 95.0% of 20 |") in text
@@ -188,6 +196,31 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
                  "joint_limits.png"):
         assert (figures / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
         assert f"(figures/{name})" in text
+
+
+def test_collisions_are_classed_by_where_the_obstacles_sit(tmp_path):
+    # Start (0, 0), target (1, 0): one obstacle on the line, one 8 cm off it, one 30 cm.
+    contexts = [[0.5, 0.0, 2.0, 2.0, 1.0, 0.0],
+                [0.5, 0.08, 2.0, 2.0, 1.0, 0.0],
+                [0.5, 0.3, 2.0, 2.0, 1.0, 0.0]]
+    assert [report.straight_line_clearance([0.0, 0.0], c) for c in contexts] == \
+        pytest.approx([0.0, 0.08, 0.3])
+    # Past the target the segment's end is nearest, not the line's foot.
+    assert report.straight_line_clearance([0.0, 0.0], [1.3, 0.4, 1.0, 0.0]) == \
+        pytest.approx(0.5)
+
+    def evaluation(collisions):
+        return {"results": [{"start": [0.0, 0.0], "context": c, "collision": hit}
+                            for c, hit in zip(contexts, collisions)]}
+
+    out = report.Report(tmp_path / "report.md")
+    report.collisions_by_geometry(out, [("model", evaluation([True, False, False])),
+                                        ("older file", {"results": [{"context": contexts[0]}]})])
+    text = "\n".join(out.lines)
+    assert "| straight start-target line (no avoidance) | 1 of 1 | 1 of 1 | 0 of 1 | 2 of 3 |" \
+        in text
+    assert "| model | 1 of 1 | 0 of 1 | 0 of 1 | 1 of 3 |" in text
+    assert "older file" not in text
 
 
 def test_an_empty_directory_gives_not_run_lines(tmp_path):

@@ -112,6 +112,9 @@ pub struct EvaluationConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EpisodeResult {
     pub seed: u64,
+    /// The position `q` at reset.
+    #[serde(default)]
+    pub start: Vec<f64>,
     /// The context at reset.
     pub context: Vec<f64>,
     pub success: bool,
@@ -460,6 +463,7 @@ pub fn run_episodes(
         let has = |key: &str| run.last_info.contains_key(key);
         batch.results.push(EpisodeResult {
             seed,
+            start: run.trace.q[0].clone(),
             context: run.trace.context[0].clone(),
             success: run.last_info.get(SUCCESS_INFO).is_some_and(|&s| s == 1.0),
             collision: has("collision").then_some(run.collision),

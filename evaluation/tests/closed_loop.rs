@@ -115,6 +115,7 @@ fn episodes_and_rates_are_those_of_the_closed_loop() {
     for (i, result) in report.results.iter().enumerate() {
         let (positions, info) = replay(Acting::Model(&model), 40 + i as u64, None);
         assert_eq!(result.seed, 40 + i as u64);
+        assert_eq!(result.start, positions[0], "the position at reset");
         assert_eq!(result.steps + 1, positions.len());
         assert_eq!(result.success, info["is_success"] == 1.0);
         assert_eq!(result.final_distance, Some(info["distance_to_target"]));
