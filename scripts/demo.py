@@ -72,8 +72,8 @@ LIMIT_CYCLE_FAMILIES = (("limit-cycle", 0, 1, "0;0.5;1"),
 # training on fewer (README "Obstacle avoidance"), in about 2.5 CPU-minutes.
 OBSTACLE_MODEL = ["--epochs", "2", "--keep", "last"]
 # The paper's model beside it, for 3 obstacles: the same recipe without the radial
-# contractions, so the obstacle set enters only through the permutation-invariant set
-# encoder and the couplings' local features (README "Obstacle avoidance").
+# contractions, so the obstacle set enters the couplings' conditioners only through the
+# permutation-invariant set encoder (README "Obstacle avoidance").
 OBSTACLE_GENERIC = "3-generic"
 OBSTACLE_GENERIC_MODEL = [*OBSTACLE_MODEL, "--contraction-layers", "0"]
 # The behaviour-cloning MLP trained beside the 3-obstacle flow (`--baseline`), evaluated

@@ -360,6 +360,14 @@ def collisions_by_geometry(report, evaluations):
         report.add(f"| {name} | {cells(classified(results, lambda r: bool(r.get('collision'))))} |")
 
 
+def outcome_cells(evaluation):
+    """Goal reached, collision and final distance: the cells an obstacle table's row shares."""
+    d = evaluation.get("final_distance") or {}
+    return (f"{percent(evaluation['success_rate'])} | "
+            f"{percent(evaluation.get('collision_rate'))} | "
+            f"{d.get('mean', math.nan):.4f} ± {d.get('std', math.nan):.4f}")
+
+
 def obstacles(report, root):
     report.add("## Obstacle avoidance", "")
     folder = root / "obstacles"
@@ -374,10 +382,7 @@ def obstacles(report, root):
         report.add("", "| obstacles | episodes | goal reached | collision | final distance (m) |",
                    "|---|---|---|---|---|")
         for k, e in evaluations:
-            d = e.get("final_distance") or {}
-            report.add(f"| {k} | {e['episodes']} | {percent(e['success_rate'])} | "
-                       f"{percent(e.get('collision_rate'))} | "
-                       f"{d.get('mean', math.nan):.4f} ± {d.get('std', math.nan):.4f} |")
+            report.add(f"| {k} | {e['episodes']} | {outcome_cells(e)} |")
         plot_trajectories(report, evaluations, "obstacles_rollouts.png",
                           "Obstacle avoidance: closed-loop rollouts (red: failed)")
     for k in (1, 2, 3):
@@ -390,8 +395,8 @@ def obstacles(report, root):
     generic_field = load(folder / "3-generic" / "field.json")
     if generic_eval is not None:
         report.add("", "The paper's generic model (3 obstacles, no radial contractions: the "
-                   "obstacle set enters only through the set encoder and the couplings' "
-                   "local features):", "")
+                   "obstacle set enters the couplings' conditioners only through the set "
+                   "encoder):", "")
         plot_trajectories(report, [("3 (generic)", generic_eval)],
                           "obstacles_generic_rollouts.png",
                           "Obstacle avoidance, generic INN: closed-loop rollouts (red: failed)")
@@ -406,10 +411,7 @@ def obstacles(report, root):
                    "| model | goal reached | collision | final distance (m) |",
                    "|---|---|---|---|")
         for name, e in three_models:
-            d = e.get("final_distance") or {}
-            report.add(f"| {name} | {percent(e['success_rate'])} | "
-                       f"{percent(e.get('collision_rate'))} | "
-                       f"{d.get('mean', math.nan):.4f} ± {d.get('std', math.nan):.4f} |")
+            report.add(f"| {name} | {outcome_cells(e)} |")
     collisions_by_geometry(report, three_models)
     if generic_field is not None:
         plot_field(report, generic_field, "obstacles_3_generic_field.png",
