@@ -71,10 +71,10 @@ LIMIT_CYCLE_FAMILIES = (("limit-cycle", 0, 1, "0;0.5;1"),
 # 1000 demonstrations, two epochs, the last kept: as good as 8+ CPU-minutes of longer
 # training on fewer (README "Obstacle avoidance"), in about 2.5 CPU-minutes.
 OBSTACLE_MODEL = ["--epochs", "2", "--keep", "last"]
-# The paper's model beside it, for 3 obstacles: the same recipe without the radial
+# The paper's model beside it, for each count: the same recipe without the radial
 # contractions, so the obstacle set enters the couplings' conditioners only through the
 # permutation-invariant set encoder (README "Obstacle avoidance").
-OBSTACLE_GENERIC = "3-generic"
+OBSTACLE_GENERIC = "generic"
 OBSTACLE_GENERIC_MODEL = [*OBSTACLE_MODEL, "--contraction-layers", "0"]
 # The behaviour-cloning MLP trained beside the 3-obstacle flow (`--baseline`), evaluated
 # on the same held-out episodes.
@@ -348,38 +348,37 @@ def plan(out: pathlib.Path) -> list[Job]:
                 jobs.append(Job(f"pouring-seed{seed}-closed-loop", [evaluate(
                     policy, *held_out, *extra, "--out", seeds / f"{mode}_seed{seed}.json")
                     for mode, extra in pouring_modes], after=[f"pouring-1.0-seed{seed}"]))
-    # Obstacle avoidance with 1, 2 and 3 obstacles (+ the unconstrained baseline for 3).
-    for k in OBSTACLE_COUNTS:
-        dataset, policy = data / f"obstacles-{k}", policies / f"obstacles-{k}"
-        results = exp / "obstacles" / str(k)
+    # Obstacle avoidance with 1, 2 and 3 obstacles, each by the default model and by the
+    # generic one (+ the unconstrained baseline for 3).
+    def obstacle_model(name, k, policy, *model):
+        results = exp / "obstacles" / name
         results.mkdir(parents=True, exist_ok=True)
-        # 3000 episodes through the Python recorder would take minutes of round trips;
-        # `ciflow demos` runs the same expert in-process and writes the same dataset.
-        jobs.append(Job(f"record-obstacles-{k}", [[
-            CIFLOW, "demos", "--task", "obstacle-avoidance", "--kwarg", f"obstacles={k}",
-            "--episodes", OBSTACLE_DEMOS, "--seed", 0, "--out", dataset, "--overwrite"]]))
-        baseline = ["--baseline"] if k == max(OBSTACLE_COUNTS) else []
-        jobs.append(Job(f"obstacles-{k}", [
+        dataset = data / f"obstacles-{k}"
+        return Job(f"obstacles-{name}", [
             [CIFLOW, "train", "--task", "obstacle-avoidance", "--demos", dataset, "--out",
-             policy, *OBSTACLE_MODEL, *baseline],
+             policy, *model],
             evaluate(policy, "--kwarg", f"obstacles={k}", "--episodes", EVALUATION_EPISODES,
                      "--seed", TEST_SEED, "--trajectories", 8, "--out", results / "eval.json"),
             evaluate(policy, "--kwarg", f"obstacles={k}", "--field", results / "field.json",
                      "--field-demos", dataset),
-        ], after=[f"record-obstacles-{k}"]))
+        ], after=[f"record-obstacles-{k}"])
+
+    for k in OBSTACLE_COUNTS:
+        policy = policies / f"obstacles-{k}"
+        # 3000 episodes through the Python recorder would take minutes of round trips;
+        # `ciflow demos` runs the same expert in-process and writes the same dataset.
+        jobs.append(Job(f"record-obstacles-{k}", [[
+            CIFLOW, "demos", "--task", "obstacle-avoidance", "--kwarg", f"obstacles={k}",
+            "--episodes", OBSTACLE_DEMOS, "--seed", 0, "--out", data / f"obstacles-{k}",
+            "--overwrite"]]))
+        with_baseline = ["--baseline"] if k == max(OBSTACLE_COUNTS) else []
+        jobs.append(obstacle_model(str(k), k, policy, *OBSTACLE_MODEL, *with_baseline))
         jobs.append(stability(f"obstacles-{k}-flow", policy, f"obstacles-{k}",
                               "--negative-control"))
+        jobs.append(obstacle_model(f"{k}-{OBSTACLE_GENERIC}", k,
+                                   policies / f"obstacles-{k}-{OBSTACLE_GENERIC}",
+                                   *OBSTACLE_GENERIC_MODEL))
     k = max(OBSTACLE_COUNTS)
-    policy, results = policies / f"obstacles-{OBSTACLE_GENERIC}", exp / "obstacles" / OBSTACLE_GENERIC
-    results.mkdir(parents=True, exist_ok=True)
-    jobs.append(Job(f"obstacles-{OBSTACLE_GENERIC}", [
-        [CIFLOW, "train", "--task", "obstacle-avoidance", "--demos", data / f"obstacles-{k}",
-         "--out", policy, *OBSTACLE_GENERIC_MODEL],
-        evaluate(policy, "--kwarg", f"obstacles={k}", "--episodes", EVALUATION_EPISODES,
-                 "--seed", TEST_SEED, "--trajectories", 8, "--out", results / "eval.json"),
-        evaluate(policy, "--kwarg", f"obstacles={k}", "--field", results / "field.json",
-                 "--field-demos", data / f"obstacles-{k}"),
-    ], after=[f"record-obstacles-{k}"]))
     baseline, results = policies / f"obstacles-{k}" / "baseline", exp / "obstacles" / OBSTACLE_BASELINE
     results.mkdir(parents=True, exist_ok=True)
     # The unconstrained control on the flows' held-out episodes: what stability costs.

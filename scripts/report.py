@@ -36,8 +36,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-# Targets of issues 6 and 15.
-OBSTACLE_GOAL_TARGET = 0.95
+# Targets of issues 6, 13 and 15. Obstacles: goal reached over the held-out contexts, by
+# obstacle count.
+OBSTACLE_GOAL_TARGETS = {1: 0.98, 2: 0.98, 3: 0.95}
 # Pouring: success without and under pushes, recovery within the deadline, success with
 # the pot moved mid-motion (issue 15 raised the push figures from 80 %).
 POURING_TARGET = 0.90
@@ -391,15 +392,20 @@ def obstacles(report, root):
             plot_field(report, field, f"obstacles_{k}_field.png",
                        f"{k} obstacle(s): learned field and deformation of a latent grid",
                        obstacles=True)
-    generic_eval = load(folder / "3-generic" / "eval.json")
-    generic_field = load(folder / "3-generic" / "field.json")
-    if generic_eval is not None:
-        report.add("", "The paper's generic model (3 obstacles, no radial contractions: the "
-                   "obstacle set enters the couplings' conditioners only through the set "
-                   "encoder):", "")
-        plot_trajectories(report, [("3 (generic)", generic_eval)],
-                          "obstacles_generic_rollouts.png",
+    generic = [(k, e) for k in (1, 2, 3)
+               if (e := load(folder / f"{k}-generic" / "eval.json")) is not None]
+    if generic:
+        report.add("", "The paper's generic model (no radial contractions: the obstacle set "
+                   "enters the couplings' conditioners only through the set encoder), on the "
+                   "same episodes:", "",
+                   "| obstacles | episodes | goal reached | collision | final distance (m) |",
+                   "|---|---|---|---|---|")
+        for k, e in generic:
+            report.add(f"| {k} | {e['episodes']} | {outcome_cells(e)} |")
+        plot_trajectories(report, generic, "obstacles_generic_rollouts.png",
                           "Obstacle avoidance, generic INN: closed-loop rollouts (red: failed)")
+    generic_eval = dict(generic).get(3)
+    generic_field = load(folder / "3-generic" / "field.json")
     baseline_eval = load(folder / "3-baseline" / "eval.json")
     three_models = [(name, e) for name, e in
                     (("3 obstacles, radial contractions", dict(evaluations).get(3)),
@@ -417,17 +423,18 @@ def obstacles(report, root):
         plot_field(report, generic_field, "obstacles_3_generic_field.png",
                    "3 obstacles, generic INN: learned field and deformation of a latent grid",
                    obstacles=True)
-    three = dict(evaluations).get(3)
     report.add("", "| target | measured | required | |", "|---|---|---|---|")
-    for what, evaluation in (("goal reached, 3 obstacles", three),
-                             ("goal reached, 3 obstacles, generic INN", generic_eval)):
-        if evaluation is None:
-            report.add(f"| {what} | not run | ≥ {OBSTACLE_GOAL_TARGET:.0%} | — |")
-        else:
+    for k, target in OBSTACLE_GOAL_TARGETS.items():
+        for model, results in (("", evaluations), (", generic INN", generic)):
+            what = f"goal reached, {k} obstacle{'s' if k > 1 else ''}{model}"
+            evaluation = dict(results).get(k)
+            if evaluation is None:
+                report.add(f"| {what} | not run | ≥ {target:.0%} | — |")
+                continue
             rate = evaluation["success_rate"]
             report.target(what, f"{percent(rate)} (collisions "
                           f"{percent(evaluation.get('collision_rate'))})",
-                          f"≥ {OBSTACLE_GOAL_TARGET:.0%}", rate >= OBSTACLE_GOAL_TARGET)
+                          f"≥ {target:.0%}", rate >= target)
     report.add("")
 
 

@@ -75,8 +75,13 @@ def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
         written = [str(arg) for command in reach[f"reach-{arm}"].commands for arg in command]
         assert str(tmp_path / "experiments" / "reach" / f"{arm}.json") in written
         assert str(tmp_path / "experiments" / "reach" / f"{arm}-expert.json") in written
-    # The unconstrained control is evaluated where the report's obstacle section reads it.
-    control = next(job for job in jobs if job.name == "obstacles-3-baseline")
-    written = [str(arg) for command in control.commands for arg in command]
-    assert str(tmp_path / "experiments" / "obstacles" / "3-baseline" / "eval.json") in written
+    # Each obstacle model is evaluated where the report's obstacle section reads it.
+    obstacle_files = {"obstacles-3-baseline": "3-baseline/eval.json",
+                      "obstacles-1-generic": "1-generic/eval.json",
+                      "obstacles-2-generic": "2-generic/eval.json",
+                      "obstacles-3-generic": "3-generic/field.json"}
+    for name, file in obstacle_files.items():
+        job = next(job for job in jobs if job.name == name)
+        written = [str(arg) for command in job.commands for arg in command]
+        assert str(tmp_path / "experiments" / "obstacles" / file) in written, name
     assert all(set(job.after) <= names for job in jobs)

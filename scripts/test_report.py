@@ -79,6 +79,7 @@ def experiments(tmp_path):
                   {"per_transition": value - offset})
     write(root / "obstacles" / "3" / "eval.json", evaluation(0.96, 100, {"mode": "none"}))
     write(root / "obstacles" / "3-generic" / "eval.json", evaluation(0.7, 100, {"mode": "none"}))
+    write(root / "obstacles" / "1-generic" / "eval.json", evaluation(0.99, 100, {"mode": "none"}))
     write(root / "obstacles" / "3-generic" / "field.json", field_json([[0.0, 0.3, 0.8, -0.1]]))
     baseline = evaluation(0.5, 100, {"mode": "none"})
     baseline["collision_rate"] = 0.25
@@ -158,6 +159,14 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert "| goal reached, 3 obstacles | 96.0% (collisions 0.0%) | ≥ 95% | **pass** |" in text
     assert ("| goal reached, 3 obstacles, generic INN | 70.0% (collisions 0.0%) | ≥ 95% | "
             "**FAIL** |") in text
+    # One obstacle asks for 98%: 99% passes; without a file the line says "not run".
+    assert ("| goal reached, 1 obstacle, generic INN | 99.0% (collisions 0.0%) | ≥ 98% | "
+            "**pass** |") in text
+    assert "| goal reached, 2 obstacles, generic INN | not run | ≥ 98% | — |" in text
+    assert "| goal reached, 1 obstacle | not run | ≥ 98% | — |" in text
+    generic = text[text.index("The paper's generic model"):]
+    assert "| 1 | 100 | 99.0% | 0.0% | 0.0100 ± 0.0020 |" in generic
+    assert "| 3 | 100 | 70.0% | 0.0% | 0.0100 ± 0.0020 |" in generic
     assert "| success, no perturbation (100 contexts) | 85.0% | ≥ 90% | **FAIL** |" in text
     assert "| push displacement (min over episodes) | 5.5 cm | ≥ 5 cm | **pass** |" in text
     assert ("| success under pushes (10 episodes) | 80.0% (expert 100.0%) | ≥ 90% | **FAIL** |"
