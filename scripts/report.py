@@ -343,8 +343,9 @@ def collisions_by_geometry(report, evaluations):
         return " | ".join(f"{sum(c)} of {len(c)}" for c in counts)
 
     def classified(results, hit):
-        return [(geometry_class(straight_line_clearance(r["start"], r["context"])), hit(r))
-                for r in results]
+        """`(class, hit(result, clearance))` per result."""
+        clearances = (straight_line_clearance(r["start"], r["context"]) for r in results)
+        return [(geometry_class(c), hit(r, c)) for r, c in zip(results, clearances)]
 
     report.add("", "Collisions by where the obstacles sit: the nearest obstacle centre's "
                f"distance from the straight start-target line (head-on: under "
@@ -354,11 +355,11 @@ def collisions_by_geometry(report, evaluations):
                "centre.", "",
                "| motion | " + " | ".join(names) + " | all |",
                "|---|" + "---|" * (len(names) + 1))
-    straight = classified(rows[0][1], lambda r: straight_line_clearance(
-        r["start"], r["context"]) < OBSTACLE_RADIUS)
+    straight = classified(rows[0][1], lambda _, clearance: clearance < OBSTACLE_RADIUS)
     report.add(f"| straight start-target line (no avoidance) | {cells(straight)} |")
     for name, results in rows:
-        report.add(f"| {name} | {cells(classified(results, lambda r: bool(r.get('collision'))))} |")
+        collided = classified(results, lambda r, _: bool(r.get("collision")))
+        report.add(f"| {name} | {cells(collided)} |")
 
 
 def outcome_cells(evaluation):
@@ -367,6 +368,16 @@ def outcome_cells(evaluation):
     return (f"{percent(evaluation['success_rate'])} | "
             f"{percent(evaluation.get('collision_rate'))} | "
             f"{d.get('mean', math.nan):.4f} ± {d.get('std', math.nan):.4f}")
+
+
+def per_count_table(report, evaluations, figure, title):
+    """A model's evaluations by obstacle count, `[(k, evaluation)]`: a table and the
+    rollouts' figure."""
+    report.add("", "| obstacles | episodes | goal reached | collision | final distance (m) |",
+               "|---|---|---|---|---|")
+    for k, e in evaluations:
+        report.add(f"| {k} | {e['episodes']} | {outcome_cells(e)} |")
+    plot_trajectories(report, evaluations, figure, title)
 
 
 def obstacles(report, root):
@@ -380,12 +391,8 @@ def obstacles(report, root):
         else:
             evaluations.append((k, evaluation))
     if evaluations:
-        report.add("", "| obstacles | episodes | goal reached | collision | final distance (m) |",
-                   "|---|---|---|---|---|")
-        for k, e in evaluations:
-            report.add(f"| {k} | {e['episodes']} | {outcome_cells(e)} |")
-        plot_trajectories(report, evaluations, "obstacles_rollouts.png",
-                          "Obstacle avoidance: closed-loop rollouts (red: failed)")
+        per_count_table(report, evaluations, "obstacles_rollouts.png",
+                        "Obstacle avoidance: closed-loop rollouts (red: failed)")
     for k in (1, 2, 3):
         field = load(folder / str(k) / "field.json")
         if field is not None:
@@ -397,19 +404,15 @@ def obstacles(report, root):
     if generic:
         report.add("", "The paper's generic model (no radial contractions: the obstacle set "
                    "enters the couplings' conditioners only through the set encoder), on the "
-                   "same episodes:", "",
-                   "| obstacles | episodes | goal reached | collision | final distance (m) |",
-                   "|---|---|---|---|---|")
-        for k, e in generic:
-            report.add(f"| {k} | {e['episodes']} | {outcome_cells(e)} |")
-        plot_trajectories(report, generic, "obstacles_generic_rollouts.png",
-                          "Obstacle avoidance, generic INN: closed-loop rollouts (red: failed)")
-    generic_eval = dict(generic).get(3)
+                   "same episodes:")
+        per_count_table(report, generic, "obstacles_generic_rollouts.png",
+                        "Obstacle avoidance, generic INN: closed-loop rollouts (red: failed)")
+    radial, generic = dict(evaluations), dict(generic)
     generic_field = load(folder / "3-generic" / "field.json")
     baseline_eval = load(folder / "3-baseline" / "eval.json")
     three_models = [(name, e) for name, e in
-                    (("3 obstacles, radial contractions", dict(evaluations).get(3)),
-                     ("3 obstacles, generic INN", generic_eval),
+                    (("3 obstacles, radial contractions", radial.get(3)),
+                     ("3 obstacles, generic INN", generic.get(3)),
                      ("3 obstacles, unconstrained MLP (control)", baseline_eval))
                     if e is not None]
     if len(three_models) > 1:
@@ -425,9 +428,9 @@ def obstacles(report, root):
                    obstacles=True)
     report.add("", "| target | measured | required | |", "|---|---|---|---|")
     for k, target in OBSTACLE_GOAL_TARGETS.items():
-        for model, results in (("", evaluations), (", generic INN", generic)):
+        for model, results in (("", radial), (", generic INN", generic)):
             what = f"goal reached, {k} obstacle{'s' if k > 1 else ''}{model}"
-            evaluation = dict(results).get(k)
+            evaluation = results.get(k)
             if evaluation is None:
                 report.add(f"| {what} | not run | ≥ {target:.0%} | — |")
                 continue

@@ -64,8 +64,8 @@ def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
     jobs = demo.plan(tmp_path)
     names = {job.name for job in jobs}
     for name in ("pouring-record-train", "pouring-perturb", "pouring-push", "pouring-context",
-                 "obstacles-3", "obstacles-3-baseline", "stability-obstacles-3-baseline", "limit-cycle-field",
-                 "limit-cycle-10-seed2", "pouring-0.1-seed2", "pouring-joint-range-push",
+                 "obstacles-3", "obstacles-3-baseline", "stability-obstacles-3-baseline",
+                 "limit-cycle-field", "limit-cycle-10-seed2", "pouring-0.1-seed2", "pouring-joint-range-push",
                  "robot-loop-flow", "robot-loop-joint-range-pushed", "reach-ur5e",
                  "reach-iiwa14"):
         assert name in names
