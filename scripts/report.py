@@ -12,7 +12,7 @@ Layout of EXPERIMENTS_DIR (every file optional: a missing one gives a "not run" 
     obstacles/<K>/eval.json           ciflow evaluate --kwarg obstacles=K --episodes 100+
                                       --trajectories 8 (K = 1, 2, 3)
     obstacles/<K>/field.json          ciflow evaluate --field (optional latent-grid figure)
-    obstacles/3-generic/{eval,field}.json  the same for the generic INN (no contractions)
+    obstacles/<K>-generic/{eval,field}.json  the same for the generic INN (no contractions)
     pouring/nll/<F>_seed<S>_train.json, <F>_seed<S>_test.json   (F: fraction of the demos)
     pouring/eval.json                 ciflow evaluate (no perturbation), 100 episodes
     pouring/push.json                 ciflow evaluate --perturb push
@@ -380,6 +380,17 @@ def per_count_table(report, evaluations, figure, title):
     plot_trajectories(report, evaluations, figure, title)
 
 
+def fields_by_count(report, folder, suffix="", label=""):
+    """The learned field and latent-grid figure of each obstacle count whose model folder
+    `<K><suffix>` has a field file, captioned `<K> obstacle(s)<label>`."""
+    for k in (1, 2, 3):
+        field = load(folder / f"{k}{suffix}" / "field.json")
+        if field is not None:
+            plot_field(report, field, f"obstacles_{k}{suffix.replace('-', '_')}_field.png",
+                       f"{k} obstacle(s){label}: learned field and deformation of a latent "
+                       "grid", obstacles=True)
+
+
 def obstacles(report, root):
     report.add("## Obstacle avoidance", "")
     folder = root / "obstacles"
@@ -393,12 +404,7 @@ def obstacles(report, root):
     if evaluations:
         per_count_table(report, evaluations, "obstacles_rollouts.png",
                         "Obstacle avoidance: closed-loop rollouts (red: failed)")
-    for k in (1, 2, 3):
-        field = load(folder / str(k) / "field.json")
-        if field is not None:
-            plot_field(report, field, f"obstacles_{k}_field.png",
-                       f"{k} obstacle(s): learned field and deformation of a latent grid",
-                       obstacles=True)
+    fields_by_count(report, folder)
     generic = [(k, e) for k in (1, 2, 3)
                if (e := load(folder / f"{k}-generic" / "eval.json")) is not None]
     if generic:
@@ -408,7 +414,6 @@ def obstacles(report, root):
         per_count_table(report, generic, "obstacles_generic_rollouts.png",
                         "Obstacle avoidance, generic INN: closed-loop rollouts (red: failed)")
     radial, generic = dict(evaluations), dict(generic)
-    generic_field = load(folder / "3-generic" / "field.json")
     baseline_eval = load(folder / "3-baseline" / "eval.json")
     three_models = [(name, e) for name, e in
                     (("3 obstacles, radial contractions", radial.get(3)),
@@ -422,10 +427,7 @@ def obstacles(report, root):
         for name, e in three_models:
             report.add(f"| {name} | {outcome_cells(e)} |")
     collisions_by_geometry(report, three_models)
-    if generic_field is not None:
-        plot_field(report, generic_field, "obstacles_3_generic_field.png",
-                   "3 obstacles, generic INN: learned field and deformation of a latent grid",
-                   obstacles=True)
+    fields_by_count(report, folder, "-generic", ", generic INN")
     report.add("", "| target | measured | required | |", "|---|---|---|---|")
     for k, target in OBSTACLE_GOAL_TARGETS.items():
         for model, results in (("", radial), (", generic INN", generic)):

@@ -81,6 +81,7 @@ def experiments(tmp_path):
     write(root / "obstacles" / "3-generic" / "eval.json", evaluation(0.7, 100, {"mode": "none"}))
     write(root / "obstacles" / "1-generic" / "eval.json", evaluation(0.99, 100, {"mode": "none"}))
     write(root / "obstacles" / "3-generic" / "field.json", field_json([[0.0, 0.3, 0.8, -0.1]]))
+    write(root / "obstacles" / "1-generic" / "field.json", field_json([[0.0, 0.3, 0.8, -0.1]]))
     baseline = evaluation(0.5, 100, {"mode": "none"})
     baseline["collision_rate"] = 0.25
     write(root / "obstacles" / "3-baseline" / "eval.json", baseline)
@@ -201,6 +202,7 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     for name in ("limit_cycle_field.png", "limit_cycle_nll.png", "limit_cycle_curled_nll.png",
                  "obstacles_rollouts.png",
                  "obstacles_generic_rollouts.png", "obstacles_3_generic_field.png",
+                 "obstacles_1_generic_field.png",
                  "pouring_push.png", "pouring_script_run.png", "stability.png",
                  "joint_limits.png"):
         assert (figures / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
