@@ -13,6 +13,9 @@ Layout of EXPERIMENTS_DIR (every file optional: a missing one gives a "not run" 
                                       --trajectories 8 (K = 1, 2, 3)
     obstacles/<K>/field.json          ciflow evaluate --field (optional latent-grid figure)
     obstacles/<K>-generic/{eval,field}.json  the same for the generic INN (no contractions)
+    obstacles/<K>[-generic]/eval_demos.json, obstacles/3-baseline/eval_demos.json
+                                      ciflow evaluate on the demonstrations' own episodes
+                                      (the recording's seeds: its contexts and starts)
     pouring/nll/<F>_seed<S>_train.json, <F>_seed<S>_test.json   (F: fraction of the demos)
     pouring/eval.json                 ciflow evaluate (no perturbation), 100 episodes
     pouring/push.json                 ciflow evaluate --perturb push
@@ -39,6 +42,8 @@ import numpy as np  # noqa: E402
 # Targets of issues 6, 13 and 15. Obstacles: goal reached over the held-out contexts, by
 # obstacle count.
 OBSTACLE_GOAL_TARGETS = {1: 0.98, 2: 0.98, 3: 0.95}
+# ... and at most this share of collisions (issue 13 states it for 3 obstacles).
+OBSTACLE_COLLISION_TARGETS = {3: 0.01}
 # Pouring: success without and under pushes, recovery within the deadline, success with
 # the pot moved mid-motion (issue 15 raised the push figures from 80 %).
 POURING_TARGET = 0.90
@@ -427,20 +432,49 @@ def obstacles(report, root):
         for name, e in three_models:
             report.add(f"| {name} | {outcome_cells(e)} |")
     collisions_by_geometry(report, three_models)
+    held_out_and_demonstrated(report, folder)
     fields_by_count(report, folder, "-generic", ", generic INN")
     report.add("", "| target | measured | required | |", "|---|---|---|---|")
     for k, target in OBSTACLE_GOAL_TARGETS.items():
         for model, results in (("", radial), (", generic INN", generic)):
-            what = f"goal reached, {k} obstacle{'s' if k > 1 else ''}{model}"
+            obstacles = f"{k} obstacle{'s' if k > 1 else ''}{model}"
             evaluation = results.get(k)
             if evaluation is None:
-                report.add(f"| {what} | not run | ≥ {target:.0%} | — |")
+                report.add(f"| goal reached, {obstacles} | not run | ≥ {target:.0%} | — |")
                 continue
-            rate = evaluation["success_rate"]
-            report.target(what, f"{percent(rate)} (collisions "
-                          f"{percent(evaluation.get('collision_rate'))})",
+            rate, collisions = evaluation["success_rate"], evaluation.get("collision_rate")
+            report.target(f"goal reached, {obstacles}",
+                          f"{percent(rate)} (collisions {percent(collisions)})",
                           f"≥ {target:.0%}", rate >= target)
+            if k in OBSTACLE_COLLISION_TARGETS:
+                limit = OBSTACLE_COLLISION_TARGETS[k]
+                report.target(f"collisions, {obstacles}",
+                              f"{percent(collisions)} of {evaluation['episodes']} episodes",
+                              f"≤ {limit:.0%}", collisions is not None and collisions <= limit)
     report.add("")
+
+
+def held_out_and_demonstrated(report, folder):
+    """Each obstacle model on the held-out episodes beside the demonstrations' own (the
+    recording's contexts and starts, where the expert never collides): a model that fails
+    on both does not fit its data, one that fails only on the first does not generalise."""
+    models = [(f"{k} obstacle{'s' if k > 1 else ''}{label}", folder / f"{k}{suffix}")
+              for suffix, label in (("", ", radial contractions"), ("-generic", ", generic INN"))
+              for k in (1, 2, 3)]
+    models.append(("3 obstacles, unconstrained MLP (control)", folder / "3-baseline"))
+    rows = [(name, held_out, demonstrated) for name, results in models
+            if (held_out := load(results / "eval.json")) is not None
+            and (demonstrated := load(results / "eval_demos.json")) is not None]
+    if not rows:
+        return
+    report.add("", "Held-out episodes beside the demonstrations' own (the contexts and starts "
+               "the model was trained on):", "",
+               "| model | held-out: goal reached | collision | demonstrations' own: goal "
+               "reached | collision |", "|---|---|---|---|---|")
+    for name, held_out, demonstrated in rows:
+        cells = [f"{percent(e['success_rate'])} of {e['episodes']} | "
+                 f"{percent(e.get('collision_rate'))}" for e in (held_out, demonstrated)]
+        report.add(f"| {name} | {' | '.join(cells)} |")
 
 
 SEED_FILE = re.compile(r"^(?P<mode>eval|push|context)_seed(?P<seed>[0-9]+)\.json$")

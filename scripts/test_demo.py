@@ -84,4 +84,14 @@ def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
         job = next(job for job in jobs if job.name == name)
         written = [str(arg) for command in job.commands for arg in command]
         assert str(tmp_path / "experiments" / "obstacles" / file) in written, name
+    # Every obstacle model also runs on the demonstrations' own episodes: the recording's
+    # seed and episode count, so the same contexts and starts.
+    record = next(job for job in jobs if job.name == "record-obstacles-3").commands[0]
+    recorded = (record[record.index("--seed") + 1], record[record.index("--episodes") + 1])
+    for name in ("obstacles-1", "obstacles-3-generic", "obstacles-3-baseline"):
+        job = next(job for job in jobs if job.name == name)
+        command = next(c for c in job.commands if any(str(a).endswith("eval_demos.json")
+                                                      for a in c))
+        assert (command[command.index("--seed") + 1],
+                command[command.index("--episodes") + 1]) == recorded, name
     assert all(set(job.after) <= names for job in jobs)

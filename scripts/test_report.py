@@ -85,6 +85,12 @@ def experiments(tmp_path):
     baseline = evaluation(0.5, 100, {"mode": "none"})
     baseline["collision_rate"] = 0.25
     write(root / "obstacles" / "3-baseline" / "eval.json", baseline)
+    # On the demonstrations' own episodes: the generic model and the control; the radial
+    # model without this file gets no row.
+    demonstrated = evaluation(0.6, 1000, {"mode": "none"})
+    demonstrated["collision_rate"] = 0.4
+    write(root / "obstacles" / "3-generic" / "eval_demos.json", demonstrated)
+    write(root / "obstacles" / "3-baseline" / "eval_demos.json", demonstrated)
     write(root / "pouring" / "eval.json", evaluation(0.85, 100, {"mode": "none"}))
     push = {
         "required_displacement": 0.05,
@@ -184,6 +190,14 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert ("| 3 obstacles, unconstrained MLP (control) | 0 of 0 | 0 of 0 | 0 of 100 | "
             "0 of 100 |") in text
     assert "pot moved mid-motion: not run" in text
+    # Held-out beside the demonstrations' own episodes, for the models that have both.
+    assert ("| 3 obstacles, generic INN | 70.0% of 100 | 0.0% | 60.0% of 1000 | 40.0% |"
+            in text)
+    assert ("| 3 obstacles, unconstrained MLP (control) | 50.0% of 100 | 25.0% | 60.0% of 1000 | "
+            "40.0% |") in text
+    assert "| 3 obstacles, radial contractions | 96.0% of 100 |" not in text
+    # The collision target: met by the radial model's 0 of 100; a rate above 1% fails.
+    assert "| collisions, 3 obstacles | 0.0% of 100 episodes | ≤ 1% | **pass** |" in text
     assert ("| pouring-flow | training box | 100.0% | 100.0% / 100.0% / 100.0% | 50 | 0 | 0 | "
             "100.0% of 40 | 95.0% of 20 |") in text
     assert ("| pouring-flow | up to 10.0× outside | 98.0% | 98.0% / 98.0% / 98.0% | 50 | 1 | 0 "
@@ -232,6 +246,16 @@ def test_collisions_are_classed_by_where_the_obstacles_sit(tmp_path):
         in text
     assert "| model | 1 of 1 | 0 of 1 | 0 of 1 | 1 of 3 |" in text
     assert "older file" not in text
+
+
+def test_more_than_one_percent_collisions_fails_the_three_obstacle_target(tmp_path):
+    root = tmp_path / "experiments"
+    radial = evaluation(0.989, 1000, {"mode": "none"})
+    radial["collision_rate"] = 0.011
+    write(root / "obstacles" / "3" / "eval.json", radial)
+    text = report.build(root, tmp_path / "report.md").read_text()
+    assert "| goal reached, 3 obstacles | 98.9% (collisions 1.1%) | ≥ 95% | **pass** |" in text
+    assert "| collisions, 3 obstacles | 1.1% of 1000 episodes | ≤ 1% | **FAIL** |" in text
 
 
 def test_an_empty_directory_gives_not_run_lines(tmp_path):

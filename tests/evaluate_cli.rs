@@ -24,11 +24,16 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
     let (demos, policy) = small_obstacle_policy(&scratch);
     let kwargs = ["--kwarg", "obstacles=1"];
     // By default the policy contracts about the obstacle centre (`flow::radial`) with
-    // the task's 8 layers.
+    // the task's layers.
     let config = json(&format!("{policy}/config.json"));
     let contractions = &config["contractions"];
+    let recipe = ciflow_envs::recipes::obstacle_avoidance("obstacle-avoidance", 4).unwrap();
     assert_eq!(contractions["centres"]["count"], 1, "{config}");
-    assert_eq!(contractions["layers"], 8, "{config}");
+    assert_eq!(
+        contractions["layers"],
+        recipe.contractions.unwrap().layers,
+        "{config}"
+    );
 
     let episodes = scratch.arg("experiments/obstacles/1/eval.json");
     succeed(

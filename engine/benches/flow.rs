@@ -10,8 +10,8 @@
 //!
 //! Also both at the obstacle-avoidance size (d = 2, 3 obstacles + target, 6 spline
 //! layers) with and without the radial contractions about the obstacles, side by side:
-//! their cost is the eight layers' iterative inverses in the forward pass (the layer count
-//! `ciflow train` gives obstacle avoidance).
+//! their cost is the eight layers' iterative inverses in the forward pass (the layer
+//! count `ciflow train` gives obstacle avoidance, `envs/src/recipes.rs`).
 
 use std::hint::black_box;
 

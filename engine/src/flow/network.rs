@@ -287,10 +287,7 @@ impl ConditionalFlow {
     /// `y ← R(P_c⁻¹(μ_y + σ_y ⊙ x))`, the output of `g` to the observation; returns
     /// `log|det ∂(R ∘ P_c⁻¹)/∂u|`.
     fn leave<S: Scalar>(&self, x: &mut [S], conditioning: &Conditioning) -> S {
-        let norm = &self.config.normalisation;
-        for (i, xi) in x.iter_mut().enumerate() {
-            *xi = *xi * norm.state_std[i] + norm.state_mean[i];
-        }
+        self.unnormalise_state(x);
         let log_det = match &self.contractions {
             Some(contractions) => contractions.invert(&conditioning.centres, x),
             None => S::constant(0.0),
@@ -298,6 +295,34 @@ impl ConditionalFlow {
         match &self.config.joint_range {
             Some(range) => log_det + range.apply(x),
             None => log_det,
+        }
+    }
+
+    /// [`leave`](Self::leave) without the log-determinant, for the tangent and
+    /// second-order passes, which have no use for it (the contractions' would cost another
+    /// `P` and `J` per layer). `near`: the recorded pass that `x` is close to, whose points
+    /// start the contractions' root searches.
+    fn leave_point<S: Scalar>(
+        &self,
+        x: &mut [S],
+        conditioning: &Conditioning,
+        near: Option<&FlowTape>,
+    ) {
+        self.unnormalise_state(x);
+        if let Some(contractions) = &self.contractions {
+            let near = near.map(|tape| &tape.contraction);
+            contractions.invert_point(&conditioning.centres, x, near);
+        }
+        if let Some(range) = &self.config.joint_range {
+            range.apply(x);
+        }
+    }
+
+    /// `x ← μ_y + σ_y ⊙ x`.
+    fn unnormalise_state<S: Scalar>(&self, x: &mut [S]) {
+        let norm = &self.config.normalisation;
+        for (i, xi) in x.iter_mut().enumerate() {
+            *xi = *xi * norm.state_std[i] + norm.state_mean[i];
         }
     }
 
@@ -327,13 +352,7 @@ impl ConditionalFlow {
         tape: &mut FlowTape,
     ) {
         z.copy_from_slice(y);
-        if let Some(range) = &self.config.joint_range {
-            range.invert(z, Some(&mut tape.joint_range));
-        }
-        if let Some(contractions) = &self.contractions {
-            contractions.apply_recorded(&conditioning.centres, z, &mut tape.contraction);
-        }
-        self.normalise_state(z);
+        self.enter_recorded(z, conditioning, tape);
         self.g_inverse_recorded(z, conditioning, scratch, tape);
         self.unanchor(z, conditioning);
     }
@@ -349,7 +368,7 @@ impl ConditionalFlow {
         tape: &mut FlowTape,
     ) {
         z.copy_from_slice(y);
-        self.enter(z, conditioning);
+        self.enter_recorded(z, conditioning, tape);
         self.g_inverse_recorded(z, conditioning, scratch, tape);
         self.unanchor(z, conditioning);
     }
@@ -374,7 +393,8 @@ impl ConditionalFlow {
             mixing.forward(y, &mut scratch.state_second);
             coupling.forward_second(y, record, scratch);
         }
-        self.leave(y, conditioning);
+        // `z` is the recorded pass's own latent point, so its roots are the recorded ones.
+        self.leave_point(y, conditioning, Some(tape));
     }
 
     /// `x ← (P_c(R⁻¹(x)) - μ_y) ⊘ σ_y`, an observation to the input of `g⁻¹`; returns
@@ -390,6 +410,24 @@ impl ConditionalFlow {
         };
         self.normalise_state(x);
         log_det
+    }
+
+    /// [`enter`](Self::enter) without the log-determinant, recording what the passes back
+    /// through the same point need: the joint range's coordinates and the contractions'
+    /// points.
+    fn enter_recorded<S: Scalar>(
+        &self,
+        x: &mut [S],
+        conditioning: &Conditioning,
+        tape: &mut FlowTape,
+    ) {
+        if let Some(range) = &self.config.joint_range {
+            range.invert(x, Some(&mut tape.joint_range));
+        }
+        if let Some(contractions) = &self.contractions {
+            contractions.apply_recorded(&conditioning.centres, x, &mut tape.contraction);
+        }
+        self.normalise_state(x);
     }
 
     /// `x ← (x - μ_y) ⊘ σ_y`.
@@ -439,7 +477,7 @@ impl ConditionalFlow {
             *y = z + a;
         }
         self.sweep(tape, dz, scratch, dy, Some((y_other, conditioning)));
-        self.leave(y_other, conditioning);
+        self.leave_point(y_other, conditioning, None);
     }
 
     /// `dy ← J_R J_{P⁻¹} (σ_y ⊙ J_g dz)` and, when given, `x ← g(x, c̃)`.

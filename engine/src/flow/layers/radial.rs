@@ -126,11 +126,10 @@ struct Symmetric<S> {
 }
 
 impl<S: Scalar> Symmetric<S> {
-    /// Factors `A = L D Lᵀ` (unit lower `L` below the diagonal, `D` on it); returns
-    /// `log det A`. `A` is positive definite here (`J ⪰ (1 − α) I`), so no pivoting.
-    fn factor(&mut self) -> S {
+    /// Factors `A = L D Lᵀ` (unit lower `L` below the diagonal, `D` on it). `A` is
+    /// positive definite here (`J ⪰ (1 − α) I`), so no pivoting.
+    fn factor(&mut self) {
         let d = self.d;
-        let mut log_det = S::constant(0.0);
         for j in 0..d {
             for k in 0..j {
                 let ljk_dk = self.a[j][k] * self.a[k][k];
@@ -142,13 +141,23 @@ impl<S: Scalar> Symmetric<S> {
             for i in j + 1..d {
                 self.a[i][j] = self.a[i][j] / pivot;
             }
-            log_det += pivot.ln();
         }
-        log_det
     }
 
-    /// `b ← A⁻¹ b` after [`factor`](Self::factor).
-    fn solve(&self, b: &mut [S]) {
+    /// `log det A = log Π D_jj` after [`factor`](Self::factor): one logarithm, not one
+    /// per pivot (the pivots lie in `[1 − α, 1 + …]`, so their product cannot overflow),
+    /// and none where only a solve is wanted.
+    fn log_det(&self) -> S {
+        (1..self.d)
+            .fold(self.a[0][0], |product, j| product * self.a[j][j])
+            .ln()
+    }
+}
+
+impl Symmetric<f64> {
+    /// `b ← A⁻¹ b` after [`factor`](Self::factor), for a right-hand side in any scalar
+    /// type (each of its components solved with the same factors).
+    fn solve<T: Scalar>(&self, b: &mut [T]) {
         let d = self.d;
         for i in 0..d {
             for k in 0..i {
@@ -156,7 +165,7 @@ impl<S: Scalar> Symmetric<S> {
             }
         }
         for (i, bi) in b.iter_mut().enumerate().take(d) {
-            *bi = *bi / self.a[i][i];
+            *bi = *bi * (1.0 / self.a[i][i]);
         }
         for i in (0..d).rev() {
             for k in i + 1..d {
@@ -181,13 +190,7 @@ fn layer<S: Scalar>(profile: &Profile, centres: &[f64], y: &[S], out: &mut [S]) 
     out.copy_from_slice(y);
     let mut diagonal = S::constant(1.0);
     for centre in centres.chunks_exact(d) {
-        let mut v = [S::constant(0.0); MAX_CENTRE_DIM];
-        for (vi, (&yi, &o)) in v.iter_mut().zip(y.iter().zip(centre)) {
-            *vi = yi + (-o);
-        }
-        let q = v[..d]
-            .iter()
-            .fold(S::constant(0.0), |acc, &vi| acc + vi * vi);
+        let (v, q) = offset(y, centre);
         let (pull, slope) = profile.pull(q);
         diagonal = diagonal - pull;
         let twice_slope = slope * 2.0;
@@ -202,6 +205,31 @@ fn layer<S: Scalar>(profile: &Profile, centres: &[f64], y: &[S], out: &mut [S]) 
         jacobian.a[i][i] += diagonal;
     }
     jacobian
+}
+
+/// `P(y)` of one layer into `out`, without the Jacobian [`layer`] also forms.
+fn image<S: Scalar>(profile: &Profile, centres: &[f64], y: &[S], out: &mut [S]) {
+    out.copy_from_slice(y);
+    for centre in centres.chunks_exact(y.len()) {
+        let (v, q) = offset(y, centre);
+        let (pull, _) = profile.pull(q);
+        for (o, &vi) in out.iter_mut().zip(&v) {
+            *o = *o - pull * vi;
+        }
+    }
+}
+
+/// `v = y − o` and `q = ‖v‖²` for the centre `o`.
+#[inline(always)]
+fn offset<S: Scalar>(y: &[S], centre: &[f64]) -> ([S; MAX_CENTRE_DIM], S) {
+    let mut v = [S::constant(0.0); MAX_CENTRE_DIM];
+    for (vi, (&yi, &o)) in v.iter_mut().zip(y.iter().zip(centre)) {
+        *vi = yi + (-o);
+    }
+    let q = v[..y.len()]
+        .iter()
+        .fold(S::constant(0.0), |acc, &vi| acc + vi * vi);
+    (v, q)
 }
 
 /// `P_c` of a trained flow (see the module docs).
@@ -258,21 +286,28 @@ impl RadialContractions {
         let mut out = [S::constant(0.0); MAX_CENTRE_DIM];
         let out = &mut out[..y.len()];
         for profile in &self.profiles {
-            log_det += layer(profile, centres, y, out).factor();
+            let mut jacobian = layer(profile, centres, y, out);
+            jacobian.factor();
+            log_det += jacobian.log_det();
             y.copy_from_slice(out);
         }
         log_det
     }
 
-    /// `y ← P(y)`, recording every layer's input into `tape`.
-    pub fn apply_recorded(&self, centres: &[f64], y: &mut [f64], tape: &mut ContractionTape) {
+    /// `y ← P(y)`, recording every layer's input (its value, for dual numbers) into `tape`.
+    pub fn apply_recorded<S: Scalar>(
+        &self,
+        centres: &[f64],
+        y: &mut [S],
+        tape: &mut ContractionTape,
+    ) {
         tape.centres.clear();
         tape.centres.extend_from_slice(centres);
         tape.inputs.clear();
-        let mut out = [0.0; MAX_CENTRE_DIM];
+        let mut out = [S::constant(0.0); MAX_CENTRE_DIM];
         let out = &mut out[..y.len()];
         for profile in &self.profiles {
-            tape.inputs.extend_from_slice(y);
+            tape.inputs.extend(y.iter().map(|x| x.value()));
             layer(profile, centres, y, out);
             y.copy_from_slice(out);
         }
@@ -280,41 +315,34 @@ impl RadialContractions {
 
     /// `u ← P⁻¹(u)`; returns `log|det ∂P⁻¹/∂u|`.
     pub fn invert<S: Scalar>(&self, centres: &[f64], u: &mut [S]) -> S {
-        let d = u.len();
         let mut log_det = S::constant(0.0);
         let mut image = [S::constant(0.0); MAX_CENTRE_DIM];
-        let image = &mut image[..d];
+        let image = &mut image[..u.len()];
         for profile in self.profiles.iter().rev() {
-            let mut target = [0.0; MAX_CENTRE_DIM];
-            for (t, x) in target.iter_mut().zip(u.iter()) {
-                *t = x.value();
-            }
-            let mut y = [S::constant(0.0); MAX_CENTRE_DIM];
-            let y = &mut y[..d];
-            for (yi, x) in y
-                .iter_mut()
-                .zip(solve_layer(profile, centres, &target[..d]))
-            {
-                *yi = S::constant(x);
-            }
-            // The f64 solve has converged; each Newton step in `S` from there makes one more
-            // order of the derivatives carried by `S` exact (a dual level per step, none for
-            // plain `f64`, whose lanes are 2^levels).
-            for _ in 0..S::LANES.trailing_zeros() {
-                let mut jacobian = layer(profile, centres, y, image);
-                jacobian.factor();
-                for (r, &x) in image.iter_mut().zip(u.iter()) {
-                    *r = *r - x;
-                }
-                jacobian.solve(image);
-                for (yi, &step) in y.iter_mut().zip(image.iter()) {
-                    *yi = *yi - step;
-                }
-            }
-            log_det = log_det - layer(profile, centres, y, image).factor();
-            u.copy_from_slice(y);
+            invert_layer(profile, centres, u, None);
+            let mut jacobian = layer(profile, centres, u, image);
+            jacobian.factor();
+            log_det = log_det - jacobian.log_det();
         }
         log_det
+    }
+
+    /// `u ← P⁻¹(u)` without the log-determinant, which costs each layer another
+    /// evaluation of `P` and `J` in `S`: the policy's actions never use it. With `near`, a
+    /// [`apply_recorded`](Self::apply_recorded) pass whose output `u` is close to, each
+    /// layer's root search starts from that layer's recorded input instead of from `u`:
+    /// a pass back through the recorded point converges at once.
+    pub fn invert_point<S: Scalar>(
+        &self,
+        centres: &[f64],
+        u: &mut [S],
+        near: Option<&ContractionTape>,
+    ) {
+        let d = u.len();
+        for (l, profile) in self.profiles.iter().enumerate().rev() {
+            let start = near.map(|tape| &tape.inputs[l * d..(l + 1) * d]);
+            invert_layer(profile, centres, u, start);
+        }
     }
 
     /// `du ← (∂P/∂y)⁻¹ du` at the recorded `y`: through each layer in reverse order,
@@ -332,8 +360,50 @@ impl RadialContractions {
     }
 }
 
-/// The `y` with `P(y) = u` for one layer, in `f64` (see the module docs).
-fn solve_layer(profile: &Profile, centres: &[f64], u: &[f64]) -> [f64; MAX_CENTRE_DIM] {
+/// `u ← P⁻¹(u)` for one layer: the root `y₀` in `f64` ([`solve_layer`], from `start`, or
+/// from `u` itself), then one step `y ← y − J(y₀)⁻¹ (P(y) − u)` in `S` per dual level of
+/// `S` (none for plain `f64`, whose lanes are 2^levels). Each step makes one more order
+/// of the derivatives carried by `S` exact: the error after the first has no part below
+/// second order, and `J(y) − J(y₀)`, of first order, only meets it in orders above what
+/// `S` carries. So `J` is formed and factored once, in `f64`, and the steps need `P` alone.
+fn invert_layer<S: Scalar>(profile: &Profile, centres: &[f64], u: &mut [S], start: Option<&[f64]>) {
+    let d = u.len();
+    let mut target = [0.0; MAX_CENTRE_DIM];
+    for (t, x) in target.iter_mut().zip(u.iter()) {
+        *t = x.value();
+    }
+    let target = &target[..d];
+    let (root, mut jacobian) = solve_layer(profile, centres, target, start.unwrap_or(target));
+    jacobian.factor();
+    let mut y = [S::constant(0.0); MAX_CENTRE_DIM];
+    let y = &mut y[..d];
+    for (yi, &x) in y.iter_mut().zip(&root) {
+        *yi = S::constant(x);
+    }
+    let mut residual = [S::constant(0.0); MAX_CENTRE_DIM];
+    let residual = &mut residual[..d];
+    for _ in 0..S::LANES.trailing_zeros() {
+        image(profile, centres, y, residual);
+        for (r, &x) in residual.iter_mut().zip(u.iter()) {
+            *r = *r - x;
+        }
+        jacobian.solve(residual);
+        for (yi, &step) in y.iter_mut().zip(residual.iter()) {
+            *yi = *yi - step;
+        }
+    }
+    u.copy_from_slice(y);
+}
+
+/// The `y` with `P(y) = u` for one layer, in `f64`, searched from `start` (see the module
+/// docs): Newton's method converges from anywhere, and from a root in no step at all.
+/// Also returns `J(y)`, not yet factored.
+fn solve_layer(
+    profile: &Profile,
+    centres: &[f64],
+    u: &[f64],
+    start: &[f64],
+) -> ([f64; MAX_CENTRE_DIM], Symmetric<f64>) {
     let d = u.len();
     let residual = |y: &[f64], image: &mut [f64]| -> (Symmetric<f64>, f64) {
         let jacobian = layer(profile, centres, y, image);
@@ -346,7 +416,7 @@ fn solve_layer(profile: &Profile, centres: &[f64], u: &[f64]) -> [f64; MAX_CENTR
     };
     let scale: f64 = u.iter().map(|x| x * x).sum::<f64>() + 1.0;
     let mut y = [0.0; MAX_CENTRE_DIM];
-    y[..d].copy_from_slice(u);
+    y[..d].copy_from_slice(start);
     let mut r = [0.0; MAX_CENTRE_DIM];
     let (mut jacobian, mut norm) = residual(&y[..d], &mut r[..d]);
     for _ in 0..INVERSE_STEPS {
@@ -373,7 +443,7 @@ fn solve_layer(profile: &Profile, centres: &[f64], u: &[f64]) -> [f64; MAX_CENTR
             length *= 0.5;
         }
     }
-    y
+    (y, jacobian)
 }
 
 #[cfg(test)]
@@ -536,6 +606,55 @@ mod tests {
             p.invert(&centres, &mut dual);
             assert!((dual[0].du - dy[0]).abs() < 1e-9 * scale);
             assert!((dual[1].du - dy[1]).abs() < 1e-9 * scale);
+        }
+    }
+
+    /// `P⁻¹(u + t du)` in second-order dual numbers: the `t²` part (the Newton steps with
+    /// `J` frozen at the `f64` root) against central differences of the first-order one,
+    /// and the same from every start of the root search: the recorded pass's points, or
+    /// another point's (a stale tape only costs iterations).
+    #[test]
+    fn second_order_inverse_matches_finite_differences_from_any_start() {
+        let (p, centres) = contractions(0.3);
+        let du = [0.3, -0.8];
+        let first = |u: [f64; 2]| {
+            let mut x = [Dual::new(u[0], du[0]), Dual::new(u[1], du[1])];
+            p.invert(&centres, &mut x);
+            [x[0].du, x[1].du]
+        };
+        let mut elsewhere = ContractionTape::default();
+        p.apply_recorded(&centres, &mut [2.0, 3.0][..], &mut elsewhere);
+        let h = 1e-5;
+        for y in points().into_iter().skip(1) {
+            let mut tape = ContractionTape::default();
+            let mut u = y;
+            p.apply_recorded(&centres, &mut u, &mut tape);
+            let (plus, minus) = (
+                first([u[0] + h * du[0], u[1] + h * du[1]]),
+                first([u[0] - h * du[0], u[1] - h * du[1]]),
+            );
+            let seeded = |i: usize| Dual::new(Dual::new(u[i], du[i]), Dual::new(du[i], 0.0));
+            let mut reference = [seeded(0), seeded(1)];
+            p.invert(&centres, &mut reference);
+            for i in 0..2 {
+                let expected = (plus[i] - minus[i]) / (2.0 * h);
+                let second = reference[i].du.du;
+                assert!(
+                    (second - expected).abs() < 1e-5 * (1.0 + expected.abs()),
+                    "{y:?}: {second} vs {expected}"
+                );
+            }
+            for near in [None, Some(&tape), Some(&elsewhere)] {
+                let mut x = [seeded(0), seeded(1)];
+                p.invert_point(&centres, &mut x, near);
+                for (a, b) in x.iter().zip(&reference) {
+                    let parts = [a.re.re - b.re.re, a.re.du - b.re.du, a.du.re - b.du.re];
+                    assert!(
+                        parts.iter().all(|e| e.abs() < 1e-12) && (a.du.du - b.du.du).abs() < 1e-9,
+                        "{y:?} from {near:?}: {a:?} vs {b:?}"
+                    );
+                }
+            }
         }
     }
 
