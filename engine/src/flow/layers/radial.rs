@@ -35,9 +35,9 @@
 //!
 //! `P⁻¹(u)` has no closed form: it minimises the strongly convex `Φ(y) − u·y`, found by
 //! Newton's method on `P(y) − u` (its direction `−J⁻¹ r` always decreases `‖r‖`), with
-//! backtracking, in `f64`, then refined by two Newton steps in the caller's scalar type,
-//! which makes first and second derivatives through the root exact (each step squares
-//! the error's order).
+//! backtracking, in `f64`, then refined by one step per dual level of the caller's scalar
+//! type with `J` kept at the `f64` root, which makes first and second derivatives through
+//! the root exact (each step raises the order of the error by one).
 
 use serde::{Deserialize, Serialize};
 
@@ -340,7 +340,8 @@ impl RadialContractions {
     ) {
         let d = u.len();
         for (l, profile) in self.profiles.iter().enumerate().rev() {
-            let start = near.map(|tape| &tape.inputs[l * d..(l + 1) * d]);
+            // A tape of another flow (or none yet) falls back to starting from `u`.
+            let start = near.and_then(|tape| tape.inputs.get(l * d..(l + 1) * d));
             invert_layer(profile, centres, u, start);
         }
     }
@@ -611,8 +612,8 @@ mod tests {
 
     /// `P⁻¹(u + t du)` in second-order dual numbers: the `t²` part (the Newton steps with
     /// `J` frozen at the `f64` root) against central differences of the first-order one,
-    /// and the same from every start of the root search: the recorded pass's points, or
-    /// another point's (a stale tape only costs iterations).
+    /// and the same from every start of the root search: the recorded pass's points,
+    /// another point's (a stale tape only costs iterations) or none (an empty tape).
     #[test]
     fn second_order_inverse_matches_finite_differences_from_any_start() {
         let (p, centres) = contractions(0.3);
@@ -622,7 +623,7 @@ mod tests {
             p.invert(&centres, &mut x);
             [x[0].du, x[1].du]
         };
-        let mut elsewhere = ContractionTape::default();
+        let (mut elsewhere, empty) = (ContractionTape::default(), ContractionTape::default());
         p.apply_recorded(&centres, &mut [2.0, 3.0][..], &mut elsewhere);
         let h = 1e-5;
         for y in points().into_iter().skip(1) {
@@ -644,7 +645,7 @@ mod tests {
                     "{y:?}: {second} vs {expected}"
                 );
             }
-            for near in [None, Some(&tape), Some(&elsewhere)] {
+            for near in [None, Some(&tape), Some(&elsewhere), Some(&empty)] {
                 let mut x = [seeded(0), seeded(1)];
                 p.invert_point(&centres, &mut x, near);
                 for (a, b) in x.iter().zip(&reference) {
