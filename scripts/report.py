@@ -432,12 +432,12 @@ def obstacles(report, root):
         for name, e in three_models:
             report.add(f"| {name} | {outcome_cells(e)} |")
     collisions_by_geometry(report, three_models)
-    held_out_and_demonstrated(report, folder)
+    held_out_and_demonstrated(report, folder, radial, generic, baseline_eval)
     fields_by_count(report, folder, "-generic", ", generic INN")
     report.add("", "| target | measured | required | |", "|---|---|---|---|")
     for k, target in OBSTACLE_GOAL_TARGETS.items():
         for model, results in (("", radial), (", generic INN", generic)):
-            obstacles = f"{k} obstacle{'s' if k > 1 else ''}{model}"
+            obstacles = f"{obstacle_label(k)}{model}"
             evaluation = results.get(k)
             if evaluation is None:
                 report.add(f"| goal reached, {obstacles} | not run | ≥ {target:.0%} | — |")
@@ -454,17 +454,24 @@ def obstacles(report, root):
     report.add("")
 
 
-def held_out_and_demonstrated(report, folder):
-    """Each obstacle model on the held-out episodes beside the demonstrations' own (the
-    recording's contexts and starts, where the expert never collides): a model that fails
-    on both does not fit its data, one that fails only on the first does not generalise."""
-    models = [(f"{k} obstacle{'s' if k > 1 else ''}{label}", folder / f"{k}{suffix}")
-              for suffix, label in (("", ", radial contractions"), ("-generic", ", generic INN"))
+def obstacle_label(k):
+    return f"{k} obstacle{'s' if k > 1 else ''}"
+
+
+def held_out_and_demonstrated(report, folder, radial, generic, baseline):
+    """Each obstacle model on the held-out episodes (`radial`, `generic`: the evaluations
+    already read, by obstacle count; `baseline`: the 3-obstacle control's) beside the
+    demonstrations' own (the recording's contexts and starts, where the expert never
+    collides): a model that fails on both does not fit its data, one that fails only on the
+    first does not generalise."""
+    models = [(f"{obstacle_label(k)}{label}", f"{k}{suffix}", held_out.get(k))
+              for suffix, label, held_out in (("", ", radial contractions", radial),
+                                              ("-generic", ", generic INN", generic))
               for k in (1, 2, 3)]
-    models.append(("3 obstacles, unconstrained MLP (control)", folder / "3-baseline"))
-    rows = [(name, held_out, demonstrated) for name, results in models
-            if (held_out := load(results / "eval.json")) is not None
-            and (demonstrated := load(results / "eval_demos.json")) is not None]
+    models.append(("3 obstacles, unconstrained MLP (control)", "3-baseline", baseline))
+    rows = [(name, held_out, demonstrated) for name, model, held_out in models
+            if held_out is not None
+            and (demonstrated := load(folder / model / "eval_demos.json")) is not None]
     if not rows:
         return
     report.add("", "Held-out episodes beside the demonstrations' own (the contexts and starts "
