@@ -10,8 +10,8 @@
 //!
 //! Also both at the obstacle-avoidance size (d = 2, 3 obstacles + target, 6 spline
 //! layers) with and without the radial contractions about the obstacles, side by side:
-//! their cost is the eight layers' iterative inverses in the forward pass (the layer
-//! count `ciflow train` gives obstacle avoidance, `envs/src/recipes.rs`).
+//! their cost is the 15 layers' iterative inverses in the forward pass (the layer count
+//! `ciflow train` gives 3 obstacles, 5 per obstacle: `envs/src/recipes.rs`).
 
 use std::hint::black_box;
 
@@ -73,7 +73,7 @@ fn obstacle_policy(contracted: bool) -> Policy {
     config.set_encoder = Some(SetEncoderConfig::default());
     config.contractions = contracted.then_some(ContractionConfig {
         centres: obstacles,
-        layers: 8,
+        layers: 15,
         exponent: 2,
         radius: 0.16,
     });

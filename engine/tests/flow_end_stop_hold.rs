@@ -3,7 +3,8 @@
 //! points into a stop, the policy that follows its own latent state converges, never
 //! reaching a stop, and lets go of the hold at the attractor. The memoryless policy on the
 //! same starts is the negative control: it stands still short of the attractor on some.
-//! Without a hold engaged the command is the memoryless one.
+//! Without a hold engaged the command is the memoryless one (without a joint range too: the
+//! sampled-control guard leaves a field the period resolves alone).
 
 mod flow_common;
 

@@ -7,7 +7,9 @@
 //! `q̈_des = (∂v_des/∂q) q̇ + K_v (v_des(q, c) − q̇)`,  `v_des = J_f(z) v(z)`, `z = f⁻¹(q, c)`
 //!
 //! ([`Policy::acceleration`]), so the velocity error decays as `e^{−K_v t}` while the
-//! position follows the stable flow. The action is then clipped to the task's action
+//! position follows the stable flow; held for a control period, it is shortened along
+//! the motion where the field is too stiff for the period ([`Policy::acceleration_held`],
+//! `ciflow_engine::flow::sampled_control`). The action is then clipped to the task's action
 //! space, as a real robot saturates its commands; far from the demonstrations, where the
 //! flow may ask for more, this is the saturated loop that `ciflow_evaluation::robot_loop` measures. The behaviour-cloning baseline has no Jacobian; it
 //! tracks its finite-difference velocity `v = (ŷ_{k+1} − q) / dt` with the same gain.

@@ -30,16 +30,18 @@ const LIMIT_CYCLE_MIN_RATE: f64 = 0.1;
 /// 5.3 mm after 30 epochs; obstacle avoidance (3 obstacles, 60 demonstrations, 8 epochs)
 /// 67% of 100 random contexts reached against 3%.
 const GO_TO_MIN_RATE: f64 = 1.0;
-/// Radial contraction layers about the obstacle centres ([`ciflow_engine::flow::layers::radial`])
-/// and the exponent `m` of their profile. A layer pulls by at most `α / K` about each of
-/// the `K` centres (what keeps it a bijection when centres coincide), so the layers
-/// compound. With 3 obstacles (1000 demonstrations, 2 epochs), over 1000 new contexts
-/// and training seeds 0 / 1 / 2: 8 layers collided in 1.1 / 1.4 / 0.7%, 16 in
-/// 0.1 / 0.5 / 0.4% (all where an obstacle sits on the straight start-target line). Not
-/// 16 by default: a briefly trained 16-layer policy (`tests/experiment_loop.rs`) left 3%
-/// of the stability check's rollouts stalled short of the goal (none with 8), and 0.5%
-/// when each layer started weaker (README, "Obstacle avoidance").
-const OBSTACLE_CONTRACTION_LAYERS: usize = 8;
+/// Radial contraction layers about the obstacle centres, per obstacle
+/// ([`ciflow_engine::flow::layers::radial`]), and the exponent `m` of their profile. A
+/// layer pulls by at most `α / K` about each of the `K` centres (what keeps it a bijection
+/// when centres coincide), so a stack of `L` layers pulls about an obstacle by about
+/// `(1 − α/K)^L` and stretches space at its rim by at most `(1 + 0.56 α/K)^L`: with `L`
+/// a multiple of `K` both stay put whatever the count (the stretch below `e^{2.8}` with 5
+/// per obstacle; 8 layers had stretched it up to 33× about one obstacle). With 3
+/// obstacles (1000 demonstrations, 2 epochs), over 1000 new contexts and training seeds
+/// 0 / 1 / 2: 8 layers collided in 1.1 / 1.4 / 0.7%, 15 in 0.1 / 0.2 / 0.4%, 16 in
+/// 0.1 / 0.5 / 0.4% (all where an obstacle sits on the straight start-target line); one
+/// obstacle with 5 layers 0 / 0 / 0.1% as with 8 (README, "Obstacle avoidance").
+const OBSTACLE_CONTRACTION_LAYERS_PER_OBSTACLE: usize = 5;
 const OBSTACLE_CONTRACTION_EXPONENT: u32 = 2;
 /// LASA's guaranteed latent rate (1/s): its strokes last 2–6 s.
 const LASA_MIN_RATE: f64 = 0.2;
@@ -102,7 +104,7 @@ pub fn obstacle_avoidance(
         context_sets: vec![obstacles],
         contractions: Some(ContractionConfig {
             centres: obstacles,
-            layers: OBSTACLE_CONTRACTION_LAYERS,
+            layers: OBSTACLE_CONTRACTION_LAYERS_PER_OBSTACLE * obstacles.count,
             exponent: OBSTACLE_CONTRACTION_EXPONENT,
             radius: obstacle_avoidance::SAFETY_RADIUS,
         }),

@@ -52,6 +52,11 @@
 //! 3. *Torque saturation.* While the computed torque stays inside the limits nothing
 //!    changes. Once it saturates, `q̈ ≠ q̈_des` and no guarantee remains: stability of the
 //!    saturated loop is only measured (the robot-loop stability check), not claimed.
+//! 4. *Sampled control.* A controller holds each command for its period `Δt`; where the
+//!    field slows down along the motion faster than `1/Δt − K_v` the held command would
+//!    overshoot, and a 100 Hz loop can lock into `q̇ → −q̇` short of the attractor.
+//!    [`Policy::acceleration_held`] shortens the command along the motion there
+//!    ([`sampled_control`]) and leaves it exactly as above everywhere else.
 //!
 //! The limit cycle's latent field is undefined at the origin of the cycle plane
 //! (`ρ = 0`); the discrete step maps it onto `ρ > 0`, the continuous loop claims exclude it.
@@ -65,6 +70,7 @@ pub mod layers;
 pub mod mean_dynamics;
 pub mod network;
 pub mod policy;
+pub mod sampled_control;
 
 pub use baseline::BehaviourCloning;
 pub use checkpoint::config::{

@@ -18,6 +18,7 @@ use crate::flow::latent::LatentDynamics;
 use crate::flow::layers::coupling::{CouplingScratch, TangentScratch};
 use crate::flow::layers::joint_range::JointRange;
 use crate::flow::network::{ConditionalFlow, Conditioning, FlowTape};
+use crate::flow::sampled_control::limit_overshoot;
 use crate::nn::scalar::{Dual, Scalar};
 
 type Dual2 = Dual<Dual<f64>>;
@@ -320,10 +321,15 @@ impl Policy {
     }
 
     /// [`Self::acceleration`] for a robot that keeps `hold` from one control period to the
-    /// next (one per robot, [`EndStopHold::clear`]ed at a new episode): under a joint
-    /// range, while the end-stop barrier holds the robot back the policy follows its own
-    /// latent state ([`crate::flow::end_stop_hold`]). Without a hold engaged, or a joint
-    /// range, the command is that of [`Self::acceleration`].
+    /// next (one per robot, [`EndStopHold::clear`]ed at a new episode) and holds each
+    /// command for the hold's period. Under a joint range, while the end-stop barrier holds
+    /// the robot back the policy follows its own latent state
+    /// ([`crate::flow::end_stop_hold`]); without a hold engaged the command is that of
+    /// [`Self::acceleration`]. Without a joint range it is that command shortened along the
+    /// motion where the field is so stiff that one period would overshoot
+    /// ([`crate::flow::sampled_control`]; under a joint range the command is scaled into
+    /// the acceleration bounds, no longer affine in `q̇` as the guard's reading of the
+    /// stiffness needs).
     #[allow(clippy::too_many_arguments)]
     pub fn acceleration_held(
         &self,
@@ -338,7 +344,9 @@ impl Policy {
     ) -> FlowResult<()> {
         self.check_acceleration_arguments(q, qd, velocity_gain, acceleration, velocity)?;
         let Some(range) = &self.config().joint_range else {
-            return self.acceleration(q, qd, context, velocity_gain, ws, acceleration, velocity);
+            self.acceleration(q, qd, context, velocity_gain, ws, acceleration, velocity)?;
+            limit_overshoot(qd, velocity, velocity_gain, hold.period, acceleration);
+            return Ok(());
         };
         if hold.dof() != q.len() {
             return Err(FlowError::InvalidConfig(format!(

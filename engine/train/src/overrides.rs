@@ -237,8 +237,8 @@ pub struct ContextOverrides {
     )]
     pub context_sets: Option<Vec<Option<ContextSet>>>,
     /// Radial contraction layers about the obstacle centres in front of the network (0:
-    /// none) [default: the task's: 8 for obstacle-avoidance; other tasks have no centres
-    /// to contract about].
+    /// none) [default: the task's: 5 per obstacle for obstacle-avoidance; other tasks have
+    /// no centres to contract about].
     #[cfg_attr(feature = "clap", arg(long))]
     pub contraction_layers: Option<usize>,
     /// Width `W_ψ` of the local features each coupling pools over every context set, from
