@@ -79,6 +79,10 @@ OBSTACLE_MODEL = ["--epochs", "2", "--keep", "last"]
 # permutation-invariant set encoder (README "Obstacle avoidance").
 OBSTACLE_GENERIC = "generic"
 OBSTACLE_GENERIC_MODEL = [*OBSTACLE_MODEL, "--contraction-layers", "0"]
+# Each obstacle flow's stability check also drives the point mass at 100 Hz from rest
+# anywhere in its range, as many times as it takes to see a rollout in a few hundred that
+# never arrives (README "Obstacle avoidance", sampled control).
+OBSTACLE_ROBOT_LOOP = ["--robot-loop", "--robot-starts", "400"]
 # The behaviour-cloning MLP trained beside the 3-obstacle flow (`--baseline`), evaluated
 # on the same held-out episodes.
 OBSTACLE_BASELINE = "3-baseline"
@@ -388,7 +392,7 @@ def plan(out: pathlib.Path) -> list[Job]:
         with_baseline = ["--baseline"] if k == max(OBSTACLE_COUNTS) else []
         jobs.append(obstacle_model(str(k), k, policy, *OBSTACLE_MODEL, *with_baseline))
         jobs.append(stability(f"obstacles-{k}-flow", policy, f"obstacles-{k}",
-                              "--negative-control"))
+                              "--negative-control", *OBSTACLE_ROBOT_LOOP))
         jobs.append(obstacle_model(f"{k}-{OBSTACLE_GENERIC}", k,
                                    policies / f"obstacles-{k}-{OBSTACLE_GENERIC}",
                                    *OBSTACLE_GENERIC_MODEL))

@@ -94,4 +94,8 @@ def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
                                                       for a in c))
         assert (command[command.index("--seed") + 1],
                 command[command.index("--episodes") + 1]) == recorded, name
+    # Every obstacle flow's stability check runs through the robot too.
+    for k in demo.OBSTACLE_COUNTS:
+        check = next(job for job in jobs if job.name == f"stability-obstacles-{k}-flow")
+        assert "--robot-loop" in check.commands[0], k
     assert all(set(job.after) <= names for job in jobs)

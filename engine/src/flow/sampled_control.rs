@@ -10,9 +10,10 @@
 //!
 //! which flips sign for `Δt g > 1` and grows for `Δt g > 2`. `σ` is the rate at which the
 //! field slows down along the motion; where a field learned from data slows sharply (seams
-//! outside the demonstrations, e.g. `σ ≈ −180 /s` at the 3-obstacle state box's edge) a
+//! at the edge of the demonstrations' box, e.g. `σ ≈ −180 /s` for an obstacle policy) a
 //! 100 Hz loop locks into a period-2 oscillation, `q̇ → −q̇`, and never arrives although the
-//! continuous-time loop does (2–9% of `ciflow stability --robot-loop`'s far starts).
+//! continuous-time loop does (up to 9% of `ciflow stability --robot-loop`'s far starts for
+//! the obstacle policies).
 //!
 //! The guard scales the command's component along `u` by `s = min(1, 1 / (Δt g))`: at
 //! worst the period is deadbeat along the motion (factor `1 − Δt g s ≥ 0`), and wherever
