@@ -38,25 +38,20 @@ pub fn limit_overshoot(
     if speed_squared == 0.0 {
         return;
     }
-    // q̇ᵀ (q̈ − K_v v) = −g ‖q̇‖².
-    let along: f64 = velocity_measured
+    // q̇ᵀ q̈ and q̇ᵀ v in one pass: q̇ᵀ (q̈ − K_v v) = −g ‖q̇‖².
+    let (along_command, along_desired) = velocity_measured
         .iter()
         .zip(acceleration.iter().zip(velocity_desired))
-        .map(|(qd, (a, v))| qd * (a - velocity_gain * v))
-        .sum();
-    let gain = -along / speed_squared;
+        .fold((0.0, 0.0), |(qa, qv), (qd, (a, v))| {
+            (qa + qd * a, qv + qd * v)
+        });
+    let gain = (velocity_gain * along_desired - along_command) / speed_squared;
     if period * gain <= 1.0 {
         return;
     }
     // q̈ ← q̈ − (1 − s) (uᵀ q̈) u, s = 1 / (Δt g).
-    let shrink = 1.0 - 1.0 / (period * gain);
-    let component: f64 = velocity_measured
-        .iter()
-        .zip(acceleration.iter())
-        .map(|(qd, a)| qd * a)
-        .sum::<f64>()
-        / speed_squared;
+    let shrink = (1.0 - 1.0 / (period * gain)) * along_command / speed_squared;
     for (a, qd) in acceleration.iter_mut().zip(velocity_measured) {
-        *a -= shrink * component * qd;
+        *a -= shrink * qd;
     }
 }
