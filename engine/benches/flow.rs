@@ -1,5 +1,8 @@
-//! One policy action at the pouring size (d = 7, context 6, 10 coupling layers of 2×64
-//! hidden). The action a robot gets is `Policy::acceleration`, `flow/acceleration/*`:
+//! One policy action at the pouring size (d = 7, context 6, 10 coupling layers): the
+//! affine network as `ciflow train --task pouring` builds it (2×32 hidden,
+//! `envs/src/recipes.rs`), the same with the default 2×64 (`affine-64`, pouring's before)
+//! and the default spline flow (2×64). The action a robot gets is `Policy::acceleration`,
+//! `flow/acceleration/*`:
 //! the desired acceleration `q̈_des` and velocity `v_des` of the second-order controller
 //! that every environment, served policy and evaluation runs (`envs::actor::Actor`).
 //! `flow/act/*` is the first-order step (`Policy::act`: inverse, latent step, forward
@@ -38,7 +41,11 @@ fn random_policy(config: &FlowConfig) -> Policy {
     Policy::new(config, weights).expect("valid policy")
 }
 
-fn pouring_policy(coupling: CouplingKind, joint_range: bool) -> Policy {
+/// Hidden widths of the pouring recipe's conditioners, and of the default flow's.
+const POURING_HIDDEN: [usize; 2] = [32, 32];
+const DEFAULT_HIDDEN: [usize; 2] = [64, 64];
+
+fn pouring_policy(coupling: CouplingKind, hidden: [usize; 2], joint_range: bool) -> Policy {
     let mut config = FlowConfig::new(
         "pouring",
         7,
@@ -46,7 +53,7 @@ fn pouring_policy(coupling: CouplingKind, joint_range: bool) -> Policy {
         LatentKind::GoTo,
         coupling,
         10,
-        vec![64, 64],
+        hidden.to_vec(),
     );
     config.joint_range = joint_range.then(|| JointRange::from_limits(&panda_limits()));
     random_policy(&config)
@@ -84,12 +91,13 @@ fn bench(c: &mut Criterion) {
     let y = [0.1, -0.3, 0.2, -1.5, 0.05, 1.2, 0.4];
     let context = [0.5, 0.2, 0.3, 0.0, 0.1, -0.2];
     let affine = CouplingKind::Affine { scale_bound: 2.0 };
-    for (name, coupling, joint_range) in [
-        ("affine", affine.clone(), false),
-        ("affine-joint-range", affine, true),
-        ("spline", SPLINE, false),
+    for (name, coupling, hidden, joint_range) in [
+        ("affine", affine.clone(), POURING_HIDDEN, false),
+        ("affine-joint-range", affine.clone(), POURING_HIDDEN, true),
+        ("affine-64", affine, DEFAULT_HIDDEN, false),
+        ("spline", SPLINE, DEFAULT_HIDDEN, false),
     ] {
-        let policy = pouring_policy(coupling, joint_range);
+        let policy = pouring_policy(coupling, hidden, joint_range);
         bench_actions(c, name, &policy, &y, &context);
     }
 }

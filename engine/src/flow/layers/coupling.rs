@@ -32,29 +32,56 @@ pub enum Transform {
 impl Transform {
     pub fn new(kind: &CouplingKind) -> Self {
         match *kind {
-            CouplingKind::Affine { scale_bound } => Self::Affine(AffineTransform { scale_bound }),
+            CouplingKind::Affine { scale_bound } => Self::Affine(AffineTransform::new(scale_bound)),
             CouplingKind::Spline { bins, tail_bound } => {
                 Self::Spline(SplineTransform::new(bins, tail_bound))
             }
         }
     }
 
-    /// `(h(x; θ), log|h'|)`, or `h⁻¹` and its log-derivative when `inverse`; the
-    /// log-derivative may be left zero unless `log_det`.
+    /// `x_i ← h(x_i; θ_i)` (or `h⁻¹` when `inverse`) for every transformed coordinate
+    /// (at least one), `θ_i` the `i`-th of as many equal chunks of `params`; returns
+    /// `Σ log|h'|`, which may be left zero unless `log_det`. The affine transform's primal
+    /// scales ([`AffineTransform::primal_scales`]) are computed into `scales`, or read
+    /// from the record of a pass through the same point (forward passes only).
     #[inline(always)]
-    fn apply<S: Scalar>(
+    fn apply_all<S: Scalar, const FUSED: bool>(
         &self,
-        x: S,
-        theta: &[S],
+        xs: &mut [S],
+        params: &[S],
         scratch: &mut [S],
+        scales: Scales,
         inverse: bool,
         log_det: bool,
-    ) -> (S, S) {
-        match (self, inverse) {
-            (Self::Affine(t), false) => t.forward(x, theta),
-            (Self::Affine(t), true) => t.inverse(x, theta),
-            (Self::Spline(t), false) => t.forward(x, theta, scratch, log_det),
-            (Self::Spline(t), true) => t.inverse(x, theta, scratch, log_det),
+    ) -> S {
+        match self {
+            Self::Affine(t) => {
+                let scales = match scales {
+                    Scales::Compute(scales) => {
+                        t.primal_scales::<S, FUSED>(params, inverse, scales);
+                        scales
+                    }
+                    Scales::Recorded(scales) => {
+                        debug_assert!(!inverse, "recorded scales are the forward direction's");
+                        scales
+                    }
+                };
+                t.apply_all(xs, params, inverse, scales)
+            }
+            Self::Spline(t) => {
+                let mut sum = S::constant(0.0);
+                let params = params.chunks_exact(params.len() / xs.len());
+                for (x, theta) in xs.iter_mut().zip(params) {
+                    let (value, ld) = if inverse {
+                        t.inverse(*x, theta, scratch, log_det)
+                    } else {
+                        t.forward(*x, theta, scratch, log_det)
+                    };
+                    *x = value;
+                    sum += ld;
+                }
+                sum
+            }
         }
     }
 
@@ -64,6 +91,22 @@ impl Transform {
             Self::Spline(s) => s.scratch_len(),
         }
     }
+
+    /// Length of the primal scales of `transformed` coordinates (the affine transform's).
+    fn scales_len(&self, transformed: usize) -> usize {
+        match self {
+            Self::Affine(_) => 2 * transformed,
+            Self::Spline(_) => 0,
+        }
+    }
+}
+
+/// Where [`Transform::apply_all`] takes the affine transform's primal scales from.
+enum Scales<'a> {
+    /// Computed into this buffer.
+    Compute(&'a mut [f64]),
+    /// Recorded by a pass through the same point, forward direction.
+    Recorded(&'a [f64]),
 }
 
 #[derive(Clone, Debug)]
@@ -72,7 +115,6 @@ pub struct Coupling {
     conditioner: Conditioner,
     kept: Range<usize>,
     transformed: Range<usize>,
-    params_per_dim: usize,
 }
 
 /// Buffers of one coupling evaluation.
@@ -82,6 +124,7 @@ pub struct CouplingScratch<S> {
     pub(crate) state: Vec<S>,
     params: Vec<S>,
     transform: Vec<S>,
+    scales: Vec<f64>,
     conditioner: ConditionerScratch<S>,
 }
 
@@ -91,6 +134,7 @@ impl<S: Scalar> CouplingScratch<S> {
             state: vec![S::constant(0.0); coupling.state_dim()],
             params: vec![S::constant(0.0); coupling.conditioner.output_dim()],
             transform: vec![S::constant(0.0); coupling.transform.scratch_len()],
+            scales: vec![0.0; coupling.scales_len()],
             conditioner: ConditionerScratch::new(&coupling.conditioner),
         }
     }
@@ -108,6 +152,8 @@ pub struct CouplingRecord {
     /// The transformed coordinates on the input side of the forward transform `h`
     /// (primal component).
     input: Vec<f64>,
+    /// The affine transform's primal scales, forward direction.
+    scales: Vec<f64>,
 }
 
 impl CouplingRecord {
@@ -116,6 +162,7 @@ impl CouplingRecord {
             activations: vec![0.0; lanes * coupling.conditioner.record_len()],
             params: vec![0.0; lanes * coupling.conditioner.output_dim()],
             input: vec![0.0; coupling.transformed.len()],
+            scales: vec![0.0; coupling.scales_len()],
         }
     }
 }
@@ -133,6 +180,9 @@ pub struct TangentScratch {
     dual_params: Vec<Dual<f64>>,
     transform: Vec<f64>,
     dual_transform: Vec<Dual<f64>>,
+    /// The transformed coordinates in dual numbers, and the primal pass's scales.
+    dual_state: Vec<Dual<f64>>,
+    scales: Vec<f64>,
     /// The kept coordinates' second-order tangent `(dx, dẋ)`, and `(dθ, dθ̇)`.
     kept_second: [Vec<f64>; 2],
     params_second: [Vec<f64>; 2],
@@ -155,6 +205,8 @@ impl TangentScratch {
             dual_params: vec![zero; outputs],
             transform: vec![0.0; transform],
             dual_transform: vec![zero; transform],
+            dual_state: vec![zero; coupling.transformed.len()],
+            scales: vec![0.0; coupling.scales_len()],
             kept_second: std::array::from_fn(|_| vec![0.0; coupling.kept.len()]),
             params_second: std::array::from_fn(|_| vec![0.0; outputs]),
             nested_params: vec![nested_zero; outputs],
@@ -192,8 +244,11 @@ impl Coupling {
             )?,
             kept,
             transformed,
-            params_per_dim: config.coupling.params_per_dim(),
         })
+    }
+
+    fn scales_len(&self) -> usize {
+        self.transform.scales_len(self.transformed.len())
     }
 
     /// `d`, the dimension of the state the coupling acts on.
@@ -255,7 +310,7 @@ impl Coupling {
             // SAFETY: AVX2 and FMA support were detected.
             return unsafe { self.apply_avx2(x, context_bias, scratch, inverse, record) };
         }
-        self.apply_with(x, context_bias, scratch, inverse, record)
+        self.apply_with::<S, false>(x, context_bias, scratch, inverse, record)
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -268,11 +323,12 @@ impl Coupling {
         inverse: bool,
         record: Option<&mut CouplingRecord>,
     ) -> S {
-        self.apply_with(x, context_bias, scratch, inverse, record)
+        self.apply_with::<S, true>(x, context_bias, scratch, inverse, record)
     }
 
+    /// `FUSED`: compiled for FMA instructions ([`AffineTransform::primal_scales`]).
     #[inline(always)]
-    fn apply_with<S: Scalar>(
+    fn apply_with<S: Scalar, const FUSED: bool>(
         &self,
         x: &mut [S],
         context_bias: &[f64],
@@ -282,23 +338,36 @@ impl Coupling {
     ) -> S {
         let want_log_det = record.is_none();
         self.condition(x, context_bias, scratch, record.as_deref_mut());
-        let mut log_det = S::constant(0.0);
-        let params = scratch.params.chunks_exact(self.params_per_dim);
-        for (i, (xi, theta)) in x[self.transformed.clone()]
-            .iter_mut()
-            .zip(params)
-            .enumerate()
-        {
-            let (value, ld) =
-                self.transform
-                    .apply(*xi, theta, &mut scratch.transform, inverse, want_log_det);
-            if let Some(record) = record.as_deref_mut() {
-                record.input[i] = if inverse { value } else { *xi }.value();
+        let xs = &mut x[self.transformed.clone()];
+        let record_input = |record: &mut CouplingRecord, xs: &[S]| {
+            for (r, xi) in record.input.iter_mut().zip(xs) {
+                *r = xi.value();
             }
-            *xi = value;
-            log_det += ld;
+        };
+        if let Some(record) = record.as_deref_mut()
+            && !inverse
+        {
+            record_input(record, xs);
         }
+        let log_det = self.transform.apply_all::<S, FUSED>(
+            xs,
+            &scratch.params,
+            &mut scratch.transform,
+            Scales::Compute(&mut scratch.scales),
+            inverse,
+            want_log_det,
+        );
         if let Some(record) = record {
+            if inverse {
+                record_input(record, xs);
+            }
+            // The forward passes that read the record need `e^{+s}`.
+            let (tanh, exp) = scratch.scales.split_at(scratch.scales.len() / 2);
+            let (recorded_tanh, recorded_exp) = record.scales.split_at_mut(tanh.len());
+            recorded_tanh.copy_from_slice(tanh);
+            for (r, e) in recorded_exp.iter_mut().zip(exp) {
+                *r = if inverse { 1.0 / e } else { *e };
+            }
             let planes = record.params.chunks_exact_mut(scratch.params.len());
             for (l, plane) in planes.enumerate() {
                 for (r, p) in plane.iter_mut().zip(&scratch.params) {
@@ -377,7 +446,7 @@ impl Coupling {
             // SAFETY: AVX2 and FMA support were detected.
             return unsafe { self.forward_second_avx2(x, record, scratch) };
         }
-        self.forward_second_with(x, record, scratch)
+        self.forward_second_with::<false>(x, record, scratch)
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -388,11 +457,11 @@ impl Coupling {
         record: &CouplingRecord,
         scratch: &mut TangentScratch,
     ) {
-        self.forward_second_with(x, record, scratch)
+        self.forward_second_with::<true>(x, record, scratch)
     }
 
     #[inline(always)]
-    fn forward_second_with(
+    fn forward_second_with<const FUSED: bool>(
         &self,
         x: &mut [Dual<Dual<f64>>],
         record: &CouplingRecord,
@@ -421,13 +490,14 @@ impl Coupling {
         for (t, ((p, p_dot), (dp, dp_dot))) in scratch.nested_params.iter_mut().zip(nested) {
             *t = Dual::new(Dual::new(*p, *p_dot), Dual::new(*dp, *dp_dot));
         }
-        let params = scratch.nested_params.chunks_exact(self.params_per_dim);
-        for (xi, theta) in x[self.transformed.clone()].iter_mut().zip(params) {
-            *xi = self
-                .transform
-                .apply(*xi, theta, &mut scratch.nested_transform, false, false)
-                .0;
-        }
+        self.transform.apply_all::<_, FUSED>(
+            &mut x[self.transformed.clone()],
+            &scratch.nested_params,
+            &mut scratch.nested_transform,
+            Scales::Recorded(&record.scales),
+            false,
+            false,
+        );
     }
 
     /// Tangent, and primal when given, in place; dispatched like [`apply`](Self::apply).
@@ -443,7 +513,7 @@ impl Coupling {
             // SAFETY: AVX2 and FMA support were detected.
             return unsafe { self.sweep_avx2(record, dx, primal, scratch) };
         }
-        self.sweep_with(record, dx, primal, scratch)
+        self.sweep_with::<false>(record, dx, primal, scratch)
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -455,11 +525,11 @@ impl Coupling {
         primal: Option<(&mut [f64], &[f64])>,
         scratch: &mut TangentScratch,
     ) {
-        self.sweep_with(record, dx, primal, scratch)
+        self.sweep_with::<true>(record, dx, primal, scratch)
     }
 
     #[inline(always)]
-    fn sweep_with(
+    fn sweep_with<const FUSED: bool>(
         &self,
         record: &CouplingRecord,
         dx: &mut [f64],
@@ -496,27 +566,30 @@ impl Coupling {
         {
             *d = Dual::new(*p, *dp);
         }
-        let duals = scratch.dual_params.chunks_exact(self.params_per_dim);
-        for ((dxi, xi), theta) in dx[self.transformed.clone()]
-            .iter_mut()
-            .zip(&record.input)
-            .zip(duals)
-        {
-            let x = Dual::new(*xi, *dxi);
-            *dxi = self
-                .transform
-                .apply(x, theta, &mut scratch.dual_transform, false, false)
-                .0
-                .du;
+        let dx = &mut dx[self.transformed.clone()];
+        for ((d, xi), dxi) in scratch.dual_state.iter_mut().zip(&record.input).zip(&*dx) {
+            *d = Dual::new(*xi, *dxi);
+        }
+        self.transform.apply_all::<_, FUSED>(
+            &mut scratch.dual_state,
+            &scratch.dual_params,
+            &mut scratch.dual_transform,
+            Scales::Recorded(&record.scales),
+            false,
+            false,
+        );
+        for (dxi, d) in dx.iter_mut().zip(&scratch.dual_state) {
+            *dxi = d.du;
         }
         if let Some((x, _)) = primal {
-            let params = scratch.params.chunks_exact(self.params_per_dim);
-            for (xi, theta) in x[self.transformed.clone()].iter_mut().zip(params) {
-                *xi = self
-                    .transform
-                    .apply(*xi, theta, &mut scratch.transform, false, false)
-                    .0;
-            }
+            self.transform.apply_all::<_, FUSED>(
+                &mut x[self.transformed.clone()],
+                &scratch.params,
+                &mut scratch.transform,
+                Scales::Compute(&mut scratch.scales),
+                false,
+                false,
+            );
         }
     }
 }
