@@ -168,7 +168,7 @@ fn arm(task: &'static str) -> TrainConfig {
 /// The arm's recipe with the latent contracting at least `POURING_MIN_RATE`, so the
 /// policy returns to its path after a push as fast as the expert does, and conditioners
 /// of 2×32 for 10 epochs: a quarter of the multiply-adds of 2×64, so one action takes
-/// 6.5–6.9 µs instead of 14.1–14.8 (`cargo bench --bench flow`) in the same 2 min of
+/// 6.4–6.9 µs instead of 14.1–14.8 (`cargo bench --bench flow`) in the same 2 min of
 /// training. Over five training seeds (README "Pouring") the closed-loop figures are
 /// those of 2×64 for 6 epochs within a few episodes: success 100% each, under pushes
 /// 99–100% (2×64: 98–100%), back on the path within 2 s 98–100% (97–100%), pot moved

@@ -86,7 +86,8 @@ pub struct RecipeOverrides {
     /// for lasa, else go-to].
     #[cfg_attr(feature = "clap", arg(long, value_enum))]
     pub latent: Option<LatentChoice>,
-    /// Coupling layers [default: the task's: affine for lasa and pouring, else spline].
+    /// Coupling layers [default: the task's: affine for lasa, pouring and reach, else
+    /// spline].
     #[cfg_attr(feature = "clap", arg(long, value_enum))]
     pub coupling: Option<CouplingChoice>,
     /// Bins of each spline coupling [default: the task's spline's, else 8].
@@ -96,12 +97,12 @@ pub struct RecipeOverrides {
     /// outside) [default: the task's spline's, else 4].
     #[cfg_attr(feature = "clap", arg(long))]
     pub tail_bound: Option<f64>,
-    /// Number of (mixing, coupling) blocks [default: the task's: 10 for lasa and pouring,
-    /// else 6].
+    /// Number of (mixing, coupling) blocks [default: the task's: 10 for lasa, pouring and
+    /// reach, else 6].
     #[cfg_attr(feature = "clap", arg(long))]
     pub layers: Option<usize>,
     /// Hidden widths of each conditioner MLP, comma-separated [default: the task's: 32,32
-    /// for lasa, else 64,64].
+    /// for lasa and pouring, else 64,64].
     #[cfg_attr(feature = "clap", arg(long, value_delimiter = ','))]
     pub hidden: Option<Vec<usize>>,
     /// Guaranteed latent contraction rate (1/s) [default: the task's: 1 for go-to tasks,
@@ -130,10 +131,11 @@ pub struct RecipeOverrides {
     /// lasa, pouring and the limit cycle, else 0.2].
     #[cfg_attr(feature = "clap", arg(long))]
     pub validation_fraction: Option<f64>,
-    /// Epoch budget [default: the task's: 30 for lasa, 6 for pouring, else 200].
+    /// Epoch budget [default: the task's: 30 for lasa, 10 for pouring, 6 for reach, else
+    /// 200].
     #[cfg_attr(feature = "clap", arg(long))]
     pub epochs: Option<usize>,
-    /// Training pairs per step [default: the task's: 512 for pouring, else 256].
+    /// Training pairs per step [default: the task's: 512 for pouring and reach, else 256].
     #[cfg_attr(feature = "clap", arg(long))]
     pub batch_size: Option<usize>,
     /// Initial learning rate [default: the recipe's, 2e-3].
