@@ -41,68 +41,70 @@ impl Transform {
 
     /// `x_i ← h(x_i; θ_i)` (or `h⁻¹` when `inverse`) for every transformed coordinate
     /// (at least one), `θ_i` the `i`-th of as many equal chunks of `params`; returns
-    /// `Σ log|h'|`, which may be left zero unless `log_det`. The affine transform's primal
-    /// scales ([`AffineTransform::primal_scales`]) are computed into `scales`, or read
-    /// from the record of a pass through the same point (forward passes only).
+    /// `Σ log|h'|`, which may be left zero unless `log_det`. The transform's primal values
+    /// ([`AffineTransform::primal_scales`], [`SplineTransform::primal_knots`]) are
+    /// computed into `primal`, or read from the record of a pass through the same point
+    /// (forward passes only).
     #[inline(always)]
     fn apply_all<S: Scalar, const FUSED: bool>(
         &self,
         xs: &mut [S],
         params: &[S],
-        scratch: &mut [S],
-        scales: Scales,
+        primal: Primal,
         inverse: bool,
         log_det: bool,
     ) -> S {
-        match self {
-            Self::Affine(t) => {
-                let scales = match scales {
-                    Scales::Compute(scales) => {
-                        t.primal_scales::<S, FUSED>(params, inverse, scales);
-                        scales
-                    }
-                    Scales::Recorded(scales) => {
-                        debug_assert!(!inverse, "recorded scales are the forward direction's");
-                        scales
-                    }
-                };
-                t.apply_all(xs, params, inverse, scales)
-            }
-            Self::Spline(t) => {
-                let mut sum = S::constant(0.0);
-                let params = params.chunks_exact(params.len() / xs.len());
-                for (x, theta) in xs.iter_mut().zip(params) {
-                    let (value, ld) = if inverse {
-                        t.inverse(*x, theta, scratch, log_det)
-                    } else {
-                        t.forward(*x, theta, scratch, log_det)
-                    };
-                    *x = value;
-                    sum += ld;
+        let primal = match primal {
+            Primal::Compute(buffer) => {
+                match self {
+                    Self::Affine(t) => t.primal_scales::<S, FUSED>(params, inverse, buffer),
+                    Self::Spline(t) => t.primal_knots::<S, FUSED>(xs, params, inverse, buffer),
                 }
-                sum
+                &*buffer
             }
-        }
-    }
-
-    fn scratch_len(&self) -> usize {
+            Primal::Recorded(recorded) => {
+                debug_assert!(
+                    !inverse,
+                    "recorded primal values are the forward direction's"
+                );
+                recorded
+            }
+        };
         match self {
-            Self::Affine(_) => 0,
-            Self::Spline(s) => s.scratch_len(),
+            Self::Affine(t) => t.apply_all(xs, params, inverse, primal),
+            Self::Spline(t) => t.apply_all(xs, params, inverse, primal, log_det),
         }
     }
 
-    /// Length of the primal scales of `transformed` coordinates (the affine transform's).
-    fn scales_len(&self, transformed: usize) -> usize {
+    /// Length of the primal values of `transformed` coordinates.
+    fn primal_len(&self, transformed: usize) -> usize {
         match self {
             Self::Affine(_) => 2 * transformed,
-            Self::Spline(_) => 0,
+            Self::Spline(t) => t.primal_len() * transformed,
+        }
+    }
+
+    /// Records the primal values `computed` by a pass in direction `inverse` as the
+    /// forward direction's, for the forward passes through the same point.
+    fn record_primal(&self, computed: &[f64], inverse: bool, record: &mut [f64]) {
+        match self {
+            Self::Affine(_) => {
+                // `[tanh…, e^{±s}…]`: the forward passes need `e^{+s}`.
+                let (tanh, exp) = computed.split_at(computed.len() / 2);
+                let (recorded_tanh, recorded_exp) = record.split_at_mut(tanh.len());
+                recorded_tanh.copy_from_slice(tanh);
+                for (r, e) in recorded_exp.iter_mut().zip(exp) {
+                    *r = if inverse { 1.0 / e } else { *e };
+                }
+            }
+            // A bin found in `y` holds the `x` the inverse returns.
+            Self::Spline(_) => record.copy_from_slice(computed),
         }
     }
 }
 
-/// Where [`Transform::apply_all`] takes the affine transform's primal scales from.
-enum Scales<'a> {
+/// Where [`Transform::apply_all`] takes the transform's primal values from.
+enum Primal<'a> {
     /// Computed into this buffer.
     Compute(&'a mut [f64]),
     /// Recorded by a pass through the same point, forward direction.
@@ -123,8 +125,7 @@ pub struct CouplingScratch<S> {
     /// A state-sized buffer for the layers around the coupling (the mixing).
     pub(crate) state: Vec<S>,
     params: Vec<S>,
-    transform: Vec<S>,
-    scales: Vec<f64>,
+    primal: Vec<f64>,
     conditioner: ConditionerScratch<S>,
 }
 
@@ -133,8 +134,7 @@ impl<S: Scalar> CouplingScratch<S> {
         Self {
             state: vec![S::constant(0.0); coupling.state_dim()],
             params: vec![S::constant(0.0); coupling.conditioner.output_dim()],
-            transform: vec![S::constant(0.0); coupling.transform.scratch_len()],
-            scales: vec![0.0; coupling.scales_len()],
+            primal: vec![0.0; coupling.primal_len()],
             conditioner: ConditionerScratch::new(&coupling.conditioner),
         }
     }
@@ -152,8 +152,8 @@ pub struct CouplingRecord {
     /// The transformed coordinates on the input side of the forward transform `h`
     /// (primal component).
     input: Vec<f64>,
-    /// The affine transform's primal scales, forward direction.
-    scales: Vec<f64>,
+    /// The transform's primal values, forward direction.
+    primal: Vec<f64>,
 }
 
 impl CouplingRecord {
@@ -162,7 +162,7 @@ impl CouplingRecord {
             activations: vec![0.0; lanes * coupling.conditioner.record_len()],
             params: vec![0.0; lanes * coupling.conditioner.output_dim()],
             input: vec![0.0; coupling.transformed.len()],
-            scales: vec![0.0; coupling.scales_len()],
+            primal: vec![0.0; coupling.primal_len()],
         }
     }
 }
@@ -178,16 +178,13 @@ pub struct TangentScratch {
     params: Vec<f64>,
     params_tangent: Vec<f64>,
     dual_params: Vec<Dual<f64>>,
-    transform: Vec<f64>,
-    dual_transform: Vec<Dual<f64>>,
-    /// The transformed coordinates in dual numbers, and the primal pass's scales.
+    /// The transformed coordinates in dual numbers, and the primal pass's primal values.
     dual_state: Vec<Dual<f64>>,
-    scales: Vec<f64>,
+    primal: Vec<f64>,
     /// The kept coordinates' second-order tangent `(dx, dẋ)`, and `(dθ, dθ̇)`.
     kept_second: [Vec<f64>; 2],
     params_second: [Vec<f64>; 2],
     nested_params: Vec<Dual<Dual<f64>>>,
-    nested_transform: Vec<Dual<Dual<f64>>>,
     conditioner: ConditionerTangentScratch,
 }
 
@@ -196,21 +193,17 @@ impl TangentScratch {
         let zero = Dual::new(0.0, 0.0);
         let nested_zero = Dual::new(zero, zero);
         let outputs = coupling.conditioner.output_dim();
-        let transform = coupling.transform.scratch_len();
         Self {
             state: vec![0.0; 2 * coupling.state_dim()],
             state_second: vec![nested_zero; coupling.state_dim()],
             params: vec![0.0; outputs],
             params_tangent: vec![0.0; outputs],
             dual_params: vec![zero; outputs],
-            transform: vec![0.0; transform],
-            dual_transform: vec![zero; transform],
             dual_state: vec![zero; coupling.transformed.len()],
-            scales: vec![0.0; coupling.scales_len()],
+            primal: vec![0.0; coupling.primal_len()],
             kept_second: std::array::from_fn(|_| vec![0.0; coupling.kept.len()]),
             params_second: std::array::from_fn(|_| vec![0.0; outputs]),
             nested_params: vec![nested_zero; outputs],
-            nested_transform: vec![nested_zero; transform],
             conditioner: ConditionerTangentScratch::new(&coupling.conditioner),
         }
     }
@@ -247,8 +240,8 @@ impl Coupling {
         })
     }
 
-    fn scales_len(&self) -> usize {
-        self.transform.scales_len(self.transformed.len())
+    fn primal_len(&self) -> usize {
+        self.transform.primal_len(self.transformed.len())
     }
 
     /// `d`, the dimension of the state the coupling acts on.
@@ -352,8 +345,7 @@ impl Coupling {
         let log_det = self.transform.apply_all::<S, FUSED>(
             xs,
             &scratch.params,
-            &mut scratch.transform,
-            Scales::Compute(&mut scratch.scales),
+            Primal::Compute(&mut scratch.primal),
             inverse,
             want_log_det,
         );
@@ -361,13 +353,8 @@ impl Coupling {
             if inverse {
                 record_input(record, xs);
             }
-            // The forward passes that read the record need `e^{+s}`.
-            let (tanh, exp) = scratch.scales.split_at(scratch.scales.len() / 2);
-            let (recorded_tanh, recorded_exp) = record.scales.split_at_mut(tanh.len());
-            recorded_tanh.copy_from_slice(tanh);
-            for (r, e) in recorded_exp.iter_mut().zip(exp) {
-                *r = if inverse { 1.0 / e } else { *e };
-            }
+            self.transform
+                .record_primal(&scratch.primal, inverse, &mut record.primal);
             let planes = record.params.chunks_exact_mut(scratch.params.len());
             for (l, plane) in planes.enumerate() {
                 for (r, p) in plane.iter_mut().zip(&scratch.params) {
@@ -493,8 +480,7 @@ impl Coupling {
         self.transform.apply_all::<_, FUSED>(
             &mut x[self.transformed.clone()],
             &scratch.nested_params,
-            &mut scratch.nested_transform,
-            Scales::Recorded(&record.scales),
+            Primal::Recorded(&record.primal),
             false,
             false,
         );
@@ -573,8 +559,7 @@ impl Coupling {
         self.transform.apply_all::<_, FUSED>(
             &mut scratch.dual_state,
             &scratch.dual_params,
-            &mut scratch.dual_transform,
-            Scales::Recorded(&record.scales),
+            Primal::Recorded(&record.primal),
             false,
             false,
         );
@@ -585,8 +570,7 @@ impl Coupling {
             self.transform.apply_all::<_, FUSED>(
                 &mut x[self.transformed.clone()],
                 &scratch.params,
-                &mut scratch.transform,
-                Scales::Compute(&mut scratch.scales),
+                Primal::Compute(&mut scratch.primal),
                 false,
                 false,
             );
