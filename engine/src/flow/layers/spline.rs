@@ -111,14 +111,24 @@ impl SplineTransform {
         self.bins - 1
     }
 
+    /// The raw parameter of knot `j`'s derivative among the `K − 1` interior ones, or
+    /// `None` for the outer knots, whose derivative is the constant 1.
+    #[inline(always)]
+    fn raw_derivative<T>(&self, j: usize, raw: &[T]) -> Option<T>
+    where
+        T: Copy,
+    {
+        (j > 0 && j < self.bins).then(|| raw[j - 1])
+    }
+
     /// `[δ, δ', δ'']` of knot `j`'s derivative `δ_min + softplus(θ + shift)` in its raw
-    /// parameter `θ`: the outer knots' are the constant 1.
+    /// parameter `θ` (the outer knots': the constant 1).
     #[inline(always)]
     fn derivative_at<S: Scalar>(&self, j: usize, raw: &[S]) -> [f64; 3] {
-        if j == 0 || j == self.bins {
+        let Some(theta) = self.raw_derivative(j, raw) else {
             return [1.0, 0.0, 0.0];
-        }
-        let a = raw[j - 1].value() + self.derivative_shift;
+        };
+        let a = theta.value() + self.derivative_shift;
         let sigmoid = a.sigmoid();
         [
             a.softplus() + SPLINE_MIN_DERIVATIVE,
@@ -200,11 +210,8 @@ impl SplineTransform {
             let (y_lo, y_hi) = self.bin_edges(&theta[k..2 * k], knots.heights, bin);
             let raw = &theta[2 * k..];
             let derivative = |j: usize, values: &[f64]| {
-                if j == 0 || j == k {
-                    S::constant(1.0)
-                } else {
-                    raw[j - 1].compose(values)
-                }
+                self.raw_derivative(j, raw)
+                    .map_or(S::constant(1.0), |theta| theta.compose(values))
             };
             let d0 = derivative(bin, knots.lower_derivative);
             let d1 = derivative(bin + 1, knots.upper_derivative);
