@@ -1,6 +1,5 @@
 //! The environment interface shared by every task, the bridge and the Python client.
 
-use std::borrow::Cow;
 use std::collections::BTreeMap;
 
 use ciflow_engine::sim::Perturbation;
@@ -10,10 +9,7 @@ use crate::scene::Scene;
 use crate::space::BoxSpace;
 
 pub use crate::error::EnvError;
-
-/// Extra per-step or per-reset values, as in Gymnasium's `info` dict. Numbers only, so
-/// that every wire format carries them.
-pub type Info = BTreeMap<Cow<'static, str>, f64>;
+pub use crate::info::Info;
 
 /// Info key, 0/1: the task is achieved (Gymnasium's convention; each task documents when).
 pub const SUCCESS_INFO: &str = "is_success";

@@ -14,6 +14,7 @@ pub mod dataset;
 pub mod env;
 pub mod error;
 pub mod expert;
+pub mod info;
 pub mod kwargs;
 pub mod lasa;
 pub mod learning_curve;

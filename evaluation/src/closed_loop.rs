@@ -456,9 +456,7 @@ pub fn run_episodes(
                 (run, Some(reference.trace), Some(outcome))
             }
         };
-        let key = DISTANCE_KEYS
-            .iter()
-            .find(|k| run.last_info.contains_key(**k));
+        let key = DISTANCE_KEYS.iter().find(|k| run.last_info.contains_key(k));
         batch.distance_key = batch.distance_key.or(key.map(|k| k.to_string()));
         let has = |key: &str| run.last_info.contains_key(key);
         batch.results.push(EpisodeResult {
@@ -468,7 +466,7 @@ pub fn run_episodes(
             success: run.last_info.get(SUCCESS_INFO).is_some_and(|&s| s == 1.0),
             collision: has("collision").then_some(run.collision),
             spill: has("spill").then_some(run.spill),
-            final_distance: key.map(|k| run.last_info[*k]),
+            final_distance: key.and_then(|k| run.last_info.get(k).copied()),
             steps: run.trace.command.len(),
             terminated: run.terminated,
             switched_context: run.switched_context.clone(),

@@ -34,7 +34,7 @@ impl Trace {
         self.context.push(context.to_vec());
         let tool: Option<Vec<f64>> = TOOL_POINT_KEYS
             .iter()
-            .map(|k| info.get(*k).copied())
+            .map(|k| info.get(k).copied())
             .collect();
         self.point.push(tool.unwrap_or_else(|| q.to_vec()));
     }
