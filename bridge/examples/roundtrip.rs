@@ -5,7 +5,10 @@
 //! 3. raw round trips of large payloads, and the batched stepping throughput
 //!    (env-steps/s) of `step_batch` for several batch sizes, each from a client on the
 //!    engine's host that takes the payloads through Zenoh's shared memory and from one
-//!    whose configuration turns it off (the network path).
+//!    whose configuration turns it off (the network path), as ratios to two references
+//!    measured in the same round: one environment alone on one thread, times the cores
+//!    (what the engine cannot beat), and the same environments stepped in this process
+//!    on every core (what serving adds to the stepping itself).
 //!
 //! ```text
 //! cargo run --release -p ciflow-bridge --example roundtrip -- [ENDPOINT] [ENGINE]
@@ -45,10 +48,18 @@ const LIMITS: Limits = Limits {
     ..Limits::DEFAULT
 };
 
-/// Env-steps per second of `envs` environments of the task called directly on this thread,
-/// one step each in turn (what the engine cannot beat per core), with the same zero action
-/// as the batched runs. One environment stays in cache; thousands do not.
-fn local_rate(task: &str, envs: usize) -> Result<f64, Box<dyn std::error::Error + Send + Sync>> {
+/// Env-steps per second of `envs` environments of the task called directly, split over
+/// `threads` threads that step their share concurrently, one step each in turn: from a
+/// reset, `untimed` steps per environment, then `timed` ones (with the same zero action
+/// as the batched runs). One environment on one thread stays in cache and is what the
+/// engine cannot beat per core; thousands on every core are what the engine itself has
+/// to do.
+fn local_rate(
+    task: &str,
+    envs: usize,
+    threads: usize,
+    (untimed, timed): (usize, usize),
+) -> Result<f64, Box<dyn std::error::Error + Send + Sync>> {
     let options = ciflow_envs::ResetOptions::default();
     let mut batch = Vec::with_capacity(envs);
     for seed in 0..envs as u64 {
@@ -57,17 +68,45 @@ fn local_rate(task: &str, envs: usize) -> Result<f64, Box<dyn std::error::Error 
         batch.push(env);
     }
     let action = vec![0.0; batch[0].spec().action_space.dim()];
-    let rounds = (200_000 / envs).max(1);
-    let start = Instant::now();
-    for _ in 0..rounds {
-        for env in &mut batch {
-            let step = env.step(&action)?;
-            if step.terminated || step.truncated {
-                env.reset(None, &options)?;
-            }
+    let share = envs.div_ceil(threads);
+    let start = std::sync::Barrier::new(threads + 1);
+    let elapsed = std::thread::scope(|scope| {
+        let workers: Vec<_> = batch
+            .chunks_mut(share)
+            .map(|envs| {
+                let (start, action, options) = (&start, &action, &options);
+                scope.spawn(move || -> Result<(), ciflow_envs::EnvError> {
+                    let mut step_all = |rounds| {
+                        for _ in 0..rounds {
+                            for env in envs.iter_mut() {
+                                let step = env.step(action)?;
+                                if step.terminated || step.truncated {
+                                    env.reset(None, options)?;
+                                }
+                            }
+                        }
+                        Ok(())
+                    };
+                    let warmed = step_all(untimed);
+                    // Meet the others even after a failure, so that none waits forever.
+                    start.wait();
+                    warmed.and_then(|()| step_all(timed))
+                })
+            })
+            .collect();
+        start.wait();
+        let clock = Instant::now();
+        for worker in workers {
+            worker.join().expect("a stepping thread panicked")?;
         }
-    }
-    Ok((rounds * envs) as f64 / start.elapsed().as_secs_f64())
+        Ok::<_, ciflow_envs::EnvError>(clock.elapsed())
+    })?;
+    Ok((timed * envs) as f64 / elapsed.as_secs_f64())
+}
+
+/// Env-steps per second of one environment of the task alone on this thread.
+fn alone_rate(task: &str) -> Result<f64, Box<dyn std::error::Error + Send + Sync>> {
+    local_rate(task, 1, 1, (0, 200_000))
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
@@ -245,45 +284,52 @@ fn batched_rates(
     println!(
         "  reference: the task called directly, one thread, no network: {:.0} env-steps/s \
          (4096 environments in turn: {:.0})",
-        local_rate(task, 1)?,
-        local_rate(task, 4096)?
+        alone_rate(task)?,
+        local_rate(task, 4096, 1, (1, requests_per_measurement(4096)))?
     );
     println!(
-        "  ratio: served / ({threads} threads x one environment alone, measured in the same round)"
+        "  ratio: served / ({threads} threads x one environment alone); in process: served / the \
+         same environments stepped in process on {threads} threads (both measured in the same round)"
     );
     for n in BATCH_SIZES {
         let batches = clients
             .iter()
-            .map(|(_, client)| {
-                let batch = client.make(engine, task, n, &BTreeMap::new())?;
-                batch.reset_batch(Some(0), None)?;
-                Ok(batch)
-            })
+            .map(|(_, client)| client.make(engine, task, n, &BTreeMap::new()))
             .collect::<Result<Vec<_>, ciflow_bridge::BridgeError>>()?;
         let actions = vec![0.0; n as usize * batches[0].spec().action_space.dim()];
         let mut rates = vec![Vec::new(); batches.len()];
         let mut ratios = vec![Vec::new(); batches.len()];
+        let mut in_process_ratios = vec![Vec::new(); batches.len()];
         for round in 0..BATCH_ROUNDS {
-            let alone = local_rate(task, 1)?;
+            let alone = alone_rate(task)?;
+            // The steps of the served measurement: one untimed, then the timed requests.
+            let steps = (1, requests_per_measurement(n as usize));
+            let in_process = local_rate(task, n as usize, threads, steps)?;
             // The clients take turns going first, so what the first measurement of a round
             // pays (caches the reference left cold) is not always the same client's.
             let mut order: Vec<usize> = (0..batches.len()).collect();
             order.rotate_left(round % batches.len());
             for k in order {
+                // From the reset the in-process reference starts from, so both step the
+                // same stretch of the same episodes.
+                batches[k].reset_batch(Some(0), None)?;
                 let rate = served_rate(&batches[k], &actions)?;
                 rates[k].push(rate);
                 ratios[k].push(rate / (threads as f64 * alone));
+                in_process_ratios[k].push(rate / in_process);
             }
         }
         let columns: Vec<String> = clients
             .iter()
-            .zip(rates.iter_mut().zip(&mut ratios))
-            .map(|((name, _), (rates, ratios))| {
+            .zip(rates.iter_mut().zip(&mut ratios).zip(&mut in_process_ratios))
+            .map(|((name, _), ((rates, ratios), in_process_ratios))| {
                 let (rate, _) = median_and_range(rates);
                 let (ratio, (low, high)) = median_and_range(ratios);
+                let (in_process, (in_low, in_high)) = median_and_range(in_process_ratios);
                 let request_ms = 1e3 * n as f64 / rate;
                 format!(
-                    "{name} {rate:>9.0}/s ({request_ms:.2} ms) ratio {ratio:.2} ({low:.2}-{high:.2})"
+                    "{name} {rate:>9.0}/s ({request_ms:.2} ms) ratio {ratio:.2} ({low:.2}-{high:.2}) \
+                     in process {in_process:.2} ({in_low:.2}-{in_high:.2})"
                 )
             })
             .collect();
@@ -302,12 +348,17 @@ fn served_rate(
 ) -> Result<f64, ciflow_bridge::BridgeError> {
     let n = batch.num_envs() as usize;
     batch.step_batch(actions)?;
-    let requests = (1_000_000 / n).clamp(3, 100);
+    let requests = requests_per_measurement(n);
     let start = Instant::now();
     for _ in 0..requests {
         batch.step_batch(actions)?;
     }
     Ok((requests * n) as f64 / start.elapsed().as_secs_f64())
+}
+
+/// Timed `step_batch` requests of `num_envs` environments in one measurement.
+fn requests_per_measurement(num_envs: usize) -> usize {
+    (1_000_000 / num_envs).clamp(3, 100)
 }
 
 /// The `(median, p99)` of the run with the lowest median.
