@@ -4,7 +4,7 @@
 //! A task reports a handful of values at every step (a planar task four), millions of
 //! times a second when an engine steps thousands of environments. A sorted map paid for
 //! its keys at every step: it compared them to sort them, allocated a node for them and
-//! freed it again (a fifth of what an engine spent on a batch of obstacle environments).
+//! freed it again (550 of an obstacle step's 6 200 instructions).
 //! `Info` keeps up to [`INLINE`] entries inside the value, in the order they were set, so
 //! building and dropping one neither allocates nor orders anything; keys stay unique.
 //! Equality ignores the order, as a dict's does.
