@@ -38,6 +38,8 @@ const BATCH_SIZES: [u32; 5] = [1024, 4096, 16384, 65536, 262144];
 /// Echoed payloads of the raw large-payload round trips: a batched reply of 4 096 obstacle
 /// environments, and 4 MiB.
 const LARGE_PAYLOADS: [usize; 2] = [565 * 1024, 4 << 20];
+/// Steps of every batched measurement before its clock starts, served and in process.
+const UNTIMED_STEPS: usize = 1;
 /// Rounds of every batched measurement (see [`batched_rates`]).
 const BATCH_ROUNDS: usize = 3;
 /// Room for the largest batch (the default limit is 65 536 environments per session);
@@ -285,7 +287,12 @@ fn batched_rates(
         "  reference: the task called directly, one thread, no network: {:.0} env-steps/s \
          (4096 environments in turn: {:.0})",
         alone_rate(task)?,
-        local_rate(task, 4096, 1, (1, requests_per_measurement(4096)))?
+        local_rate(
+            task,
+            4096,
+            1,
+            (UNTIMED_STEPS, requests_per_measurement(4096))
+        )?
     );
     println!(
         "  ratio: served / ({threads} threads x one environment alone); in process: served / the \
@@ -302,8 +309,8 @@ fn batched_rates(
         let mut in_process_ratios = vec![Vec::new(); batches.len()];
         for round in 0..BATCH_ROUNDS {
             let alone = alone_rate(task)?;
-            // The steps of the served measurement: one untimed, then the timed requests.
-            let steps = (1, requests_per_measurement(n as usize));
+            // The steps of the served measurement.
+            let steps = (UNTIMED_STEPS, requests_per_measurement(n as usize));
             let in_process = local_rate(task, n as usize, threads, steps)?;
             // The clients take turns going first, so what the first measurement of a round
             // pays (caches the reference left cold) is not always the same client's.
@@ -341,13 +348,15 @@ fn batched_rates(
     Ok(())
 }
 
-/// Env-steps per second of `batch` stepped with `actions`, after one untimed step.
+/// Env-steps per second of `batch` stepped with `actions`, after [`UNTIMED_STEPS`].
 fn served_rate(
     batch: &ciflow_bridge::RemoteEnv,
     actions: &[f64],
 ) -> Result<f64, ciflow_bridge::BridgeError> {
     let n = batch.num_envs() as usize;
-    batch.step_batch(actions)?;
+    for _ in 0..UNTIMED_STEPS {
+        batch.step_batch(actions)?;
+    }
     let requests = requests_per_measurement(n);
     let start = Instant::now();
     for _ in 0..requests {

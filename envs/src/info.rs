@@ -63,7 +63,7 @@ impl Info {
 
     /// The entries, in the order their keys were first set.
     pub fn iter(&self) -> impl ExactSizeIterator<Item = (&InfoKey, &f64)> {
-        self.0.iter().map(|(k, v)| (k, v))
+        self.into_iter()
     }
 }
 
