@@ -3,7 +3,7 @@
 mod common;
 
 use ciflow_engine::math::{DMatrix, DVector};
-use ciflow_engine::robot::{DynamicsError, Robot, panda};
+use ciflow_engine::robot::{DynamicsError, Robot, SerialChain, panda};
 use common::*;
 
 #[test]
@@ -22,29 +22,38 @@ fn mass_matrix_is_symmetric_positive_definite() {
     }
 }
 
+/// Both forms of the CRBA against the RNEA: the Panda's joints turn about their z axes
+/// and its placements are axis-aligned (joint frames); the Panda with a prismatic finger
+/// is not (world coordinates).
 #[test]
 fn mass_matrix_columns_are_rnea_of_unit_accelerations() {
-    let mut robot = panda();
-    let n = robot.dof();
-    let mut rng = rng(11);
-    let zero = DVector::zeros(n);
-    for _ in 0..50 {
-        let s = random_state(&robot, &mut rng);
-        let m = mass_matrix(&mut robot, &s.q);
-        let g = gravity(&mut robot, &s.q);
-        for j in 0..n {
-            let column = inverse_dynamics(
-                &mut robot,
-                &s.q,
-                &zero,
-                &DVector::from_fn(n, |i, _| (i == j) as u8 as f64),
-            ) - &g;
-            assert_close(
-                m.column(j).as_slice(),
-                column.as_slice(),
-                1e-12,
-                "M eⱼ = RNEA(q, 0, eⱼ) − g",
-            );
+    let finger = SerialChain::from_urdf_file(PANDA_GRIPPER_URDF, &panda_finger_options()).unwrap();
+    for (mut robot, in_joint_frames) in [(panda(), true), (finger, false)] {
+        assert_eq!(
+            robot.model().axis_aligned_placements().is_some(),
+            in_joint_frames
+        );
+        let n = robot.dof();
+        let mut rng = rng(11);
+        let zero = DVector::zeros(n);
+        for _ in 0..50 {
+            let s = random_state(&robot, &mut rng);
+            let m = mass_matrix(&mut robot, &s.q);
+            let g = gravity(&mut robot, &s.q);
+            for j in 0..n {
+                let column = inverse_dynamics(
+                    &mut robot,
+                    &s.q,
+                    &zero,
+                    &DVector::from_fn(n, |i, _| (i == j) as u8 as f64),
+                ) - &g;
+                assert_close(
+                    m.column(j).as_slice(),
+                    column.as_slice(),
+                    1e-12,
+                    "M eⱼ = RNEA(q, 0, eⱼ) − g",
+                );
+            }
         }
     }
 }

@@ -1,33 +1,107 @@
-//! The composite rigid-body algorithm (CRBA): the joint-space inertia matrix `M(q)`.
-//! Featherstone (2008), §6.2, in world coordinates (as Pinocchio's world convention):
-//! with `⁰Mᵢ` the placement of body `i`, its motion subspace `Sᵢ` and inertia `Iᵢ` mapped
-//! to the base frame, the composite inertia `Iᶜᵢ = Σ_{k ⪰ i} Iₖ` and
-//! `Mⱼᵢ = Sⱼᵀ Iᶜᵢ Sᵢ` for `j ⪯ i`; the joints' armature adds `diag(I_a)`
-//! ([`Model::armature`](crate::model::Model::armature)).
+//! The composite rigid-body algorithm (CRBA): the joint-space inertia matrix `M(q)`, with
+//! `Mⱼᵢ = Sⱼᵀ Iᶜᵢ Sᵢ` for `j ⪯ i`, `Iᶜᵢ = Σ_{k ⪰ i} Iₖ` the composite inertia of the
+//! subtree of body `i` and `Sᵢ` its joint's motion subspace (Featherstone 2008, §6.2);
+//! the joints' armature adds `diag(I_a)` ([`Model::armature`](crate::model::Model::armature)).
 //!
-//! Why world coordinates: the body-frame form carries `Iᶜᵢ Sᵢ` to every ancestor through
-//! a chain of dependent force transforms (`n(n−1)/2` of them); here every `Mⱼᵢ` is an
-//! independent 6-vector dot product and the composites are plain sums, at the price of
-//! one inertia transform per body (the body-frame form needs `n − 1`).
+//! Two forms, both exact, picked by the model:
+//!
+//! - **In joint frames** (Featherstone's Table 6.2), for chains whose joints all turn
+//!   about their own z axis and whose joint placements are axis-aligned
+//!   ([`Model::axis_aligned_placements`]: the Panda, the UR5e, the iiwa): the composites
+//!   are carried from child to parent, `Iᶜₚ = Iₚ + ᵖXᵢ* Iᶜᵢ ⁱXₚ`, and each column's force
+//!   `Fᵢ = Iᶜᵢ Sᵢ` from frame to frame towards the base, `Mⱼᵢ = Sⱼᵀ Fᵢ` in each frame on
+//!   the way. With `ᵖXᵢ = (R_p Rz(qᵢ), p)` the steps are cheap: `Sᵢ = (0, e_z)` reads
+//!   `Fᵢ`, `Mᵢᵢ` and every `Mⱼᵢ` off entries, `Rz(q)` mixes two coordinates and the
+//!   axis-aligned `R_p` only moves entries, so an inertia changes frame in about 60
+//!   operations instead of the 130 of a dense transform, and no world placement is
+//!   needed. On the Panda: 3 500 instructions instead of 4 400 (Valgrind).
+//! - **In world coordinates** (as Pinocchio's world convention), for any chain: with
+//!   `⁰Mᵢ` the placement of body `i`, `Sᵢ` and `Iᵢ` are mapped to the base frame, the
+//!   composites are plain sums and every `Mⱼᵢ` an independent 6-vector dot product, at the
+//!   price of one dense inertia transform per body. Forward dynamics and the Coriolis
+//!   matrix share its world quantities ([`bodies_in_world`], [`composite_rigid_body`]).
 
 use super::kinematics::place_joints;
 use super::{DynamicsError, check_vector};
-use crate::math::{DMatrix, Real};
-use crate::model::{Data, Model};
-use crate::spatial::{Inertia, Se3};
+use crate::math::{DMatrix, Real, Vector3, sin_cos_slice};
+use crate::model::{Data, Joint, Model};
+use crate::spatial::{AxisAlignedRotation, Force, Inertia, Se3};
 
-/// The joint-space inertia matrix `M(q)` (n × n, both triangles filled) into `data.m`;
-/// also leaves `ᵖMᵢ` in `data.li_m_i` and `⁰Mᵢ` in `data.o_m_i`.
+/// The joint-space inertia matrix `M(q)` (n × n, both triangles filled) into `data.m`.
 pub fn crba<'d>(
     model: &Model,
     data: &'d mut Data,
     q: &[Real],
 ) -> Result<&'d DMatrix, DynamicsError> {
     check_vector("q", q, model.nv())?;
+    match model.axis_aligned_placements() {
+        Some(placements) => crba_in_joint_frames(model, placements, data, q),
+        None => crba_in_world(model, data, q),
+    }
+    Ok(&data.m)
+}
+
+/// The CRBA in world coordinates, for any chain (see the module docs); leaves `ᵖMᵢ` in
+/// `data.li_m_i`, `⁰Mᵢ` in `data.o_m_i` and the composites in `data.ic_world`.
+#[inline(always)]
+fn crba_in_world(model: &Model, data: &mut Data, q: &[Real]) {
     place_joints(model, data, q);
     bodies_in_world(model, data);
     composite_rigid_body(model, data);
-    Ok(&data.m)
+}
+
+/// The CRBA in joint frames (see the module docs): every joint turns about its z axis and
+/// `placements[i]` is the rotation of joint `i`'s placement. Uses `data.li_m_i` (joints
+/// 1 to n − 1) and `data.f` as scratch.
+#[inline(always)]
+fn crba_in_joint_frames(
+    model: &Model,
+    placements: &[AxisAlignedRotation],
+    data: &mut Data,
+    q: &[Real],
+) {
+    let n = model.nv();
+    let bodies = model.bodies();
+    sin_cos_slice(q, &mut data.sin_q, &mut data.cos_q);
+    let (sin, cos) = (&data.sin_q, &data.cos_q);
+    // The forces cross joints 1 to n − 1 through their dense transforms `ᵖXᵢ`: for a
+    // 6-vector a dense product costs what moving entries does.
+    for j in 1..n {
+        data.li_m_i[j] = Joint::revolute_z_transform(&bodies[j].joint.placement, sin[j], cos[j]);
+    }
+    let m = data.m.as_mut_slice();
+    assert_eq!(m.len(), n * n);
+    // The composites, from the tip down: `Iᶜᵢ` in frame `i` stays in registers, and
+    // leaves `Fᵢ` and `Mᵢᵢ` behind.
+    let mut composite = Inertia::zero();
+    for i in (0..n).rev() {
+        composite += bodies[i].inertia;
+        // `Fᵢ = Iᶜᵢ (0, e_z) = (−h × e_z, I_o e_z)`, and `Mᵢᵢ = e_z · I_o e_z`.
+        let (h, rotational) = (&composite.first_moment, &composite.rotational);
+        data.f[i] = Force::new(
+            Vector3::new(-h.y, h.x, 0.0),
+            rotational.column(2).into_owned(),
+        );
+        m[i + i * n] = rotational[(2, 2)] + model.armature()[i];
+        if i > 0 {
+            let turned = composite.rotated_about_z(sin[i], cos[i]);
+            composite = placements[i]
+                .rotate_inertia(&turned)
+                .translated(&bodies[i].joint.placement.translation);
+        }
+    }
+    // The forces cross the joints one joint at a time: across joint `j + 1`, every
+    // `Fᵢ` with `i > j` moves from frame `j + 1` into frame `j` and gives `Mⱼᵢ`. Those moves
+    // are independent of each other, so the CPU overlaps them; column by column, each
+    // would wait for the one before.
+    for j in (0..n.saturating_sub(1)).rev() {
+        let joint = data.li_m_i[j + 1];
+        for (i, force) in data.f.iter_mut().enumerate().skip(j + 1) {
+            *force = joint.act_force(force);
+            m[j + i * n] = force.angular.z;
+        }
+    }
+    data.m.fill_lower_triangle_with_upper_triangle();
 }
 
 /// Every body in world coordinates: its placement `⁰Mᵢ` into `data.o_m_i` (from the
@@ -66,6 +140,40 @@ pub(crate) fn composite_rigid_body(model: &Model, data: &mut Data) {
             let m_ji = force.dot(&data.s_world[j]);
             data.m[(j, i)] = m_ji;
             data.m[(i, j)] = m_ji;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::*;
+    use crate::math::DVector;
+    use crate::robot::panda;
+
+    /// On the Panda (joint frames apply) the two forms give the same matrix, armature
+    /// included, over random configurations.
+    #[test]
+    fn joint_frames_and_world_coordinates_agree() {
+        let mut model = panda().model().clone();
+        model
+            .set_armature(DVector::from_fn(model.nv(), |i, _| 0.05 * (i + 1) as Real))
+            .unwrap();
+        let placements = model
+            .axis_aligned_placements()
+            .expect("the Panda is axis-aligned");
+        let (mut in_joints, mut in_world) = (Data::new(&model), Data::new(&model));
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for _ in 0..200 {
+            let q: Vec<Real> = (0..model.nv())
+                .map(|_| rng.random_range(-3.0..3.0))
+                .collect();
+            crba_in_joint_frames(&model, placements, &mut in_joints, &q);
+            crba_in_world(&model, &mut in_world, &q);
+            let error = (&in_joints.m - &in_world.m).amax();
+            assert!(error < 1e-13 * in_world.m.amax(), "off by {error}");
         }
     }
 }

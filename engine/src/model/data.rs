@@ -17,6 +17,8 @@ pub struct Data {
     pub(crate) li_m_i: Vec<Se3>,
     /// `⁰Mᵢ`: body `i` in the base frame.
     pub(crate) o_m_i: Vec<Se3>,
+    /// The RNEA's velocities, accelerations and forces; the CRBA carries its columns'
+    /// forces `Iᶜᵢ Sᵢ` in `f`.
     pub(crate) v: Vec<Motion>,
     pub(crate) a: Vec<Motion>,
     pub(crate) f: Vec<Force>,

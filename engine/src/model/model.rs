@@ -1,8 +1,8 @@
 //! The read-only description of a serial chain.
 
-use super::{Frame, Joint, JointLimits, ModelError};
+use super::{Frame, Joint, JointKind, JointLimits, ModelError};
 use crate::math::{DVector, Real, Vector3};
-use crate::spatial::{Inertia, Se3};
+use crate::spatial::{AxisAlignedRotation, Inertia, Se3};
 
 /// Standard gravity along `−z` of the base frame (Pinocchio's default), m/s².
 pub const STANDARD_GRAVITY: Real = 9.81;
@@ -27,6 +27,8 @@ pub struct Model {
     frames: Vec<Frame>,
     limits: JointLimits,
     armature: DVector,
+    /// See [`Model::axis_aligned_placements`].
+    axis_aligned_placements: Option<Vec<AxisAlignedRotation>>,
 }
 
 impl Model {
@@ -73,6 +75,7 @@ impl Model {
             gravity: Vector3::new(0.0, 0.0, -STANDARD_GRAVITY),
             limits: JointLimits::unlimited(bodies.len()),
             armature: DVector::zeros(bodies.len()),
+            axis_aligned_placements: axis_aligned_placements(&bodies),
             bodies,
             frames,
         })
@@ -89,6 +92,13 @@ impl Model {
 
     pub fn bodies(&self) -> &[Body] {
         &self.bodies
+    }
+
+    /// The rotations of the joints' placements, when every joint turns about its own z
+    /// axis and every placement's rotation maps axes onto axes (Denavit–Hartenberg-style
+    /// chains such as the Panda and the UR5e): the CRBA then works in the joints' frames.
+    pub fn axis_aligned_placements(&self) -> Option<&[AxisAlignedRotation]> {
+        self.axis_aligned_placements.as_deref()
     }
 
     pub fn frames(&self) -> &[Frame] {
@@ -150,6 +160,19 @@ impl Model {
         self.gravity = gravity;
         Ok(())
     }
+}
+
+fn axis_aligned_placements(bodies: &[Body]) -> Option<Vec<AxisAlignedRotation>> {
+    bodies
+        .iter()
+        .map(|body| {
+            let joint = &body.joint;
+            let about_z = joint.kind == JointKind::Revolute && joint.axis == Vector3::z();
+            about_z
+                .then(|| AxisAlignedRotation::from_matrix(&joint.placement.rotation))
+                .flatten()
+        })
+        .collect()
 }
 
 fn validate_body(body: &mut Body) -> Result<(), ModelError> {

@@ -53,6 +53,52 @@ impl Inertia {
         self.rotational - c.transpose() * c * self.mass
     }
 
+    /// This inertia about a point `p` away, with the axes unchanged (the translation half
+    /// of [`Se3::act_inertia`](super::Se3::act_inertia)): `h' = h + m p`,
+    /// `I_o' = I_o − (p uᵀ + u pᵀ) + 2 (u · p) 1` with `u = h + ½ m p`.
+    #[inline(always)]
+    pub fn translated(&self, p: &Vector3) -> Inertia {
+        let u = self.first_moment + p * (0.5 * self.mass);
+        let pu = p * u.transpose();
+        Inertia {
+            mass: self.mass,
+            first_moment: self.first_moment + p * self.mass,
+            rotational: self.rotational - pu - pu.transpose()
+                + Matrix3::from_diagonal_element(2.0 * u.dot(p)),
+        }
+    }
+
+    /// This inertia turned by `θ` about the z axis, `(m, R h, R I_o Rᵀ)` with
+    /// `R = Rz(θ)`, from `sin θ` and `cos θ`: `R` mixes only x and y, so the six distinct
+    /// entries of `R I_o Rᵀ` take a dozen products instead of two 3×3 matrix products.
+    #[inline(always)]
+    pub fn rotated_about_z(&self, sin: Real, cos: Real) -> Inertia {
+        let (h, i) = (&self.first_moment, &self.rotational);
+        let (xx, yy, xy) = (i[(0, 0)], i[(1, 1)], i[(0, 1)]);
+        let (xz, yz) = (i[(0, 2)], i[(1, 2)]);
+        let (cc, ss, cs) = (cos * cos, sin * sin, cos * sin);
+        let xx_new = cc * xx - 2.0 * cs * xy + ss * yy;
+        let yy_new = ss * xx + 2.0 * cs * xy + cc * yy;
+        let xy_new = cs * (xx - yy) + (cc - ss) * xy;
+        let xz_new = cos * xz - sin * yz;
+        let yz_new = sin * xz + cos * yz;
+        Inertia {
+            mass: self.mass,
+            first_moment: Vector3::new(cos * h.x - sin * h.y, sin * h.x + cos * h.y, h.z),
+            rotational: Matrix3::new(
+                xx_new,
+                xy_new,
+                xz_new, //
+                xy_new,
+                yy_new,
+                yz_new, //
+                xz_new,
+                yz_new,
+                i[(2, 2)],
+            ),
+        }
+    }
+
     /// The 6×6 matrix form (see the type docs).
     pub fn to_matrix6(&self) -> Matrix6 {
         let mut out = Matrix6::zeros();
@@ -155,6 +201,25 @@ mod tests {
                 (actual - expected).amax() < 1e-12 * (1.0 + expected.amax()),
                 "İ = (v×*) I − I (v×): {actual} vs {expected}"
             );
+        }
+    }
+
+    /// The closed form for a turn about z against the dense `R I Rᵀ`.
+    #[test]
+    fn a_turn_about_z_is_the_dense_rotation() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for _ in 0..100 {
+            let body = inertia(&mut rng);
+            let angle: Real = rng.random_range(-3.0..=3.0);
+            let dense =
+                Se3::from_rotation(Se3::rotation_about(&Vector3::z(), angle)).act_inertia(&body);
+            let (sin, cos) = angle.sin_cos();
+            let turned = body.rotated_about_z(sin, cos);
+            assert_eq!(turned.mass, dense.mass);
+            let error = (turned.first_moment - dense.first_moment)
+                .amax()
+                .max((turned.rotational - dense.rotational).amax());
+            assert!(error < 1e-14, "off by {error}");
         }
     }
 

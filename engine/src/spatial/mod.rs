@@ -10,12 +10,14 @@
 //!
 //! Reference: R. Featherstone, *Rigid Body Dynamics Algorithms*, Springer 2008, ch. 2.
 
+mod axis_aligned;
 mod force;
 mod inertia;
 mod motion;
 mod se3;
 
 pub use crate::math::skew;
+pub use axis_aligned::AxisAlignedRotation;
 pub use force::Force;
 pub use inertia::Inertia;
 pub use motion::Motion;

@@ -106,18 +106,12 @@ impl Se3 {
     /// `I_o' = R I_o Rᵀ − (p uᵀ + u pᵀ) + 2 (u · p) 1`.
     #[inline(always)]
     pub fn act_inertia(&self, inertia: &Inertia) -> Inertia {
-        let p = &self.translation;
-        let rh = self.rotation * inertia.first_moment;
-        let u = rh + p * (0.5 * inertia.mass);
-        let pu = p * u.transpose();
-        Inertia {
+        let rotated = Inertia {
             mass: inertia.mass,
-            first_moment: rh + p * inertia.mass,
-            rotational: self.rotation * inertia.rotational * self.rotation.transpose()
-                - pu
-                - pu.transpose()
-                + Matrix3::from_diagonal_element(2.0 * u.dot(p)),
-        }
+            first_moment: self.rotation * inertia.first_moment,
+            rotational: self.rotation * inertia.rotational * self.rotation.transpose(),
+        };
+        rotated.translated(&self.translation)
     }
 
     pub fn to_isometry(&self) -> Isometry3 {
