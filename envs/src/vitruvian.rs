@@ -35,6 +35,7 @@ pub const CURL: f64 = 3.0;
 const DISTANCE_POINTS: usize = 2000;
 /// …in runs of this many segments, each bounded by a disc so that most are skipped.
 const RUN: usize = 40;
+const RUNS: usize = DISTANCE_POINTS / RUN;
 
 /// One limb: a von Mises bump `h exp(κ (cos(θ − θₖ) − 1))` on the torso circle.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -63,11 +64,54 @@ pub struct Outline {
     bumps: [Bump; 5],
     /// `κ` of the curl `T`, rad/m² (0 for the star-shaped phases).
     curl: f64,
-    /// Dense points of the curve, for distances to it, closed: the first point is
-    /// repeated at the end.
-    points: Vec<Vector2<f64>>,
-    /// Per run of `RUN` segments: a disc `(centre, radius)` holding them.
-    runs: Vec<(Vector2<f64>, f64)>,
+    /// The closed polyline of `DISTANCE_POINTS` dense points of the curve, for distances
+    /// to it: segment `i` joins point `i` to point `i + 1` (the last one back to the first).
+    segments: Vec<Segment>,
+    /// Per run of `RUN` segments: a disc holding them.
+    runs: RunDiscs,
+}
+
+/// The discs holding the runs of segments, each coordinate in an array of its own so that
+/// the distances to all of them are taken several at a time.
+#[derive(Clone, Debug, PartialEq)]
+struct RunDiscs {
+    centre_x: [f64; RUNS],
+    centre_y: [f64; RUNS],
+    radius: [f64; RUNS],
+}
+
+/// One chord of the distance polyline, with what projecting a point onto it needs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Segment {
+    start: Vector2<f64>,
+    chord: Vector2<f64>,
+    /// `1 / |chord|²` (0 for a chord of length 0): a product per query, not a division.
+    inverse_length_squared: f64,
+}
+
+impl Segment {
+    fn new(start: Vector2<f64>, end: Vector2<f64>) -> Self {
+        let chord = end - start;
+        let length_squared = chord.norm_squared();
+        Self {
+            start,
+            chord,
+            inverse_length_squared: if length_squared > 0.0 {
+                1.0 / length_squared
+            } else {
+                0.0
+            },
+        }
+    }
+
+    /// Squared distance from `x` to the segment: to the projection of `x` onto the chord,
+    /// clamped to its ends.
+    #[inline(always)]
+    fn distance_squared(&self, x: &Vector2<f64>) -> f64 {
+        let offset = x - self.start;
+        let along = (offset.dot(&self.chord) * self.inverse_length_squared).clamp(0.0, 1.0);
+        (offset - along * self.chord).norm_squared()
+    }
 }
 
 impl Outline {
@@ -122,27 +166,34 @@ impl Outline {
                 leg_bump(-FRAC_PI_2 + leg),
             ],
             curl: CURL * (c - 1.0).max(0.0),
-            points: Vec::new(),
-            runs: Vec::new(),
+            segments: Vec::new(),
+            runs: RunDiscs {
+                centre_x: [0.0; RUNS],
+                centre_y: [0.0; RUNS],
+                radius: [0.0; RUNS],
+            },
         };
-        outline.points = outline.polyline(DISTANCE_POINTS);
-        // Closed: the first point again at the end, so runs index without wrapping.
-        outline.points.push(outline.points[0]);
-        outline.runs = (0..DISTANCE_POINTS / RUN)
-            .map(|k| {
-                let ends = outline.run_points(k);
-                let centre = ends.iter().sum::<Vector2<f64>>() / (RUN + 1) as f64;
-                let radius = ends.iter().map(|p| (p - centre).norm()).fold(0.0, f64::max);
-                (centre, radius)
-            })
+        let points = outline.polyline(DISTANCE_POINTS);
+        let ends = points.iter().cycle().skip(1);
+        outline.segments = points
+            .iter()
+            .zip(ends)
+            .map(|(a, b)| Segment::new(*a, *b))
             .collect();
+        for (k, run) in outline.segments.chunks_exact(RUN).enumerate() {
+            // The run's `RUN + 1` points: its segments' starts and the last one's end.
+            let last = run[RUN - 1];
+            let ends: Vec<_> = run
+                .iter()
+                .map(|s| s.start)
+                .chain([last.start + last.chord])
+                .collect();
+            let centre = ends.iter().sum::<Vector2<f64>>() / ends.len() as f64;
+            let runs = &mut outline.runs;
+            (runs.centre_x[k], runs.centre_y[k]) = (centre.x, centre.y);
+            runs.radius[k] = ends.iter().map(|p| (p - centre).norm()).fold(0.0, f64::max);
+        }
         outline
-    }
-
-    /// The `RUN + 1` polyline points of run `k` (its segments' ends; the last run's
-    /// closes the curve).
-    fn run_points(&self, k: usize) -> &[Vector2<f64>] {
-        &self.points[k * RUN..=(k + 1) * RUN]
     }
 
     /// The star-shaped figure's radius `r(θ)` before the curl, m.
@@ -194,24 +245,33 @@ impl Outline {
     /// for that polyline: a run is skipped only when its disc is farther than the nearest
     /// segment found so far, starting from the run whose disc is nearest.
     pub fn distance(&self, x: &Vector2<f64>) -> f64 {
-        let bound = |k: usize| (x - self.runs[k].0).norm() - self.runs[k].1;
-        // The square root of the nearest squared distance: the same number as the
-        // nearest distance (the square root is monotonic and correctly rounded), one
-        // square root per run instead of one per segment.
-        let run_distance = |k: usize| {
-            self.run_points(k)
-                .windows(2)
-                .map(|ab| segment_distance_squared(x, &ab[0], &ab[1]))
+        // How far `x` is from each run's disc: no segment of the run is nearer.
+        let mut bounds = [0.0; RUNS];
+        let runs = &self.runs;
+        let discs = (runs.centre_x.iter().zip(&runs.centre_y)).zip(&runs.radius);
+        for (bound, ((centre_x, centre_y), radius)) in bounds.iter_mut().zip(discs) {
+            let (dx, dy) = (x.x - centre_x, x.y - centre_y);
+            *bound = (dx * dx + dy * dy).sqrt() - radius;
+        }
+        // The nearest squared distance, whose square root is the nearest distance (the
+        // square root is monotonic and correctly rounded): one square root per run read.
+        let run_distance_squared = |k: usize| {
+            self.segments[k * RUN..(k + 1) * RUN]
+                .iter()
+                .map(|segment| segment.distance_squared(x))
                 .fold(f64::INFINITY, f64::min)
-                .sqrt()
         };
-        let nearest = (0..self.runs.len())
-            .min_by(|&a, &b| bound(a).total_cmp(&bound(b)))
+        let nearest = (0..RUNS)
+            .min_by(|&a, &b| bounds[a].total_cmp(&bounds[b]))
             .expect("an outline has runs");
-        let mut best = run_distance(nearest);
-        for k in (0..self.runs.len()).filter(|&k| k != nearest) {
-            if bound(k) < best {
-                best = best.min(run_distance(k));
+        let mut best_squared = run_distance_squared(nearest);
+        let mut best = best_squared.sqrt();
+        for (k, bound) in bounds.iter().enumerate() {
+            if k != nearest && *bound < best {
+                let squared = run_distance_squared(k);
+                if squared < best_squared {
+                    (best_squared, best) = (squared, squared.sqrt());
+                }
             }
         }
         best
@@ -222,13 +282,6 @@ impl Outline {
 fn rotate(x: &Vector2<f64>, angle: f64) -> Vector2<f64> {
     let (sin, cos) = angle.sin_cos();
     Vector2::new(cos * x.x - sin * x.y, sin * x.x + cos * x.y)
-}
-
-/// Squared distance from `x` to the segment `[a, b]`.
-fn segment_distance_squared(x: &Vector2<f64>, a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
-    let chord = b - a;
-    let along = ((x - a).dot(&chord) / chord.norm_squared().max(f64::MIN_POSITIVE)).clamp(0.0, 1.0);
-    (x - (a + along * chord)).norm_squared()
 }
 
 #[cfg(test)]
@@ -325,19 +378,44 @@ mod tests {
     fn distance_equals_the_nearest_of_all_segments() {
         for c in [0.3, 1.9] {
             let outline = Outline::new(c);
-            let n = outline.points.len();
+            assert_eq!(outline.segments.len(), DISTANCE_POINTS);
             for i in 0..400 {
                 let x = Vector2::new(-1.3 + 0.0065 * i as f64, 1.1 - 0.0057 * i as f64);
-                let brute = (0..n)
+                let brute = (outline.segments.iter())
                     // One square root per segment, the nearest kept.
-                    .map(|j| {
-                        let (a, b) = (&outline.points[j], &outline.points[(j + 1) % n]);
-                        segment_distance_squared(&x, a, b).sqrt()
-                    })
+                    .map(|segment| segment.distance_squared(&x).sqrt())
                     .fold(f64::INFINITY, f64::min);
                 assert_eq!(outline.distance(&x), brute, "c = {c}, {x:?}");
             }
         }
+    }
+
+    /// The projection with the chord's inverse length against the textbook one, which
+    /// divides: on, before, beside and past a chord, and on one of length 0.
+    #[test]
+    fn a_segment_measures_the_distance_to_its_nearest_point() {
+        let (a, b) = (Vector2::new(0.2, -0.1), Vector2::new(0.5, 0.3));
+        let textbook = |x: &Vector2<f64>| {
+            let t = ((x - a).dot(&(b - a)) / (b - a).norm_squared()).clamp(0.0, 1.0);
+            (x - (a + t * (b - a))).norm()
+        };
+        let segment = Segment::new(a, b);
+        for x in [
+            a,
+            b,
+            (a + b) / 2.0,
+            Vector2::new(-1.0, 0.4),
+            Vector2::new(2.0, 2.0),
+            Vector2::new(0.0, 0.6),
+        ] {
+            let error = (segment.distance_squared(&x).sqrt() - textbook(&x)).abs();
+            assert!(
+                error <= 1e-15 * (1.0 + textbook(&x)),
+                "{x:?}: off by {error}"
+            );
+        }
+        let point = Segment::new(a, a);
+        assert_eq!(point.distance_squared(&b), (b - a).norm_squared());
     }
 
     #[test]
