@@ -162,6 +162,7 @@ impl Model {
     }
 }
 
+/// [`Model::axis_aligned_placements`] of a chain, `None` as soon as one joint does not fit.
 fn axis_aligned_placements(bodies: &[Body]) -> Option<Vec<AxisAlignedRotation>> {
     bodies
         .iter()

@@ -61,8 +61,8 @@ impl AxisAlignedRotation {
         Vector3::from_fn(|r, _| self.sign[r] * v[self.source[r]])
     }
 
-    /// `R I` moved into the rotated frame: `(m, R h, R I_o Rᵀ)`, where
-    /// `(R I_o Rᵀ)ᵣₜ = sign[r] sign[t] (I_o)_{source[r] source[t]}`.
+    /// The inertia expressed in axes turned by `R` (same origin): `(m, R h, R I_o Rᵀ)`,
+    /// where `(R I_o Rᵀ)ᵣₜ = sign[r] sign[t] (I_o)_{source[r] source[t]}`.
     #[inline(always)]
     pub fn rotate_inertia(&self, inertia: &Inertia) -> Inertia {
         let i = &inertia.rotational;
