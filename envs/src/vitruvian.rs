@@ -64,9 +64,12 @@ pub struct Outline {
     bumps: [Bump; 5],
     /// `κ` of the curl `T`, rad/m² (0 for the star-shaped phases).
     curl: f64,
-    /// The closed polyline of `DISTANCE_POINTS` dense points of the curve, for distances
-    /// to it: segment `i` joins point `i` to point `i + 1` (the last one back to the first).
-    segments: Vec<Segment>,
+    /// Dense points of the curve, for distances to it, closed: the first point is
+    /// repeated at the end, so segment `i` joins point `i` to point `i + 1`.
+    points: Vec<Vector2<f64>>,
+    /// `1 / |chord|²` of each segment (0 for a chord of length 0): a product per query
+    /// instead of a division.
+    inverse_lengths_squared: Vec<f64>,
     /// Per run of `RUN` segments: a disc holding them.
     runs: RunDiscs,
 }
@@ -80,43 +83,33 @@ struct RunDiscs {
     radius: [f64; RUNS],
 }
 
-/// One chord of the distance polyline, with what projecting a point onto it needs.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Segment {
-    start: Vector2<f64>,
-    chord: Vector2<f64>,
-    /// `1 / |chord|²` (0 for a chord of length 0): a product per query, not a division.
+/// Squared distance from `x` to the segment `[a, b]`, whose `1 / |b − a|²` is
+/// `inverse_length_squared`: to the projection of `x` onto the chord, clamped to its ends.
+#[inline(always)]
+fn segment_distance_squared(
+    x: &Vector2<f64>,
+    a: &Vector2<f64>,
+    b: &Vector2<f64>,
     inverse_length_squared: f64,
+) -> f64 {
+    let (offset, chord) = (x - a, b - a);
+    let along = (offset.dot(&chord) * inverse_length_squared).clamp(0.0, 1.0);
+    (offset - along * chord).norm_squared()
 }
 
-impl Segment {
-    fn new(start: Vector2<f64>, end: Vector2<f64>) -> Self {
-        let chord = end - start;
-        let length_squared = chord.norm_squared();
-        Self {
-            start,
-            chord,
-            inverse_length_squared: if length_squared > 0.0 {
-                1.0 / length_squared
-            } else {
-                0.0
-            },
-        }
-    }
-
-    /// Squared distance from `x` to the segment: to the projection of `x` onto the chord,
-    /// clamped to its ends.
-    #[inline(always)]
-    fn distance_squared(&self, x: &Vector2<f64>) -> f64 {
-        let offset = x - self.start;
-        let along = (offset.dot(&self.chord) * self.inverse_length_squared).clamp(0.0, 1.0);
-        (offset - along * self.chord).norm_squared()
+/// `1 / |b − a|²`, or 0 when `a = b` (the projection is then `a` itself).
+fn inverse_length_squared(a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
+    let length_squared = (b - a).norm_squared();
+    if length_squared > 0.0 {
+        1.0 / length_squared
+    } else {
+        0.0
     }
 }
 
 impl Outline {
     /// The outline at `c`, shared with every holder of the same context in this process.
-    /// An outline holds `DISTANCE_POINTS` dense points (32 kB) and takes a few hundred
+    /// An outline holds `DISTANCE_POINTS` dense points and their chords' inverse lengths (48 kB) and takes a few hundred
     /// microseconds to build: a batch of environments on the task's few scheduled
     /// contexts would otherwise hold a copy each and rebuild it on every reset.
     pub fn shared(c: f64) -> Arc<Outline> {
@@ -166,34 +159,34 @@ impl Outline {
                 leg_bump(-FRAC_PI_2 + leg),
             ],
             curl: CURL * (c - 1.0).max(0.0),
-            segments: Vec::new(),
+            points: Vec::new(),
+            inverse_lengths_squared: Vec::new(),
             runs: RunDiscs {
                 centre_x: [0.0; RUNS],
                 centre_y: [0.0; RUNS],
                 radius: [0.0; RUNS],
             },
         };
-        let points = outline.polyline(DISTANCE_POINTS);
-        let ends = points.iter().cycle().skip(1);
-        outline.segments = points
-            .iter()
-            .zip(ends)
-            .map(|(a, b)| Segment::new(*a, *b))
+        outline.points = outline.polyline(DISTANCE_POINTS);
+        // Closed: the first point again at the end, so runs index without wrapping.
+        outline.points.push(outline.points[0]);
+        outline.inverse_lengths_squared = (outline.points.windows(2))
+            .map(|ab| inverse_length_squared(&ab[0], &ab[1]))
             .collect();
-        for (k, run) in outline.segments.chunks_exact(RUN).enumerate() {
-            // The run's `RUN + 1` points: its segments' starts and the last one's end.
-            let last = run[RUN - 1];
-            let ends: Vec<_> = run
-                .iter()
-                .map(|s| s.start)
-                .chain([last.start + last.chord])
-                .collect();
+        for k in 0..RUNS {
+            let ends = outline.run_points(k);
             let centre = ends.iter().sum::<Vector2<f64>>() / ends.len() as f64;
+            let radius = ends.iter().map(|p| (p - centre).norm()).fold(0.0, f64::max);
             let runs = &mut outline.runs;
-            (runs.centre_x[k], runs.centre_y[k]) = (centre.x, centre.y);
-            runs.radius[k] = ends.iter().map(|p| (p - centre).norm()).fold(0.0, f64::max);
+            (runs.centre_x[k], runs.centre_y[k], runs.radius[k]) = (centre.x, centre.y, radius);
         }
         outline
+    }
+
+    /// The `RUN + 1` polyline points of run `k` (its segments' ends; the last run's
+    /// closes the curve).
+    fn run_points(&self, k: usize) -> &[Vector2<f64>] {
+        &self.points[k * RUN..=(k + 1) * RUN]
     }
 
     /// The star-shaped figure's radius `r(θ)` before the curl, m.
@@ -256,9 +249,9 @@ impl Outline {
         // The nearest squared distance, whose square root is the nearest distance (the
         // square root is monotonic and correctly rounded): one square root per run read.
         let run_distance_squared = |k: usize| {
-            self.segments[k * RUN..(k + 1) * RUN]
-                .iter()
-                .map(|segment| segment.distance_squared(x))
+            let inverse_lengths_squared = &self.inverse_lengths_squared[k * RUN..(k + 1) * RUN];
+            (self.run_points(k).windows(2).zip(inverse_lengths_squared))
+                .map(|(ab, &inverse)| segment_distance_squared(x, &ab[0], &ab[1], inverse))
                 .fold(f64::INFINITY, f64::min)
         };
         let nearest = (0..RUNS)
@@ -378,13 +371,16 @@ mod tests {
     fn distance_equals_the_nearest_of_all_segments() {
         for c in [0.3, 1.9] {
             let outline = Outline::new(c);
-            assert_eq!(outline.segments.len(), DISTANCE_POINTS);
+            assert_eq!(outline.points.len(), DISTANCE_POINTS + 1);
             for i in 0..400 {
                 let x = Vector2::new(-1.3 + 0.0065 * i as f64, 1.1 - 0.0057 * i as f64);
-                let brute = (outline.segments.iter())
-                    // One square root per segment, the nearest kept.
-                    .map(|segment| segment.distance_squared(&x).sqrt())
-                    .fold(f64::INFINITY, f64::min);
+                let brute = (outline
+                    .points
+                    .windows(2)
+                    .zip(&outline.inverse_lengths_squared))
+                // One square root per segment, the nearest kept.
+                .map(|(ab, &inverse)| segment_distance_squared(&x, &ab[0], &ab[1], inverse).sqrt())
+                .fold(f64::INFINITY, f64::min);
                 assert_eq!(outline.distance(&x), brute, "c = {c}, {x:?}");
             }
         }
@@ -399,7 +395,7 @@ mod tests {
             let t = ((x - a).dot(&(b - a)) / (b - a).norm_squared()).clamp(0.0, 1.0);
             (x - (a + t * (b - a))).norm()
         };
-        let segment = Segment::new(a, b);
+        let inverse = inverse_length_squared(&a, &b);
         for x in [
             a,
             b,
@@ -408,14 +404,18 @@ mod tests {
             Vector2::new(2.0, 2.0),
             Vector2::new(0.0, 0.6),
         ] {
-            let error = (segment.distance_squared(&x).sqrt() - textbook(&x)).abs();
+            let error = (segment_distance_squared(&x, &a, &b, inverse).sqrt() - textbook(&x)).abs();
             assert!(
                 error <= 1e-15 * (1.0 + textbook(&x)),
                 "{x:?}: off by {error}"
             );
         }
-        let point = Segment::new(a, a);
-        assert_eq!(point.distance_squared(&b), (b - a).norm_squared());
+        let degenerate = inverse_length_squared(&a, &a);
+        assert_eq!(degenerate, 0.0);
+        assert_eq!(
+            segment_distance_squared(&b, &a, &a, degenerate),
+            (b - a).norm_squared()
+        );
     }
 
     #[test]
