@@ -62,27 +62,21 @@ impl Joint {
                 placement.translation + placement.rotation * (self.axis * q),
             ),
             JointKind::Revolute if self.axis == Vector3::z() => {
-                Self::revolute_z_transform(placement, sin, cos)
+                // The common case (DH chains, most URDFs): `R Rz(q)` mixes two columns.
+                let r = &placement.rotation;
+                let (x, y) = (r.column(0), r.column(1));
+                let rotation = Matrix3::from_columns(&[
+                    x * cos + y * sin,
+                    y * cos - x * sin,
+                    r.column(2).into_owned(),
+                ]);
+                Se3::new(rotation, placement.translation)
             }
             JointKind::Revolute => Se3::new(
                 placement.rotation * Se3::rotation_about_from(&self.axis, sin, cos),
                 placement.translation,
             ),
         }
-    }
-
-    /// `placement · Rz(q)` from `sin q` and `cos q`: the placement of a joint turning about
-    /// its own z axis (DH chains, most URDFs), where `R Rz(q)` mixes two columns of `R`.
-    #[inline(always)]
-    pub(crate) fn revolute_z_transform(placement: &Se3, sin: Real, cos: Real) -> Se3 {
-        let r = &placement.rotation;
-        let (x, y) = (r.column(0), r.column(1));
-        let rotation = Matrix3::from_columns(&[
-            x * cos + y * sin,
-            y * cos - x * sin,
-            r.column(2).into_owned(),
-        ]);
-        Se3::new(rotation, placement.translation)
     }
 
     /// The motion subspace `S` in the child body frame, `vᵢ = S q̇ᵢ`: `(0, axis)` for a
