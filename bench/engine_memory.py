@@ -1,10 +1,11 @@
 """Resident memory of an engine per 1000 environments of each task: for each task a fresh
 `ciflow serve` process is started here and its resident set size (VmRSS) read before and
 after each of SESSIONS 1000-environment sessions is made and reset. The first sessions'
-growth includes one-time costs (thread pools, the task's shared data, Zenoh's shared-memory
-pool, the allocator's arenas: the second session still grew by ~10 MiB for every task on
-2026-12-02), so the cost per 1000 environments is the median growth of the sessions after
-the first two, whose growths are printed beside it.
+growth includes one-time costs (thread pools, the task's shared data, and Zenoh's shared
+memory: the engine's 16 MiB pool in the first session, zenoh-shm's watchdog with its 8 MiB
+channel and the client's mapped segment in the second), so the cost per 1000 environments
+is the median growth of the sessions after the first two, whose growths are printed
+beside it.
 
     python bench/engine_memory.py [PATH_TO_CIFLOW]
 """
