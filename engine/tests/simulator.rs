@@ -84,6 +84,54 @@ fn end_stops_clamp_position_and_stop_outward_velocity() {
     assert!(report.end_stops.is_empty() && sim.q()[0] < 1.0);
 }
 
+/// A robot whose limits are all infinite skips the end-stop and speed checks; one whose
+/// finite limits are never reached runs them. Both must move alike, bit for bit, and a
+/// speed limit that is exceeded must be reported (for its joint only).
+#[test]
+fn infinite_limits_never_act_and_finite_speed_limits_are_reported() {
+    let far = |bound: Real| {
+        let mut limits = JointLimits::unlimited(2);
+        limits.q_min = DVector::from_element(2, -1e6);
+        limits.q_max = DVector::from_element(2, 1e6);
+        limits.qd_max = DVector::from_element(2, bound);
+        limits
+    };
+    let simulator = |limits: Option<JointLimits>| {
+        let robot = PointMass2d::new(1.5).unwrap();
+        let robot = match limits {
+            Some(limits) => robot.with_limits(limits).unwrap(),
+            None => robot,
+        };
+        let mut sim = Simulator::new(Box::new(robot), SimConfig::default()).unwrap();
+        sim.reset(&[0.3, -0.2], &[0.1, 0.4]).unwrap();
+        sim
+    };
+    let (mut unlimited, mut checked) = (simulator(None), simulator(Some(far(1e6))));
+    for k in 0..300 {
+        let action = [
+            3.0 * (0.05 * k as Real).sin(),
+            -2.0 * (0.03 * k as Real).cos(),
+        ];
+        let (a, b) = (
+            unlimited.step(&action).unwrap(),
+            checked.step(&action).unwrap(),
+        );
+        assert_eq!(unlimited.q(), checked.q());
+        assert_eq!(unlimited.qd(), checked.qd());
+        assert_eq!(a, b);
+        assert!(a.end_stops.is_empty() && a.over_speed.is_empty());
+    }
+    let mut slow = far(0.5);
+    slow.qd_max[1] = Real::INFINITY;
+    let mut sim = simulator(Some(slow));
+    let report = (0..1000)
+        .map(|_| sim.step(&[2.0, 2.0]).unwrap())
+        .find(|report| !report.over_speed.is_empty())
+        .expect("joint 0 passes 0.5 m/s within 1 s");
+    assert!(sim.qd()[0] > 0.5);
+    assert!(report.over_speed.contains(0) && !report.over_speed.contains(1));
+}
+
 #[test]
 fn perturbations_act_only_in_their_window() {
     let mass = 2.0;

@@ -50,6 +50,11 @@ pub struct Simulator {
     stages: Stages,
     tau_total: DVector,
     tau_link: DVector,
+    /// Whether any joint has a finite position limit, and a finite speed limit: an
+    /// infinite one never acts, so a robot without any (the point masses) skips the
+    /// checks and the reads of its limits at every substep.
+    has_end_stops: bool,
+    has_speed_limits: bool,
 }
 
 impl Simulator {
@@ -62,6 +67,9 @@ impl Simulator {
         let limits = robot.limits();
         let q0: DVector =
             DVector::from_fn(dof, |i, _| 0.0_f64.clamp(limits.q_min[i], limits.q_max[i]));
+        let finite = |bounds: &DVector| bounds.iter().any(|b| b.is_finite());
+        let has_end_stops = finite(&limits.q_min) || finite(&limits.q_max);
+        let has_speed_limits = finite(&limits.qd_max);
         let mut simulator = Self {
             controller: ComputedTorque::new(dof, config.control_dt)?,
             robot,
@@ -74,6 +82,8 @@ impl Simulator {
             stages: Stages::new(dof),
             tau_total: DVector::zeros(dof),
             tau_link: DVector::zeros(dof),
+            has_end_stops,
+            has_speed_limits,
         };
         simulator.reset(q0.as_slice(), &vec![0.0; dof])?;
         Ok(simulator)
@@ -227,16 +237,20 @@ impl Simulator {
                 },
             )?;
             self.step_count += 1;
-            end_stops = end_stops.union(self.apply_end_stops());
+            if self.has_end_stops {
+                end_stops = end_stops.union(self.apply_end_stops());
+            }
             if !(self.q.iter().chain(self.qd.iter()).all(|x| x.is_finite())) {
                 return Err(SimError::NonFiniteState { time: self.time() });
             }
         }
-        let qd_max = &self.robot.limits().qd_max;
         let mut over_speed = JointMask::empty();
-        for (i, (qd, max)) in self.qd.iter().zip(qd_max.iter()).enumerate() {
-            if qd.abs() > *max {
-                over_speed.insert(i);
+        if self.has_speed_limits {
+            let qd_max = &self.robot.limits().qd_max;
+            for (i, (qd, max)) in self.qd.iter().zip(qd_max.iter()).enumerate() {
+                if qd.abs() > *max {
+                    over_speed.insert(i);
+                }
             }
         }
         Ok(StepReport {
