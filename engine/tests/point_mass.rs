@@ -91,3 +91,24 @@ fn point_mass_rejects_bad_input() {
         Err(DynamicsError::NoSuchLink { index: 1, count: 1 })
     );
 }
+
+/// Point masses without limits read one shared (infinite) set; limits given to one are
+/// its own.
+#[test]
+fn unlimited_point_masses_share_their_limits() {
+    let (a, b) = (
+        PointMass2d::new(1.0).unwrap(),
+        PointMass2d::new(2.0).unwrap(),
+    );
+    assert!(std::ptr::eq(a.limits(), b.limits()));
+    assert_eq!(*a.limits(), JointLimits::unlimited(2));
+    let mut limits = JointLimits::unlimited(2);
+    limits.q_max = DVector::from_element(2, 1.0);
+    let limited = PointMass2d::new(1.0)
+        .unwrap()
+        .with_limits(limits.clone())
+        .unwrap();
+    assert!(!std::ptr::eq(a.limits(), limited.limits()));
+    assert_eq!(*limited.limits(), limits);
+    assert_eq!(*a.limits(), JointLimits::unlimited(2));
+}

@@ -1,6 +1,7 @@
 //! The environment interface shared by every task, the bridge and the Python client.
 
 use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex, PoisonError, Weak};
 
 use ciflow_engine::sim::Perturbation;
 use serde::{Deserialize, Serialize};
@@ -59,6 +60,21 @@ impl EnvSpec {
             });
         }
         Ok(observation.split_at(expected - self.context_space.dim()))
+    }
+
+    /// This spec, shared with every living environment whose spec equals it: the
+    /// thousands of environments of a batched session then check their actions against
+    /// one copy of the bounds, which stays in cache, instead of one copy each.
+    pub fn shared(self) -> Arc<EnvSpec> {
+        static SPECS: Mutex<Vec<Weak<EnvSpec>>> = Mutex::new(Vec::new());
+        let mut specs = SPECS.lock().unwrap_or_else(PoisonError::into_inner);
+        specs.retain(|spec| spec.strong_count() > 0);
+        if let Some(spec) = specs.iter().filter_map(Weak::upgrade).find(|s| **s == self) {
+            return spec;
+        }
+        let spec = Arc::new(self);
+        specs.push(Arc::downgrade(&spec));
+        spec
     }
 }
 
@@ -156,4 +172,36 @@ pub trait Env: Send {
     /// It depends on the observation and the construction arguments only, so a fresh
     /// environment draws any recorded or streamed observation without a reset.
     fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError>;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::space::Dtype;
+
+    fn spec(bound: f64) -> EnvSpec {
+        let space = |n: usize| BoxSpace::new(vec![-bound; n], vec![bound; n], Dtype::Float64);
+        EnvSpec {
+            id: "ciflow/Test-v0".into(),
+            observation_space: space(6),
+            action_space: space(2),
+            context_space: space(2),
+            control_dt: 0.01,
+            physics_dt: 0.001,
+            max_episode_steps: 10,
+        }
+    }
+
+    /// Equal specs share one copy while one lives; an unequal one gets its own; the cache
+    /// keeps none alive.
+    #[test]
+    fn equal_specs_share_one_copy_and_none_is_kept_alive() {
+        let (a, b, other) = (spec(2.0).shared(), spec(2.0).shared(), spec(3.0).shared());
+        assert!(Arc::ptr_eq(&a, &b));
+        assert!(!Arc::ptr_eq(&a, &other));
+        assert_eq!(*other, spec(3.0));
+        let weak = Arc::downgrade(&a);
+        drop((a, b));
+        assert!(weak.upgrade().is_none());
+    }
 }

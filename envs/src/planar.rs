@@ -7,6 +7,7 @@
 //! through the real dynamics: `ẍ = a + f_ext / m`.
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use ciflow_engine::robot::PointMass2d;
 use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
@@ -81,7 +82,7 @@ pub trait PlanarTask: Send + 'static {
 /// A planar task as an [`Env`].
 pub struct PlanarEnv<T: PlanarTask> {
     task: T,
-    spec: EnvSpec,
+    spec: Arc<EnvSpec>,
     simulator: Simulator,
     rng: EpisodeRng,
     context: Vec<f64>,
@@ -117,7 +118,8 @@ impl<T: PlanarTask> PlanarEnv<T> {
             control_dt: setup.control_dt,
             physics_dt: setup.physics_dt,
             max_episode_steps: setup.max_episode_steps,
-        };
+        }
+        .shared();
         Ok(Self {
             task,
             spec,

@@ -1,6 +1,7 @@
 //! The registry's per-task defaults name real parts of each task: the pushed link is the
 //! last movable link its environment accepts a push on, a mid-motion context change
 //! replaces no more entries than the context has, and a task's arm has a joint per action.
+//! Environments made alike share their spec.
 
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use ciflow_envs::ResetOptions;
@@ -77,4 +78,24 @@ fn arguments_are_numbers_or_the_index_of_a_named_value() {
     assert!(unknown.to_string().contains("NoSuchShape"), "{unknown}");
     let obstacles = registry::entry("obstacle-avoidance").unwrap();
     assert!(obstacles.values(&[pair("obstacles", "three")]).is_err());
+}
+
+/// Two environments of a task made with the same arguments read one spec (the bounds a
+/// step checks its action against stay in cache across a batch); other arguments, another.
+#[test]
+fn environments_made_alike_share_their_spec() {
+    for task in tasks() {
+        let (a, b) = ((task.make)(), (task.make)());
+        assert!(std::ptr::eq(a.spec(), b.spec()), "{}", task.name);
+    }
+    let obstacles = |n: f64| {
+        let kwargs = Kwargs::from([("obstacles".to_string(), n.into())]);
+        registry::make_with("ciflow/Obstacle-v0", &kwargs).unwrap()
+    };
+    let (one, three) = (obstacles(1.0), obstacles(3.0));
+    assert!(!std::ptr::eq(one.spec(), three.spec()));
+    assert_ne!(
+        one.spec().context_space.dim(),
+        three.spec().context_space.dim()
+    );
 }

@@ -1,5 +1,7 @@
 //! A point mass moving in a horizontal plane.
 
+use std::sync::{Arc, LazyLock};
+
 use super::{DynamicsError, Frame, JointLimits, Robot};
 use crate::algorithm::{check_len, check_matrix_shape, check_vector};
 use crate::math::{DMatrix, DVector, Isometry3, Real, Vector3};
@@ -10,6 +12,9 @@ const DOF: usize = 2;
 const MASS_LINK: usize = 0;
 const MASS_FRAME: usize = 1;
 
+static UNLIMITED: LazyLock<Arc<JointLimits>> =
+    LazyLock::new(|| Arc::new(JointLimits::unlimited(DOF)));
+
 /// A point mass `m` at `q = (x, y)` in a horizontal plane: `M = m 1₂`, `C = 0`, `g = 0`,
 /// so `m q̈ = τ + τ_ext` with `τ` the planar force. Frames: 0 the plane, 1 the mass.
 /// An external wrench acts through its in-plane force `(f_x, f_y)` only; the plane takes
@@ -17,7 +22,9 @@ const MASS_FRAME: usize = 1;
 #[derive(Clone, Debug)]
 pub struct PointMass2d {
     mass: Real,
-    limits: JointLimits,
+    /// Shared: every point mass without limits reads the same (infinite) ones, so the
+    /// thousands of a batched session keep one copy in cache, not one each.
+    limits: Arc<JointLimits>,
     frames: [Frame; 2],
 }
 
@@ -32,7 +39,7 @@ impl PointMass2d {
         }
         Ok(Self {
             mass,
-            limits: JointLimits::unlimited(DOF),
+            limits: Arc::clone(&UNLIMITED),
             frames: [
                 Frame {
                     name: "plane".into(),
@@ -51,7 +58,7 @@ impl PointMass2d {
     /// Sets position, velocity, acceleration and force limits (defaults: unlimited).
     pub fn with_limits(mut self, limits: JointLimits) -> Result<Self, ModelError> {
         limits.validate(DOF)?;
-        self.limits = limits;
+        self.limits = Arc::new(limits);
         Ok(self)
     }
 

@@ -60,6 +60,8 @@
 //! ## Version history
 //! v0: initial version.
 
+use std::sync::Arc;
+
 use ciflow_engine::math::{Isometry3, Vector3};
 use ciflow_engine::robot::{PANDA_HOME, Robot, panda};
 use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
@@ -131,7 +133,7 @@ fn over_opening(pot: &Isometry3, point: &Vector3) -> bool {
 
 /// The pouring environment (see the module docs).
 pub struct Pouring {
-    spec: EnvSpec,
+    spec: Arc<EnvSpec>,
     simulator: Simulator,
     rng: EpisodeRng,
     context: Vec<f64>,
@@ -214,7 +216,8 @@ impl Pouring {
             control_dt: config.control_dt,
             physics_dt: config.physics_dt,
             max_episode_steps: 600,
-        };
+        }
+        .shared();
         let context = CONTEXT_LOW
             .iter()
             .zip(&CONTEXT_HIGH)

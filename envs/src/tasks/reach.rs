@@ -271,7 +271,7 @@ fn prototype(kwargs: &Kwargs) -> Result<Arc<Prototype>, EnvError> {
 
 /// The reach environment (see the module docs).
 pub struct Reach {
-    spec: EnvSpec,
+    spec: Arc<EnvSpec>,
     simulator: Simulator,
     home: Vec<f64>,
     rng: EpisodeRng,
@@ -321,7 +321,8 @@ impl Reach {
             control_dt: config.control_dt,
             physics_dt: config.physics_dt,
             max_episode_steps: MAX_EPISODE_STEPS,
-        };
+        }
+        .shared();
         let simulator = Simulator::new(Box::new(robot), config).map_err(EnvError::Simulation)?;
         let goal = Vector3::from_column_slice(&spec.context_space.low);
         Ok(Self {
