@@ -52,7 +52,8 @@ pub struct Simulator {
     tau_link: DVector,
     /// Whether any joint has a finite position limit, and a finite speed limit: an
     /// infinite one never acts, so a robot without any (the point masses) skips the
-    /// checks and the reads of its limits at every substep.
+    /// checks and the reads of its limits at every substep. Read once: the `Robot` trait
+    /// has no way to change a boxed robot's limits.
     has_end_stops: bool,
     has_speed_limits: bool,
 }
