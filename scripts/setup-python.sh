@@ -24,10 +24,13 @@ if [[ ! -x $VENV/bin/python ]]; then
   echo "setup: creating $VENV with $($PYTHON --version)"
   "$PYTHON" -m venv "$VENV"
 fi
-"$VENV/bin/python" -m pip install -q --upgrade pip
+# No download cache: the torch wheel alone would keep about a gigabyte of a machine's disk
+# that the build needs (a CI machine once ran out of space compiling).
+pip_install=("$VENV/bin/python" -m pip install -q --no-cache-dir)
+"${pip_install[@]}" --upgrade pip
 echo "setup: installing Python packages (torch wheel is large; first run takes minutes)"
-"$VENV/bin/python" -m pip install -q --no-deps torch==2.13.0
-"$VENV/bin/python" -m pip install -q -r "$REQUIREMENTS"
+"${pip_install[@]}" --no-deps torch==2.13.0
+"${pip_install[@]}" -r "$REQUIREMENTS"
 
 site=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
 torch_dir=$site/torch

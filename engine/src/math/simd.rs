@@ -11,6 +11,13 @@ pub(crate) fn has_avx2_fma() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
+/// Whether this CPU has AVX-512F (detected once, then cached by the standard library).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+pub(crate) fn has_avx512f() -> bool {
+    std::arch::is_x86_feature_detected!("avx512f")
+}
+
 /// `run()`, compiled for AVX2 and FMA when the CPU has them (`run` and everything it
 /// inlines, so its helpers should be `#[inline(always)]`).
 ///
