@@ -1,10 +1,11 @@
 //! One policy action at the pouring size (d = 7, context 6, 10 coupling layers): the
 //! affine network as `ciflow train --task pouring` builds it (2×32 hidden,
-//! `envs/src/recipes.rs`), the same with the default 2×64 (`affine-64`, pouring's before)
-//! and the default spline flow (2×64). The action a robot gets is `Policy::acceleration`,
-//! `flow/acceleration/*`:
-//! the desired acceleration `q̈_des` and velocity `v_des` of the second-order controller
-//! that every environment, served policy and evaluation runs (`envs::actor::Actor`).
+//! `envs/src/recipes.rs`), the same with the default 2×64 (`affine-64`, pouring's before),
+//! the default spline flow (2×64) and the spline flow the pouring recipe builds
+//! (`spline-32`: `ciflow train --task pouring --coupling spline`, 2×32). The action a
+//! robot gets is `Policy::acceleration`, `flow/acceleration/*`: the desired acceleration
+//! `q̈_des` and velocity `v_des` of the second-order controller that every environment,
+//! served policy and evaluation runs (`envs::actor::Actor`).
 //! `flow/act/*` is the first-order step (`Policy::act`: inverse, latent step, forward
 //! and the Jacobian-vector product of the desired velocity), the figure the tch eager
 //! comparison prints beside it (`cargo bench -p ciflow-train --bench flow_tch`). The
@@ -96,6 +97,7 @@ fn bench(c: &mut Criterion) {
         ("affine-joint-range", affine.clone(), POURING_HIDDEN, true),
         ("affine-64", affine, DEFAULT_HIDDEN, false),
         ("spline", SPLINE, DEFAULT_HIDDEN, false),
+        ("spline-32", SPLINE, POURING_HIDDEN, false),
     ] {
         let policy = pouring_policy(coupling, hidden, joint_range);
         bench_actions(c, name, &policy, &y, &context);
