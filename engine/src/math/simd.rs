@@ -28,12 +28,23 @@ pub(crate) fn has_avx512f() -> bool {
 pub(crate) fn with_avx2_fma<R>(run: impl FnOnce() -> R) -> R {
     #[cfg(target_arch = "x86_64")]
     if has_avx2_fma() {
-        #[target_feature(enable = "avx2,fma")]
-        fn compiled_for_avx2_fma<R>(run: impl FnOnce() -> R) -> R {
-            run()
-        }
         // SAFETY: both features were detected.
         return unsafe { compiled_for_avx2_fma(run) };
     }
+    run()
+}
+
+/// `run()` compiled for AVX2 and FMA (callable only where the CPU has them).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+pub(crate) fn compiled_for_avx2_fma<R>(run: impl FnOnce() -> R) -> R {
+    run()
+}
+
+/// `run()` compiled for AVX-512F besides AVX2 and FMA (callable only where the CPU has
+/// all three).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma,avx512f")]
+pub(crate) fn compiled_for_avx512<R>(run: impl FnOnce() -> R) -> R {
     run()
 }

@@ -29,7 +29,7 @@ use crate::flow::checkpoint::names::{self, BIAS, WEIGHT};
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::FlowResult;
 #[cfg(target_arch = "x86_64")]
-use crate::math::simd::{has_avx2_fma, has_avx512f};
+use crate::math::simd::{compiled_for_avx2_fma, compiled_for_avx512, has_avx2_fma, has_avx512f};
 use crate::nn::scalar::{Dual, Scalar, tanh_with};
 
 /// Names and shapes `{prefix}.{j}.weight: [out, in]`, `{prefix}.{j}.bias: [out]`, as
@@ -194,8 +194,9 @@ struct Planes {
     stride: usize,
 }
 
-/// Which instruction set the layers run on. The activation loops are compiled for AVX2
-/// and FMA under both x86-64 kernels; only the layers' multiply-adds use AVX-512.
+/// Which instruction set an evaluation runs on: the layers' kernel, and what the
+/// activation loops are compiled for ([`Simd::compiled`]). A value other than `Portable`
+/// is only made once its features were detected.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Simd {
     Portable,
@@ -217,6 +218,23 @@ impl Simd {
             };
         }
         Self::Portable
+    }
+
+    /// `run()`, compiled for this instruction set, so that its loops vectorise for it
+    /// (`run` and everything it inlines, so its helpers should be `#[inline(always)]`).
+    /// Each lane rounds as a scalar would: a wider register only processes more lanes
+    /// of the same operations at once (as [`crate::math::simd::with_avx2_fma`]).
+    #[inline(always)]
+    fn compiled<R>(self, run: impl FnOnce() -> R) -> R {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the features were detected before this value was made.
+            Self::Avx2Fma => unsafe { compiled_for_avx2_fma(run) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as above.
+            Self::Avx512 => unsafe { compiled_for_avx512(run) },
+            Self::Portable => run(),
+        }
     }
 
     /// `tanh(x)`, with fused multiply-adds where they are single instructions.
@@ -241,10 +259,9 @@ impl Simd {
 /// for all lanes.
 ///
 /// AVX-512 halves the instructions per multiply-add. On this project's VMs (AMD Zen 5,
-/// 512-bit operations at full width) it took the pouring-sized action with 2×64
-/// conditioners from 14.1–14.3 to 10.9–11.3 µs and the spline flow's from 28.0–30.0 to
-/// 23.8–24.1 (`cargo bench --bench flow`, two alternating rounds); the 2×32 networks'
-/// few multiply-adds did not move.
+/// 512-bit operations at full width) it and the activations' 8-wide loops took the
+/// pouring-sized action with 2×64 conditioners from 12.2–12.8 to 8.0–8.5 µs (README,
+/// `cargo bench --bench flow`).
 #[cfg(target_arch = "x86_64")]
 mod kernel {
     use std::arch::x86_64::*;
@@ -560,8 +577,8 @@ impl Mlp {
     }
 
     /// `out = MLP(input)`; allocation-free. On x86-64 CPUs with AVX2 and FMA the layers
-    /// run on a 4-wide fused multiply-add kernel (8-wide with AVX-512F) and the
-    /// activations compile for 4-wide vectors (detected once, at run time).
+    /// run on a 4-wide fused multiply-add kernel and the activations compile for 4-wide
+    /// vectors, 8-wide with AVX-512F (detected once, at run time).
     pub fn eval<S: Scalar>(&self, input: &[S], scratch: &mut MlpScratch<S>, out: &mut [S]) {
         let first = self.layers[0].full_input();
         self.eval_dispatch(input, first, scratch, out, None)
@@ -675,30 +692,15 @@ impl Mlp {
             plane[..d.len()].copy_from_slice(d);
         }
         let inputs = dx[0].len();
-        match Simd::detect() {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: AVX2 and FMA support were detected.
-            simd @ (Simd::Avx2Fma | Simd::Avx512) => unsafe {
-                self.second_avx2(simd, record, inputs, scratch)
-            },
-            Simd::Portable => self.second_with(Simd::Portable, record, inputs, scratch),
-        }
+        let simd = Simd::detect();
+        simd.compiled(
+            #[inline(always)]
+            || self.second_with(simd, record, inputs, scratch),
+        );
         for (plane, d) in scratch.back.chunks_exact(stride).zip(dout) {
             let n = d.len();
             d.copy_from_slice(&plane[..n]);
         }
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    fn second_avx2(
-        &self,
-        simd: Simd,
-        record: &[f64],
-        inputs: usize,
-        scratch: &mut MlpScratch<Dual<f64>>,
-    ) {
-        self.second_with(simd, record, inputs, scratch)
     }
 
     #[inline(always)]
@@ -746,30 +748,11 @@ impl Mlp {
         out: &mut [S],
         record: Option<&mut [f64]>,
     ) {
-        match Simd::detect() {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: AVX2 and FMA support were detected.
-            simd @ (Simd::Avx2Fma | Simd::Avx512) => unsafe {
-                self.eval_avx2(simd, input, first, scratch, out, record)
-            },
-            Simd::Portable => self.eval_with(Simd::Portable, input, first, scratch, out, record),
-        }
-    }
-
-    /// [`eval_with`](Self::eval_with) compiled for AVX2 and FMA, so the activation loops
-    /// vectorise too; the layers on `simd`'s kernel.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    fn eval_avx2<S: Scalar>(
-        &self,
-        simd: Simd,
-        input: &[S],
-        first: LayerInput,
-        scratch: &mut MlpScratch<S>,
-        out: &mut [S],
-        record: Option<&mut [f64]>,
-    ) {
-        self.eval_with(simd, input, first, scratch, out, record)
+        let simd = Simd::detect();
+        simd.compiled(
+            #[inline(always)]
+            || self.eval_with(simd, input, first, scratch, out, record),
+        )
     }
 
     /// The layers in order, the first one reading as `first` says.
@@ -832,28 +815,11 @@ impl Mlp {
         primal: Option<Primal>,
         scratch: &mut MlpScratch<Dual<f64>>,
     ) {
-        match Simd::detect() {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: AVX2 and FMA support were detected.
-            simd @ (Simd::Avx2Fma | Simd::Avx512) => unsafe {
-                self.sweep_avx2(simd, record, dx, dout, primal, scratch)
-            },
-            Simd::Portable => self.sweep_with(Simd::Portable, record, dx, dout, primal, scratch),
-        }
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    fn sweep_avx2(
-        &self,
-        simd: Simd,
-        record: &[f64],
-        dx: &[f64],
-        dout: &mut [f64],
-        primal: Option<Primal>,
-        scratch: &mut MlpScratch<Dual<f64>>,
-    ) {
-        self.sweep_with(simd, record, dx, dout, primal, scratch)
+        let simd = Simd::detect();
+        simd.compiled(
+            #[inline(always)]
+            || self.sweep_with(simd, record, dx, dout, primal, scratch),
+        )
     }
 
     /// The tangent along `dx` at the recorded point, in the last plane, and when `primal`
@@ -1035,7 +1001,10 @@ mod tests {
         mlp.eval(&x, &mut scratch, &mut fast);
         assert_close(&fast, &portable, 1e-12);
         for simd in kernels() {
-            mlp.eval_with(simd, &x, first, &mut scratch, &mut fast, None);
+            simd.compiled(
+                #[inline(always)]
+                || mlp.eval_with(simd, &x, first, &mut scratch, &mut fast, None),
+            );
             assert_close(&fast, &portable, 1e-12);
         }
     }
