@@ -37,7 +37,7 @@ pub(crate) fn with_avx2_fma<R>(run: impl FnOnce() -> R) -> R {
 /// `run()` compiled for AVX2 and FMA (callable only where the CPU has them).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-pub(crate) fn compiled_for_avx2_fma<R>(run: impl FnOnce() -> R) -> R {
+fn compiled_for_avx2_fma<R>(run: impl FnOnce() -> R) -> R {
     run()
 }
 
@@ -45,6 +45,59 @@ pub(crate) fn compiled_for_avx2_fma<R>(run: impl FnOnce() -> R) -> R {
 /// all three).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma,avx512f")]
-pub(crate) fn compiled_for_avx512<R>(run: impl FnOnce() -> R) -> R {
+fn compiled_for_avx512<R>(run: impl FnOnce() -> R) -> R {
     run()
+}
+
+/// Which instruction set a hot loop runs on, chosen once per call by [`Simd::detect`] and
+/// carried down so that kernels and the code compiled around them agree. A value other
+/// than `Portable` is only made once its features were detected.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Simd {
+    Portable,
+    #[cfg(target_arch = "x86_64")]
+    Avx2Fma,
+    /// AVX-512F besides AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
+}
+
+impl Simd {
+    /// The widest instruction set of this CPU.
+    #[inline]
+    pub(crate) fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if has_avx2_fma() {
+            return if has_avx512f() {
+                Self::Avx512
+            } else {
+                Self::Avx2Fma
+            };
+        }
+        Self::Portable
+    }
+
+    /// Whether fused multiply-adds are single instructions (else `mul_add` is a library
+    /// call, and code should round twice instead).
+    #[inline(always)]
+    pub(crate) fn fused(self) -> bool {
+        self != Self::Portable
+    }
+
+    /// `run()`, compiled for this instruction set, so that its loops vectorise for it
+    /// (`run` and everything it inlines, so its helpers should be `#[inline(always)]`,
+    /// closures included). Each lane rounds as a scalar would: a wider register only
+    /// processes more lanes of the same operations at once.
+    #[inline(always)]
+    pub(crate) fn compiled<R>(self, run: impl FnOnce() -> R) -> R {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the features were detected before this value was made.
+            Self::Avx2Fma => unsafe { compiled_for_avx2_fma(run) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as above.
+            Self::Avx512 => unsafe { compiled_for_avx512(run) },
+            Self::Portable => run(),
+        }
+    }
 }

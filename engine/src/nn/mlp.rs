@@ -28,8 +28,7 @@ use std::marker::PhantomData;
 use crate::flow::checkpoint::names::{self, BIAS, WEIGHT};
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::FlowResult;
-#[cfg(target_arch = "x86_64")]
-use crate::math::simd::{compiled_for_avx2_fma, compiled_for_avx512, has_avx2_fma, has_avx512f};
+use crate::math::simd::Simd;
 use crate::nn::scalar::{Dual, Scalar, tanh_with};
 
 /// Names and shapes `{prefix}.{j}.weight: [out, in]`, `{prefix}.{j}.bias: [out]`, as
@@ -194,57 +193,13 @@ struct Planes {
     stride: usize,
 }
 
-/// Which instruction set an evaluation runs on: the layers' kernel, and what the
-/// activation loops are compiled for ([`Simd::compiled`]). A value other than `Portable`
-/// is only made once its features were detected.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Simd {
-    Portable,
-    #[cfg(target_arch = "x86_64")]
-    Avx2Fma,
-    /// AVX-512F besides AVX2 and FMA.
-    #[cfg(target_arch = "x86_64")]
-    Avx512,
-}
-
-impl Simd {
-    fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if has_avx2_fma() {
-            return if has_avx512f() {
-                Self::Avx512
-            } else {
-                Self::Avx2Fma
-            };
-        }
-        Self::Portable
-    }
-
-    /// `run()`, compiled for this instruction set, so that its loops vectorise for it
-    /// (`run` and everything it inlines, so its helpers should be `#[inline(always)]`).
-    /// Each lane rounds as a scalar would: a wider register only processes more lanes
-    /// of the same operations at once (as [`crate::math::simd::with_avx2_fma`]).
-    #[inline(always)]
-    fn compiled<R>(self, run: impl FnOnce() -> R) -> R {
-        match self {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: the features were detected before this value was made.
-            Self::Avx2Fma => unsafe { compiled_for_avx2_fma(run) },
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: as above.
-            Self::Avx512 => unsafe { compiled_for_avx512(run) },
-            Self::Portable => run(),
-        }
-    }
-
-    /// `tanh(x)`, with fused multiply-adds where they are single instructions.
-    #[inline(always)]
-    fn tanh(self, x: f64) -> f64 {
-        if self == Self::Portable {
-            tanh_with::<false>(x)
-        } else {
-            tanh_with::<true>(x)
-        }
+/// `tanh(x)`, with fused multiply-adds where `simd` has them as single instructions.
+#[inline(always)]
+fn tanh(simd: Simd, x: f64) -> f64 {
+    if simd.fused() {
+        tanh_with::<true>(x)
+    } else {
+        tanh_with::<false>(x)
     }
 }
 
@@ -874,7 +829,7 @@ impl Mlp {
             }
             if with_primal {
                 for v in &mut values[..n] {
-                    *v = simd.tanh(*v);
+                    *v = tanh(simd, *v);
                 }
             }
             record = rest;
@@ -905,14 +860,14 @@ fn activate<S: Scalar>(simd: Simd, planes: Planes, n: usize, h: &mut [f64]) {
     match planes.lanes {
         1 => {
             for v in &mut h[..n] {
-                *v = simd.tanh(*v);
+                *v = tanh(simd, *v);
             }
         }
         // `tanh(a + b ε) = t + b t' ε`, `t = tanh a`, `t' = 1 - t²`.
         2 => {
             let (a, b) = h.split_at_mut(stride);
             for (a, b) in a[..n].iter_mut().zip(&mut b[..n]) {
-                let t = simd.tanh(*a);
+                let t = tanh(simd, *a);
                 *a = t;
                 *b *= 1.0 - t * t;
             }
@@ -925,7 +880,7 @@ fn activate<S: Scalar>(simd: Simd, planes: Planes, n: usize, h: &mut [f64]) {
             let (c, d) = cd.split_at_mut(stride);
             let planes = a[..n].iter_mut().zip(&mut b[..n]);
             for ((a, b), (c, d)) in planes.zip(c[..n].iter_mut().zip(&mut d[..n])) {
-                let t = simd.tanh(*a);
+                let t = tanh(simd, *a);
                 let first = 1.0 - t * t;
                 let second = -2.0 * t * first;
                 *a = t;
@@ -951,6 +906,8 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     use super::*;
+    #[cfg(target_arch = "x86_64")]
+    use crate::math::simd::{has_avx2_fma, has_avx512f};
 
     type Dual2 = Dual<Dual<f64>>;
 
