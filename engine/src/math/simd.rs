@@ -1,8 +1,9 @@
 //! Run-time choice of the instruction set.
 //!
 //! The release build targets baseline x86-64 (SSE2) so that it runs on any x86-64 CPU;
-//! hot loops get AVX2 and fused multiply-adds where the CPU has them by being compiled a
-//! second time for those features and picked at run time.
+//! hot loops get AVX2 and fused multiply-adds (the networks' layers AVX-512 as well)
+//! where the CPU has them by being compiled again for those features and picked at run
+//! time.
 
 /// Whether this CPU has AVX2 and FMA (detected once, then cached by the standard library).
 #[cfg(target_arch = "x86_64")]
