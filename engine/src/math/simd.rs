@@ -29,8 +29,8 @@ pub(crate) fn has_avx512f() -> bool {
 pub(crate) fn with_avx2_fma<R>(run: impl FnOnce() -> R) -> R {
     #[cfg(target_arch = "x86_64")]
     if has_avx2_fma() {
-        // SAFETY: both features were detected.
-        return unsafe { compiled_for_avx2_fma(run) };
+        // Both features were just detected, as `Simd` requires.
+        return Simd::Avx2Fma.compiled(run);
     }
     run()
 }
