@@ -37,7 +37,7 @@ use crate::protocol::{
     RenderRequest, ResetReply, ResetRequest, StabilityReply, StabilityRequest, StepReply,
     StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply, encode,
 };
-use crate::query::{decode_ok, one_reply, query, retry_unanswered};
+use crate::query::{Pending, decode_ok, get, query, retry_unanswered};
 
 /// Default wait for a reply.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(10);
@@ -437,20 +437,23 @@ impl RemoteEnv {
         op: SessionOp,
         request: &impl Serialize,
     ) -> Result<R, BridgeError> {
-        query(
-            self.control.zenoh_session(),
-            &self.control.key(op.as_str()),
-            encode(request),
-            self.control.timeout(),
-        )
+        self.send(op, request)?.reply()
     }
 
-    fn call_stepper<R: DeserializeOwned>(
-        &self,
-        request: &impl Serialize,
-    ) -> Result<R, BridgeError> {
-        let key = self.stepper.key_expr().as_str();
-        one_reply(key, encode(request), self.control.timeout(), |payload| {
+    /// Sends `request` for `op`, its reply left to take.
+    fn send(&self, op: SessionOp, request: &impl Serialize) -> Result<Pending<'_>, BridgeError> {
+        let (zsession, timeout) = (self.control.zenoh_session(), self.control.timeout());
+        let key = self.control.key(op.as_str());
+        let get_key = key.clone();
+        Pending::send(key, encode(request), timeout, move |payload| {
+            get(zsession, &get_key, payload, timeout)
+        })
+    }
+
+    /// Sends `request` through the session's step querier, its reply left to take.
+    fn send_stepper(&self, request: &impl Serialize) -> Result<Pending<'_>, BridgeError> {
+        let key = self.stepper.key_expr().to_string();
+        Pending::send(key, encode(request), self.control.timeout(), |payload| {
             self.stepper
                 .get()
                 .payload(payload)
@@ -477,7 +480,7 @@ impl RemoteEnv {
             action: F64s(action.to_vec()),
         };
         let reply: StepReply = if self.num_envs == 1 {
-            self.call_stepper(&request)?
+            self.send_stepper(&request)?.reply()?
         } else {
             self.call(SessionOp::Step, &request)?
         };
@@ -497,23 +500,48 @@ impl RemoteEnv {
         seed: Option<u64>,
         options: Option<ResetOptions>,
     ) -> Result<(Vec<f64>, InfoColumns), BridgeError> {
-        let reply: BatchResetReply =
-            self.call(SessionOp::ResetBatch, &self.reset_request(seed, options))?;
+        Self::reset_reply(self.send_reset_batch(seed, options)?)
+    }
+
+    /// Sends [`reset_batch`](Self::reset_batch)'s request; [`reset_reply`](Self::reset_reply)
+    /// takes its reply.
+    pub(crate) fn send_reset_batch(
+        &self,
+        seed: Option<u64>,
+        options: Option<ResetOptions>,
+    ) -> Result<Pending<'_>, BridgeError> {
+        self.send(SessionOp::ResetBatch, &self.reset_request(seed, options))
+    }
+
+    pub(crate) fn reset_reply(
+        pending: Pending<'_>,
+    ) -> Result<(Vec<f64>, InfoColumns), BridgeError> {
+        let reply: BatchResetReply = pending.reply()?;
         Ok((reply.observations.0, unwrap_columns(reply.info)))
     }
 
     /// Steps every environment with row-major `actions` (`num_envs × action_dim`).
     pub fn step_batch(&self, actions: &[f64]) -> Result<BatchStep, BridgeError> {
+        Self::step_reply(self.send_step_batch(actions)?)
+    }
+
+    /// Sends [`step_batch`](Self::step_batch)'s request; [`step_reply`](Self::step_reply)
+    /// takes its reply.
+    pub(crate) fn send_step_batch(&self, actions: &[f64]) -> Result<Pending<'_>, BridgeError> {
         let request = BatchStepRequest {
             v: PROTOCOL_VERSION,
             token: self.control.token_field(),
             actions: F64s(actions.to_vec()),
         };
-        let reply: BatchStepReply = if self.num_envs == 1 {
-            self.call(SessionOp::StepBatch, &request)?
+        if self.num_envs == 1 {
+            self.send(SessionOp::StepBatch, &request)
         } else {
-            self.call_stepper(&request)?
-        };
+            self.send_stepper(&request)
+        }
+    }
+
+    pub(crate) fn step_reply(pending: Pending<'_>) -> Result<BatchStep, BridgeError> {
+        let reply: BatchStepReply = pending.reply()?;
         Ok(BatchStep {
             observations: reply.observations.0,
             rewards: reply.rewards.0,

@@ -15,7 +15,8 @@
 //!   engines hot-load; [`signing`]: who may publish them;
 //! - [`router`]: a Zenoh router in this process; [`access`]: the access-control rules it
 //!   enforces (who may serve, own sessions and publish policies);
-//! - [`spread`]: a closed-loop evaluation's episodes spread over many engines.
+//! - [`spread`]: a closed-loop evaluation's episodes spread over many engines;
+//! - [`vector`]: one vector environment over sessions on several engines.
 
 pub mod access;
 pub mod checkpoint_policy;
@@ -35,6 +36,7 @@ pub mod server;
 pub mod signing;
 pub mod spread;
 pub mod task_factory;
+pub mod vector;
 
 pub use access::AccessPolicy;
 pub use checkpoint_policy::{CheckpointPolicy, PolicyLoadError};

@@ -14,7 +14,7 @@ use crate::retry::retry_within;
 
 /// Sends `payload` to `key`; every matching queryable's reply arrives on the handler
 /// (none are merged), until `timeout`.
-fn send(
+pub(crate) fn get(
     zsession: &zenoh::Session,
     key: &str,
     payload: impl Into<ZBytes>,
@@ -39,7 +39,7 @@ pub fn query_all(
     timeout: Duration,
 ) -> Result<Vec<Result<Vec<u8>, ErrorReply>>, BridgeError> {
     let sent = Instant::now();
-    let replies = send(zsession, key, payload, timeout)?;
+    let replies = get(zsession, key, payload, timeout)?;
     replies
         .iter()
         .map(
@@ -62,26 +62,63 @@ pub(crate) fn query<R: DeserializeOwned>(
     payload: Vec<u8>,
     timeout: Duration,
 ) -> Result<R, BridgeError> {
-    one_reply(key, payload, timeout, |payload| {
-        send(zsession, key, payload, timeout)
-    })
+    Pending::send(key.to_owned(), payload, timeout, |payload| {
+        get(zsession, key, payload, timeout)
+    })?
+    .reply()
 }
 
-/// The one reply to `payload` that `send` (a `get` on `key`, or a declared querier's)
-/// brings back, sent again while it reached no engine ([`retry_unrouted`]).
-pub(crate) fn one_reply<R: DeserializeOwned>(
-    key: &str,
-    payload: Vec<u8>,
+/// How a [`Pending`] query goes out (again): a `get` on its key, or a declared querier's.
+type SendQuery<'a> = Box<dyn Fn(ZBytes) -> Result<FifoChannelHandler<Reply>, BridgeError> + 'a>;
+
+/// A query on its way to one engine, its reply not taken yet: queries to several engines
+/// are sent first and their replies taken after, so the engines work at the same time.
+pub(crate) struct Pending<'a> {
+    key: String,
+    /// Shared, not copied, between attempts.
+    payload: ZBytes,
     timeout: Duration,
-    send: impl Fn(ZBytes) -> Result<FifoChannelHandler<Reply>, BridgeError>,
-) -> Result<R, BridgeError> {
-    // Shared, not copied, between attempts.
-    let payload = ZBytes::from(payload);
-    retry_unrouted(timeout, || {
+    send: SendQuery<'a>,
+    sent: Instant,
+    replies: FifoChannelHandler<Reply>,
+}
+
+impl<'a> Pending<'a> {
+    /// Sends `payload` to `key` through `send`.
+    pub(crate) fn send(
+        key: String,
+        payload: Vec<u8>,
+        timeout: Duration,
+        send: impl Fn(ZBytes) -> Result<FifoChannelHandler<Reply>, BridgeError> + 'a,
+    ) -> Result<Self, BridgeError> {
+        let payload = ZBytes::from(payload);
         let sent = Instant::now();
         let replies = send(payload.clone())?;
-        first_reply(key, &replies, sent)
-    })
+        Ok(Self {
+            key,
+            payload,
+            timeout,
+            send: Box::new(send),
+            sent,
+            replies,
+        })
+    }
+
+    /// The query's one reply, the query sent again while it reached no engine
+    /// ([`retry_unrouted`]).
+    pub(crate) fn reply<R: DeserializeOwned>(self) -> Result<R, BridgeError> {
+        let mut first = Some((self.replies, self.sent));
+        retry_unrouted(self.timeout, || {
+            let (replies, sent) = match first.take() {
+                Some(first) => first,
+                None => {
+                    let sent = Instant::now();
+                    ((self.send)(self.payload.clone())?, sent)
+                }
+            };
+            first_reply(&self.key, &replies, sent)
+        })
+    }
 }
 
 /// How long a request that reached no engine is sent again before it fails as

@@ -24,29 +24,21 @@ pyo3::create_exception!(
 pub fn to_py(error: BridgeError) -> PyErr {
     let message = full_message(&error);
     match error {
-        BridgeError::Remote(reply) => Python::attach(|py| {
-            let err = CiflowError::new_err(format!("{}: {}", reply.code, reply.message));
-            // Setting an attribute on a fresh exception instance cannot fail.
-            let _ = err.value(py).setattr("code", reply.code.as_str());
-            err
-        }),
+        BridgeError::Remote(reply) => remote(&reply, ""),
         BridgeError::NoEngine { .. }
         | BridgeError::NoReply { .. }
         | BridgeError::Open { .. }
         | BridgeError::Zenoh { .. }
         | BridgeError::Worker(_) => EngineUnreachable::new_err(message),
-        // One engine of several: unreachable if that one was (or went silent), with its name
-        // in the message.
-        BridgeError::Engine { source, .. }
-            if matches!(
-                *source,
-                BridgeError::NoEngine { .. }
-                    | BridgeError::NoReply { .. }
-                    | BridgeError::Zenoh { .. }
-            ) =>
-        {
-            EngineUnreachable::new_err(message)
-        }
+        // One engine of several: its refusal with its code, unreachable if it was (or went
+        // silent); its name in the message.
+        BridgeError::Engine { engine, source } => match *source {
+            BridgeError::Remote(reply) => remote(&reply, &format!("engine `{engine}`: ")),
+            BridgeError::NoEngine { .. }
+            | BridgeError::NoReply { .. }
+            | BridgeError::Zenoh { .. } => EngineUnreachable::new_err(message),
+            _ => CiflowError::new_err(message),
+        },
         BridgeError::ConfigFile { .. }
         | BridgeError::ConfigSetting { .. }
         | BridgeError::UnknownMode(_)
@@ -56,11 +48,20 @@ pub fn to_py(error: BridgeError) -> PyErr {
         | BridgeError::ReadCheckpoint { .. }
         | BridgeError::CheckpointNotUtf8 { .. }
         | BridgeError::CheckpointConfig { .. } => PyValueError::new_err(message),
-        BridgeError::Engine { .. }
-        | BridgeError::CheckpointNotLoaded { .. }
+        BridgeError::CheckpointNotLoaded { .. }
         | BridgeError::BadReply { .. }
         | BridgeError::BadErrorReply { .. }
         | BridgeError::FrameLost { .. }
         | BridgeError::UnexpectedKey { .. } => CiflowError::new_err(message),
     }
+}
+
+/// [`CiflowError`] for an engine's refusal, its `code` attribute set.
+fn remote(reply: &ciflow_bridge::protocol::ErrorReply, prefix: &str) -> PyErr {
+    Python::attach(|py| {
+        let err = CiflowError::new_err(format!("{prefix}{}: {}", reply.code, reply.message));
+        // Setting an attribute on a fresh exception instance cannot fail.
+        let _ = err.value(py).setattr("code", reply.code.as_str());
+        err
+    })
 }

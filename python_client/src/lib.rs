@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use ciflow_bridge::{
     ANY_ENGINE, Client, EngineServer, EpisodePublisher, Mode, NetworkOptions, RemoteEnv,
-    ServerOptions, SessionControl, TelemetryStream,
+    ServerOptions, SessionControl, TelemetryStream, vector,
 };
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -302,6 +302,58 @@ fn engine_to_dict<'py>(
     Ok(dict)
 }
 
+/// Resets every environment of `sessions` as one batch (environment `i` gets seed
+/// `seed + i`), the requests in flight together: `(observations bytes, info columns)`.
+#[pyfunction]
+#[pyo3(signature = (sessions, seed=None, options=None))]
+fn reset_batches<'py>(
+    py: Python<'py>,
+    sessions: Vec<PyRef<'py, Session>>,
+    seed: Option<u64>,
+    options: Option<&Bound<'py, PyDict>>,
+) -> PyResult<(Bound<'py, PyBytes>, Bound<'py, PyDict>)> {
+    let options = reset_options_from_dict(options)?;
+    let envs: Vec<&RemoteEnv> = sessions.iter().map(|s| &s.env).collect();
+    let (observations, info) = py
+        .detach(|| vector::reset_batches(&envs, seed, options))
+        .map_err(to_py)?;
+    Ok((
+        floats_to_bytes(py, &observations),
+        columns_to_dict(py, &info)?,
+    ))
+}
+
+/// Steps every environment of `sessions` as one batch with row-major `actions` bytes, the
+/// requests in flight together: `(observations, rewards, terminated, truncated, info
+/// columns)`, all bytes (`terminated`/`truncated`: one byte per environment).
+#[pyfunction]
+#[allow(clippy::type_complexity)]
+fn step_batches<'py>(
+    py: Python<'py>,
+    sessions: Vec<PyRef<'py, Session>>,
+    actions: &[u8],
+) -> PyResult<(
+    Bound<'py, PyBytes>,
+    Bound<'py, PyBytes>,
+    Bound<'py, PyBytes>,
+    Bound<'py, PyBytes>,
+    Bound<'py, PyDict>,
+)> {
+    let actions = floats_from_bytes("actions", actions)?;
+    let envs: Vec<&RemoteEnv> = sessions.iter().map(|s| &s.env).collect();
+    let step = py
+        .detach(|| vector::step_batches(&envs, &actions))
+        .map_err(to_py)?;
+    let flags = |v: &[bool]| PyBytes::new(py, &v.iter().map(|&b| u8::from(b)).collect::<Vec<_>>());
+    Ok((
+        floats_to_bytes(py, &step.observations),
+        floats_to_bytes(py, &step.rewards),
+        flags(&step.terminated),
+        flags(&step.truncated),
+        columns_to_dict(py, &step.info)?,
+    ))
+}
+
 /// One session on an engine (1 or `num_envs` environments). Vectors are f64 bytes.
 #[pyclass(module = "ciflow._native")]
 struct Session {
@@ -372,51 +424,6 @@ impl Session {
             step.truncated,
             info_dict(py, &step.info)?,
             step.time,
-        ))
-    }
-
-    /// `(observations bytes, info columns)`; environment `i` gets seed `seed + i`.
-    #[pyo3(signature = (seed=None, options=None))]
-    fn reset_batch<'py>(
-        &self,
-        py: Python<'py>,
-        seed: Option<u64>,
-        options: Option<&Bound<'py, PyDict>>,
-    ) -> PyResult<(Bound<'py, PyBytes>, Bound<'py, PyDict>)> {
-        let options = reset_options_from_dict(options)?;
-        let (observations, info) = py
-            .detach(|| self.env.reset_batch(seed, options))
-            .map_err(to_py)?;
-        Ok((
-            floats_to_bytes(py, &observations),
-            columns_to_dict(py, &info)?,
-        ))
-    }
-
-    /// `(observations, rewards, terminated, truncated, info columns)`, all bytes
-    /// (`terminated`/`truncated`: one byte per environment).
-    #[allow(clippy::type_complexity)]
-    fn step_batch<'py>(
-        &self,
-        py: Python<'py>,
-        actions: &[u8],
-    ) -> PyResult<(
-        Bound<'py, PyBytes>,
-        Bound<'py, PyBytes>,
-        Bound<'py, PyBytes>,
-        Bound<'py, PyBytes>,
-        Bound<'py, PyDict>,
-    )> {
-        let actions = floats_from_bytes("actions", actions)?;
-        let step = py.detach(|| self.env.step_batch(&actions)).map_err(to_py)?;
-        let flags =
-            |v: &[bool]| PyBytes::new(py, &v.iter().map(|&b| u8::from(b)).collect::<Vec<_>>());
-        Ok((
-            floats_to_bytes(py, &step.observations),
-            floats_to_bytes(py, &step.rewards),
-            flags(&step.terminated),
-            flags(&step.truncated),
-            columns_to_dict(py, &step.info)?,
         ))
     }
 
@@ -614,6 +621,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Engine>()?;
     m.add_class::<ClientHandle>()?;
     m.add_class::<Session>()?;
+    m.add_function(wrap_pyfunction!(reset_batches, m)?)?;
+    m.add_function(wrap_pyfunction!(step_batches, m)?)?;
     m.add_class::<Control>()?;
     m.add_class::<TelemetryFeed>()?;
     m.add_class::<scenes::Scenery>()?;

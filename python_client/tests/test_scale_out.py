@@ -64,6 +64,12 @@ def test_environments_spread_over_engines_step_as_on_one(cluster):
         assert np.any(ended, axis=0).all(), "every episode ended: autoreset is exercised"
         for a, b in zip(merged, single):
             np.testing.assert_array_equal(a, b)
+        # An engine's refusal keeps its code and names the engine.
+        actions = np.zeros((10, 2))
+        actions[8] = np.nan
+        with pytest.raises(ciflow.CiflowError, match="engine `scale-c`") as refused:
+            spread.step(actions)
+        assert refused.value.code == "not_finite"
     finally:
         spread.close()
         alone.close()
@@ -110,7 +116,7 @@ def test_an_engine_that_disappears_is_an_error_not_a_hang(cluster):
     engines["scale-c"].kill()
     engines["scale-c"].wait(timeout=10)
     started = time.monotonic()
-    with pytest.raises((ciflow.EngineUnreachable, ciflow.CiflowError)):
+    with pytest.raises(ciflow.EngineUnreachable, match="engine `scale-c`"):
         for _ in range(100):
             envs.step(np.zeros((6, 2)))
     assert time.monotonic() - started < 15.0

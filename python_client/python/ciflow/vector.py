@@ -1,10 +1,8 @@
 """``gymnasium.vector.VectorEnv`` over the engines' batched step: one request per engine
 steps all of that engine's environments, the requests to different engines in flight
-together."""
+together (sent by the native client before it waits for any reply)."""
 
 from __future__ import annotations
-
-from concurrent.futures import ThreadPoolExecutor
 
 import gymnasium as gym
 import numpy as np
@@ -53,7 +51,6 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
         if render_mode is not None:
             raise ValueError("CiflowVectorEnv does not render; use gymnasium.make for frames")
         self._sessions = []
-        self._pool = None
         num_envs = int(num_envs)
         if engines is None:
             client, engine_name = connection.resolve(task, engine, zenoh_config)
@@ -68,9 +65,6 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
                 self._sessions.append(client.make(name, task, share, construction))
         self.engine_names = [s.engine for s in self._sessions]
         self._shares = [s.num_envs for s in self._sessions]
-        self._offsets = np.cumsum([0, *self._shares[:-1]]).tolist()
-        if len(self._sessions) > 1:
-            self._pool = ThreadPoolExecutor(len(self._sessions), thread_name_prefix="ciflow")
         spec = self._sessions[0].spec
         self.task_spec = spec
         self.num_envs = num_envs
@@ -91,53 +85,36 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
         if isinstance(seed, (list, tuple)):
             raise ValueError("pass one integer seed; environment i gets seed + i")
         options = reset_options(self._reset_defaults, options)
-        replies = self._each(lambda session, offset: session.reset_batch(
-            None if seed is None else seed + offset, options))
-        observations = b"".join(observation for observation, _ in replies)
-        return self._observations(observations), self._info([info for _, info in replies])
+        observations, info = _native.reset_batches(self._sessions, seed, options)
+        return self._observations(observations), self._info(info)
 
     def step(self, actions):
         actions = np.asarray(actions, dtype="<f8").reshape(self.num_envs, -1)
-        replies = self._each(lambda session, offset: session.step_batch(
-            to_wire(actions[offset:offset + session.num_envs])))
-        observations, rewards, terminated, truncated = (
-            b"".join(reply[k] for reply in replies) for k in range(4))
+        observations, rewards, terminated, truncated, info = _native.step_batches(
+            self._sessions, to_wire(actions))
         return (
             self._observations(observations),
             np.frombuffer(rewards, dtype="<f8").copy(),
             np.frombuffer(terminated, dtype=np.uint8).astype(bool),
             np.frombuffer(truncated, dtype=np.uint8).astype(bool),
-            self._info([reply[4] for reply in replies]),
+            self._info(info),
         )
-
-    def _each(self, request) -> list:
-        """``request(session, offset)`` for every engine's session, in flight together
-        (the native calls release the GIL); the replies in the sessions' order."""
-        if self._pool is None:
-            return [request(self._sessions[0], 0)]
-        futures = [self._pool.submit(request, session, offset)
-                   for session, offset in zip(self._sessions, self._offsets)]
-        return [future.result() for future in futures]
 
     def _observations(self, data: bytes) -> np.ndarray:
         return from_wire(data, self.single_observation_space.dtype, self._obs_shape)
 
-    def _info(self, parts: list[dict]) -> dict:
-        """The engines' info columns merged in environment order; a key one engine did
-        not report is NaN (and masked out) for its environments."""
+    @staticmethod
+    def _info(columns: dict) -> dict:
+        """One array per key (NaN where an environment did not report it) and its ``_key``
+        mask."""
         info = {}
-        for key in sorted({key for columns in parts for key in columns}):
-            values = np.concatenate([
-                np.frombuffer(columns[key], dtype="<f8") if key in columns
-                else np.full(share, np.nan)
-                for columns, share in zip(parts, self._shares)])
+        for key in sorted(columns):
+            values = np.frombuffer(columns[key], dtype="<f8").copy()
             info[key] = values
             info[f"_{key}"] = ~np.isnan(values)
         return info
 
     def close_extras(self, **kwargs):
-        if self._pool is not None:
-            self._pool.shutdown()
         for session in self._sessions:
             try:
                 session.close()

@@ -1,0 +1,142 @@
+//! One vector environment over sessions on several engines: environment `i` of the batch
+//! lives in the session whose share holds it, in the sessions' order. Each call sends
+//! every session its share before it takes any reply, so the engines step at the same time
+//! and a step costs the slowest engine's round trip, with no thread per engine; the replies
+//! are merged in the sessions' order, so results do not depend on which engine answers
+//! first. A failure names its engine.
+
+use std::collections::BTreeSet;
+
+use ciflow_envs::ResetOptions;
+
+use crate::client::{BatchStep, InfoColumns, RemoteEnv};
+use crate::error::BridgeError;
+use crate::query::Pending;
+
+/// Resets every environment of `sessions`; environment `i` of the batch gets seed
+/// `seed + i`. Returns the observations (row-major) and the info columns, merged.
+pub fn reset_batches(
+    sessions: &[&RemoteEnv],
+    seed: Option<u64>,
+    options: Option<ResetOptions>,
+) -> Result<(Vec<f64>, InfoColumns), BridgeError> {
+    check_sessions(sessions)?;
+    let mut offset = 0u64;
+    let replies = in_flight(sessions, |session| {
+        let session_seed = seed.map(|s| s.wrapping_add(offset));
+        offset += u64::from(session.num_envs());
+        session.send_reset_batch(session_seed, options.clone())
+    })?;
+    let mut observations = Vec::new();
+    let mut infos = Vec::with_capacity(sessions.len());
+    for (session, pending) in sessions.iter().zip(replies) {
+        let (part, info) = RemoteEnv::reset_reply(pending).map_err(in_engine(session))?;
+        observations.extend(part);
+        infos.push(info);
+    }
+    Ok((observations, merge_columns(sessions, infos)))
+}
+
+/// Steps every environment of `sessions` with row-major `actions` (`Σ num_envs ×
+/// action_dim`), next-step autoreset as [`RemoteEnv::step_batch`]; the replies merged.
+pub fn step_batches(sessions: &[&RemoteEnv], actions: &[f64]) -> Result<BatchStep, BridgeError> {
+    check_sessions(sessions)?;
+    let action_dim = sessions[0].spec().action_space.dim();
+    let total: usize = sessions.iter().map(|s| s.num_envs() as usize).sum();
+    if actions.len() != total * action_dim {
+        return Err(BridgeError::InvalidArgument(format!(
+            "{} action values for {total} environments of {action_dim} each",
+            actions.len()
+        )));
+    }
+    let mut rest = actions;
+    let replies = in_flight(sessions, |session| {
+        let (share, after) = rest.split_at(session.num_envs() as usize * action_dim);
+        rest = after;
+        session.send_step_batch(share)
+    })?;
+    let mut merged = BatchStep {
+        observations: Vec::new(),
+        rewards: Vec::with_capacity(total),
+        terminated: Vec::with_capacity(total),
+        truncated: Vec::with_capacity(total),
+        info: InfoColumns::new(),
+    };
+    let mut infos = Vec::with_capacity(sessions.len());
+    for (session, pending) in sessions.iter().zip(replies) {
+        let step = RemoteEnv::step_reply(pending).map_err(in_engine(session))?;
+        merged.observations.extend(step.observations);
+        merged.rewards.extend(step.rewards);
+        merged.terminated.extend(step.terminated);
+        merged.truncated.extend(step.truncated);
+        infos.push(step.info);
+    }
+    merged.info = merge_columns(sessions, infos);
+    Ok(merged)
+}
+
+/// At least one session, all of the same spaces.
+fn check_sessions(sessions: &[&RemoteEnv]) -> Result<(), BridgeError> {
+    let Some(first) = sessions.first() else {
+        return Err(BridgeError::InvalidArgument(
+            "a vector environment needs at least one session".into(),
+        ));
+    };
+    let spaces = |s: &RemoteEnv| {
+        let spec = s.spec();
+        (spec.action_space.dim(), spec.observation_space.dim())
+    };
+    match sessions.iter().find(|s| spaces(s) != spaces(first)) {
+        Some(other) => Err(BridgeError::InvalidArgument(format!(
+            "sessions on `{}` and `{}` have different spaces: {:?} and {:?} (action, \
+             observation dimensions)",
+            first.engine(),
+            other.engine(),
+            spaces(first),
+            spaces(other)
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// `send(session)` for every session, in order: all the queries in flight before any
+/// reply is taken.
+fn in_flight<'a>(
+    sessions: &[&'a RemoteEnv],
+    mut send: impl FnMut(&'a RemoteEnv) -> Result<Pending<'a>, BridgeError>,
+) -> Result<Vec<Pending<'a>>, BridgeError> {
+    sessions
+        .iter()
+        .map(|session| send(session).map_err(in_engine(session)))
+        .collect()
+}
+
+/// The sessions' info columns as one: a key some session did not report is NaN (absent)
+/// for its environments.
+fn merge_columns(sessions: &[&RemoteEnv], parts: Vec<InfoColumns>) -> InfoColumns {
+    if parts.len() == 1 {
+        return parts.into_iter().next().unwrap_or_default();
+    }
+    let keys: BTreeSet<&String> = parts.iter().flat_map(|columns| columns.keys()).collect();
+    keys.into_iter()
+        .map(|key| {
+            let values = sessions
+                .iter()
+                .zip(&parts)
+                .flat_map(|(session, columns)| match columns.get(key) {
+                    Some(values) => values.clone(),
+                    None => vec![f64::NAN; session.num_envs() as usize],
+                })
+                .collect();
+            (key.clone(), values)
+        })
+        .collect()
+}
+
+/// Names `session`'s engine in its error.
+fn in_engine(session: &RemoteEnv) -> impl Fn(BridgeError) -> BridgeError + '_ {
+    move |source| BridgeError::Engine {
+        engine: session.engine().to_owned(),
+        source: Box::new(source),
+    }
+}

@@ -1,0 +1,119 @@
+//! One vector environment over sessions on two engines behind a router
+//! (`ciflow_bridge::vector`): the merged batch equals one session of as many environments
+//! on one engine with the same seeds, through next-step autoresets; an info key that one
+//! engine does not report is NaN for its environments; bad input is refused before any
+//! request, and an engine that disappears fails the step with its name instead of hanging.
+
+mod common;
+
+use ciflow_bridge::vector::{reset_batches, step_batches};
+use ciflow_bridge::{
+    AccessPolicy, BatchStep, BridgeError, Client, EngineServer, NetworkOptions, RemoteEnv, Role,
+    Router, ServerOptions,
+};
+use common::*;
+
+/// An engine serving the fixture behind the router at `router`, listening on `port`.
+fn engine_behind(router: &str, port: u16, name: &str) -> EngineServer {
+    let network = NetworkOptions {
+        connect: vec![router.to_owned()],
+        listen: vec![endpoint(port)],
+        ..NetworkOptions::default()
+    };
+    let mut options = ServerOptions::default();
+    options.tasks.push(fixture_task());
+    options.name = Some(name.into());
+    EngineServer::open(&network, options).expect("the engine starts")
+}
+
+fn make(client: &Client, engine: &str, n: u32) -> RemoteEnv {
+    client.make(engine, "fixture", n, &no_kwargs()).unwrap()
+}
+
+fn assert_same_step(spread: &BatchStep, single: &BatchStep, step: usize) {
+    assert_eq!(spread.observations, single.observations, "step {step}");
+    assert_eq!(spread.rewards, single.rewards, "step {step}");
+    assert_eq!(spread.terminated, single.terminated, "step {step}");
+    assert_eq!(spread.truncated, single.truncated, "step {step}");
+    assert_eq!(spread.info, single.info, "step {step}");
+}
+
+#[test]
+fn a_batch_over_two_engines_equals_one_session_on_one_engine() {
+    let router_endpoint = endpoint(27481);
+    let _router = Router::open(
+        &NetworkOptions::endpoint(Role::Router, &router_endpoint),
+        &AccessPolicy::default(),
+    )
+    .expect("the router starts");
+    let _a = engine_behind(&router_endpoint, 27482, "vector-a");
+    let b = engine_behind(&router_endpoint, 27483, "vector-b");
+    let client =
+        Client::open(&NetworkOptions::endpoint(Role::Client, &router_endpoint)).expect("joins");
+    assert!(
+        eventually(10.0, || client.engine_info("vector-b").is_ok()),
+        "the router routes to both engines"
+    );
+
+    let (on_a, on_b) = (make(&client, "vector-a", 3), make(&client, "vector-b", 2));
+    let single = make(&client, "vector-a", 5);
+    let spread = [&on_a, &on_b];
+
+    let (observations, info) = reset_batches(&spread, Some(10), None).unwrap();
+    assert_eq!(
+        (observations, info),
+        single.reset_batch(Some(10), None).unwrap(),
+        "environment i gets seed 10 + i wherever it lives"
+    );
+    // Past the episode's end: every environment autoresets on the step after.
+    for step in 0..EPISODE_STEPS as usize + 3 {
+        let actions: Vec<f64> = (0..5).map(|i| 0.1 * (i + step) as f64 - 0.3).collect();
+        let merged = step_batches(&spread, &actions).unwrap();
+        assert_same_step(&merged, &single.step_batch(&actions).unwrap(), step);
+    }
+
+    // One engine's environments a step ahead: at their autoreset they report only
+    // `reset`, the others only `distance`.
+    let (observations, _) = reset_batches(&spread, Some(0), None).unwrap();
+    assert_eq!(observations.len(), 5 * 2);
+    on_b.step_batch(&[0.0; 2]).unwrap();
+    for _ in 1..EPISODE_STEPS {
+        step_batches(&spread, &[0.0; 5]).unwrap();
+    }
+    let merged = step_batches(&spread, &[0.0; 5]).unwrap();
+    let nan_where = |values: &[f64]| values.iter().map(|v| v.is_nan()).collect::<Vec<_>>();
+    assert_eq!(
+        nan_where(&merged.info["reset"]),
+        [true, true, true, false, false]
+    );
+    assert_eq!(
+        nan_where(&merged.info["distance"]),
+        [false, false, false, true, true]
+    );
+    assert_eq!(merged.truncated, [true, true, true, false, false]);
+
+    // Refused before anything is sent.
+    let wrong_length = step_batches(&spread, &[0.0; 4]).unwrap_err();
+    assert!(
+        matches!(wrong_length, BridgeError::InvalidArgument(_)),
+        "{wrong_length}"
+    );
+    let none = step_batches(&[], &[]).unwrap_err();
+    assert!(matches!(none, BridgeError::InvalidArgument(_)), "{none}");
+
+    // An engine that disappears: the step fails naming it.
+    drop(b);
+    match step_batches(&spread, &[0.0; 5]).unwrap_err() {
+        BridgeError::Engine { engine, source } => {
+            assert_eq!(engine, "vector-b");
+            assert!(
+                matches!(
+                    *source,
+                    BridgeError::NoEngine { .. } | BridgeError::NoReply { .. }
+                ),
+                "{source}"
+            );
+        }
+        other => panic!("expected the engine's failure, got {other}"),
+    }
+}
