@@ -20,14 +20,14 @@ pub fn reset_batches(
     seed: Option<u64>,
     options: Option<ResetOptions>,
 ) -> Result<(Vec<f64>, InfoColumns), BridgeError> {
-    check_sessions(sessions)?;
+    let shape = shape_of(sessions)?;
     let mut offset = 0u64;
     let replies = in_flight(sessions, |session| {
         let session_seed = seed.map(|s| s.wrapping_add(offset));
         offset += u64::from(session.num_envs());
         session.send_reset_batch(session_seed, options.clone())
     })?;
-    let mut observations = Vec::new();
+    let mut observations = Vec::with_capacity(shape.envs * shape.observation_dim);
     let mut infos = Vec::with_capacity(sessions.len());
     for (session, pending) in sessions.iter().zip(replies) {
         let (part, info) = RemoteEnv::reset_reply(pending).map_err(in_engine(session))?;
@@ -40,12 +40,14 @@ pub fn reset_batches(
 /// Steps every environment of `sessions` with row-major `actions` (`Σ num_envs ×
 /// action_dim`), next-step autoreset as [`RemoteEnv::step_batch`]; the replies merged.
 pub fn step_batches(sessions: &[&RemoteEnv], actions: &[f64]) -> Result<BatchStep, BridgeError> {
-    check_sessions(sessions)?;
-    let action_dim = sessions[0].spec().action_space.dim();
-    let total: usize = sessions.iter().map(|s| s.num_envs() as usize).sum();
-    if actions.len() != total * action_dim {
+    let Shape {
+        envs,
+        action_dim,
+        observation_dim,
+    } = shape_of(sessions)?;
+    if actions.len() != envs * action_dim {
         return Err(BridgeError::InvalidArgument(format!(
-            "{} action values for {total} environments of {action_dim} each",
+            "{} action values for {envs} environments of {action_dim} each",
             actions.len()
         )));
     }
@@ -56,10 +58,10 @@ pub fn step_batches(sessions: &[&RemoteEnv], actions: &[f64]) -> Result<BatchSte
         session.send_step_batch(share)
     })?;
     let mut merged = BatchStep {
-        observations: Vec::new(),
-        rewards: Vec::with_capacity(total),
-        terminated: Vec::with_capacity(total),
-        truncated: Vec::with_capacity(total),
+        observations: Vec::with_capacity(envs * observation_dim),
+        rewards: Vec::with_capacity(envs),
+        terminated: Vec::with_capacity(envs),
+        truncated: Vec::with_capacity(envs),
         info: InfoColumns::new(),
     };
     let mut infos = Vec::with_capacity(sessions.len());
@@ -75,8 +77,16 @@ pub fn step_batches(sessions: &[&RemoteEnv], actions: &[f64]) -> Result<BatchSte
     Ok(merged)
 }
 
-/// At least one session, all of the same spaces.
-fn check_sessions(sessions: &[&RemoteEnv]) -> Result<(), BridgeError> {
+/// A batch's size and spaces.
+struct Shape {
+    /// Environments of all the sessions.
+    envs: usize,
+    action_dim: usize,
+    observation_dim: usize,
+}
+
+/// The shape of the batch of `sessions`: at least one session, all of the same spaces.
+fn shape_of(sessions: &[&RemoteEnv]) -> Result<Shape, BridgeError> {
     let Some(first) = sessions.first() else {
         return Err(BridgeError::InvalidArgument(
             "a vector environment needs at least one session".into(),
@@ -86,17 +96,22 @@ fn check_sessions(sessions: &[&RemoteEnv]) -> Result<(), BridgeError> {
         let spec = s.spec();
         (spec.action_space.dim(), spec.observation_space.dim())
     };
-    match sessions.iter().find(|s| spaces(s) != spaces(first)) {
-        Some(other) => Err(BridgeError::InvalidArgument(format!(
+    if let Some(other) = sessions.iter().find(|s| spaces(s) != spaces(first)) {
+        return Err(BridgeError::InvalidArgument(format!(
             "sessions on `{}` and `{}` have different spaces: {:?} and {:?} (action, \
              observation dimensions)",
             first.engine(),
             other.engine(),
             spaces(first),
             spaces(other)
-        ))),
-        None => Ok(()),
+        )));
     }
+    let (action_dim, observation_dim) = spaces(first);
+    Ok(Shape {
+        envs: sessions.iter().map(|s| s.num_envs() as usize).sum(),
+        action_dim,
+        observation_dim,
+    })
 }
 
 /// `send(session)` for every session, in order: all the queries in flight before any
