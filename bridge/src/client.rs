@@ -2,7 +2,8 @@
 //! extension wraps it; the integration tests and benchmarks use it directly.
 //!
 //! Blocking API: each call is one Zenoh query (`step` through a pre-declared querier),
-//! waiting for its one reply.
+//! waiting for its one reply; [`crate::vector`] sends one to each of several sessions
+//! before it waits for any.
 
 use std::collections::BTreeMap;
 use std::ops::Range;
