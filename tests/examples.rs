@@ -1,17 +1,19 @@
 //! The runnable examples (`bridge/examples`, `envs/examples`) run and do what their docs
 //! say: `cargo test` builds them, and this test runs the quick ones as separate
 //! processes — stepping a served task, pushing a session, acting from a checkpoint
-//! without Zenoh, publishing a checkpoint that a running `ciflow serve` hot-loads, and
-//! the 1 kHz control loops over Zenoh and in process.
+//! without Zenoh, publishing a checkpoint that a running `ciflow serve` hot-loads, the
+//! 1 kHz control loops over Zenoh and in process, and batched stepping spread over two
+//! engines behind a router.
 
 mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::time::Duration;
 
 use ciflow_engine::flow::checkpoint;
 use ciflow_engine::flow::{CheckpointConfig, CouplingKind, FlowConfig, LatentKind, Weights};
-use common::{Scratch, endpoint, serve};
+use common::{Scratch, endpoint, line_with, serve, spawn_ciflow};
 use rand::SeedableRng;
 
 /// The example binary `name`, which `cargo test` builds into `<target>/<profile>/examples`.
@@ -67,6 +69,30 @@ fn limit_cycle_checkpoint(dir: &Path) {
 fn serve_and_step_steps_a_served_task_with_its_expert() {
     let out = run("serve_and_step", &[&endpoint(27441)]);
     assert!(out.contains("after 200 expert steps"), "{out}");
+}
+
+#[test]
+fn batched_steps_spreads_its_environments_over_the_engines_listed() {
+    let router = endpoint(27561);
+    let (_router, lines) = spawn_ciflow(&["router", "--listen", &router]);
+    line_with(&lines, "ready", Duration::from_secs(30));
+    let _engines = [(27562, "steps-a"), (27563, "steps-b")]
+        .map(|(port, name)| serve(port, name, &["--connect", &router]));
+    let args = [
+        &router,
+        "ciflow/LimitCycle-v0",
+        "5",
+        "0.2",
+        "steps-a,steps-b",
+    ];
+    let report: serde_json::Value =
+        serde_json::from_str(run("batched_steps", &args).trim()).expect("one JSON line");
+    assert_eq!(report["engines"], serde_json::json!(["steps-a", "steps-b"]));
+    assert_eq!(report["num_envs"], 5);
+    assert!(
+        report["env_steps_per_s"].as_f64().is_some_and(|r| r > 0.0),
+        "{report}"
+    );
 }
 
 #[test]
