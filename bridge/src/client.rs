@@ -38,7 +38,7 @@ use crate::protocol::{
     RenderRequest, ResetReply, ResetRequest, StabilityReply, StabilityRequest, StepReply,
     StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply, encode,
 };
-use crate::query::{Pending, decode_ok, get, query, retry_unanswered};
+use crate::query::{Pending, decode_ok, query, retry_unanswered, send_query};
 
 /// Default wait for a reply.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(10);
@@ -443,12 +443,12 @@ impl RemoteEnv {
 
     /// Sends `request` for `op`, its reply left to take.
     fn send(&self, op: SessionOp, request: &impl Serialize) -> Result<Pending<'_>, BridgeError> {
-        let (zsession, timeout) = (self.control.zenoh_session(), self.control.timeout());
-        let key = self.control.key(op.as_str());
-        let get_key = key.clone();
-        Pending::send(key, encode(request), timeout, move |payload| {
-            get(zsession, &get_key, payload, timeout)
-        })
+        send_query(
+            self.control.zenoh_session(),
+            &self.control.key(op.as_str()),
+            encode(request),
+            self.control.timeout(),
+        )
     }
 
     /// Sends `request` through the session's step querier, its reply left to take.

@@ -14,7 +14,7 @@ use crate::retry::retry_within;
 
 /// Sends `payload` to `key`; every matching queryable's reply arrives on the handler
 /// (none are merged), until `timeout`.
-pub(crate) fn get(
+fn get(
     zsession: &zenoh::Session,
     key: &str,
     payload: impl Into<ZBytes>,
@@ -62,10 +62,20 @@ pub(crate) fn query<R: DeserializeOwned>(
     payload: Vec<u8>,
     timeout: Duration,
 ) -> Result<R, BridgeError> {
-    Pending::send(key.to_owned(), payload, timeout, |payload| {
-        get(zsession, key, payload, timeout)
-    })?
-    .reply()
+    send_query(zsession, key, payload, timeout)?.reply()
+}
+
+/// Sends `payload` to `key` as [`query`] does, its reply left to take.
+pub(crate) fn send_query<'a>(
+    zsession: &'a zenoh::Session,
+    key: &str,
+    payload: Vec<u8>,
+    timeout: Duration,
+) -> Result<Pending<'a>, BridgeError> {
+    let get_key = key.to_owned();
+    Pending::send(key.to_owned(), payload, timeout, move |payload| {
+        get(zsession, &get_key, payload, timeout)
+    })
 }
 
 /// How a [`Pending`] query goes out (again): a `get` on its key, or a declared querier's.
