@@ -1,6 +1,6 @@
 //! `ciflow serve` in its own process, driven by clients in other processes over Zenoh:
-//! every registered task, a client killed mid-episode, and hostile payloads next to a
-//! session that keeps stepping.
+//! every registered task, a client killed mid-episode, hostile payloads next to a
+//! session that keeps stepping, and the engine's threads scheduled as batch threads.
 
 mod common;
 
@@ -274,4 +274,60 @@ fn hostile_payloads_get_errors_while_a_parallel_session_keeps_stepping() {
     );
     stop.store(true, Ordering::Relaxed);
     stepper.join().expect("the parallel session never failed");
+}
+
+/// Each thread of process `pid` with its scheduling policy (`/proc/<pid>/task/*/stat`,
+/// field 41), e.g. `("rx-0", 3)`; 0 is Linux's normal policy, 3 `SCHED_BATCH`.
+#[cfg(target_os = "linux")]
+fn thread_policies(pid: u32) -> Vec<(String, u32)> {
+    std::fs::read_dir(format!("/proc/{pid}/task"))
+        .unwrap()
+        .map(|task| {
+            let stat = std::fs::read_to_string(task.unwrap().path().join("stat")).unwrap();
+            // `pid (comm) state …`: the name may hold spaces and parentheses, the fields
+            // after its closing one do not; the state is field 3, the policy field 41.
+            let (head, fields) = stat.rsplit_once(')').unwrap();
+            let name = head.split_once('(').unwrap().1.to_owned();
+            let policy = fields
+                .split_whitespace()
+                .nth(41 - 3)
+                .unwrap()
+                .parse()
+                .unwrap();
+            (name, policy)
+        })
+        .collect()
+}
+
+/// `ciflow serve` runs every thread of the engine — Zenoh's, its workers, its stepping
+/// pool — as a batch thread, so that the clients sharing its cores are not preempted
+/// when it wakes (`ciflow_bridge::scheduling`).
+#[cfg(target_os = "linux")]
+#[test]
+fn serve_runs_all_its_threads_as_batch_threads() {
+    const SCHED_BATCH: u32 = 3;
+    let server = serve(27434, "batch", &[]);
+    // A batched step has the workers and the stepping pool started.
+    let client = connect(27434);
+    let env = client
+        .make("batch", LIMIT_CYCLE, 600, &BTreeMap::new())
+        .unwrap();
+    env.reset_batch(Some(0), None).unwrap();
+    env.step_batch(&vec![0.0; 600 * env.spec().action_space.dim()])
+        .unwrap();
+    let engine = thread_policies(server.0.id());
+    assert!(engine.len() > 4, "the engine's threads: {engine:?}");
+    // Zenoh gives its shared-memory watchdogs a real-time policy of its own.
+    let others: Vec<_> = engine
+        .iter()
+        .filter(|(name, _)| !name.starts_with("Watchdog"))
+        .collect();
+    assert!(
+        others.iter().all(|(_, policy)| *policy == SCHED_BATCH),
+        "{engine:?}"
+    );
+    // Negative control: this test's own threads run under the normal policy, and the
+    // same reading tells them apart.
+    let own = thread_policies(std::process::id());
+    assert!(own.iter().any(|(_, policy)| *policy == 0), "{own:?}");
 }

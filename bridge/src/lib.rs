@@ -16,7 +16,8 @@
 //! - [`router`]: a Zenoh router in this process; [`access`]: the access-control rules it
 //!   enforces (who may serve, own sessions and publish policies);
 //! - [`spread`]: a closed-loop evaluation's episodes spread over many engines;
-//! - [`vector`]: one vector environment over sessions on several engines.
+//! - [`vector`]: one vector environment over sessions on several engines;
+//! - [`scheduling`]: an engine process as a batch job that yields to its clients.
 
 pub mod access;
 pub mod checkpoint_policy;
@@ -32,6 +33,7 @@ pub mod publisher;
 pub mod query;
 mod retry;
 pub mod router;
+pub mod scheduling;
 pub mod server;
 pub mod signing;
 pub mod spread;

@@ -606,6 +606,14 @@ fn info_dict<'py>(py: Python<'py>, info: &ciflow_envs::Info) -> PyResult<Bound<'
     Ok(dict)
 }
 
+/// Runs the calling thread, and the threads it starts afterwards, as batch threads
+/// (Linux `SCHED_BATCH`, [`ciflow_bridge::scheduling`]): what `python -m ciflow serve`
+/// does first, as `ciflow serve` does. `OSError` if the system refuses.
+#[pyfunction]
+fn run_as_batch() -> PyResult<()> {
+    Ok(ciflow_bridge::scheduling::run_as_batch()?)
+}
+
 /// `[(gymnasium id, short name)]` of every task this build's engine serves.
 #[pyfunction]
 fn tasks() -> Vec<(&'static str, &'static str)> {
@@ -618,6 +626,7 @@ fn tasks() -> Vec<(&'static str, &'static str)> {
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(tasks, m)?)?;
+    m.add_function(wrap_pyfunction!(run_as_batch, m)?)?;
     m.add_class::<Engine>()?;
     m.add_class::<ClientHandle>()?;
     m.add_class::<Session>()?;

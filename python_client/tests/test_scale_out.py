@@ -2,6 +2,7 @@
 (`ciflow router` and three `ciflow serve` processes on loopback): the merged results equal
 a single engine's for the same seeds and actions, and a vanished engine is an error."""
 
+import os
 import subprocess
 import sys
 import time
@@ -87,6 +88,57 @@ def test_every_engine_serving_the_task_is_found_in_name_order(cluster):
         gym.make_vec(TASK, num_envs=4, engine=router, engines=["scale-a", "nope"])
     with pytest.raises(ValueError, match="twice"):
         gym.make_vec(TASK, num_envs=4, engine=router, engines=["scale-a", "scale-a"])
+
+
+def thread_policies(pid: int) -> dict[str, set[int]]:
+    """The scheduling policies of process ``pid``'s threads by thread name (Linux:
+    field 41 of ``/proc/<pid>/task/*/stat``; 0 the normal policy, 3 ``SCHED_BATCH``)."""
+    policies: dict[str, set[int]] = {}
+    for stat in Path(f"/proc/{pid}/task").glob("*/stat"):
+        text = stat.read_text()
+        name = text[text.index("(") + 1:text.rindex(")")]
+        # The fields after the name's closing parenthesis start at field 3.
+        policies.setdefault(name, set()).add(int(text[text.rindex(")") + 1:].split()[41 - 3]))
+    return policies
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux scheduling policies")
+def test_engines_run_all_their_threads_as_batch_threads(cluster):
+    """``python -m ciflow serve`` schedules its engine as ``ciflow serve`` does, so that
+    clients sharing its cores are not preempted when it wakes."""
+    _, engines = cluster
+    for name, process in engines.items():
+        policies = thread_policies(process.pid)
+        # Zenoh gives its shared-memory watchdogs a real-time policy of its own, and the
+        # threads numpy's BLAS started at import, before the engine (named after the
+        # process, as its main thread), keep the policy they had: they sleep meanwhile.
+        engine = {policy for thread, found in policies.items()
+                  if not thread.startswith(("Watchdog", "python")) for policy in found}
+        assert engine == {3}, (name, policies)
+        assert len(policies) > 4, (name, policies)
+    # Negative control: this process's threads run under the normal policy, and the same
+    # reading tells them apart.
+    assert 0 in set().union(*thread_policies(os.getpid()).values())
+
+
+def test_an_engine_still_starting_is_waited_for(cluster):
+    """Named engines that do not answer the first discovery (just started, or linked to
+    a peer's client only after the router's gossip) are looked for again for a moment."""
+    router, _ = cluster
+    late = subprocess.Popen(
+        [str(BINARY), "serve", "--name", "scale-late", "--connect", router,
+         "--listen", f"tcp/127.0.0.1:{free_port()}"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        envs = gym.make_vec(TASK, num_envs=4, engine=router, engines=["scale-a", "scale-late"],
+                            obstacles=1)
+        assert envs.unwrapped.engine_names == ["scale-a", "scale-late"]
+        envs.reset(seed=0)
+        envs.step(np.zeros((4, 2)))
+        envs.close()
+    finally:
+        late.terminate()
+        late.wait(timeout=10)
 
 
 def test_engines_started_without_options_on_one_machine_all_meet(private_default_endpoint):

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use ciflow_bridge::{
-    CheckpointPolicy, EngineServer, Kwargs, Policy, ServerOptions, default_endpoint,
+    CheckpointPolicy, EngineServer, Kwargs, Policy, ServerOptions, default_endpoint, scheduling,
 };
 
 use super::network::NetworkArgs;
@@ -46,6 +46,10 @@ pub struct ServeArgs {
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
+    // Before any thread starts, so that all of the engine's inherit it.
+    if let Err(error) = scheduling::run_as_batch() {
+        eprintln!("ciflow serve: running with the default scheduling policy ({error})");
+    }
     let network = args.network.options()?;
     let mut options = ServerOptions {
         name: args.name,

@@ -19,6 +19,12 @@ def main(argv=None) -> int:
     serve.add_argument("--name", help="engine name used in key expressions")
     args = parser.parse_args(argv)
 
+    # Before the engine starts its threads, so that they all inherit it.
+    try:
+        _native.run_as_batch()
+    except OSError as error:
+        print(f"python -m ciflow serve: running with the default scheduling policy ({error})",
+              file=sys.stderr)
     engine = _native.Engine(
         config=args.config, mode=args.mode, connect=args.connect, listen=args.listen,
         name=args.name,
