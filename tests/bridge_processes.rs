@@ -282,8 +282,9 @@ fn hostile_payloads_get_errors_while_a_parallel_session_keeps_stepping() {
 fn thread_policies(pid: u32) -> Vec<(String, u32)> {
     std::fs::read_dir(format!("/proc/{pid}/task"))
         .unwrap()
-        .map(|task| {
-            let stat = std::fs::read_to_string(task.unwrap().path().join("stat")).unwrap();
+        // A thread that ended meanwhile has no `stat` left to read.
+        .filter_map(|task| std::fs::read_to_string(task.unwrap().path().join("stat")).ok())
+        .map(|stat| {
             // `pid (comm) state …`: the name may hold spaces and parentheses, the fields
             // after its closing one do not; the state is field 3, the policy field 41.
             let (head, fields) = stat.rsplit_once(')').unwrap();

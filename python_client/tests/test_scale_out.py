@@ -95,7 +95,10 @@ def thread_policies(pid: int) -> dict[str, set[int]]:
     field 41 of ``/proc/<pid>/task/*/stat``; 0 the normal policy, 3 ``SCHED_BATCH``)."""
     policies: dict[str, set[int]] = {}
     for stat in Path(f"/proc/{pid}/task").glob("*/stat"):
-        text = stat.read_text()
+        try:
+            text = stat.read_text()
+        except FileNotFoundError:  # a thread that ended meanwhile
+            continue
         name = text[text.index("(") + 1:text.rindex(")")]
         # The fields after the name's closing parenthesis start at field 3.
         policies.setdefault(name, set()).add(int(text[text.rindex(")") + 1:].split()[41 - 3]))
