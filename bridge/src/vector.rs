@@ -57,6 +57,15 @@ pub fn step_batches(sessions: &[&RemoteEnv], actions: &[f64]) -> Result<BatchSte
         rest = after;
         session.send_step_batch(share)
     })?;
+    let mut steps = sessions
+        .iter()
+        .zip(replies)
+        .map(|(session, pending)| RemoteEnv::step_reply(pending).map_err(in_engine(session)))
+        .collect::<Result<Vec<_>, _>>()?;
+    if steps.len() == 1 {
+        // One session's reply is the batch's as it came: nothing to copy.
+        return Ok(steps.remove(0));
+    }
     let mut merged = BatchStep {
         observations: Vec::with_capacity(envs * observation_dim),
         rewards: Vec::with_capacity(envs),
@@ -65,8 +74,7 @@ pub fn step_batches(sessions: &[&RemoteEnv], actions: &[f64]) -> Result<BatchSte
         info: InfoColumns::new(),
     };
     let mut infos = Vec::with_capacity(sessions.len());
-    for (session, pending) in sessions.iter().zip(replies) {
-        let step = RemoteEnv::step_reply(pending).map_err(in_engine(session))?;
+    for step in steps {
         merged.observations.extend(step.observations);
         merged.rewards.extend(step.rewards);
         merged.terminated.extend(step.terminated);
@@ -128,22 +136,25 @@ fn in_flight<'a>(
 
 /// The sessions' info columns as one: a key some session did not report is NaN (absent)
 /// for its environments.
-fn merge_columns(sessions: &[&RemoteEnv], parts: Vec<InfoColumns>) -> InfoColumns {
+fn merge_columns(sessions: &[&RemoteEnv], mut parts: Vec<InfoColumns>) -> InfoColumns {
     if parts.len() == 1 {
-        return parts.into_iter().next().unwrap_or_default();
+        return parts.pop().unwrap_or_default();
     }
-    let keys: BTreeSet<&String> = parts.iter().flat_map(|columns| columns.keys()).collect();
+    let keys: BTreeSet<String> = parts
+        .iter()
+        .flat_map(|columns| columns.keys().cloned())
+        .collect();
+    let envs = sessions.iter().map(|s| s.num_envs() as usize).sum();
     keys.into_iter()
         .map(|key| {
-            let values = sessions
-                .iter()
-                .zip(&parts)
-                .flat_map(|(session, columns)| match columns.get(key) {
-                    Some(values) => values.clone(),
-                    None => vec![f64::NAN; session.num_envs() as usize],
-                })
-                .collect();
-            (key.clone(), values)
+            let mut values = Vec::with_capacity(envs);
+            for (session, columns) in sessions.iter().zip(&mut parts) {
+                match columns.remove(&key) {
+                    Some(part) => values.extend(part),
+                    None => values.resize(values.len() + session.num_envs() as usize, f64::NAN),
+                }
+            }
+            (key, values)
         })
         .collect()
 }
