@@ -23,11 +23,8 @@ use std::io;
 pub fn run_as_batch() -> io::Result<()> {
     #[cfg(target_os = "linux")]
     {
-        // SAFETY: pid 0 queries the calling thread; no pointer is passed.
-        match unsafe { libc::sched_getscheduler(0) } {
-            -1 => return Err(io::Error::last_os_error()),
-            libc::SCHED_OTHER => {}
-            _ => return Ok(()),
+        if current_policy()? != libc::SCHED_OTHER {
+            return Ok(());
         }
         let param = libc::sched_param { sched_priority: 0 };
         // SAFETY: `param` outlives the call; pid 0 is the calling thread; SCHED_BATCH takes
@@ -39,13 +36,22 @@ pub fn run_as_batch() -> io::Result<()> {
     Ok(())
 }
 
+/// The calling thread's scheduling policy (`SCHED_OTHER`, `SCHED_BATCH`, …).
+#[cfg(target_os = "linux")]
+fn current_policy() -> io::Result<libc::c_int> {
+    // SAFETY: pid 0 queries the calling thread; no pointer is passed.
+    match unsafe { libc::sched_getscheduler(0) } {
+        -1 => Err(io::Error::last_os_error()),
+        policy => Ok(policy),
+    }
+}
+
 #[cfg(all(test, target_os = "linux"))]
 mod tests {
     use super::*;
 
     fn policy() -> libc::c_int {
-        // SAFETY: pid 0 queries the calling thread; no pointer is passed.
-        unsafe { libc::sched_getscheduler(0) }
+        current_policy().unwrap()
     }
 
     #[test]
