@@ -1,12 +1,19 @@
 """Every task through ``gymnasium.make`` / ``gymnasium.make_vec`` against an engine in
 another process."""
 
+import sys
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
 import ciflow
+
+# pytest runs with --import-mode=importlib: conftest is not on sys.path by itself.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from conftest import free_port  # noqa: E402
 
 
 @pytest.fixture(params=ciflow.TASK_IDS)
@@ -29,6 +36,16 @@ def test_discover_lists_the_engine_and_every_task(engine):
     assert name in found
     served = {t["spec"]["id"] for t in found[name]["tasks"]}
     assert set(ciflow.TASK_IDS) <= served
+
+
+def test_the_default_endpoint_is_the_one_set_when_asked(engine, monkeypatch):
+    """A client of the default endpoint is kept per endpoint: pointing
+    ``CIFLOW_DEFAULT_ENDPOINT`` elsewhere reaches the new place, not the old session."""
+    endpoint, name = engine
+    monkeypatch.setenv("CIFLOW_DEFAULT_ENDPOINT", endpoint)
+    assert name in {e["name"] for e in ciflow.discover()}
+    monkeypatch.setenv("CIFLOW_DEFAULT_ENDPOINT", f"tcp/127.0.0.1:{free_port()}")
+    assert name not in {e["name"] for e in ciflow.discover()}
 
 
 def test_check_env_passes(task_id, engine):

@@ -152,6 +152,11 @@ def test_engines_started_without_options_on_one_machine_all_meet(private_default
     engines = [start_process([str(BINARY), "serve", "--name", name])
                for name in ("zero-a", "zero-b")]
     try:
+        # "*" is every engine reachable when asked; the second engine's queryables reach
+        # a new client through the first one a moment after it says it is ready.
+        deadline = time.monotonic() + 10.0
+        while len(ciflow.discover()) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
         envs = gym.make_vec(TASK, num_envs=4, engines="*", obstacles=1)
         assert envs.unwrapped.engine_names == ["zero-a", "zero-b"]
         envs.reset(seed=0)

@@ -39,11 +39,12 @@ def default_endpoint() -> str:
 def _client(connect: str | None, zenoh_config: str | None) -> _native.ClientHandle:
     # Who this process is behind a router with access control (see deploy/secure).
     identity = os.environ.get("CIFLOW_IDENTITY") or None
+    # Keyed by the endpoint the default resolves to now: the variable may change.
+    if connect is None and zenoh_config is None:
+        connect = default_endpoint()
     key = (connect, zenoh_config, identity)
     client = _clients.get(key)
     if client is None:
-        if connect is None and zenoh_config is None:
-            connect = default_endpoint()
         client = _native.ClientHandle.open(
             config=zenoh_config, connect=[connect] if connect else None, identity=identity
         )
