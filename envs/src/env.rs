@@ -122,6 +122,15 @@ impl Phase {
 }
 
 /// The result of one [`Env::step`].
+/// What a task tells about one state: Gymnasium's reward, termination and info.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Outcome {
+    pub reward: f64,
+    pub terminated: bool,
+    /// The same keys at every step and at reset (datasets store them as columns).
+    pub info: Info,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Step {
     pub observation: Vec<f64>,

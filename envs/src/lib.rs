@@ -10,6 +10,7 @@
 //! [`tasks()`], build them with [`make`].
 
 pub mod actor;
+pub mod arm;
 pub mod dataset;
 pub mod env;
 pub mod error;

@@ -14,7 +14,7 @@ use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
 use nalgebra::Vector2;
 use rand_chacha::ChaCha8Rng;
 
-use crate::env::{Env, EnvError, EnvSpec, Info, Phase, ResetOptions, Step};
+use crate::env::{Env, EnvError, EnvSpec, Info, Outcome, Phase, ResetOptions, Step};
 use crate::expert::tracking::{VelocityField, tracking_acceleration};
 use crate::raster::{BLACK, BLUE, Canvas, View};
 use crate::scene::{Body, Scene, Shape, planar};
@@ -23,15 +23,6 @@ use crate::space::{BoxSpace, Dtype};
 
 /// Mass of the point, kg.
 pub const MASS: f64 = 1.0;
-
-/// What a task tells about one state: Gymnasium's reward, termination and info.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Outcome {
-    pub reward: f64,
-    pub terminated: bool,
-    /// The same keys at every step and at reset (datasets store them as columns).
-    pub info: Info,
-}
 
 /// Fixed facts about a planar task.
 #[derive(Clone, Debug, PartialEq)]

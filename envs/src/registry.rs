@@ -172,11 +172,11 @@ fn lasa_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
 
 fn pouring_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
     unknown_kwargs(kwargs, &[])?;
-    Ok(Box::new(pouring::Pouring::new()?))
+    Ok(Box::new(pouring::make()?))
 }
 
 fn reach_with(kwargs: &Kwargs) -> Result<Box<dyn Env>, EnvError> {
-    Ok(Box::new(reach::Reach::new(kwargs)?))
+    Ok(Box::new(reach::make(kwargs)?))
 }
 
 /// Defaults never fail: each task's tests build it with its defaults.

@@ -222,7 +222,7 @@ fn an_actor_keeps_its_end_stop_hold_until_reset() {
         &mut ChaCha8Rng::seed_from_u64(7),
     );
     let policy = Policy::new(&config, weights).unwrap();
-    let env = pouring::Pouring::new().unwrap();
+    let env = pouring::make().unwrap();
     let context: Vec<f64> = {
         let space = &env.spec().context_space;
         space

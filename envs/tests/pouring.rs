@@ -1,15 +1,16 @@
 //! `ciflow/Pouring-v0`: the expert pours without spilling, continuity, perturbations.
 
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
+use ciflow_envs::arm::ArmEnv;
 use ciflow_envs::env::PERTURBED_INFO;
 use ciflow_envs::rollout::expert_episode;
 use ciflow_envs::scene::{Body, Shape};
-use ciflow_envs::tasks::pouring::{DEMO_PUSH_DURATION, PUSH_FORCE_OPTION, Pouring};
+use ciflow_envs::tasks::pouring::{self, DEMO_PUSH_DURATION, PUSH_FORCE_OPTION, Pouring};
 use ciflow_envs::{Env, EnvError, ResetOptions};
 
 #[test]
 fn expert_pours_into_the_pot_and_never_spills() {
-    let mut env = Pouring::new().unwrap();
+    let mut env = pouring::make().unwrap();
     let episodes = 40;
     let mut successes = 0;
     for seed in 0..episodes {
@@ -44,7 +45,7 @@ fn expert_pours_into_the_pot_and_never_spills() {
 /// differs from the same seed's unpushed episode, and lasts as long as the push.
 #[test]
 fn pushed_demonstrations_flag_the_steps_the_push_acted_in() {
-    let mut env = Pouring::new().unwrap();
+    let mut env = pouring::make().unwrap();
     let pushed = ResetOptions {
         extra: [(PUSH_FORCE_OPTION.to_string(), 40.0)].into(),
         ..ResetOptions::default()
@@ -77,8 +78,8 @@ fn pushed_demonstrations_flag_the_steps_the_push_acted_in() {
 
 #[test]
 fn the_final_posture_varies_continuously_with_the_pot_pose() {
-    let mut env = Pouring::new().unwrap();
-    let final_posture = |env: &mut Pouring, context: Vec<f64>| {
+    let mut env = pouring::make().unwrap();
+    let final_posture = |env: &mut ArmEnv<Pouring>, context: Vec<f64>| {
         let options = ResetOptions {
             context: Some(context),
             initial_position: Some(ciflow_engine::robot::PANDA_HOME.to_vec()),
@@ -108,7 +109,7 @@ fn the_final_posture_varies_continuously_with_the_pot_pose() {
 
 #[test]
 fn a_push_on_the_hand_moves_the_arm_and_the_expert_recovers() {
-    let mut env = Pouring::new().unwrap();
+    let mut env = pouring::make().unwrap();
     let options = ResetOptions {
         context: Some(vec![0.5, 0.0, 0.05, 0.0, 0.0, 0.0]),
         initial_position: Some(ciflow_engine::robot::PANDA_HOME.to_vec()),
@@ -155,14 +156,14 @@ fn a_push_on_the_hand_moves_the_arm_and_the_expert_recovers() {
 /// and such pushes tip the cup past `SPILL_TILT`.
 #[test]
 fn the_weakest_push_that_displaces_the_cup_5_cm_spills_nothing() {
-    let mut env = Pouring::new().unwrap();
+    let mut env = pouring::make().unwrap();
     let options = ResetOptions {
         context: Some(vec![0.5, 0.0, 0.05, 0.0, 0.0, 0.0]),
         initial_position: Some(ciflow_engine::robot::PANDA_HOME.to_vec()),
         ..ResetOptions::default()
     };
     // The cup's centre at each step, and whether the episode spilled.
-    let run = |env: &mut Pouring, force: [f64; 3]| {
+    let run = |env: &mut ArmEnv<Pouring>, force: [f64; 3]| {
         env.reset(None, &options).unwrap();
         env.perturb(Perturbation {
             kind: PerturbationKind::LinkWrench {
@@ -207,7 +208,7 @@ fn the_weakest_push_that_displaces_the_cup_5_cm_spills_nothing() {
 
 #[test]
 fn invalid_inputs_are_typed_errors() {
-    let mut env = Pouring::new().unwrap();
+    let mut env = pouring::make().unwrap();
     assert!(matches!(
         env.expert_action().unwrap_err(),
         EnvError::NeedsReset
@@ -251,7 +252,7 @@ fn invalid_inputs_are_typed_errors() {
 
 #[test]
 fn render_shows_the_cup_held_by_the_hand_above_the_pot() {
-    let mut env = Pouring::new().unwrap();
+    let mut env = pouring::make().unwrap();
     let (mut observation, _) = env.reset(Some(0), &ResetOptions::default()).unwrap();
     for step in 0..600 {
         if step % 200 == 0 {
@@ -298,9 +299,9 @@ fn render_shows_the_cup_held_by_the_hand_above_the_pot() {
 
 #[test]
 fn the_scene_of_an_observation_needs_no_reset_and_refuses_bad_observations() {
-    let mut env = Pouring::new().unwrap();
+    let mut env = pouring::make().unwrap();
     let (observation, _) = env.reset(Some(3), &ResetOptions::default()).unwrap();
-    let fresh = Pouring::new().unwrap();
+    let fresh = pouring::make().unwrap();
     assert_eq!(
         fresh.scene(&observation).unwrap(),
         env.scene(&observation).unwrap()
@@ -338,8 +339,8 @@ fn options(pairs: &[(&str, f64)]) -> ResetOptions {
 
 #[test]
 fn start_spread_sets_how_far_starts_lie_from_home() {
-    let mut env = Pouring::new().unwrap();
-    let spread_of = |env: &mut Pouring, spread: f64| {
+    let mut env = pouring::make().unwrap();
+    let spread_of = |env: &mut ArmEnv<Pouring>, spread: f64| {
         (0..20)
             .map(|seed| {
                 let (observation, _) = env
@@ -369,7 +370,7 @@ fn start_spread_sets_how_far_starts_lie_from_home() {
 
 #[test]
 fn push_force_pushes_each_episode_once_reproducibly() {
-    let mut env = Pouring::new().unwrap();
+    let mut env = pouring::make().unwrap();
     let pushed = options(&[("push_force", 60.0)]);
     let spout_x = |episode: &ciflow_envs::dataset::Episode| episode.infos["spout_x"].clone();
     let calm = expert_episode(&mut env, Some(3), &ResetOptions::default()).unwrap();

@@ -4,7 +4,7 @@
 
 use ciflow_envs::env::{Env, EnvError, ResetOptions, SUCCESS_INFO};
 use ciflow_envs::registry::{self, Kwarg, Kwargs};
-use ciflow_envs::tasks::reach::{Reach, SUCCESS_RADIUS};
+use ciflow_envs::tasks::reach::{self, SUCCESS_RADIUS};
 
 const UR5E: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
@@ -40,12 +40,12 @@ fn the_environment_holds_the_urdf_document_not_its_path() {
     // The document itself is taken as it is.
     let again = arguments(&[("urdf", urdf)]).unwrap();
     assert_eq!(again["urdf"], kwargs["urdf"]);
-    let env = Reach::new(&kwargs).unwrap();
+    let env = reach::make(&kwargs).unwrap();
     assert_eq!(env.spec().action_space.dim(), 6);
     assert_eq!(env.spec().observation_space.dim(), 6 + 6 + 3);
     // The default arm is the Panda.
     assert_eq!(
-        Reach::new(&Kwargs::new())
+        reach::make(&Kwargs::new())
             .unwrap()
             .spec()
             .action_space
@@ -56,8 +56,8 @@ fn the_environment_holds_the_urdf_document_not_its_path() {
 
 #[test]
 fn goals_are_drawn_in_the_context_space_and_replay_with_their_seed() {
-    let mut env = Reach::new(&ur5e()).unwrap();
-    let mut twin = Reach::new(&ur5e()).unwrap();
+    let mut env = reach::make(&ur5e()).unwrap();
+    let mut twin = reach::make(&ur5e()).unwrap();
     let space = env.spec().context_space.clone();
     for seed in 0..50 {
         let (observation, _) = env.reset(Some(seed), &ResetOptions::default()).unwrap();
@@ -75,7 +75,7 @@ fn goals_are_drawn_in_the_context_space_and_replay_with_their_seed() {
 
 /// The expert's share of `episodes` goals it ends within [`SUCCESS_RADIUS`] of.
 fn expert_success(kwargs: &Kwargs, episodes: u64) -> f64 {
-    let mut env = Reach::new(kwargs).unwrap();
+    let mut env = reach::make(kwargs).unwrap();
     let mut reached = 0;
     for seed in 0..episodes {
         env.reset(Some(1000 + seed), &ResetOptions::default())
@@ -102,7 +102,7 @@ fn the_expert_reaches_its_goals_on_arms_that_are_not_the_panda() {
 #[test]
 fn a_zero_action_does_not_reach_the_goal() {
     // Negative control of the success flag: the arm left alone ends away from its goals.
-    let mut env = Reach::new(&ur5e()).unwrap();
+    let mut env = reach::make(&ur5e()).unwrap();
     let mut reached = 0;
     for seed in 0..10 {
         env.reset(Some(seed), &ResetOptions::default()).unwrap();
@@ -121,8 +121,8 @@ fn a_zero_action_does_not_reach_the_goal() {
 #[test]
 fn a_push_moves_the_arm_off_its_unpushed_twin() {
     let mut options = ResetOptions::default();
-    let mut pushed = Reach::new(&ur5e()).unwrap();
-    let mut calm = Reach::new(&ur5e()).unwrap();
+    let mut pushed = reach::make(&ur5e()).unwrap();
+    let mut calm = reach::make(&ur5e()).unwrap();
     options.extra.insert("push_force".into(), 60.0);
     pushed.reset(Some(4), &options).unwrap();
     calm.reset(Some(4), &ResetOptions::default()).unwrap();
@@ -143,7 +143,7 @@ fn a_push_moves_the_arm_off_its_unpushed_twin() {
 #[test]
 fn bad_arguments_are_typed_errors() {
     let invalid = |pairs: &[(&str, &str)], key: &str| {
-        let result = arguments(pairs).and_then(|kwargs| Reach::new(&kwargs).map(|_| ()));
+        let result = arguments(pairs).and_then(|kwargs| reach::make(&kwargs).map(|_| ()));
         match result {
             Err(EnvError::InvalidOption { name, detail }) => {
                 assert_eq!(name, key, "{pairs:?}: {detail}")

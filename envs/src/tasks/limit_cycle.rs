@@ -55,10 +55,10 @@ use nalgebra::Vector2;
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
-use crate::env::{EnvError, Info, SUCCESS_INFO};
+use crate::env::{EnvError, Info, Outcome, SUCCESS_INFO};
 use crate::expert::limit_cycle::LimitCycleField;
 use crate::expert::tracking::VelocityField;
-use crate::planar::{Outcome, PlanarEnv, PlanarSetup, PlanarTask, reject_unknown_options};
+use crate::planar::{PlanarEnv, PlanarSetup, PlanarTask, reject_unknown_options};
 use crate::raster::{Canvas, GREY, View};
 use crate::scene::{Body, Shape, planar};
 use crate::space::{BoxSpace, Dtype};

@@ -52,10 +52,10 @@ use nalgebra::{Vector2, Vector3};
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
-use crate::env::{EnvError, Info, SUCCESS_INFO};
+use crate::env::{EnvError, Info, Outcome, SUCCESS_INFO};
 use crate::expert::modulation::{Disc, ModulatedField};
 use crate::expert::tracking::VelocityField;
-use crate::planar::{Outcome, PlanarEnv, PlanarSetup, PlanarTask, reject_unknown_options};
+use crate::planar::{PlanarEnv, PlanarSetup, PlanarTask, reject_unknown_options};
 use crate::raster::{Canvas, GREEN, GREY, LIGHT_GREY, View};
 use crate::scene::{Body, Shape, cylinder_between, planar};
 use crate::space::{BoxSpace, Dtype};

@@ -2,8 +2,8 @@
 //!
 //! ## Description
 //! The 7-DOF Panda with its identified dynamics and its motors' reflected rotor inertia
-//! (the engine's [`panda`] under the computed-torque [`Simulator`], 1 ms physics, 10 ms
-//! control) holds a cup. The rotor inertia is what makes a push on the hand move the arm
+//! (the engine's [`panda`] in the arm tasks' [`ArmEnv`]: the computed-torque simulator,
+//! 1 ms physics, 10 ms control) holds a cup. The rotor inertia is what makes a push on the hand move the arm
 //! rather than spin the light wrist and tip the cup (see `PANDA_ARMATURE`). A pot stands
 //! at a 6-D pose; its rim has a lip on one side (local `−x`), and water must be poured
 //! over the lip: the cup has to reach a pre-pour pose above the lip upright, then tilt
@@ -60,24 +60,21 @@
 //! ## Version history
 //! v0: initial version.
 
-use std::sync::Arc;
+use std::collections::BTreeMap;
 
-use ciflow_engine::math::{Isometry3, Vector3};
-use ciflow_engine::robot::{PANDA_HOME, Robot, panda};
-use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
+use ciflow_engine::math::{DVector, Isometry3, Vector3};
+use ciflow_engine::robot::{DynamicsError, PANDA_HOME, Robot, panda};
 use nalgebra::{Translation3, UnitQuaternion, Vector2};
 use rand::RngExt;
+use rand_chacha::ChaCha8Rng;
 
-use super::arm_start;
-use crate::env::{
-    Env, EnvError, EnvSpec, Info, PERTURBED_INFO, Phase, ResetOptions, SUCCESS_INFO, Step,
-};
+use crate::arm::{ArmEnv, ArmSetup, ArmTask};
+use crate::env::{EnvError, Info, Outcome, SUCCESS_INFO};
 use crate::expert::pouring::{CUP_RADIUS, CupPose, PourTarget, expert_acceleration};
 use crate::planar::reject_unknown_options;
 use crate::raster::{BLACK, BLUE, ORANGE, RED, Rgb, View};
-use crate::scene::{self, ARM_COLOR, Body, Scene, Shape, cylinder_between};
-use crate::seeding::EpisodeRng;
-use crate::shading::{self, Camera, Picture};
+use crate::scene::{self, ARM_COLOR, Body, Shape, cylinder_between};
+use crate::shading::Camera;
 use crate::space::{BoxSpace, Dtype};
 
 pub const ID: &str = "ciflow/Pouring-v0";
@@ -131,17 +128,14 @@ fn over_opening(pot: &Isometry3, point: &Vector3) -> bool {
     horizontal.norm() < POT_RADIUS && point.z > opening.z
 }
 
-/// The pouring environment (see the module docs).
+/// The pouring task (see the module docs).
 pub struct Pouring {
-    spec: Arc<EnvSpec>,
-    simulator: Simulator,
-    rng: EpisodeRng,
-    context: Vec<f64>,
+    setup: ArmSetup,
+    context_space: BoxSpace,
+    /// Half-width of the start about [`PANDA_HOME`] for the episode being reset, rad.
+    start_spread: f64,
     pot: Isometry3,
     target: PourTarget,
-    phase: Phase,
-    steps: u32,
-    spout_trail: Vec<Vector3>,
 }
 
 /// The arm this task drives: the Panda with its rotor inertia and real limits.
@@ -149,167 +143,70 @@ pub fn robot() -> Box<dyn Robot> {
     Box::new(panda())
 }
 
+/// The pouring environment.
+pub fn make() -> Result<ArmEnv<Pouring>, EnvError> {
+    ArmEnv::with_robot(Pouring::new(), robot())
+}
+
 impl Pouring {
-    pub fn new() -> Result<Self, EnvError> {
-        let robot = robot();
-        let limits = robot.limits().clone();
-        let config = SimConfig {
-            physics_dt: 0.001,
-            control_dt: 0.01,
-            ..SimConfig::default()
-        };
-        let simulator = Simulator::new(robot, config).map_err(EnvError::Simulation)?;
+    pub fn new() -> Self {
         let context_space =
             BoxSpace::new(CONTEXT_LOW.to_vec(), CONTEXT_HIGH.to_vec(), Dtype::Float64);
-        let observation_space = BoxSpace::new(
-            [
-                limits.q_min.as_slice(),
-                (-&limits.qd_max).as_slice(),
-                &CONTEXT_LOW[..],
-            ]
-            .concat(),
-            [
-                limits.q_max.as_slice(),
-                limits.qd_max.as_slice(),
-                &CONTEXT_HIGH[..],
-            ]
-            .concat(),
-            Dtype::Float64,
-        );
-        let observation_space = BoxSpace {
-            // Velocities can exceed their nominal limits under perturbations.
-            low: observation_space
-                .low
-                .iter()
-                .enumerate()
-                .map(|(i, v)| {
-                    if (DOF..2 * DOF).contains(&i) {
-                        f64::NEG_INFINITY
-                    } else {
-                        *v
-                    }
-                })
-                .collect(),
-            high: observation_space
-                .high
-                .iter()
-                .enumerate()
-                .map(|(i, v)| {
-                    if (DOF..2 * DOF).contains(&i) {
-                        f64::INFINITY
-                    } else {
-                        *v
-                    }
-                })
-                .collect(),
-            ..observation_space
-        };
-        let spec = EnvSpec {
-            id: ID.into(),
-            observation_space,
-            action_space: BoxSpace::new(
-                (-&limits.qdd_max).as_slice().to_vec(),
-                limits.qdd_max.as_slice().to_vec(),
-                Dtype::Float64,
-            ),
-            context_space,
-            control_dt: config.control_dt,
-            physics_dt: config.physics_dt,
-            max_episode_steps: 600,
-        }
-        .shared();
-        let context = CONTEXT_LOW
+        let middle: Vec<f64> = CONTEXT_LOW
             .iter()
             .zip(&CONTEXT_HIGH)
             .map(|(l, h)| (l + h) / 2.0)
-            .collect::<Vec<_>>();
-        let pot = pot_pose(&context);
-        Ok(Self {
-            spec,
-            simulator,
-            rng: EpisodeRng::default(),
+            .collect();
+        let pot = pot_pose(&middle);
+        Self {
+            setup: ArmSetup {
+                id: ID,
+                max_episode_steps: 600,
+                trail: "spout_trail",
+            },
+            context_space,
+            start_spread: START_SPREAD,
             target: pour_target(&pot),
             pot,
-            context,
-            phase: Phase::NeedsReset,
-            steps: 0,
-            spout_trail: vec![],
-        })
-    }
-
-    fn robot(&self) -> &dyn Robot {
-        self.simulator.robot()
-    }
-
-    /// The cup now.
-    pub fn cup(&self) -> Result<CupPose, EnvError> {
-        let hand = self
-            .robot()
-            .frame_placement(self.simulator.q().as_slice(), self.robot().end_effector())
-            .map_err(|e| EnvError::Simulation(e.into()))?;
-        Ok(CupPose::of_hand(&hand))
+        }
     }
 
     pub fn pour_target(&self) -> &PourTarget {
         &self.target
     }
+}
 
-    fn observation(&self) -> Vec<f64> {
-        [
-            self.simulator.q().as_slice(),
-            self.simulator.qd().as_slice(),
-            &self.context,
-        ]
-        .concat()
-    }
-
-    /// Reward, termination and info of the current state.
-    /// Reward, termination and info with the cup at `cup` (the cup now).
-    fn outcome(&self, cup: &CupPose) -> (f64, bool, Info) {
-        let tilt = cup.tilt();
-        let distance = (cup.spout - self.target.point).norm();
-        let over = over_opening(&self.pot, &cup.spout);
-        let spill = tilt >= SPILL_TILT && !over;
-        let success = tilt >= POURING_TILT && over;
-        let flag = |b: bool| f64::from(u8::from(b));
-        let info = Info::from([
-            ("spout_x".into(), cup.spout.x),
-            ("spout_y".into(), cup.spout.y),
-            ("spout_z".into(), cup.spout.z),
-            ("tilt".into(), tilt),
-            ("pour_distance".into(), distance),
-            ("over_pot".into(), flag(over)),
-            ("spill".into(), flag(spill)),
-            (SUCCESS_INFO.into(), flag(success)),
-            (PERTURBED_INFO.into(), flag(self.simulator.perturbed())),
-            ("time".into(), self.simulator.time()),
-        ]);
-        let reward = if spill { SPILL_REWARD } else { -distance };
-        (reward, spill, info)
-    }
-
-    fn apply_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
-        self.spec.context_space.check("context", context)?;
-        self.context = context.to_vec();
-        self.pot = pot_pose(context);
-        self.target = pour_target(&self.pot);
-        Ok(())
+impl Default for Pouring {
+    fn default() -> Self {
+        Self::new()
     }
 }
 
-impl Env for Pouring {
-    fn spec(&self) -> &EnvSpec {
-        &self.spec
+impl ArmEnv<Pouring> {
+    /// The cup now.
+    pub fn cup(&self) -> Result<CupPose, EnvError> {
+        self.pose()
     }
 
-    fn reset(
-        &mut self,
-        seed: Option<u64>,
-        options: &ResetOptions,
-    ) -> Result<(Vec<f64>, Info), EnvError> {
-        reject_unknown_options(&options.extra, &[START_SPREAD_OPTION, PUSH_FORCE_OPTION])?;
-        let push_force = arm_start::push_force(&options.extra)?;
-        let spread = match options.extra.get(START_SPREAD_OPTION).copied() {
+    pub fn pour_target(&self) -> &PourTarget {
+        self.task().pour_target()
+    }
+}
+
+impl ArmTask for Pouring {
+    type Pose = CupPose;
+
+    fn setup(&self) -> &ArmSetup {
+        &self.setup
+    }
+
+    fn context_space(&self) -> &BoxSpace {
+        &self.context_space
+    }
+
+    fn configure(&mut self, extra: &BTreeMap<String, f64>) -> Result<(), EnvError> {
+        reject_unknown_options(extra, &[START_SPREAD_OPTION, PUSH_FORCE_OPTION])?;
+        self.start_spread = match extra.get(START_SPREAD_OPTION).copied() {
             None => START_SPREAD,
             Some(s) if (0.0..=MAX_START_SPREAD).contains(&s) => s,
             Some(s) => {
@@ -319,99 +216,75 @@ impl Env for Pouring {
                 });
             }
         };
-        let rng = self.rng.reseed(seed);
-        let context = match &options.context {
-            Some(context) => context.clone(),
-            None => CONTEXT_LOW
-                .iter()
-                .zip(&CONTEXT_HIGH)
-                .map(|(l, h)| rng.random_range(*l..=*h))
-                .collect(),
-        };
-        let q0 = match &options.initial_position {
-            Some(q0) => arm_start::initial_position(q0, self.robot().limits())?,
-            None => PANDA_HOME
-                .iter()
-                .map(|q| q + rng.random_range(-spread..=spread))
-                .collect(),
-        };
-        let qd0 = match &options.initial_velocity {
-            Some(qd0) => arm_start::joint_vector("initial_velocity", qd0, DOF)?,
-            None => vec![0.0; DOF],
-        };
-        // Drawn after the start, so a pushed episode starts where the unpushed one does.
-        let push = arm_start::demo_push(self.rng.reseed(None), push_force, HAND_LINK);
-        self.apply_context(&context)?;
-        self.simulator
-            .reset(&q0, &qd0)
-            .map_err(EnvError::Simulation)?;
-        if let Some(push) = push {
-            self.simulator
-                .perturb(push)
-                .map_err(EnvError::InvalidPerturbation)?;
+        Ok(())
+    }
+
+    fn sample_context(&self, _: &dyn Robot, rng: &mut ChaCha8Rng) -> Result<Vec<f64>, EnvError> {
+        Ok(CONTEXT_LOW
+            .iter()
+            .zip(&CONTEXT_HIGH)
+            .map(|(l, h)| rng.random_range(*l..=*h))
+            .collect())
+    }
+
+    fn sample_start(&self, _: &dyn Robot, rng: &mut ChaCha8Rng) -> Vec<f64> {
+        let spread = self.start_spread;
+        PANDA_HOME
+            .iter()
+            .map(|q| q + rng.random_range(-spread..=spread))
+            .collect()
+    }
+
+    fn set_context(&mut self, context: &[f64]) {
+        self.pot = pot_pose(context);
+        self.target = pour_target(&self.pot);
+    }
+
+    fn pose(&self, robot: &dyn Robot, q: &[f64]) -> Result<CupPose, EnvError> {
+        let hand = robot
+            .frame_placement(q, robot.end_effector())
+            .map_err(|e| EnvError::Simulation(e.into()))?;
+        Ok(CupPose::of_hand(&hand))
+    }
+
+    fn traced_point(cup: &CupPose) -> Vector3 {
+        cup.spout
+    }
+
+    fn evaluate(&self, cup: &CupPose) -> Outcome {
+        let tilt = cup.tilt();
+        let distance = (cup.spout - self.target.point).norm();
+        let over = over_opening(&self.pot, &cup.spout);
+        let spill = tilt >= SPILL_TILT && !over;
+        let success = tilt >= POURING_TILT && over;
+        let flag = |b: bool| f64::from(u8::from(b));
+        Outcome {
+            reward: if spill { SPILL_REWARD } else { -distance },
+            terminated: spill,
+            info: Info::from([
+                ("spout_x".into(), cup.spout.x),
+                ("spout_y".into(), cup.spout.y),
+                ("spout_z".into(), cup.spout.z),
+                ("tilt".into(), tilt),
+                ("pour_distance".into(), distance),
+                ("over_pot".into(), flag(over)),
+                ("spill".into(), flag(spill)),
+                (SUCCESS_INFO.into(), flag(success)),
+            ]),
         }
-        self.phase = Phase::Running;
-        self.steps = 0;
-        let cup = self.cup()?;
-        self.spout_trail = vec![cup.spout];
-        Ok((self.observation(), self.outcome(&cup).2))
     }
 
-    fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
-        self.phase.running()?;
-        self.spec.action_space.check("action", action)?;
-        self.simulator.step(action).map_err(EnvError::Simulation)?;
-        self.steps += 1;
-        let cup = self.cup()?;
-        self.spout_trail.push(cup.spout);
-        let (reward, terminated, info) = self.outcome(&cup);
-        let truncated = !terminated && self.steps >= self.spec.max_episode_steps;
-        if terminated || truncated {
-            self.phase = Phase::Ended;
-        }
-        Ok(Step {
-            observation: self.observation(),
-            reward,
-            terminated,
-            truncated,
-            info,
-        })
-    }
-
-    fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
-        self.phase.started()?;
-        let qdd = expert_acceleration(
-            self.robot(),
-            &self.target,
-            &PANDA_HOME,
-            self.simulator.q().as_slice(),
-            self.simulator.qd().as_slice(),
-        )
-        .map_err(|e| EnvError::Simulation(e.into()))?;
-        Ok(self.spec.action_space.clip(qdd.as_slice()))
-    }
-
-    fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
-        self.phase.started()?;
-        self.apply_context(context)
-    }
-
-    fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError> {
-        self.phase.started()?;
-        self.simulator
-            .perturb(perturbation)
-            .map_err(EnvError::InvalidPerturbation)
-    }
-
-    fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
-        Ok(self.picture(width, height)?.into_pixels())
+    fn expert_acceleration(
+        &self,
+        robot: &dyn Robot,
+        q: &[f64],
+        qd: &[f64],
+    ) -> Result<DVector, DynamicsError> {
+        expert_acceleration(robot, &self.target, &PANDA_HOME, q, qd)
     }
 
     /// The table, the arm as capsules, the cup in its fingers and the pot with its lip.
-    fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {
-        let (state, context) = self.spec.split_observation(observation)?;
-        let q = &state[..DOF];
-        let robot = self.robot();
+    fn bodies(&self, robot: &dyn Robot, q: &[f64], context: &[f64]) -> Result<Vec<Body>, EnvError> {
         let hand = robot
             .frame_placement(q, robot.end_effector())
             .map_err(|e| EnvError::Simulation(e.into()))?;
@@ -444,23 +317,11 @@ impl Env for Pouring {
             ),
             Body::new("lip", Shape::sphere(lip.coords, 0.012), RED),
         ]);
-        Ok(Scene { bodies })
+        Ok(bodies)
     }
-}
 
-impl Pouring {
-    /// The shaded picture `render` returns, with which body each pixel shows: the
-    /// [`Env::scene`] of the current observation and the spout's trail, seen from the
-    /// robot's front right (blank before the first reset).
-    pub fn picture(&self, width: u32, height: u32) -> Result<Picture, EnvError> {
-        let mut scene = Scene::default();
-        if self.phase != Phase::NeedsReset {
-            scene = self.scene(&self.observation())?;
-            scene
-                .bodies
-                .push(scene::trail("spout_trail", &self.spout_trail));
-        }
-        shading::render(&scene, &CAMERA, width, height)
+    fn camera(&self) -> Camera {
+        CAMERA
     }
 }
 

@@ -2,8 +2,8 @@
 //!
 //! ## Description
 //! The arm of the `urdf` argument (default: the shipped Franka Panda with its identified
-//! dynamics, rotor inertia and limits) under the computed-torque [`Simulator`] (1 ms
-//! physics, 10 ms control) moves its tool frame's origin to a goal position in its base
+//! dynamics, rotor inertia and limits) in the arm tasks' [`ArmEnv`] (the computed-torque
+//! simulator, 1 ms physics, 10 ms control) moves its tool frame's origin to a goal position in its base
 //! frame. Bring your own arm: any fixed-base chain of revolute, continuous, prismatic and
 //! fixed joints, with joints locked, a tool link and rotor inertias given by the other
 //! arguments.
@@ -57,24 +57,21 @@
 use std::collections::BTreeMap;
 use std::sync::{Arc, LazyLock, Mutex};
 
-use ciflow_engine::math::Vector3;
+use ciflow_engine::math::{DVector, Vector3};
 use ciflow_engine::model::LockedJoint;
-use ciflow_engine::robot::{PANDA_HOME, Robot, SerialChain, UrdfOptions, panda};
-use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
+use ciflow_engine::robot::{DynamicsError, PANDA_HOME, Robot, SerialChain, UrdfOptions, panda};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::arm_start::{self, PUSH_FORCE_OPTION};
-use crate::env::{
-    Env, EnvError, EnvSpec, Info, PERTURBED_INFO, Phase, ResetOptions, SUCCESS_INFO, Step,
-};
+use super::arm_start::PUSH_FORCE_OPTION;
+use crate::arm::{ArmEnv, ArmSetup, ArmTask};
+use crate::env::{EnvError, Info, Outcome, SUCCESS_INFO};
 use crate::expert::reach::expert_acceleration;
 use crate::kwargs::{self, Kwargs, TextArgument};
 use crate::planar::reject_unknown_options;
 use crate::raster::{GREEN, RED, View, oblique_projection};
-use crate::scene::{self, ARM_COLOR, Body, Scene, Shape};
-use crate::seeding::EpisodeRng;
-use crate::shading::{self, Camera, Picture};
+use crate::scene::{self, ARM_COLOR, Body, Shape};
+use crate::shading::Camera;
 use crate::space::{BoxSpace, Dtype};
 
 pub const ID: &str = "ciflow/Reach-v0";
@@ -269,121 +266,45 @@ fn prototype(kwargs: &Kwargs) -> Result<Arc<Prototype>, EnvError> {
     Ok(built)
 }
 
-/// The reach environment (see the module docs).
+/// The reach task (see the module docs).
 pub struct Reach {
-    spec: Arc<EnvSpec>,
-    simulator: Simulator,
+    setup: ArmSetup,
+    context_space: BoxSpace,
     home: Vec<f64>,
-    rng: EpisodeRng,
     goal: Vector3,
-    phase: Phase,
-    steps: u32,
-    tool_trail: Vec<Vector3>,
+}
+
+/// The reach environment on the arm the arguments describe.
+pub fn make(kwargs: &Kwargs) -> Result<ArmEnv<Reach>, EnvError> {
+    let prototype = prototype(kwargs)?;
+    let context_space = prototype.context_space.clone();
+    let task = Reach {
+        setup: ArmSetup {
+            id: ID,
+            max_episode_steps: MAX_EPISODE_STEPS,
+            trail: "tool_trail",
+        },
+        goal: Vector3::from_column_slice(&context_space.low),
+        context_space,
+        home: prototype.arm.home.clone(),
+    };
+    ArmEnv::with_robot(task, Box::new(prototype.arm.robot.clone()))
 }
 
 impl Reach {
-    pub fn new(kwargs: &Kwargs) -> Result<Self, EnvError> {
-        let prototype = prototype(kwargs)?;
-        let (robot, home) = (prototype.arm.robot.clone(), prototype.arm.home.clone());
-        let context_space = prototype.context_space.clone();
-        let limits = robot.limits().clone();
-        let n = robot.dof();
-        let config = SimConfig {
-            physics_dt: 0.001,
-            control_dt: 0.01,
-            ..SimConfig::default()
-        };
-        // Velocities can exceed their nominal limits under pushes.
-        let observation_space = BoxSpace::new(
-            [
-                limits.q_min.as_slice(),
-                &vec![f64::NEG_INFINITY; n],
-                &context_space.low,
-            ]
-            .concat(),
-            [
-                limits.q_max.as_slice(),
-                &vec![f64::INFINITY; n],
-                &context_space.high,
-            ]
-            .concat(),
-            Dtype::Float64,
-        );
-        let spec = EnvSpec {
-            id: ID.into(),
-            observation_space,
-            action_space: BoxSpace::new(
-                (-&limits.qdd_max).as_slice().to_vec(),
-                limits.qdd_max.as_slice().to_vec(),
-                Dtype::Float64,
-            ),
-            context_space,
-            control_dt: config.control_dt,
-            physics_dt: config.physics_dt,
-            max_episode_steps: MAX_EPISODE_STEPS,
-        }
-        .shared();
-        let simulator = Simulator::new(Box::new(robot), config).map_err(EnvError::Simulation)?;
-        let goal = Vector3::from_column_slice(&spec.context_space.low);
-        Ok(Self {
-            spec,
-            simulator,
-            home,
-            rng: EpisodeRng::default(),
-            goal,
-            phase: Phase::NeedsReset,
-            steps: 0,
-            tool_trail: vec![],
-        })
-    }
-
-    fn robot(&self) -> &dyn Robot {
-        self.simulator.robot()
-    }
-
-    /// The tool frame's origin now, base frame.
-    pub fn tool(&self) -> Result<Vector3, EnvError> {
-        tool_position(self.robot(), self.simulator.q().as_slice())
-    }
-
     pub fn goal(&self) -> &Vector3 {
         &self.goal
     }
+}
 
-    fn observation(&self) -> Vec<f64> {
-        [
-            self.simulator.q().as_slice(),
-            self.simulator.qd().as_slice(),
-            self.goal.as_slice(),
-        ]
-        .concat()
+impl ArmEnv<Reach> {
+    /// The tool frame's origin now, base frame.
+    pub fn tool(&self) -> Result<Vector3, EnvError> {
+        self.pose()
     }
 
-    fn outcome(&self) -> Result<(f64, Info), EnvError> {
-        let tool = self.tool()?;
-        let distance = (tool - self.goal).norm();
-        let info = Info::from([
-            ("tool_x".into(), tool.x),
-            ("tool_y".into(), tool.y),
-            ("tool_z".into(), tool.z),
-            ("distance_to_target".into(), distance),
-            (
-                SUCCESS_INFO.into(),
-                f64::from(u8::from(distance < SUCCESS_RADIUS)),
-            ),
-            (
-                PERTURBED_INFO.into(),
-                f64::from(u8::from(self.simulator.perturbed())),
-            ),
-            ("time".into(), self.simulator.time()),
-        ]);
-        Ok((-distance, info))
-    }
-
-    fn apply_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
-        self.spec.context_space.check("context", context)?;
-        self.goal = Vector3::from_column_slice(context);
-        Ok(())
+    pub fn goal(&self) -> &Vector3 {
+        self.task().goal()
     }
 }
 
@@ -415,129 +336,96 @@ fn sampled_goal(
     tool_position(robot, &posture_near(robot, home, GOAL_SPREAD, rng))
 }
 
-impl Env for Reach {
-    fn spec(&self) -> &EnvSpec {
-        &self.spec
+impl ArmTask for Reach {
+    type Pose = Vector3;
+
+    fn setup(&self) -> &ArmSetup {
+        &self.setup
     }
 
-    fn reset(
-        &mut self,
-        seed: Option<u64>,
-        options: &ResetOptions,
-    ) -> Result<(Vec<f64>, Info), EnvError> {
-        reject_unknown_options(&options.extra, &[PUSH_FORCE_OPTION])?;
-        let push_force = arm_start::push_force(&options.extra)?;
-        let robot = self.simulator.robot();
-        let rng = self.rng.reseed(seed);
-        let context = match &options.context {
-            Some(context) => context.clone(),
-            None => {
-                let space = &self.spec.context_space;
-                let inside = (0..GOAL_TRIES)
-                    .map(|_| sampled_goal(robot, &self.home, rng))
-                    .find(|goal| goal.as_ref().map_or(true, |g| space.contains(g.as_slice())))
-                    .ok_or_else(|| EnvError::OutOfBounds {
-                        what: "context",
-                        detail: format!("no goal of {GOAL_TRIES} draws fell in the context space"),
-                    })??;
-                inside.as_slice().to_vec()
-            }
-        };
-        let q0 = match &options.initial_position {
-            Some(q0) => arm_start::initial_position(q0, robot.limits())?,
-            None => posture_near(robot, &self.home, START_SPREAD, rng),
-        };
-        let joints = robot.dof();
-        let qd0 = match &options.initial_velocity {
-            Some(qd0) => arm_start::joint_vector("initial_velocity", qd0, joints)?,
-            None => vec![0.0; joints],
-        };
-        // Drawn after the start, so a pushed episode starts where the unpushed one does.
-        let push = arm_start::demo_push(self.rng.reseed(None), push_force, joints - 1);
-        self.apply_context(&context)?;
-        self.simulator
-            .reset(&q0, &qd0)
-            .map_err(EnvError::Simulation)?;
-        if let Some(push) = push {
-            self.simulator
-                .perturb(push)
-                .map_err(EnvError::InvalidPerturbation)?;
-        }
-        self.phase = Phase::Running;
-        self.steps = 0;
-        self.tool_trail = vec![self.tool()?];
-        Ok((self.observation(), self.outcome()?.1))
+    fn context_space(&self) -> &BoxSpace {
+        &self.context_space
     }
 
-    fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
-        self.phase.running()?;
-        self.spec.action_space.check("action", action)?;
-        self.simulator.step(action).map_err(EnvError::Simulation)?;
-        self.steps += 1;
-        self.tool_trail.push(self.tool()?);
-        let (reward, info) = self.outcome()?;
-        let truncated = self.steps >= self.spec.max_episode_steps;
-        if truncated {
-            self.phase = Phase::Ended;
-        }
-        Ok(Step {
-            observation: self.observation(),
-            reward,
+    fn configure(&mut self, extra: &BTreeMap<String, f64>) -> Result<(), EnvError> {
+        reject_unknown_options(extra, &[PUSH_FORCE_OPTION])
+    }
+
+    fn sample_context(
+        &self,
+        robot: &dyn Robot,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<Vec<f64>, EnvError> {
+        let inside = (0..GOAL_TRIES)
+            .map(|_| sampled_goal(robot, &self.home, rng))
+            .find(|goal| {
+                goal.as_ref()
+                    .map_or(true, |g| self.context_space.contains(g.as_slice()))
+            })
+            .ok_or_else(|| EnvError::OutOfBounds {
+                what: "context",
+                detail: format!("no goal of {GOAL_TRIES} draws fell in the context space"),
+            })??;
+        Ok(inside.as_slice().to_vec())
+    }
+
+    fn sample_start(&self, robot: &dyn Robot, rng: &mut ChaCha8Rng) -> Vec<f64> {
+        posture_near(robot, &self.home, START_SPREAD, rng)
+    }
+
+    fn set_context(&mut self, context: &[f64]) {
+        self.goal = Vector3::from_column_slice(context);
+    }
+
+    fn pose(&self, robot: &dyn Robot, q: &[f64]) -> Result<Vector3, EnvError> {
+        tool_position(robot, q)
+    }
+
+    fn traced_point(tool: &Vector3) -> Vector3 {
+        *tool
+    }
+
+    fn evaluate(&self, tool: &Vector3) -> Outcome {
+        let distance = (tool - self.goal).norm();
+        Outcome {
+            reward: -distance,
             terminated: false,
-            truncated,
-            info,
-        })
+            info: Info::from([
+                ("tool_x".into(), tool.x),
+                ("tool_y".into(), tool.y),
+                ("tool_z".into(), tool.z),
+                ("distance_to_target".into(), distance),
+                (
+                    SUCCESS_INFO.into(),
+                    f64::from(u8::from(distance < SUCCESS_RADIUS)),
+                ),
+            ]),
+        }
     }
 
-    fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
-        self.phase.started()?;
-        let qdd = expert_acceleration(
-            self.robot(),
-            &self.goal,
-            &self.home,
-            self.simulator.q().as_slice(),
-            self.simulator.qd().as_slice(),
-        )
-        .map_err(|e| EnvError::Simulation(e.into()))?;
-        Ok(self.spec.action_space.clip(qdd.as_slice()))
-    }
-
-    fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
-        self.phase.started()?;
-        self.apply_context(context)
-    }
-
-    fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError> {
-        self.phase.started()?;
-        self.simulator
-            .perturb(perturbation)
-            .map_err(EnvError::InvalidPerturbation)
-    }
-
-    fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
-        Ok(self.picture(width, height)?.into_pixels())
+    fn expert_acceleration(
+        &self,
+        robot: &dyn Robot,
+        q: &[f64],
+        qd: &[f64],
+    ) -> Result<DVector, DynamicsError> {
+        expert_acceleration(robot, &self.goal, &self.home, q, qd)
     }
 
     /// The arm as capsules between its joint origins, the tool and the goal.
-    fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {
-        let (state, goal) = self.spec.split_observation(observation)?;
-        let q = &state[..self.robot().dof()];
-        let tool = Shape::sphere(tool_position(self.robot(), q)?, 0.015);
+    fn bodies(&self, robot: &dyn Robot, q: &[f64], goal: &[f64]) -> Result<Vec<Body>, EnvError> {
+        let tool = Shape::sphere(tool_position(robot, q)?, 0.015);
         let goal = Shape::sphere(Vector3::from_column_slice(goal), 0.02);
-        let mut bodies = scene::arm_links(self.robot(), q, LINK_RADIUS, ARM_COLOR)?;
+        let mut bodies = scene::arm_links(robot, q, LINK_RADIUS, ARM_COLOR)?;
         bodies.extend([Body::new("tool", tool, RED), Body::new("goal", goal, GREEN)]);
-        Ok(Scene { bodies })
+        Ok(bodies)
     }
-}
 
-impl Reach {
-    /// The shaded picture `render` returns, with which body each pixel shows: the
-    /// [`Env::scene`] of the current observation and the tool's trail, seen obliquely from
-    /// the front right, framing the base and every goal of the context space (blank
-    /// before the first reset).
-    pub fn picture(&self, width: u32, height: u32) -> Result<Picture, EnvError> {
+    /// Obliquely from the front right, framing the base and every goal of the context
+    /// space.
+    fn camera(&self) -> Camera {
         let project = |p: &Vector3| oblique_projection(p, CAMERA_AZIMUTH, CAMERA_ELEVATION);
-        let context_box = &self.spec.context_space;
+        let context_box = &self.context_space;
         let corners = (0..8).map(|k| {
             Vector3::from_fn(|i, _| {
                 if k >> i & 1 == 0 {
@@ -559,19 +447,11 @@ impl Reach {
         let pad = 0.15 * (view.max - view.min).max();
         view.min.add_scalar_mut(-pad);
         view.max.add_scalar_mut(pad);
-        let camera = Camera {
+        Camera {
             azimuth: CAMERA_AZIMUTH,
             elevation: CAMERA_ELEVATION,
             view,
-        };
-        let mut scene = Scene::default();
-        if self.phase != Phase::NeedsReset {
-            scene = self.scene(&self.observation())?;
-            scene
-                .bodies
-                .push(scene::trail("tool_trail", &self.tool_trail));
         }
-        shading::render(&scene, &camera, width, height)
     }
 }
 

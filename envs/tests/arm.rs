@@ -1,0 +1,54 @@
+//! The environment the arm tasks share (`envs/src/arm.rs`), on both of them: pouring
+//! (the Panda) and reach (the Panda by default).
+
+use ciflow_envs::env::PERTURBED_INFO;
+use ciflow_envs::{Env, EnvError, ResetOptions};
+
+fn arm_tasks() -> Vec<Box<dyn Env>> {
+    ["ciflow/Pouring-v0", "ciflow/Reach-v0"]
+        .into_iter()
+        .map(|id| ciflow_envs::make(id).unwrap())
+        .collect()
+}
+
+#[test]
+fn a_failed_reset_leaves_no_episode_to_step() {
+    for mut env in arm_tasks() {
+        let id = env.spec().id.clone();
+        env.reset(Some(0), &ResetOptions::default()).unwrap();
+        let hold = vec![0.0; env.spec().action_space.dim()];
+        env.step(&hold).unwrap();
+        let outside = ResetOptions {
+            context: Some(vec![1e3; env.spec().context_space.dim()]),
+            ..ResetOptions::default()
+        };
+        assert!(
+            matches!(env.reset(None, &outside), Err(EnvError::OutOfBounds { .. })),
+            "{id}"
+        );
+        assert!(
+            matches!(env.step(&hold), Err(EnvError::NeedsReset)),
+            "{id}: stepped the episode a failed reset left behind"
+        );
+        env.reset(None, &ResetOptions::default()).unwrap();
+        env.step(&hold).unwrap();
+    }
+}
+
+#[test]
+fn info_has_the_same_keys_at_reset_and_at_every_step_ending_with_perturbed_and_time() {
+    for mut env in arm_tasks() {
+        let (_, reset_info) = env.reset(Some(1), &ResetOptions::default()).unwrap();
+        let keys: Vec<String> = reset_info.iter().map(|(k, _)| k.to_string()).collect();
+        assert_eq!(keys[keys.len() - 2..], [PERTURBED_INFO, "time"], "{keys:?}");
+        assert_eq!(reset_info.get("time"), Some(&0.0));
+        for step in 1..=3 {
+            let action = env.expert_action().unwrap();
+            let info = env.step(&action).unwrap().info;
+            let step_keys: Vec<String> = info.iter().map(|(k, _)| k.to_string()).collect();
+            assert_eq!(step_keys, keys);
+            let time = info.get("time").copied().unwrap();
+            assert!((time - 0.01 * step as f64).abs() < 1e-12, "time {time}");
+        }
+    }
+}
