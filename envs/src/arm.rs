@@ -252,17 +252,13 @@ impl<T: ArmTask> Env for ArmEnv<T> {
         let pose = self.pose()?;
         self.trail.push(T::traced_point(&pose));
         let outcome = self.outcome(&pose);
-        let truncated = !outcome.terminated && self.steps >= self.spec.max_episode_steps;
-        if outcome.terminated || truncated {
-            self.phase = Phase::Ended;
-        }
-        Ok(Step {
-            observation: self.observation(),
-            reward: outcome.reward,
-            terminated: outcome.terminated,
-            truncated,
-            info: outcome.info,
-        })
+        let observation = self.observation();
+        Ok(self.phase.finish_step(
+            outcome,
+            observation,
+            self.steps,
+            self.spec.max_episode_steps,
+        ))
     }
 
     fn expert_action(&self) -> Result<Vec<f64>, EnvError> {

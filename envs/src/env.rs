@@ -119,9 +119,30 @@ impl Phase {
             Phase::NeedsReset | Phase::Ended => Err(EnvError::NeedsReset),
         }
     }
+
+    /// The [`Step`] into `outcome` after the episode's `steps`-th control period:
+    /// truncated at `max_episode_steps` unless it terminated. Either ends the episode.
+    pub fn finish_step(
+        &mut self,
+        outcome: Outcome,
+        observation: Vec<f64>,
+        steps: u32,
+        max_episode_steps: u32,
+    ) -> Step {
+        let truncated = !outcome.terminated && steps >= max_episode_steps;
+        if outcome.terminated || truncated {
+            *self = Phase::Ended;
+        }
+        Step {
+            observation,
+            reward: outcome.reward,
+            terminated: outcome.terminated,
+            truncated,
+            info: outcome.info,
+        }
+    }
 }
 
-/// The result of one [`Env::step`].
 /// What a task tells about one state: Gymnasium's reward, termination and info.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Outcome {
@@ -131,6 +152,7 @@ pub struct Outcome {
     pub info: Info,
 }
 
+/// The result of one [`Env::step`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Step {
     pub observation: Vec<f64>,

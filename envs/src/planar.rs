@@ -212,17 +212,13 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         self.steps += 1;
         self.trail.push(self.state().0);
         let outcome = self.outcome();
-        let truncated = !outcome.terminated && self.steps >= self.spec.max_episode_steps;
-        if outcome.terminated || truncated {
-            self.phase = Phase::Ended;
-        }
-        Ok(Step {
-            observation: self.observation(),
-            reward: outcome.reward,
-            terminated: outcome.terminated,
-            truncated,
-            info: outcome.info,
-        })
+        let observation = self.observation();
+        Ok(self.phase.finish_step(
+            outcome,
+            observation,
+            self.steps,
+            self.spec.max_episode_steps,
+        ))
     }
 
     fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
