@@ -14,18 +14,24 @@ use crate::error::BridgeError;
 use crate::query::Pending;
 
 /// Resets every environment of `sessions`; environment `i` of the batch gets seed
-/// `seed + i`. Returns the observations (row-major) and the info columns, merged.
+/// `seed + i`, and the options' row `i` where they give one row per environment
+/// ([`ResetOptions::rows`]). Returns the observations (row-major) and the info columns,
+/// merged.
 pub fn reset_batches(
     sessions: &[&RemoteEnv],
     seed: Option<u64>,
     options: Option<ResetOptions>,
 ) -> Result<(Vec<f64>, InfoColumns), BridgeError> {
     let shape = shape_of(sessions)?;
-    let mut offset = 0u64;
+    let mut offset = 0;
     let replies = in_flight(sessions, |session| {
-        let session_seed = seed.map(|s| s.wrapping_add(offset));
-        offset += u64::from(session.num_envs());
-        session.send_reset_batch(session_seed, options.clone())
+        let share = offset..offset + session.num_envs() as usize;
+        let session_seed = seed.map(|s| s.wrapping_add(offset as u64));
+        let session_options = options
+            .as_ref()
+            .map(|o| o.rows(shape.envs, share.clone(), session.spec()));
+        offset = share.end;
+        session.send_reset_batch(session_seed, session_options)
     })?;
     let mut observations = Vec::with_capacity(shape.envs * shape.observation_dim);
     let mut infos = Vec::with_capacity(sessions.len());

@@ -1,6 +1,7 @@
 //! One vector environment over sessions on two engines behind a router
 //! (`ciflow_bridge::vector`): the merged batch equals one session of as many environments
-//! on one engine with the same seeds, through next-step autoresets; an info key that one
+//! on one engine with the same seeds, through next-step autoresets, also with one row of
+//! reset options per environment; an info key that one
 //! engine does not report is NaN for its environments; bad input is refused before any
 //! request, and an engine that disappears fails the step with its name instead of hanging.
 
@@ -11,6 +12,7 @@ use ciflow_bridge::{
     AccessPolicy, BatchStep, BridgeError, Client, EngineServer, NetworkOptions, RemoteEnv, Role,
     Router, ServerOptions,
 };
+use ciflow_envs::ResetOptions;
 use common::*;
 
 /// An engine serving the fixture behind the router at `router`, listening on `port`.
@@ -70,6 +72,31 @@ fn a_batch_over_two_engines_equals_one_session_on_one_engine() {
         let actions: Vec<f64> = (0..5).map(|i| 0.1 * (i + step) as f64 - 0.3).collect();
         let merged = step_batches(&spread, &actions).unwrap();
         assert_same_step(&merged, &single.step_batch(&actions).unwrap(), step);
+    }
+
+    // One row of options per environment: each resets, and autoresets, with its own
+    // context, wherever it lives.
+    let contexts = [-0.8, -0.4, 0.0, 0.4, 0.8];
+    let rows = Some(ResetOptions {
+        context: Some(contexts.to_vec()),
+        ..ResetOptions::default()
+    });
+    let context_of = |observations: &[f64]| -> Vec<f64> {
+        observations
+            .chunks(2)
+            .map(|observation| observation[1])
+            .collect()
+    };
+    let (observations, info) = reset_batches(&spread, Some(3), rows.clone()).unwrap();
+    assert_eq!(context_of(&observations), contexts);
+    assert_eq!(
+        (observations, info),
+        single.reset_batch(Some(3), rows).unwrap()
+    );
+    for step in 0..EPISODE_STEPS as usize + 1 {
+        let merged = step_batches(&spread, &[0.1; 5]).unwrap();
+        assert_same_step(&merged, &single.step_batch(&[0.1; 5]).unwrap(), step);
+        assert_eq!(context_of(&merged.observations), contexts, "step {step}");
     }
 
     // One engine's environments a step ahead: at their autoreset they report only

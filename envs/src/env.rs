@@ -1,6 +1,7 @@
 //! The environment interface shared by every task, the bridge and the Python client.
 
 use std::collections::BTreeMap;
+use std::ops::Range;
 use std::sync::{Arc, Mutex, PoisonError, Weak};
 
 use ciflow_engine::sim::Perturbation;
@@ -39,6 +40,11 @@ pub struct EnvSpec {
 }
 
 impl EnvSpec {
+    /// The number of generalized positions `q`: an observation's state is `[q, q̇]`.
+    pub fn position_dim(&self) -> usize {
+        (self.observation_space.dim() - self.context_space.dim()) / 2
+    }
+
     /// Splits an observation into its state and its context, refusing a wrong length or a
     /// non-finite entry (values outside the observation space pass: viewers draw pushed
     /// or extrapolated states as they are).
@@ -91,6 +97,51 @@ pub struct ResetOptions {
     /// Task-specific integer or real options, e.g. `obstacles` or `shape`.
     #[serde(default)]
     pub extra: BTreeMap<String, f64>,
+}
+
+impl ResetOptions {
+    /// The options of environments `envs` of a batch of `n` made alike (`spec`), as a
+    /// vector environment's reset gives them: each of `context`, `initial_position` and
+    /// `initial_velocity` holds one value for every environment (`d` numbers) or one row
+    /// per environment (`n · d` numbers, row `i` for environment `i`), of which the rows of
+    /// `envs` are kept — one value when `envs` holds one environment. A field of any other
+    /// length is kept as it is, for the environment to refuse.
+    pub fn rows(&self, n: usize, envs: Range<usize>, spec: &EnvSpec) -> ResetOptions {
+        let keep = |field: &Option<Vec<f64>>, d: usize| {
+            field.as_ref().map(|values| {
+                if is_rows(values, n, d) {
+                    values[envs.start * d..envs.end * d].to_vec()
+                } else {
+                    values.clone()
+                }
+            })
+        };
+        let (positions, context) = (spec.position_dim(), spec.context_space.dim());
+        ResetOptions {
+            context: keep(&self.context, context),
+            initial_position: keep(&self.initial_position, positions),
+            initial_velocity: keep(&self.initial_velocity, positions),
+            extra: self.extra.clone(),
+        }
+    }
+
+    /// Whether a field holds one row per environment of a batch of `n` (see
+    /// [`rows`](Self::rows)).
+    pub fn has_rows(&self, n: usize, spec: &EnvSpec) -> bool {
+        let positions = spec.position_dim();
+        [
+            (&self.context, spec.context_space.dim()),
+            (&self.initial_position, positions),
+            (&self.initial_velocity, positions),
+        ]
+        .into_iter()
+        .any(|(field, d)| field.as_ref().is_some_and(|values| is_rows(values, n, d)))
+    }
+}
+
+/// `values` are `n > 1` rows of `d > 0` numbers.
+fn is_rows(values: &[f64], n: usize, d: usize) -> bool {
+    n > 1 && d > 0 && values.len() == n * d
 }
 
 /// Where an environment is in its episode, and the checks its methods share.

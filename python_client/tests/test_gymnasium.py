@@ -173,6 +173,51 @@ def test_make_vec_steps_all_environments_in_one_request(task_id, engine):
         envs.close()
 
 
+OBSTACLE_CONTEXTS = np.array([[0.0, 0.3, 0.8, 0.1], [0.1, -0.3, 0.7, -0.2], [-0.2, 0.0, 0.9, 0.4]])
+
+
+def test_make_vec_takes_one_row_of_reset_options_per_environment(engine):
+    envs = gym.make_vec("ciflow/Obstacle-v0", num_envs=3, engine=engine[0], obstacles=1)
+    try:
+        starts = np.array([[-0.9, 0.1], [-0.8, -0.2], [-0.7, 0.5]])
+        observations, _ = envs.reset(
+            seed=0, options={"context": OBSTACLE_CONTEXTS, "initial_position": starts})
+        np.testing.assert_array_equal(observations[:, 4:], OBSTACLE_CONTEXTS)
+        np.testing.assert_array_equal(observations[:, :2], starts)
+        # Through the episode's end and the autoreset after it, each keeps its own row.
+        ended = np.zeros(3, dtype=bool)
+        while not ended.all():
+            observations, _, terminated, truncated, _ = envs.step(np.zeros((3, 2)))
+            ended |= terminated | truncated
+        observations, *_ = envs.step(np.zeros((3, 2)))
+        np.testing.assert_array_equal(observations[:, 4:], OBSTACLE_CONTEXTS)
+        np.testing.assert_array_equal(observations[:, :2], starts)
+        # One value is every environment's.
+        observations, _ = envs.reset(seed=0, options={"context": OBSTACLE_CONTEXTS[1]})
+        np.testing.assert_array_equal(observations[:, 4:], np.tile(OBSTACLE_CONTEXTS[1], (3, 1)))
+        with pytest.raises(ciflow.CiflowError, match="context has 8 elements"):
+            envs.reset(options={"context": OBSTACLE_CONTEXTS[:2]})
+    finally:
+        envs.close()
+
+
+def test_make_vec_refuses_bad_sizes_seeds_and_action_shapes(engine):
+    for num_envs in (0, -1, 2.5):
+        with pytest.raises(ValueError, match="num_envs"):
+            gym.make_vec("ciflow/Obstacle-v0", num_envs=num_envs, engine=engine[0])
+    envs = gym.make_vec("ciflow/Obstacle-v0", num_envs=3, engine=engine[0], obstacles=1)
+    try:
+        with pytest.raises(ValueError, match="one integer seed"):
+            envs.reset(seed=[1, 2, 3])
+        envs.reset(seed=0)
+        for actions in (np.zeros((2, 2)), np.zeros(6), np.zeros((1, 6))):
+            with pytest.raises(ValueError, match=r"\(3, 2\)"):
+                envs.step(actions)
+        envs.step([[0.0, 0.0]] * 3)
+    finally:
+        envs.close()
+
+
 def test_unreachable_engine_says_how_to_start_one():
     with pytest.raises(ciflow.EngineUnreachable) as error:
         gym.make("ciflow/LimitCycle-v0", engine="tcp/127.0.0.1:9")

@@ -76,6 +76,20 @@ def test_environments_spread_over_engines_step_as_on_one(cluster):
         alone.close()
 
 
+def test_a_row_of_reset_options_reaches_its_environment_on_whichever_engine(cluster):
+    router, _ = cluster
+    contexts = np.column_stack([np.linspace(-0.4, 0.4, 5), np.zeros(5), np.full(5, 0.8),
+                                np.linspace(-0.5, 0.5, 5)])
+    envs = gym.make_vec(TASK, num_envs=5, engine=router, engines=ENGINES, obstacles=1,
+                        context=contexts)
+    try:
+        assert envs.unwrapped._shares == [2, 2, 1]
+        observations, _ = envs.reset(seed=0)
+        np.testing.assert_array_equal(observations[:, 4:], contexts)
+    finally:
+        envs.close()
+
+
 def test_every_engine_serving_the_task_is_found_in_name_order(cluster):
     router, _ = cluster
     envs = gym.make_vec(TASK, num_envs=4, engine=router, engines="*", obstacles=1)

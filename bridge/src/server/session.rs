@@ -38,7 +38,7 @@ pub(crate) struct Session {
     kwargs: Kwargs,
     envs: Vec<EnvSlot>,
     /// Options of the last reset, reused by autoresets.
-    reset_options: ResetOptions,
+    reset_options: AutoresetOptions,
     telemetry: TelemetryPublisher,
     frames: u64,
     /// The policy run driving the session, if any (see [`super::driver`]), and its place
@@ -78,6 +78,31 @@ pub(crate) struct Run {
     pub policy: String,
 }
 
+/// The options autoresets reset with: the last reset's, one set for every environment
+/// or, where it gave one row per environment ([`ResetOptions::rows`]), a set each.
+enum AutoresetOptions {
+    Shared(ResetOptions),
+    PerEnvironment(Vec<ResetOptions>),
+}
+
+impl AutoresetOptions {
+    fn new(options: ResetOptions, n: usize, spec: &EnvSpec) -> Self {
+        if options.has_rows(n, spec) {
+            Self::PerEnvironment((0..n).map(|i| options.rows(n, i..i + 1, spec)).collect())
+        } else {
+            Self::Shared(options)
+        }
+    }
+
+    /// Environment `i`'s.
+    fn of(&self, i: usize) -> &ResetOptions {
+        match self {
+            Self::Shared(options) => options,
+            Self::PerEnvironment(options) => &options[i],
+        }
+    }
+}
+
 impl Session {
     pub fn new(
         id: String,
@@ -95,7 +120,7 @@ impl Session {
             spec,
             kwargs,
             envs,
-            reset_options: ResetOptions::default(),
+            reset_options: AutoresetOptions::Shared(ResetOptions::default()),
             telemetry,
             frames: 0,
             run: None,
@@ -266,7 +291,7 @@ impl Session {
         let options = request.options.unwrap_or_default();
         let slot = self.single("reset")?;
         let (observation, info) = slot.reset(request.seed, &options)?;
-        self.reset_options = options;
+        self.reset_options = AutoresetOptions::Shared(options);
         self.telemetry.offer(&self.id, &self.envs[0]);
         Ok(encode(&ResetReply {
             v: PROTOCOL_VERSION,
@@ -292,13 +317,22 @@ impl Session {
     }
 
     pub fn reset_batch(&mut self, request: ResetRequest) -> Result<Vec<u8>, ErrorReply> {
-        let options = request.options.unwrap_or_default();
+        let options = AutoresetOptions::new(
+            request.options.unwrap_or_default(),
+            self.envs.len(),
+            &self.spec,
+        );
         let results: Vec<Result<(Vec<f64>, Info), EnvError>> = self
             .envs
             .par_iter_mut()
             .with_min_len(BATCH_CHUNK)
             .enumerate()
-            .map(|(i, slot)| slot.reset(request.seed.map(|s| s.wrapping_add(i as u64)), &options))
+            .map(|(i, slot)| {
+                slot.reset(
+                    request.seed.map(|s| s.wrapping_add(i as u64)),
+                    options.of(i),
+                )
+            })
             .collect();
         let mut observations = Vec::with_capacity(self.envs.len() * self.observation_dim());
         let mut infos = Vec::with_capacity(results.len());
@@ -346,10 +380,11 @@ impl Session {
                     let mut failure = None;
                     for (i, slot) in slots.iter_mut().enumerate() {
                         let action = &actions[i * action_dim..(i + 1) * action_dim];
-                        let step = match slot.step_autoreset(action, options) {
+                        let index = chunk * BATCH_CHUNK + i;
+                        let step = match slot.step_autoreset(action, options.of(index)) {
                             Ok(step) => step,
                             Err(e) => {
-                                failure.get_or_insert_with(|| in_env(chunk * BATCH_CHUNK + i, e));
+                                failure.get_or_insert_with(|| in_env(index, e));
                                 continue;
                             }
                         };

@@ -30,6 +30,11 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
     returns its first observation with reward 0 and both flags false. Environment ``i`` of
     ``reset(seed=s)`` is seeded with ``s + i``. Infos hold one array per key, with a
     boolean ``_key`` mask of the environments that reported it.
+
+    ``context``, ``initial_position`` and ``initial_velocity`` (as keyword arguments or
+    reset options) are one value for every environment, or an array of ``num_envs`` rows,
+    one per environment: environment ``i`` then resets, and autoresets, with row ``i``.
+    Actions have the shape of ``action_space``, ``(num_envs,) + single_action_space.shape``.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
@@ -51,6 +56,8 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
         if render_mode is not None:
             raise ValueError("CiflowVectorEnv does not render; use gymnasium.make for frames")
         self._sessions = []
+        if isinstance(num_envs, bool) or int(num_envs) != num_envs or num_envs < 1:
+            raise ValueError(f"num_envs must be a whole number of at least 1, not {num_envs!r}")
         num_envs = int(num_envs)
         if engines is None:
             client, engine_name = connection.resolve(task, engine, zenoh_config)
@@ -81,15 +88,18 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
         self.render_mode = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        if isinstance(seed, (list, tuple)):
+        if isinstance(seed, (list, tuple, np.ndarray)):
             raise ValueError("pass one integer seed; environment i gets seed + i")
+        super().reset(seed=seed)
         options = reset_options(self._reset_defaults, options)
         observations, info = _native.reset_batches(self._sessions, seed, options)
         return self._observations(observations), self._info(info)
 
     def step(self, actions):
-        actions = np.asarray(actions, dtype="<f8").reshape(self.num_envs, -1)
+        actions = np.asarray(actions, dtype="<f8")
+        if actions.shape != self.action_space.shape:
+            raise ValueError(f"actions of shape {actions.shape}; this vector environment takes "
+                             f"{self.action_space.shape} (num_envs, action dimension)")
         observations, rewards, terminated, truncated, info = _native.step_batches(
             self._sessions, to_wire(actions))
         return (
