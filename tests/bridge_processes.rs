@@ -138,6 +138,7 @@ fn killed_client_sessions_are_reclaimed() {
             v: protocol::PROTOCOL_VERSION,
             token: ByteBuf::from(token.to_vec()),
             seed: Some(1),
+            seeds: None,
             options: None,
         };
         let key = keys::session("reclaim", keys::ANONYMOUS, session, "reset");

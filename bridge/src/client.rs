@@ -32,11 +32,11 @@ use crate::error::{BridgeError, check_name};
 use crate::limits::{Limits, Usage};
 use crate::protocol::keys::{self, SessionOp};
 use crate::protocol::{
-    AckReply, ActRequest, ActionReply, BatchResetReply, BatchStepReply, BatchStepRequest,
-    DescribeReply, DescribeRequest, EvaluateReply, EvaluateRequest, F64s, FrameHeader, LimitsReply,
-    LimitsRequest, MakeReply, MakeRequest, PROTOCOL_VERSION, PolicyInfo, RenderReply,
-    RenderRequest, ResetReply, ResetRequest, StabilityReply, StabilityRequest, StepReply,
-    StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply, encode,
+    AckReply, ActRequest, ActionReply, BatchResetReply, BatchSeeds, BatchStepReply,
+    BatchStepRequest, DescribeReply, DescribeRequest, EvaluateReply, EvaluateRequest, F64s,
+    FrameHeader, LimitsReply, LimitsRequest, MakeReply, MakeRequest, PROTOCOL_VERSION, PolicyInfo,
+    RenderReply, RenderRequest, ResetReply, ResetRequest, StabilityReply, StabilityRequest,
+    StepReply, StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply, encode,
 };
 use crate::query::{Pending, decode_ok, query, retry_unanswered, send_query};
 
@@ -498,20 +498,25 @@ impl RemoteEnv {
     /// Resets every environment; environment `i` gets seed `seed + i`.
     pub fn reset_batch(
         &self,
-        seed: Option<u64>,
+        seeds: impl Into<BatchSeeds>,
         options: Option<ResetOptions>,
     ) -> Result<(Vec<f64>, InfoColumns), BridgeError> {
-        Self::reset_reply(self.send_reset_batch(seed, options)?)
+        Self::reset_reply(self.send_reset_batch(seeds.into(), options)?)
     }
 
     /// Sends [`reset_batch`](Self::reset_batch)'s request; [`reset_reply`](Self::reset_reply)
     /// takes its reply.
     pub(crate) fn send_reset_batch(
         &self,
-        seed: Option<u64>,
+        seeds: BatchSeeds,
         options: Option<ResetOptions>,
     ) -> Result<Pending<'_>, BridgeError> {
-        self.send(SessionOp::ResetBatch, &self.reset_request(seed, options))
+        let (seed, seeds) = seeds.into_request();
+        let request = ResetRequest {
+            seeds,
+            ..self.reset_request(seed, options)
+        };
+        self.send(SessionOp::ResetBatch, &request)
     }
 
     pub(crate) fn reset_reply(
@@ -622,6 +627,7 @@ impl RemoteEnv {
             v: PROTOCOL_VERSION,
             token: self.control.token_field(),
             seed,
+            seeds: None,
             options,
         }
     }

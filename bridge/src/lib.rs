@@ -52,6 +52,7 @@ pub use episodes::{CollectError, EpisodePublisher, EpisodeSubscriber};
 pub use error::BridgeError;
 pub use limits::{Limits, Usage};
 pub use policy::{Policy, PolicyError};
+pub use protocol::BatchSeeds;
 pub use publisher::CheckpointPublisher;
 pub use query::query_all;
 pub use router::Router;

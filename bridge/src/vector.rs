@@ -11,27 +11,35 @@ use ciflow_envs::ResetOptions;
 
 use crate::client::{BatchStep, InfoColumns, RemoteEnv};
 use crate::error::BridgeError;
+use crate::protocol::BatchSeeds;
 use crate::query::Pending;
 
-/// Resets every environment of `sessions`; environment `i` of the batch gets seed
-/// `seed + i`, and the options' row `i` where they give one row per environment
-/// ([`ResetOptions::rows`]). Returns the observations (row-major) and the info columns,
-/// merged.
+/// Resets every environment of `sessions`; environment `i` of the batch gets its seed of
+/// `seeds` ([`BatchSeeds::of`]), and the options' row `i` where they give one row per
+/// environment ([`ResetOptions::rows`]). Returns the observations (row-major) and the
+/// info columns, merged.
 pub fn reset_batches(
     sessions: &[&RemoteEnv],
-    seed: Option<u64>,
+    seeds: impl Into<BatchSeeds>,
     options: Option<ResetOptions>,
 ) -> Result<(Vec<f64>, InfoColumns), BridgeError> {
     let shape = shape_of(sessions)?;
+    let seeds = seeds.into();
+    if let Some(count) = seeds.count().filter(|&count| count != shape.envs) {
+        return Err(BridgeError::InvalidArgument(format!(
+            "{count} seeds for {} environments",
+            shape.envs
+        )));
+    }
     let mut offset = 0;
     let replies = in_flight(sessions, |session| {
         let share = offset..offset + session.num_envs() as usize;
-        let session_seed = seed.map(|s| s.wrapping_add(offset as u64));
+        let session_seeds = seeds.share(share.clone());
         let session_options = options
             .as_ref()
             .map(|o| o.rows(shape.envs, share.clone(), session.spec()));
         offset = share.end;
-        session.send_reset_batch(session_seed, session_options)
+        session.send_reset_batch(session_seeds, session_options)
     })?;
     let mut observations = Vec::with_capacity(shape.envs * shape.observation_dim);
     let mut infos = Vec::with_capacity(sessions.len());

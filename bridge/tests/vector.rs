@@ -9,8 +9,8 @@ mod common;
 
 use ciflow_bridge::vector::{reset_batches, step_batches};
 use ciflow_bridge::{
-    AccessPolicy, BatchStep, BridgeError, Client, EngineServer, NetworkOptions, RemoteEnv, Role,
-    Router, ServerOptions,
+    AccessPolicy, BatchSeeds, BatchStep, BridgeError, Client, EngineServer, NetworkOptions,
+    RemoteEnv, Role, Router, ServerOptions,
 };
 use ciflow_envs::ResetOptions;
 use common::*;
@@ -73,6 +73,26 @@ fn a_batch_over_two_engines_equals_one_session_on_one_engine() {
         let merged = step_batches(&spread, &actions).unwrap();
         assert_same_step(&merged, &single.step_batch(&actions).unwrap(), step);
     }
+
+    // One seed per environment, wherever it lives; `None` continues that RNG.
+    let each = |seeds: &[Option<u64>]| BatchSeeds::Each(seeds.to_vec());
+    let seeds = [Some(14), Some(11), Some(12), Some(13), Some(10)];
+    let spread_reset = reset_batches(&spread, each(&seeds), None).unwrap();
+    assert_eq!(
+        spread_reset,
+        single.reset_batch(each(&seeds), None).unwrap()
+    );
+    let counted = single.reset_batch(Some(10), None).unwrap().0;
+    let rows: Vec<&[f64]> = counted.chunks(2).collect();
+    let listed: Vec<&[f64]> = spread_reset.0.chunks(2).collect();
+    assert_eq!(listed, [rows[4], rows[1], rows[2], rows[3], rows[0]]);
+    let wrong_count = reset_batches(&spread, each(&seeds[..4]), None).unwrap_err();
+    assert!(
+        matches!(wrong_count, BridgeError::InvalidArgument(_)),
+        "{wrong_count}"
+    );
+    let refused = single.reset_batch(each(&seeds[..4]), None).unwrap_err();
+    assert!(refused.to_string().contains("4 seeds for 5"), "{refused}");
 
     // One row of options per environment: each resets, and autoresets, with its own
     // context, wherever it lives.

@@ -12,8 +12,8 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use ciflow_bridge::{
-    ANY_ENGINE, Client, EngineServer, EpisodePublisher, Mode, NetworkOptions, RemoteEnv,
-    ServerOptions, SessionControl, TelemetryStream, vector,
+    ANY_ENGINE, BatchSeeds, Client, EngineServer, EpisodePublisher, Mode, NetworkOptions,
+    RemoteEnv, ServerOptions, SessionControl, TelemetryStream, vector,
 };
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -303,19 +303,26 @@ fn engine_to_dict<'py>(
 }
 
 /// Resets every environment of `sessions` as one batch (environment `i` gets seed
-/// `seed + i`), the requests in flight together: `(observations bytes, info columns)`.
+/// `seed + i`, or `seeds[i]`), the requests in flight together: `(observations bytes,
+/// info columns)`.
 #[pyfunction]
-#[pyo3(signature = (sessions, seed=None, options=None))]
+#[pyo3(signature = (sessions, seed=None, options=None, seeds=None))]
 fn reset_batches<'py>(
     py: Python<'py>,
     sessions: Vec<PyRef<'py, Session>>,
     seed: Option<u64>,
     options: Option<&Bound<'py, PyDict>>,
+    seeds: Option<Vec<Option<u64>>>,
 ) -> PyResult<(Bound<'py, PyBytes>, Bound<'py, PyDict>)> {
     let options = reset_options_from_dict(options)?;
     let envs: Vec<&RemoteEnv> = sessions.iter().map(|s| &s.env).collect();
+    let seeds = match seeds {
+        Some(seeds) if seed.is_none() => BatchSeeds::Each(seeds),
+        Some(_) => return Err(PyValueError::new_err("give seed or seeds, not both")),
+        None => seed.into(),
+    };
     let (observations, info) = py
-        .detach(|| vector::reset_batches(&envs, seed, options))
+        .detach(|| vector::reset_batches(&envs, seeds, options))
         .map_err(to_py)?;
     Ok((
         floats_to_bytes(py, &observations),

@@ -201,14 +201,32 @@ def test_make_vec_takes_one_row_of_reset_options_per_environment(engine):
         envs.close()
 
 
+def test_make_vec_takes_a_seed_per_environment_as_sync_vector_env_does(engine):
+    envs = gym.make_vec("ciflow/Obstacle-v0", num_envs=3, engine=engine[0], obstacles=1)
+    try:
+        listed, _ = envs.reset(seed=[7, 8, 9])
+        counted, _ = envs.reset(seed=7)
+        np.testing.assert_array_equal(listed, counted)
+        reordered, _ = envs.reset(seed=np.array([9, 8, 7]))
+        np.testing.assert_array_equal(reordered, counted[::-1])
+        # `None`: that environment's RNG continues, so it does not start as seeded again.
+        continued, _ = envs.reset(seed=[7, None, 9])
+        np.testing.assert_array_equal(continued[[0, 2]], counted[[0, 2]])
+        assert not np.array_equal(continued[1], counted[1])
+    finally:
+        envs.close()
+
+
 def test_make_vec_refuses_bad_sizes_seeds_and_action_shapes(engine):
     for num_envs in (0, -1, 2.5):
         with pytest.raises(ValueError, match="num_envs"):
             gym.make_vec("ciflow/Obstacle-v0", num_envs=num_envs, engine=engine[0])
     envs = gym.make_vec("ciflow/Obstacle-v0", num_envs=3, engine=engine[0], obstacles=1)
     try:
-        with pytest.raises(ValueError, match="one integer seed"):
-            envs.reset(seed=[1, 2, 3])
+        for seeds, message in (([1, 2], "2 seeds for 3"), ([1, -2, 3], "whole number"),
+                               ([1, 2.5, 3], "whole number")):
+            with pytest.raises(ValueError, match=message):
+                envs.reset(seed=seeds)
         envs.reset(seed=0)
         for actions in (np.zeros((2, 2)), np.zeros(6), np.zeros((1, 6))):
             with pytest.raises(ValueError, match=r"\(3, 2\)"):

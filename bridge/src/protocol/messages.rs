@@ -137,15 +137,82 @@ pub struct LimitsReply {
 // ---------------------------------------------------------------- session queries
 
 /// `…/reset` (single environment) and `…/reset_batch` (all environments; environment
-/// `i` is seeded with `seed + i`).
+/// `i` is seeded with `seed + i`, or with `seeds[i]`).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct ResetRequest {
     pub v: u16,
     #[serde(deserialize_with = "bin_only")]
     pub token: ByteBuf,
     pub seed: Option<u64>,
+    /// `reset_batch` only, instead of `seed`: one seed per environment (`None`: that
+    /// environment's RNG continues).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seeds: Option<Vec<Option<u64>>>,
     #[serde(default, deserialize_with = "reset_options")]
     pub options: Option<ResetOptions>,
+}
+
+/// How the environments of a batch are seeded at reset.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum BatchSeeds {
+    /// Every environment's RNG continues (an unseeded reset).
+    Continue,
+    /// Environment `i` gets `seed + i`.
+    From(u64),
+    /// Environment `i` gets entry `i` (`None`: its RNG continues).
+    Each(Vec<Option<u64>>),
+}
+
+impl From<Option<u64>> for BatchSeeds {
+    fn from(seed: Option<u64>) -> Self {
+        seed.map_or(Self::Continue, Self::From)
+    }
+}
+
+impl BatchSeeds {
+    /// The seeds of a request's `seed` and `seeds` (at most one of them).
+    pub fn of_request(seed: Option<u64>, seeds: Option<Vec<Option<u64>>>) -> Option<Self> {
+        match (seed, seeds) {
+            (Some(_), Some(_)) => None,
+            (_, Some(seeds)) => Some(Self::Each(seeds)),
+            (seed, None) => Some(seed.into()),
+        }
+    }
+
+    /// The request fields `(seed, seeds)` that carry these seeds.
+    pub fn into_request(self) -> (Option<u64>, Option<Vec<Option<u64>>>) {
+        match self {
+            Self::Continue => (None, None),
+            Self::From(seed) => (Some(seed), None),
+            Self::Each(seeds) => (None, Some(seeds)),
+        }
+    }
+
+    /// Environment `i`'s seed.
+    pub fn of(&self, i: usize) -> Option<u64> {
+        match self {
+            Self::Continue => None,
+            Self::From(seed) => Some(seed.wrapping_add(i as u64)),
+            Self::Each(seeds) => seeds[i],
+        }
+    }
+
+    /// The seeds of the environments `envs` of the batch, as a batch of their own.
+    pub fn share(&self, envs: std::ops::Range<usize>) -> Self {
+        match self {
+            Self::Continue => Self::Continue,
+            Self::From(seed) => Self::From(seed.wrapping_add(envs.start as u64)),
+            Self::Each(seeds) => Self::Each(seeds[envs].to_vec()),
+        }
+    }
+
+    /// The number of environments these seeds are for, if they say.
+    pub fn count(&self) -> Option<usize> {
+        match self {
+            Self::Each(seeds) => Some(seeds.len()),
+            Self::Continue | Self::From(_) => None,
+        }
+    }
 }
 
 /// Reply to `…/reset`.

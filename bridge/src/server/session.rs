@@ -17,10 +17,10 @@ use super::telemetry::TelemetryPublisher;
 use crate::error::full_message;
 use crate::policy::Policy;
 use crate::protocol::{
-    AckReply, ActionReply, BatchResetReply, BatchStepReply, ContextCheckReply, ContextRequest,
-    DescribeReply, ErrorCode, ErrorReply, F64s, FrameHeader, PROTOCOL_VERSION, PerturbRequest,
-    PerturbationKindMsg, ResetReply, ResetRequest, RunRequest, StepReply, TOKEN_BYTES, encode,
-    encode_with_capacity,
+    AckReply, ActionReply, BatchResetReply, BatchSeeds, BatchStepReply, ContextCheckReply,
+    ContextRequest, DescribeReply, ErrorCode, ErrorReply, F64s, FrameHeader, PROTOCOL_VERSION,
+    PerturbRequest, PerturbationKindMsg, ResetReply, ResetRequest, RunRequest, StepReply,
+    TOKEN_BYTES, encode, encode_with_capacity,
 };
 
 /// Environments per rayon task in `step_batch`: below this, threads cost more than they
@@ -288,6 +288,12 @@ impl Session {
     }
 
     pub fn reset(&mut self, request: ResetRequest) -> Result<Vec<u8>, ErrorReply> {
+        if request.seeds.is_some() {
+            return Err(ErrorReply::new(
+                ErrorCode::InvalidRequest,
+                "`seeds` is for `reset_batch`; `reset` takes one `seed`",
+            ));
+        }
         let options = request.options.unwrap_or_default();
         let slot = self.single("reset")?;
         let (observation, info) = slot.reset(request.seed, &options)?;
@@ -317,22 +323,26 @@ impl Session {
     }
 
     pub fn reset_batch(&mut self, request: ResetRequest) -> Result<Vec<u8>, ErrorReply> {
-        let options = AutoresetOptions::new(
-            request.options.unwrap_or_default(),
-            self.envs.len(),
-            &self.spec,
-        );
+        let n = self.envs.len();
+        let seeds = BatchSeeds::of_request(request.seed, request.seeds).ok_or_else(|| {
+            ErrorReply::new(
+                ErrorCode::InvalidRequest,
+                "give `seed` or `seeds`, not both",
+            )
+        })?;
+        if let Some(count) = seeds.count().filter(|&count| count != n) {
+            return Err(ErrorReply::new(
+                ErrorCode::InvalidRequest,
+                format!("{count} seeds for {n} environments"),
+            ));
+        }
+        let options = AutoresetOptions::new(request.options.unwrap_or_default(), n, &self.spec);
         let results: Vec<Result<(Vec<f64>, Info), EnvError>> = self
             .envs
             .par_iter_mut()
             .with_min_len(BATCH_CHUNK)
             .enumerate()
-            .map(|(i, slot)| {
-                slot.reset(
-                    request.seed.map(|s| s.wrapping_add(i as u64)),
-                    options.of(i),
-                )
-            })
+            .map(|(i, slot)| slot.reset(seeds.of(i), options.of(i)))
             .collect();
         let mut observations = Vec::with_capacity(self.envs.len() * self.observation_dim());
         let mut infos = Vec::with_capacity(results.len());

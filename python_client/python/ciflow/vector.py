@@ -13,6 +13,14 @@ from ciflow import _native, connection
 from ciflow.spaces import box, construction_kwargs, from_wire, reset_options, to_wire
 
 
+def _seed(value) -> int:
+    """A seed as the engines take it: a whole number from 0 to 2⁶⁴ − 1."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
+            or not 0 <= int(value) < 2**64:
+        raise ValueError(f"a seed is a whole number from 0 to 2**64 - 1, not {value!r}")
+    return int(value)
+
+
 class CiflowVectorEnv(gym.vector.VectorEnv):
     """``num_envs`` copies of a task, stepped by one request per engine.
 
@@ -28,7 +36,8 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
     Autoreset is Gymnasium's next-step mode (``metadata["autoreset_mode"]``): after an
     episode ends, the next ``step`` ignores that environment's action, resets it and
     returns its first observation with reward 0 and both flags false. Environment ``i`` of
-    ``reset(seed=s)`` is seeded with ``s + i``. Infos hold one array per key, with a
+    ``reset(seed=s)`` is seeded with ``s + i``, of ``reset(seed=[...])`` with entry ``i``.
+    Infos hold one array per key, with a
     boolean ``_key`` mask of the environments that reported it.
 
     ``context``, ``initial_position`` and ``initial_velocity`` (as keyword arguments or
@@ -87,12 +96,20 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
         }
         self.render_mode = None
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
+    def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+        """Resets every environment: with ``seed=s`` environment ``i`` gets ``s + i``; with
+        a list, its entry ``i`` (``None``: that environment's RNG continues), as
+        Gymnasium's ``SyncVectorEnv``."""
+        seeds = None
         if isinstance(seed, (list, tuple, np.ndarray)):
-            raise ValueError("pass one integer seed; environment i gets seed + i")
-        super().reset(seed=seed)
+            seeds = [None if s is None else _seed(s) for s in seed]
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"{len(seeds)} seeds for {self.num_envs} environments")
+            seed = None
+        else:
+            super().reset(seed=seed)
         options = reset_options(self._reset_defaults, options)
-        observations, info = _native.reset_batches(self._sessions, seed, options)
+        observations, info = _native.reset_batches(self._sessions, seed, options, seeds)
         return self._observations(observations), self._info(info)
 
     def step(self, actions):
