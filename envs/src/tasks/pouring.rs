@@ -152,6 +152,7 @@ impl Pouring {
     pub fn new() -> Self {
         let context_space =
             BoxSpace::new(CONTEXT_LOW.to_vec(), CONTEXT_HIGH.to_vec(), Dtype::Float64);
+        // Until the first reset sets a context, the pot stands in the middle of the box.
         let middle: Vec<f64> = CONTEXT_LOW
             .iter()
             .zip(&CONTEXT_HIGH)
