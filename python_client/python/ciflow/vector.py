@@ -37,8 +37,8 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
     episode ends, the next ``step`` ignores that environment's action, resets it and
     returns its first observation with reward 0 and both flags false. Environment ``i`` of
     ``reset(seed=s)`` is seeded with ``s + i``, of ``reset(seed=[...])`` with entry ``i``.
-    Infos hold one array per key, with a
-    boolean ``_key`` mask of the environments that reported it.
+    Infos hold one array per key, with a boolean ``_key`` mask of the environments that
+    reported it.
 
     ``context``, ``initial_position`` and ``initial_velocity`` (as keyword arguments or
     reset options) are one value for every environment, or an array of ``num_envs`` rows,
