@@ -1,5 +1,6 @@
 //! The environment the arm tasks share (`envs/src/arm.rs`), on both of them: pouring
-//! (the Panda) and reach (the Panda by default).
+//! (the Panda) and reach (the Panda by default); and how a batch of them splits its reset
+//! options.
 
 use ciflow_envs::env::PERTURBED_INFO;
 use ciflow_envs::{Env, EnvError, ResetOptions};
@@ -51,4 +52,43 @@ fn info_has_the_same_keys_at_reset_and_at_every_step_ending_with_perturbed_and_t
             assert!((time - 0.01 * step as f64).abs() < 1e-12, "time {time}");
         }
     }
+}
+
+/// `ResetOptions::rows` on an arm's layout (7 positions, a 6-D context): the rows of a
+/// batch of 3 go to their environments, a value for all stays one, and any other length
+/// is left for the environment to refuse.
+#[test]
+fn reset_options_give_each_environment_of_a_batch_its_row() {
+    let env = ciflow_envs::make("ciflow/Pouring-v0").unwrap();
+    let spec = env.spec();
+    assert_eq!(spec.position_dim(), 7);
+    let numbers = |range: std::ops::Range<usize>| range.map(|k| k as f64).collect::<Vec<_>>();
+    let options = ResetOptions {
+        context: Some(numbers(0..18)),
+        initial_position: Some(numbers(100..121)),
+        initial_velocity: Some(vec![0.5; 7]),
+        ..ResetOptions::default()
+    };
+    assert!(options.has_rows(3, spec));
+    let second = options.rows(3, 1..2, spec);
+    assert_eq!(second.context, Some(numbers(6..12)));
+    assert_eq!(second.initial_position, Some(numbers(107..114)));
+    assert_eq!(second.initial_velocity, Some(vec![0.5; 7]));
+    let last_two = options.rows(3, 1..3, spec);
+    assert_eq!(last_two.context, Some(numbers(6..18)));
+    assert!(last_two.has_rows(2, spec));
+
+    let shared = ResetOptions {
+        context: Some(numbers(0..6)),
+        initial_position: Some(numbers(0..7)),
+        ..ResetOptions::default()
+    };
+    assert!(!shared.has_rows(3, spec));
+    assert_eq!(shared.rows(3, 2..3, spec), shared);
+    let odd = ResetOptions {
+        context: Some(numbers(0..12)),
+        ..ResetOptions::default()
+    };
+    assert!(!odd.has_rows(3, spec));
+    assert_eq!(odd.rows(3, 0..1, spec).context, Some(numbers(0..12)));
 }
