@@ -20,6 +20,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::env::{
     Env, EnvError, EnvSpec, Info, Outcome, PERTURBED_INFO, Phase, ResetOptions, Step,
+    observation_of,
 };
 use crate::scene::{self, Body, Scene};
 use crate::seeding::EpisodeRng;
@@ -159,12 +160,7 @@ impl<T: ArmTask> ArmEnv<T> {
     }
 
     fn observation(&self) -> Vec<f64> {
-        [
-            self.simulator.q().as_slice(),
-            self.simulator.qd().as_slice(),
-            &self.context,
-        ]
-        .concat()
+        observation_of(&self.simulator, &self.context)
     }
 
     fn outcome(&self, pose: &T::Pose) -> Outcome {

@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 use std::ops::Range;
 use std::sync::{Arc, Mutex, PoisonError, Weak};
 
-use ciflow_engine::sim::Perturbation;
+use ciflow_engine::sim::{Perturbation, Simulator};
 use serde::{Deserialize, Serialize};
 
 use crate::scene::Scene;
@@ -192,6 +192,12 @@ impl Phase {
             info: outcome.info,
         }
     }
+}
+
+/// The observation `[q, q̇, c]` of a simulated robot's state and the context, the layout
+/// of every task ([`EnvSpec::position_dim`]).
+pub fn observation_of(simulator: &Simulator, context: &[f64]) -> Vec<f64> {
+    [simulator.q().as_slice(), simulator.qd().as_slice(), context].concat()
 }
 
 /// What a task tells about one state: Gymnasium's reward, termination and info.

@@ -14,7 +14,9 @@ use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
 use nalgebra::Vector2;
 use rand_chacha::ChaCha8Rng;
 
-use crate::env::{Env, EnvError, EnvSpec, Info, Outcome, Phase, ResetOptions, Step};
+use crate::env::{
+    Env, EnvError, EnvSpec, Info, Outcome, Phase, ResetOptions, Step, observation_of,
+};
 use crate::expert::tracking::{VelocityField, tracking_acceleration};
 use crate::raster::{BLACK, BLUE, Canvas, View};
 use crate::scene::{Body, Scene, Shape, planar};
@@ -139,8 +141,7 @@ impl<T: PlanarTask> PlanarEnv<T> {
     }
 
     fn observation(&self) -> Vec<f64> {
-        let (x, xd) = self.state();
-        [&[x.x, x.y, xd.x, xd.y][..], &self.context].concat()
+        observation_of(&self.simulator, &self.context)
     }
 
     fn outcome(&self) -> Outcome {
