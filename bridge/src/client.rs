@@ -495,7 +495,9 @@ impl RemoteEnv {
         })
     }
 
-    /// Resets every environment; environment `i` gets seed `seed + i`.
+    /// Resets every environment; environment `i` gets its seed of `seeds`
+    /// ([`BatchSeeds::of`]: `seed + i` for one seed), and the options' row `i` where they
+    /// give one row per environment ([`ResetOptions::rows`]).
     pub fn reset_batch(
         &self,
         seeds: impl Into<BatchSeeds>,

@@ -316,11 +316,8 @@ fn reset_batches<'py>(
 ) -> PyResult<(Bound<'py, PyBytes>, Bound<'py, PyDict>)> {
     let options = reset_options_from_dict(options)?;
     let envs: Vec<&RemoteEnv> = sessions.iter().map(|s| &s.env).collect();
-    let seeds = match seeds {
-        Some(seeds) if seed.is_none() => BatchSeeds::Each(seeds),
-        Some(_) => return Err(PyValueError::new_err("give seed or seeds, not both")),
-        None => seed.into(),
-    };
+    let seeds = BatchSeeds::of_request(seed, seeds)
+        .ok_or_else(|| PyValueError::new_err("give seed or seeds, not both"))?;
     let (observations, info) = py
         .detach(|| vector::reset_batches(&envs, seeds, options))
         .map_err(to_py)?;
