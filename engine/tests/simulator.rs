@@ -328,11 +328,32 @@ fn bad_configuration_and_input_are_typed_errors() {
         }),
         Err(SimError::InvalidPerturbation(_))
     ));
+    // Windows that can no longer act: empty, or over by the time they are scheduled.
+    let in_window = |start, duration| Perturbation {
+        start,
+        duration,
+        ..window(PerturbationKind::JointTorque(vec![0.0; 7]))
+    };
+    assert!(sim.perturb(in_window(0.5, 0.0)).is_err(), "empty window");
+    assert_eq!(sim.time(), 0.0, "failed steps do not advance time");
+    sim.step(&[0.0; 7]).unwrap();
+    let now = sim.time();
+    for (start, duration) in [(-1.0, 0.5), (now - 0.5, 0.2)] {
+        assert!(
+            matches!(
+                sim.perturb(in_window(start, duration)),
+                Err(SimError::InvalidPerturbation(_))
+            ),
+            "[{start}, {}) is over at {now}",
+            start + duration
+        );
+    }
     assert!(
         sim.perturbations().is_empty(),
         "rejected perturbations are not scheduled"
     );
-    assert_eq!(sim.time(), 0.0, "failed steps do not advance time");
+    // A window that began before now but still runs is accepted.
+    sim.perturb(in_window(now - 0.5, 0.6)).unwrap();
 }
 
 #[test]

@@ -148,7 +148,9 @@ impl ErrorReply {
 impl From<EnvError> for ErrorReply {
     fn from(error: EnvError) -> Self {
         let code = match error {
-            EnvError::WrongDimension { .. } => ErrorCode::WrongDimension,
+            EnvError::WrongDimension { .. } | EnvError::BatchDimension { .. } => {
+                ErrorCode::WrongDimension
+            }
             EnvError::NotFinite { .. } => ErrorCode::NotFinite,
             EnvError::OutOfBounds { .. } => ErrorCode::OutOfBounds,
             EnvError::InvalidOption { .. } => ErrorCode::InvalidOption,
@@ -165,13 +167,18 @@ impl From<EnvError> for ErrorReply {
 
 /// An error's message followed by those of its sources, `outer: cause: …`, for where only
 /// text travels on (protocol error replies, Python exceptions, logs). A cause whose text
-/// already ends the message (an error that prints its source itself) is not repeated.
+/// already ends the message (an error that prints its source itself) is not repeated, and
+/// one that begins with the message (`invalid perturbation` caused by `invalid
+/// perturbation: link 7 …`) replaces it.
 pub fn full_message(error: &(dyn std::error::Error + 'static)) -> String {
     let mut message = error.to_string();
     let mut source = error.source();
     while let Some(cause) = source {
         let text = cause.to_string();
-        if !message.ends_with(&text) {
+        if text.starts_with(&message) {
+            // The cause says what the message says, and more.
+            message = text;
+        } else if !message.ends_with(&text) {
             message = format!("{message}: {text}");
         }
         source = cause.source();
@@ -193,6 +200,14 @@ mod tests {
             reply.message,
             "simulation failed: the state became non-finite at t = 1.5 s"
         );
+    }
+
+    #[test]
+    fn a_cause_that_repeats_the_message_is_said_once() {
+        use ciflow_engine::sim::SimError;
+        let cause = SimError::InvalidPerturbation("link 7 does not exist".into());
+        let reply = ErrorReply::from(EnvError::InvalidPerturbation(cause));
+        assert_eq!(reply.message, "invalid perturbation: link 7 does not exist");
     }
 
     #[test]

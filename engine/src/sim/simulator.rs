@@ -117,16 +117,29 @@ impl Simulator {
     }
 
     /// Schedules a perturbation (absolute simulated time). Checked: finite start,
-    /// non-negative duration, dimension, link index and finite values.
+    /// non-negative duration, a window that still acts (not empty, not over by now),
+    /// dimension, link index and finite values.
     pub fn perturb(&mut self, perturbation: Perturbation) -> Result<(), SimError> {
         let invalid = |reason: String| Err(SimError::InvalidPerturbation(reason));
-        if !perturbation.start.is_finite()
-            || perturbation.duration.is_nan()
-            || perturbation.duration < 0.0
-        {
+        let Perturbation {
+            start, duration, ..
+        } = perturbation;
+        if !start.is_finite() || duration.is_nan() || duration < 0.0 {
             return invalid(format!(
-                "start {} must be finite and duration {} non-negative",
-                perturbation.start, perturbation.duration
+                "start {start} must be finite and duration {duration} non-negative"
+            ));
+        }
+        // A push that can no longer act is a mistake (a start in the wrong unit or time
+        // base), not a request to do nothing.
+        let (end, now) = (start + duration, self.time());
+        if duration == 0.0 {
+            return invalid(format!(
+                "a duration of 0 s never acts (window [{start}, {end}) s)"
+            ));
+        }
+        if end <= now {
+            return invalid(format!(
+                "its window [{start}, {end}) s is over: the simulated time is {now} s"
             ));
         }
         match &perturbation.kind {
