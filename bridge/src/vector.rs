@@ -31,6 +31,12 @@ pub fn reset_batches(
             shape.envs
         )));
     }
+    if let (Some(options), Some(session)) = (&options, sessions.first()) {
+        // Checked against the whole batch: each engine sees only its share.
+        options
+            .check_rows(shape.envs, session.spec())
+            .map_err(|error| BridgeError::InvalidArgument(error.to_string()))?;
+    }
     let mut offset = 0;
     let replies = in_flight(sessions, |session| {
         let share = offset..offset + session.num_envs() as usize;

@@ -118,6 +118,23 @@ fn a_batch_over_two_engines_equals_one_session_on_one_engine() {
         assert_same_step(&merged, &single.step_batch(&[0.1; 5]).unwrap(), step);
         assert_eq!(context_of(&merged.observations), contexts, "step {step}");
     }
+    // Three rows for five environments: the first engine's three would pass for its own
+    // rows, so the whole batch's count is checked before anything is sent.
+    let three = Some(ResetOptions {
+        context: Some(contexts[..3].to_vec()),
+        ..ResetOptions::default()
+    });
+    for refused in [
+        reset_batches(&spread, Some(3), three.clone()).unwrap_err(),
+        single.reset_batch(Some(3), three).unwrap_err(),
+    ] {
+        assert!(
+            refused
+                .to_string()
+                .contains("a batch of 5 environments takes 1"),
+            "{refused}"
+        );
+    }
 
     // One engine's environments a step ahead: at their autoreset they report only
     // `reset`, the others only `distance`.

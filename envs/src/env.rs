@@ -105,22 +105,22 @@ impl ResetOptions {
     /// `initial_velocity` holds one value for every environment (`d` numbers) or one row
     /// per environment (`n · d` numbers, row `i` for environment `i`), of which the rows of
     /// `envs` are kept — one value when `envs` holds one environment. A field of any other
-    /// length is kept as it is, for the environment to refuse.
+    /// length is kept as it is ([`check_rows`](Self::check_rows) refuses it).
     pub fn rows(&self, n: usize, envs: Range<usize>, spec: &EnvSpec) -> ResetOptions {
-        let keep = |field: &Option<Vec<f64>>, d: usize| {
-            field.as_ref().map(|values| {
-                if is_rows(values, n, d) {
-                    values[envs.start * d..envs.end * d].to_vec()
-                } else {
-                    values.clone()
-                }
-            })
-        };
-        let (positions, context) = (spec.position_dim(), spec.context_space.dim());
+        let [context, initial_position, initial_velocity] =
+            self.row_fields(spec).map(|(_, field, d)| {
+                field.as_ref().map(|values| {
+                    if is_rows(values, n, d) {
+                        values[envs.start * d..envs.end * d].to_vec()
+                    } else {
+                        values.clone()
+                    }
+                })
+            });
         ResetOptions {
-            context: keep(&self.context, context),
-            initial_position: keep(&self.initial_position, positions),
-            initial_velocity: keep(&self.initial_velocity, positions),
+            context,
+            initial_position,
+            initial_velocity,
             extra: self.extra.clone(),
         }
     }
@@ -128,14 +128,41 @@ impl ResetOptions {
     /// Whether a field holds one row per environment of a batch of `n` (see
     /// [`rows`](Self::rows)).
     pub fn has_rows(&self, n: usize, spec: &EnvSpec) -> bool {
-        let positions = spec.position_dim();
+        self.row_fields(spec)
+            .into_iter()
+            .any(|(_, field, d)| field.as_ref().is_some_and(|values| is_rows(values, n, d)))
+    }
+
+    /// Checks that every field holds one value for all `n` environments of a batch or one
+    /// row for each: a length that is neither would reach each environment whole, which
+    /// could only refuse it as a value of the wrong size.
+    pub fn check_rows(&self, n: usize, spec: &EnvSpec) -> Result<(), EnvError> {
+        for (what, field, per_env) in self.row_fields(spec) {
+            if let Some(values) = field
+                && n > 1
+                && values.len() != per_env
+                && !is_rows(values, n, per_env)
+            {
+                return Err(EnvError::BatchDimension {
+                    what,
+                    per_env,
+                    envs: n,
+                    got: values.len(),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The fields that may hold one row per environment, with their names and the
+    /// dimension of one row under `spec`.
+    fn row_fields(&self, spec: &EnvSpec) -> [(&'static str, &Option<Vec<f64>>, usize); 3] {
+        let (positions, context) = (spec.position_dim(), spec.context_space.dim());
         [
-            (&self.context, spec.context_space.dim()),
-            (&self.initial_position, positions),
-            (&self.initial_velocity, positions),
+            ("context", &self.context, context),
+            ("initial_position", &self.initial_position, positions),
+            ("initial_velocity", &self.initial_velocity, positions),
         ]
-        .into_iter()
-        .any(|(field, d)| field.as_ref().is_some_and(|values| is_rows(values, n, d)))
     }
 }
 

@@ -13,6 +13,17 @@ pub enum EnvError {
         expected: usize,
         got: usize,
     },
+    #[error(
+        "{what} has {got} numbers; a batch of {envs} environments takes {per_env} (one value \
+         for every environment) or {} (one row of {per_env} per environment)",
+        envs * per_env
+    )]
+    BatchDimension {
+        what: &'static str,
+        per_env: usize,
+        envs: usize,
+        got: usize,
+    },
     #[error("{what} contains a non-finite value (NaN or inf)")]
     NotFinite { what: &'static str },
     #[error("{what} is outside its space: {detail}")]

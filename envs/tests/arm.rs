@@ -56,7 +56,7 @@ fn info_has_the_same_keys_at_reset_and_at_every_step_ending_with_perturbed_and_t
 
 /// `ResetOptions::rows` on an arm's layout (7 positions, a 6-D context): the rows of a
 /// batch of 3 go to their environments, a value for all stays one, and any other length
-/// is left for the environment to refuse.
+/// is refused by `check_rows`, naming both lengths a batch takes.
 #[test]
 fn reset_options_give_each_environment_of_a_batch_its_row() {
     let env = ciflow_envs::make("ciflow/Pouring-v0").unwrap();
@@ -91,4 +91,24 @@ fn reset_options_give_each_environment_of_a_batch_its_row() {
     };
     assert!(!odd.has_rows(3, spec));
     assert_eq!(odd.rows(3, 0..1, spec).context, Some(numbers(0..12)));
+
+    options.check_rows(3, spec).unwrap();
+    shared.check_rows(3, spec).unwrap();
+    let refused = odd.check_rows(3, spec).unwrap_err().to_string();
+    assert!(
+        refused.starts_with("context has 12 numbers")
+            && refused.contains("takes 6 (")
+            && refused.contains("or 18 ("),
+        "{refused}"
+    );
+    let short_velocity = ResetOptions {
+        initial_velocity: Some(numbers(0..14)),
+        ..ResetOptions::default()
+    };
+    assert!(short_velocity.check_rows(3, spec).is_err());
+    assert!(short_velocity.check_rows(2, spec).is_ok(), "two rows of 7");
+    assert!(
+        odd.check_rows(1, spec).is_ok(),
+        "one environment refuses it itself"
+    );
 }

@@ -336,7 +336,9 @@ impl Session {
                 format!("{count} seeds for {n} environments"),
             ));
         }
-        let options = AutoresetOptions::new(request.options.unwrap_or_default(), n, &self.spec);
+        let options = request.options.unwrap_or_default();
+        options.check_rows(n, &self.spec)?;
+        let options = AutoresetOptions::new(options, n, &self.spec);
         let results: Vec<Result<(Vec<f64>, Info), EnvError>> = self
             .envs
             .par_iter_mut()
