@@ -161,6 +161,17 @@ fn bad_arguments_are_typed_errors() {
     invalid(&[("urdf", UR5E), ("armature", "0.1")], "urdf");
     invalid(&[("urdf", UR5E), ("lock_joints", "=1")], "lock_joints");
     invalid(&[("colour", "red")], "colour");
+    // No joint left to move: none in the URDF, or all of them locked.
+    invalid(
+        &[("urdf", r#"<robot name="rock"><link name="base"/></robot>"#)],
+        "urdf",
+    );
+    let all_locked = "shoulder_pan_joint,shoulder_lift_joint,elbow_joint,wrist_1_joint,\
+                      wrist_2_joint,wrist_3_joint";
+    invalid(
+        &[("urdf", UR5E), ("lock_joints", all_locked)],
+        "lock_joints",
+    );
 }
 
 #[test]

@@ -181,6 +181,18 @@ pub fn arm(kwargs: &Kwargs) -> Result<Arm, EnvError> {
                     name: URDF_ARGUMENT.into(),
                     detail: e.to_string(),
                 })?;
+            if chain.dof() == 0 {
+                // An arm that cannot move would "reach" with an empty action space.
+                let (name, cause) = if options.locked.is_empty() {
+                    (URDF_ARGUMENT, "the URDF has no movable joint")
+                } else {
+                    (LOCK_ARGUMENT, "every movable joint is locked")
+                };
+                return Err(EnvError::InvalidOption {
+                    name: name.into(),
+                    detail: format!("{cause}: a reach task needs an arm with at least one"),
+                });
+            }
             let limits = chain.limits();
             let middle = (0..chain.dof())
                 .map(|i| {
