@@ -148,6 +148,18 @@ def test_options_and_perturbations_cross_as_dicts_with_clear_errors(engine):
             {"kind": "link_wrench", "link": 0, "force": [1.0, 0.0, 0.0], "duration": 0.1}
         )
         assert accepted >= 0.0
+        # A push that could never act is refused, not silently dropped.
+        for _ in range(5):
+            env.step(env.expert_action())
+        for start, duration in ((0.0, 0.02), (env.sim_time, 0.0)):
+            with pytest.raises(ciflow.CiflowError) as never:
+                env.perturb_joint_torque(np.ones(2), duration=duration, start=start)
+            assert never.value.code == "invalid_perturbation"
+            assert "invalid perturbation: invalid perturbation" not in str(never.value)
+        assert env.perturb_joint_torque(np.ones(2), duration=0.1, start=0.0) == env.sim_time
+        # An engine without policies says how to give it one.
+        with pytest.raises(ciflow.CiflowError, match="serves none .*--policy nobody="):
+            env.run_policy("nobody")
     finally:
         env.close()
 
@@ -195,7 +207,9 @@ def test_make_vec_takes_one_row_of_reset_options_per_environment(engine):
         # One value is every environment's.
         observations, _ = envs.reset(seed=0, options={"context": OBSTACLE_CONTEXTS[1]})
         np.testing.assert_array_equal(observations[:, 4:], np.tile(OBSTACLE_CONTEXTS[1], (3, 1)))
-        with pytest.raises(ciflow.CiflowError, match="context has 8 elements"):
+        # Two rows for three environments: neither one value nor a row each.
+        with pytest.raises(ValueError, match="context has 8 numbers; a batch of 3 environments "
+                           r"takes 4 \(one value for every environment\) or 12"):
             envs.reset(options={"context": OBSTACLE_CONTEXTS[:2]})
     finally:
         envs.close()

@@ -912,10 +912,16 @@ impl Shared {
         self.policies.get(name).ok_or_else(|| {
             ErrorReply::new(
                 ErrorCode::UnknownPolicy,
-                format!(
-                    "no policy `{name}`; this engine has: {}",
-                    self.policies.names().join(", ")
-                ),
+                match self.policies.names()[..] {
+                    [] => format!(
+                        "no policy `{name}`: this engine serves none (start it with `ciflow \
+                         serve --policy {name}=CHECKPOINT_DIR`, or publish one with `ciflow \
+                         train --publish {name}`)"
+                    ),
+                    ref names => {
+                        format!("no policy `{name}`; this engine has: {}", names.join(", "))
+                    }
+                },
             )
         })
     }
