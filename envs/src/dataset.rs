@@ -80,8 +80,13 @@ pub enum DatasetError {
     },
     #[error("episode {episode}: {detail}")]
     InvalidEpisode { episode: usize, detail: String },
-    #[error("{0} already exists (pass overwrite to replace it)")]
+    #[error("{0} already exists (pass `--overwrite`, or `overwrite=True`, to replace it)")]
     AlreadyExists(PathBuf),
+    #[error(
+        "{0} exists and is not a dataset (neither data/metadata.json nor meta/info.json in \
+         it, nor an empty directory): refusing to replace it"
+    )]
+    NotADataset(PathBuf),
     #[error("writing the LeRobot dataset {path}")]
     Lerobot {
         path: PathBuf,
@@ -119,6 +124,33 @@ pub fn write_lerobot(source: &Path, out: &Path, overwrite: bool) -> Result<()> {
 }
 
 type Result<T> = std::result::Result<T, DatasetError>;
+
+/// Checks that a dataset may be written at `path`: nothing is there, or — with
+/// `overwrite` — what is there is a dataset (Minari's `data/metadata.json` or LeRobot's
+/// `meta/info.json`) or an empty directory. Replacing means deleting, so a mistyped
+/// `--out` (a home directory, a file) must not be taken for an old dataset.
+pub fn check_replaceable(path: &Path, overwrite: bool) -> Result<()> {
+    if !path.exists() {
+        return Ok(());
+    }
+    if !overwrite {
+        return Err(DatasetError::AlreadyExists(path.to_path_buf()));
+    }
+    let holds = |parts: &[&str]| parts.iter().collect::<PathBuf>();
+    let is_dataset = [
+        holds(&["data", METADATA_FILE]),
+        holds(&["meta", "info.json"]),
+    ]
+    .iter()
+    .any(|file| path.join(file).is_file());
+    let is_empty_dir =
+        path.is_dir() && fs::read_dir(path).map_err(io_error(path))?.next().is_none();
+    if is_dataset || is_empty_dir {
+        Ok(())
+    } else {
+        Err(DatasetError::NotADataset(path.to_path_buf()))
+    }
+}
 
 /// What every episode of a dataset shares.
 #[derive(Clone, Debug, PartialEq)]
@@ -304,9 +336,7 @@ impl DatasetWriter {
         if spec.credits.description.is_none() {
             spec.credits.description = Some(default_description(&spec));
         }
-        if dir.exists() && !overwrite {
-            return Err(DatasetError::AlreadyExists(dir.to_path_buf()));
-        }
+        check_replaceable(dir, overwrite)?;
         let name = dir
             .file_name()
             .ok_or_else(|| DatasetError::Format {

@@ -1,8 +1,8 @@
 //! Recording episodes of the expert: what `ciflow demos` and the tests run.
 
-use crate::dataset::{Credits, DatasetError, DatasetFormat, DatasetSpec, Episode};
+use crate::dataset::{Credits, DatasetFormat, DatasetSpec, Episode};
 use crate::env::{Env, EnvError, ResetOptions};
-use crate::registry::Kwargs;
+use crate::registry::{Kwarg, Kwargs};
 
 /// Resets `env` with `seed` and `options`, then lets the expert act until the episode
 /// terminates or is truncated, recording everything a dataset holds.
@@ -91,6 +91,16 @@ pub enum RecordingError {
     Make(#[from] EnvError),
     #[error(transparent)]
     Dataset(#[from] crate::dataset::DatasetError),
+    #[error(
+        "`{key}` is given as a construction argument ({kwarg}) and as a reset option \
+         ({option}): the dataset would be labelled with the first and hold the second; give \
+         it once"
+    )]
+    Conflict {
+        key: String,
+        kwarg: String,
+        option: f64,
+    },
 }
 
 /// Records expert episodes into a dataset at `out`, atomically, in `recording.format`;
@@ -102,8 +112,19 @@ pub fn record_expert_dataset(
     overwrite: bool,
     mut on_episode: impl FnMut(&Episode),
 ) -> Result<DatasetSpec, RecordingError> {
-    if out.exists() && !overwrite {
-        return Err(DatasetError::AlreadyExists(out.to_path_buf()).into());
+    crate::dataset::check_replaceable(out, overwrite)?;
+    // The metadata carry the construction arguments only, so a reset option must not
+    // change what one of them chose (LASA's and obstacle avoidance's options share their
+    // arguments' names).
+    if let Some((key, &option, kwarg)) = recording.options.iter().find_map(|(key, option)| {
+        let kwarg = recording.kwargs.get(key)?;
+        (*kwarg != Kwarg::Number(*option)).then_some((key, option, kwarg))
+    }) {
+        return Err(RecordingError::Conflict {
+            key: key.clone(),
+            kwarg: kwarg.to_string(),
+            option,
+        });
     }
     let entry = crate::registry::entry(&recording.task)?;
     let mut env = (entry.make_with)(&recording.kwargs)?;

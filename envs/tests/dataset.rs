@@ -4,7 +4,9 @@ use std::path::PathBuf;
 
 use ciflow_envs::ResetOptions;
 use ciflow_envs::dataset::{self, Credits, DatasetError, DatasetFormat, DatasetWriter};
-use ciflow_envs::rollout::{Recording, expert_dataset_spec, expert_episode, record_expert_dataset};
+use ciflow_envs::rollout::{
+    Recording, RecordingError, expert_dataset_spec, expert_episode, record_expert_dataset,
+};
 use ciflow_envs::tasks::obstacle_avoidance;
 
 fn scratch_dir(name: &str) -> PathBuf {
@@ -71,6 +73,78 @@ fn recorded_expert_episodes_read_back_identically() {
             DatasetError::AlreadyExists(_)
         ))
     ));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// Overwriting replaces a dataset or an empty directory, never anything else: a directory
+/// of other files and a regular file are refused and left as they were, in both formats'
+/// recorders.
+#[test]
+fn overwrite_replaces_only_a_dataset() {
+    let dir = scratch_dir("overwrite");
+    let (dataset, empty, notes, file) = (
+        dir.join("dataset"),
+        dir.join("empty"),
+        dir.join("notes"),
+        dir.join("file.txt"),
+    );
+    let recording = two_obstacles(1, 0, Credits::default());
+    record_expert_dataset(&recording, &dataset, false, |_| {}).unwrap();
+    std::fs::create_dir(&empty).unwrap();
+    std::fs::create_dir_all(notes.join("sub")).unwrap();
+    std::fs::write(notes.join("precious.txt"), "keep me").unwrap();
+    std::fs::write(&file, "keep me too").unwrap();
+
+    for target in [&dataset, &empty] {
+        dataset::check_replaceable(target, true).unwrap();
+        record_expert_dataset(&recording, target, true, |_| {}).unwrap();
+        assert_eq!(dataset::read(target).unwrap().1.len(), 1);
+    }
+    for target in [&notes, &file] {
+        let refused = dataset::check_replaceable(target, true).unwrap_err();
+        assert!(matches!(refused, DatasetError::NotADataset(_)), "{refused}");
+        for format in [DatasetFormat::Minari, DatasetFormat::Lerobot] {
+            let recording = Recording {
+                format,
+                ..recording.clone()
+            };
+            assert!(record_expert_dataset(&recording, target, true, |_| {}).is_err());
+        }
+        let refused = DatasetWriter::create(target, dataset::read(&dataset).unwrap().0, true);
+        assert!(matches!(refused, Err(DatasetError::NotADataset(_))));
+    }
+    assert_eq!(
+        std::fs::read_to_string(notes.join("precious.txt")).unwrap(),
+        "keep me"
+    );
+    assert!(notes.join("sub").is_dir());
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me too");
+    let mut left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|entry| entry.unwrap().file_name().into_string().unwrap())
+        .collect();
+    left.sort();
+    assert_eq!(
+        left,
+        ["dataset", "empty", "file.txt", "notes"],
+        "no stale copies"
+    );
+
+    // A reset option that overrides a construction argument would mislabel the data.
+    let conflicting = Recording {
+        options: [("obstacles".to_string(), 3.0)].into(),
+        ..recording.clone()
+    };
+    let refused = record_expert_dataset(&conflicting, &dir.join("mislabelled"), false, |_| {});
+    assert!(
+        matches!(&refused, Err(RecordingError::Conflict { key, .. }) if key == "obstacles"),
+        "{refused:?}"
+    );
+    let agreeing = Recording {
+        options: [("obstacles".to_string(), 2.0)].into(),
+        ..recording.clone()
+    };
+    record_expert_dataset(&agreeing, &dir.join("agreeing"), false, |_| {}).unwrap();
     std::fs::remove_dir_all(dir).unwrap();
 }
 

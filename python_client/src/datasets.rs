@@ -12,7 +12,7 @@ use ciflow_envs::dataset::{self, Credits, DatasetSpec, Episode};
 use ciflow_envs::registry::Kwarg;
 use ciflow_envs::rollout::{Recording, record_expert_dataset};
 use ciflow_envs::{BoxSpace, Dtype};
-use pyo3::exceptions::{PyKeyError, PyOSError, PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyFileExistsError, PyKeyError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
@@ -22,9 +22,10 @@ use crate::errors::to_py;
 fn dataset_error(error: dataset::DatasetError) -> PyErr {
     let message = full_message(&error);
     match error {
-        dataset::DatasetError::Io { .. } | dataset::DatasetError::AlreadyExists(_) => {
-            PyOSError::new_err(message)
+        dataset::DatasetError::AlreadyExists(_) | dataset::DatasetError::NotADataset(_) => {
+            PyFileExistsError::new_err(message)
         }
+        dataset::DatasetError::Io { .. } => PyOSError::new_err(message),
         _ => PyValueError::new_err(message),
     }
 }
@@ -359,6 +360,13 @@ pub fn record_expert(
 
 /// The number `text` stands for as reset option `key` of `task` (a number, or a name the
 /// task gives its values, e.g. LASA's `shape=Sshape`).
+/// Refuses to replace `path` unless it is a dataset (or an empty directory) and
+/// `overwrite` is set ([`dataset::check_replaceable`]).
+#[pyfunction]
+pub fn check_replaceable(path: PathBuf, overwrite: bool) -> PyResult<()> {
+    dataset::check_replaceable(&path, overwrite).map_err(dataset_error)
+}
+
 #[pyfunction]
 pub fn task_value(task: &str, key: &str, text: &str) -> PyResult<f64> {
     ciflow_envs::registry::entry(task)

@@ -358,8 +358,7 @@ def to_lerobot(source: str | Path, out: str | Path, task: str | None = None,
 
     spec, episodes = _native.read_dataset(str(source))
     out = Path(out)
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"{out} already exists (pass overwrite=True / --overwrite)")
+    _native.check_replaceable(str(out), overwrite)
     fps = 1.0 / spec["control_dt"]
     if not math.isclose(fps, round(fps), rel_tol=1e-9):
         raise ConversionError(f"LeRobot needs a whole number of frames per second, not {fps}")

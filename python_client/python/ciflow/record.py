@@ -135,8 +135,8 @@ def record(
     if format not in ("minari", "lerobot"):
         raise ValueError(f"format must be 'minari' or 'lerobot', got {format!r}")
     out = Path(out) if out is not None else None
-    if out is not None and out.exists() and not overwrite:
-        raise FileExistsError(f"{out} already exists (pass overwrite=True / --overwrite)")
+    if out is not None:
+        _native.check_replaceable(str(out), overwrite)
     kwargs = construction_kwargs(task_id, kwargs or {})
     options = _task_numbers(task_id, options, "reset option")
     dataset_id = dataset_id or f"ciflow/{name}-expert-v0"
