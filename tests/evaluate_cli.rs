@@ -195,6 +195,60 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
     assert_eq!(report["demonstrations"].as_array().unwrap().len(), 6);
     // A go-to task has no curve to trace.
     assert!(report["fields"][0].get("reference").is_none());
+    // A window below and left of the origin (the negative bounds parse as numbers).
+    succeed(&[
+        "evaluate",
+        "--checkpoint",
+        &policy,
+        "--field",
+        &field,
+        "--field-demos",
+        &demos,
+        "--field-window",
+        "-1.5,-0.5,-1,-0.25",
+        "--field-resolution",
+        "3",
+        "--field-steps",
+        "5",
+    ]);
+    assert_eq!(
+        json(&field)["window"],
+        serde_json::json!([-1.5, -0.5, -1.0, -0.25])
+    );
+
+    // Refused before any episode runs: outputs that would replace an input or cannot be
+    // files, and disturbances that would never happen.
+    let config_file = format!("{policy}/config.json");
+    let config_before = std::fs::read(&config_file).unwrap();
+    let directory = scratch.arg(".");
+    let refusals = [
+        (vec!["--out", config_file.as_str()], "lies inside the input"),
+        (vec!["--out", directory.as_str()], "is a directory"),
+        (
+            vec!["--perturb", "context", "--switch-time", "nan"],
+            "must be finite",
+        ),
+        (
+            vec!["--perturb", "push", "--push-start", "1e9"],
+            "after the episode's end",
+        ),
+    ];
+    for (extra, message) in refusals {
+        let refused = ciflow(
+            &[
+                &["evaluate", "--checkpoint", &policy, "--episodes", "1"][..],
+                &kwargs,
+                &extra,
+            ]
+            .concat(),
+        );
+        let stderr = String::from_utf8_lossy(&refused.stderr);
+        assert!(
+            !refused.status.success() && stderr.contains(message),
+            "{extra:?}: {stderr}"
+        );
+    }
+    assert_eq!(std::fs::read(&config_file).unwrap(), config_before);
 
     // A checkpoint of one obstacle cannot act among two.
     let mismatch = ciflow(&[

@@ -338,17 +338,45 @@ fn rate(flags: impl Iterator<Item = Option<bool>>) -> Option<f64> {
 }
 
 impl EvaluationConfig {
-    /// Refuses settings no episode can run with: no episodes, an invalid push.
+    /// Refuses settings no episode can run with: no episodes, an invalid push, a context
+    /// change at a time that is not a time.
     pub fn validate(&self) -> EvaluationResult<()> {
         if self.episodes == 0 {
             return Err(EvaluationError::InvalidConfig(
                 "at least one episode is needed".into(),
             ));
         }
-        if let Disturbance::Push(push) = &self.disturbance {
-            push.validate()?;
+        match &self.disturbance {
+            Disturbance::Push(push) => push.validate()?,
+            Disturbance::Context(switch) if !(switch.time.is_finite() && switch.time >= 0.0) => {
+                return Err(EvaluationError::InvalidConfig(format!(
+                    "the context change's time must be finite and >= 0, got {}",
+                    switch.time
+                )));
+            }
+            _ => {}
         }
         Ok(())
+    }
+
+    /// Refuses a disturbance that starts after the episodes of `spec` end: it would never
+    /// happen, and the report would pass unperturbed episodes off as perturbed ones.
+    pub fn fits_episode(&self, spec: &EnvSpec) -> EvaluationResult<()> {
+        let end = f64::from(spec.max_episode_steps) * spec.control_dt;
+        let (what, start) = match &self.disturbance {
+            Disturbance::None => return Ok(()),
+            Disturbance::Push(push) => ("push", push.start),
+            Disturbance::Context(switch) => ("context change", switch.time),
+        };
+        if start < end {
+            Ok(())
+        } else {
+            Err(EvaluationError::InvalidConfig(format!(
+                "the {what} at {start} s would come after the episode's end ({end} s = {} \
+                 steps of {} s in {})",
+                spec.max_episode_steps, spec.control_dt, spec.id
+            )))
+        }
     }
 }
 
@@ -403,6 +431,7 @@ pub fn run_episodes(
     mut progress: impl FnMut(usize),
 ) -> EvaluationResult<EpisodeBatch> {
     config.validate()?;
+    config.fits_episode(env.spec())?;
     if episodes.end > config.episodes {
         return Err(EvaluationError::InvalidConfig(format!(
             "episodes {}..{} of an evaluation of {}",

@@ -27,7 +27,7 @@ use clap::ValueEnum;
 use serde::Serialize;
 
 use super::network::EnginesArgs;
-use crate::parse::{parse_contexts, parse_key_value};
+use crate::parse::{parse_contexts, parse_key_value, parse_window};
 use crate::progress;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -126,9 +126,10 @@ pub struct EvaluateArgs {
     /// Dataset whose positions are copied into the field JSON for overlays.
     #[arg(long)]
     pub field_demos: Option<PathBuf>,
-    /// Field window x_min,x_max,y_min,y_max [default: the demonstrations' box, widened].
-    #[arg(long, value_delimiter = ',', num_args = 4)]
-    pub field_window: Option<Vec<f64>>,
+    /// Field window x_min,x_max,y_min,y_max (e.g. -60,10,-15,40) [default: the
+    /// demonstrations' box, widened].
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_window)]
+    pub field_window: Option<[f64; 4]>,
     /// Field grid points per axis.
     #[arg(long, default_value_t = 25)]
     pub field_resolution: usize,
@@ -188,7 +189,47 @@ fn disturbance(
     })
 }
 
+/// `path` made absolute, through its existing parent's real path when it has one (so
+/// that `ck/../ck/config.json` and a symlinked directory compare as what they are).
+fn resolved(path: &Path) -> PathBuf {
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+    let real_parent = parent.map_or_else(|| Path::new(".").canonicalize(), Path::canonicalize);
+    match (real_parent, path.file_name()) {
+        (Ok(parent), Some(name)) => parent.join(name),
+        _ => std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()),
+    }
+}
+
+/// Refuses, before any episode runs, a JSON output that is a directory or lies in one of
+/// the inputs: `--out CHECKPOINT/config.json` would replace the checkpoint it measures.
+fn check_outputs(args: &EvaluateArgs) -> anyhow::Result<()> {
+    let inputs: Vec<PathBuf> = [&args.checkpoint, &args.nll, &args.field_demos]
+        .into_iter()
+        .flatten()
+        .map(|dir| resolved(dir))
+        .collect();
+    for (flag, out) in [("--out", &args.out), ("--field", &args.field)] {
+        let Some(out) = out else { continue };
+        anyhow::ensure!(
+            !out.is_dir(),
+            "{flag} {} is a directory; give the path of the JSON file to write",
+            out.display()
+        );
+        let written = resolved(out);
+        if let Some(input) = inputs.iter().find(|input| written.starts_with(input)) {
+            anyhow::bail!(
+                "{flag} {} lies inside the input {}: writing it would replace part of what \
+                 is evaluated",
+                out.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
+    check_outputs(&args)?;
     anyhow::ensure!(
         args.on.engines.is_empty()
             || (args.checkpoint.is_some() && args.nll.is_none() && args.field.is_none()),
@@ -234,10 +275,7 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
         );
         let config = FieldConfig {
             contexts,
-            window: args
-                .field_window
-                .as_deref()
-                .map(|w| [w[0], w[1], w[2], w[3]]),
+            window: args.field_window,
             resolution: args.field_resolution,
             starts: None,
             rollout_steps: args.field_steps,
@@ -275,6 +313,8 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
         disturbance: disturbance(args, task, &kwargs)?,
         trajectories: args.trajectories,
     };
+    config.validate()?;
+    config.fits_episode(env.spec())?;
     let progress = progress::bar(args.episodes as u64, "evaluate", "episodes");
     let on_engines = match (acting, &args.checkpoint) {
         (Acting::Model(model), Some(dir)) => {
