@@ -84,6 +84,20 @@ fn an_engine_that_trusts_a_key_loads_only_what_it_signed() {
         },
     )
     .unwrap();
+    // Two policies under one name: refused, not one silently replacing the other.
+    let twice = EngineServer::start(
+        guarded.zenoh_session().clone(),
+        ServerOptions {
+            name: Some("twice".into()),
+            policies: vec![policy(), policy()],
+            ..ServerOptions::default()
+        },
+    );
+    assert!(
+        matches!(&twice, Err(error) if error.to_string().contains("two policies are named `avoid`")),
+        "{:?}",
+        twice.err()
+    );
     let client = connect(port);
     let network = NetworkOptions::endpoint(Role::Client, &endpoint(port));
     let publisher = |signer: Option<CheckpointSigner>| {

@@ -161,6 +161,19 @@ impl EngineServer {
             .unwrap_or_else(|| zsession.zid().to_string());
         check_name("engine name", &name)?;
         options.limits.check()?;
+        // The table keeps one policy per name: a second would silently replace the first.
+        let mut policy_names = std::collections::BTreeSet::new();
+        if let Some(twice) = options
+            .policies
+            .iter()
+            .map(|policy| policy.info().name)
+            .find(|policy_name| !policy_names.insert(policy_name.clone()))
+        {
+            return Err(BridgeError::InvalidArgument(format!(
+                "two policies are named `{twice}`; an engine serves each under its own name \
+                 (`ciflow serve --policy NAME=DIR`)"
+            )));
+        }
         if !(options.telemetry_hz.is_finite() && options.telemetry_hz > 0.0) {
             return Err(BridgeError::InvalidArgument(format!(
                 "the telemetry rate must be a positive number of samples per second, not {}",
