@@ -124,6 +124,11 @@ def test_bad_input_is_rejected_before_anything_is_written(engine, tmp_path):
     (tmp_path / "taken").mkdir()
     with pytest.raises(FileExistsError):
         record(TASK, 1, tmp_path / "taken", **common)
+    # Overwriting replaces a dataset, never a directory of other files.
+    (tmp_path / "taken" / "notes.txt").write_text("keep me")
+    with pytest.raises(FileExistsError, match="is not a dataset"):
+        record(TASK, 1, tmp_path / "taken", overwrite=True, **common)
+    assert (tmp_path / "taken" / "notes.txt").read_text() == "keep me"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["taken"]
 
 
