@@ -278,7 +278,11 @@ pub fn reject_unknown_options<V>(
     match extra.keys().find(|k| !known.contains(&k.as_str())) {
         Some(key) => Err(EnvError::InvalidOption {
             name: key.clone(),
-            detail: format!("not an option of this task (known: {})", known.join(", ")),
+            detail: if known.is_empty() {
+                "this task takes none".into()
+            } else {
+                format!("not an option of this task (known: {})", known.join(", "))
+            },
         }),
         None => Ok(()),
     }

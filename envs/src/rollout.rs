@@ -92,6 +92,11 @@ pub enum RecordingError {
     #[error(transparent)]
     Dataset(#[from] crate::dataset::DatasetError),
     #[error(
+        "{episodes} episodes from seed {seed}: give at least one episode, and a first seed \
+         at most 2^64 - 1 - episodes (episode i is reset with seed + i, which must not wrap)"
+    )]
+    Seeds { episodes: u64, seed: u64 },
+    #[error(
         "`{key}` is given as a construction argument ({kwarg}) and as a reset option \
          ({option}): the dataset would be labelled with the first and hold the second; give \
          it once"
@@ -113,6 +118,10 @@ pub fn record_expert_dataset(
     mut on_episode: impl FnMut(&Episode),
 ) -> Result<DatasetSpec, RecordingError> {
     crate::dataset::check_replaceable(out, overwrite)?;
+    let (episodes, seed) = (recording.episodes, recording.seed);
+    if episodes == 0 || seed.checked_add(episodes - 1).is_none() {
+        return Err(RecordingError::Seeds { episodes, seed });
+    }
     // The metadata carry the construction arguments only, so a reset option must not
     // change what one of them chose (LASA's and obstacle avoidance's options share their
     // arguments' names).
@@ -152,7 +161,7 @@ pub fn record_expert_dataset(
     let mut writer = crate::dataset::DatasetWriter::create(&minari, spec, true)?;
     let spec = writer.spec().clone();
     for episode in 0..recording.episodes {
-        let seed = recording.seed.wrapping_add(episode);
+        let seed = recording.seed + episode;
         let data = expert_episode(env.as_mut(), Some(seed), &options)
             .map_err(|source| RecordingError::Env { episode, source })?;
         writer.append(&data)?;

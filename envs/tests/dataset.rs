@@ -145,6 +145,27 @@ fn overwrite_replaces_only_a_dataset() {
         ..recording.clone()
     };
     record_expert_dataset(&agreeing, &dir.join("agreeing"), false, |_| {}).unwrap();
+
+    // No episodes, or seeds that would wrap around to 0: refused, nothing written.
+    for (episodes, seed) in [(0, 0), (3, u64::MAX - 1)] {
+        let recording = Recording {
+            episodes,
+            seed,
+            ..recording.clone()
+        };
+        let refused = record_expert_dataset(&recording, &dir.join("seeds"), false, |_| {});
+        assert!(
+            matches!(refused, Err(RecordingError::Seeds { .. })),
+            "{refused:?}"
+        );
+    }
+    assert!(!dir.join("seeds").exists());
+    let last = Recording {
+        episodes: 2,
+        seed: u64::MAX - 1,
+        ..recording.clone()
+    };
+    record_expert_dataset(&last, &dir.join("last-seeds"), false, |_| {}).unwrap();
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -78,6 +78,18 @@ fn arguments_are_numbers_or_the_index_of_a_named_value() {
     assert!(unknown.to_string().contains("NoSuchShape"), "{unknown}");
     let obstacles = registry::entry("obstacle-avoidance").unwrap();
     assert!(obstacles.values(&[pair("obstacles", "three")]).is_err());
+    // An unknown argument names those the task takes, or says it takes none.
+    let bogus: ciflow_envs::registry::Kwargs = [(
+        "bogus".to_owned(),
+        ciflow_envs::registry::Kwarg::Number(1.0),
+    )]
+    .into();
+    let refused = |task: &str| match (registry::entry(task).unwrap().make_with)(&bogus) {
+        Err(error) => error.to_string(),
+        Ok(_) => panic!("{task} took `bogus`"),
+    };
+    assert!(refused("obstacle-avoidance").contains("(known: obstacles)"));
+    assert!(refused("limit-cycle").ends_with("this task takes none"));
 }
 
 /// Two environments of a task made with the same arguments read one spec (the bounds a

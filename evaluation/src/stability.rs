@@ -148,16 +148,27 @@ pub fn measure<M: MeanDynamics + Sync>(
 /// Refuses settings no rollout can run with.
 fn validate<M: MeanDynamics>(model: &M, config: &StabilityConfig) -> FlowResult<()> {
     let context_dim = model.bounds().context_min.len();
-    if config.starts == 0
-        || config.check_every == 0
-        || config.threads == 0
-        || !(config.scale > 0.0 && config.context_scale > 0.0 && config.tolerance > 0.0)
-    {
-        return Err(FlowError::InvalidConfig(
-            "stability check needs starts, threads, check_every >= 1 and positive scales \
-             and tolerance"
-                .into(),
-        ));
+    // Named one by one: the flags that set them differ from command to command.
+    let counts = [
+        ("starts", config.starts),
+        ("rollout steps", config.max_steps),
+        ("steps between convergence checks", config.check_every),
+        ("threads", config.threads),
+    ];
+    if let Some((name, _)) = counts.iter().find(|(_, count)| *count == 0) {
+        return Err(FlowError::InvalidConfig(format!(
+            "the stability check needs at least one of its {name}, got 0"
+        )));
+    }
+    let positive = [
+        ("start scale", config.scale),
+        ("context scale", config.context_scale),
+        ("tolerance", config.tolerance),
+    ];
+    if let Some((name, value)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+        return Err(FlowError::InvalidConfig(format!(
+            "the stability check's {name} must be finite and > 0, got {value}"
+        )));
     }
     if let Some(i) = config.bounded_context.iter().find(|&&i| i >= context_dim) {
         return Err(FlowError::InvalidConfig(format!(

@@ -167,6 +167,12 @@ pub fn check_stability_with(
     if flow.is_none() && (check.negative_control_starts.is_some() || check.robot_loop.is_some()) {
         return Err(needs_a_flow());
     }
+    // Checked before the model's rollouts, which would otherwise run first in vain.
+    if check.negative_control_starts == Some(0) {
+        return Err(EvaluationError::InvalidConfig(
+            "the negative control needs at least one start, got 0".into(),
+        ));
+    }
     let mut run = |subject: Subject, config: &StabilityConfig, stage: Stage| {
         let endings = rollouts(subject, config, &mut |done| {
             progress(stage, config.starts, done)

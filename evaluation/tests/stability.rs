@@ -288,6 +288,32 @@ fn the_whole_check_passes_a_flow_and_its_verdict_fails_on_a_converging_control()
     assert_eq!((error.converged, error.rollouts), (20, 20));
 }
 
+/// Each count and scale that cannot run is named, before any rollout.
+#[test]
+fn settings_that_cannot_run_are_named() {
+    let model = Toy::new(2, context_gate);
+    let refused =
+        |config: StabilityConfig| measure(&model, &config, |_| {}).unwrap_err().to_string();
+    let message = refused(StabilityConfig {
+        max_steps: 0,
+        ..check()
+    });
+    assert!(message.contains("rollout steps, got 0"), "{message}");
+    let message = refused(StabilityConfig {
+        tolerance: f64::NAN,
+        ..check()
+    });
+    assert!(message.contains("tolerance must be finite"), "{message}");
+    let policy = Model::from(random_policy(&variants()[0], 7));
+    let mut stages = 0;
+    let none = check_stability(&policy, &whole_check(Some(0)), |_, _, _| stages += 1);
+    assert!(
+        matches!(&none, Err(EvaluationError::InvalidConfig(m)) if m.contains("at least one start")),
+        "{none:?}"
+    );
+    assert_eq!(stages, 0, "refused before the model's rollouts");
+}
+
 #[test]
 fn the_baseline_has_no_negative_control() {
     let model = Model::from(random_baseline());

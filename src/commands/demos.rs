@@ -12,7 +12,7 @@ use crate::progress;
 /// Arguments of `ciflow demos`.
 #[derive(clap::Args, Debug)]
 pub struct DemosArgs {
-    /// Task: command-line name (limit-cycle, obstacle-avoidance, pouring, lasa) or
+    /// Task: command-line name (limit-cycle, obstacle-avoidance, pouring, reach, lasa) or
     /// Gymnasium id.
     #[arg(long)]
     pub task: String,
