@@ -249,6 +249,25 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
         );
     }
     assert_eq!(std::fs::read(&config_file).unwrap(), config_before);
+    // Another task's dataset is named as such, not as a context of the wrong size.
+    let cycle = scratch.arg("cycle-demos");
+    succeed(&[
+        "demos",
+        "--task",
+        "limit-cycle",
+        "--episodes",
+        "1",
+        "--out",
+        &cycle,
+    ]);
+    let other = ciflow(&["evaluate", "--checkpoint", &policy, "--nll", &cycle]);
+    let stderr = String::from_utf8_lossy(&other.stderr);
+    assert!(
+        !other.status.success()
+            && stderr.contains("holds episodes of ciflow/LimitCycle-v0")
+            && stderr.contains("acts in ciflow/Obstacle-v0"),
+        "{stderr}"
+    );
 
     // A checkpoint of one obstacle cannot act among two.
     let mismatch = ciflow(&[

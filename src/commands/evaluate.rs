@@ -156,8 +156,17 @@ fn flow(model: &Model) -> anyhow::Result<&Policy> {
         .context("the baseline has no density or latent space")
 }
 
-fn read_dataset(dir: &Path) -> anyhow::Result<Vec<Episode>> {
-    let (_, episodes) = dataset::read(dir).with_context(|| format!("reading {}", dir.display()))?;
+/// The episodes of the dataset at `dir`, which must hold episodes of `task`.
+fn read_dataset(dir: &Path, task: &str) -> anyhow::Result<Vec<Episode>> {
+    let (spec, episodes) =
+        dataset::read(dir).with_context(|| format!("reading {}", dir.display()))?;
+    let expected = registry::entry(task)?.id;
+    anyhow::ensure!(
+        spec.env_id == expected,
+        "{} holds episodes of {}; the checkpoint acts in {expected}",
+        dir.display(),
+        spec.env_id
+    );
     Ok(episodes)
 }
 
@@ -243,7 +252,7 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
         .with_context(|| format!("loading {}", dir.display()))?;
     if let Some(dir) = &args.nll {
         let count = args.nll_subset.map(|n| (n, args.seed));
-        let (episodes, failed) = scored_episodes(read_dataset(dir)?, count)?;
+        let (episodes, failed) = scored_episodes(read_dataset(dir, model.task())?, count)?;
         if failed > 0 {
             println!("{}: {failed} failed episodes are not scored", dir.display());
         }
@@ -256,7 +265,7 @@ pub fn run(args: EvaluateArgs) -> anyhow::Result<()> {
     }
     if let Some(out) = &args.field {
         let demonstrations = match &args.field_demos {
-            Some(dir) => read_dataset(dir)?,
+            Some(dir) => read_dataset(dir, model.task())?,
             None => Vec::new(),
         };
         let contexts = match &args.field_contexts {
