@@ -132,6 +132,36 @@ fn lasa_rejects_an_unknown_shape() {
     );
 }
 
+/// Settings training cannot run and shapes named twice are refused before the output
+/// directory is made (a repeated shape would be trained twice and reported twice).
+#[test]
+fn lasa_refuses_bad_settings_before_writing_anything() {
+    let scratch = Scratch::new("lasa-refused");
+    let out = scratch.join("out");
+    for (args, expected) in [
+        (
+            ["--shapes", SHAPE, "--batch-size", "0"],
+            "epochs, batch_size and learning_rate must be positive",
+        ),
+        (
+            ["--shapes", SHAPE, "--threads", "0"],
+            "threads must be between 1 and 1024, not 0",
+        ),
+        (
+            ["--shapes", "Angle,Line,Angle", "--epochs", "1"],
+            "--shapes names `Angle` twice",
+        ),
+    ] {
+        let mut command = vec!["lasa", "--no-plots", "--out", out.to_str().unwrap()];
+        command.extend_from_slice(&args);
+        let output = ciflow(&command);
+        assert!(!output.status.success(), "{args:?}");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(stderr.contains(expected), "{args:?}: {stderr}");
+        assert!(!out.exists(), "{args:?} left {} behind", out.display());
+    }
+}
+
 /// `--ablation` retrains the flow once per change to the recipe and the baseline once, on
 /// the shapes given, and reports every row with finite scores.
 #[test]

@@ -192,6 +192,153 @@ fn train_refuses_spline_flags_for_an_affine_coupling() {
     assert!(stderr.contains("--spline-bins"), "{stderr}");
 }
 
+/// Thread counts libtorch cannot run (`tch` panicked on 0, libtorch aborted on 100 000)
+/// are refused before training.
+#[test]
+fn train_refuses_thread_counts_out_of_range() {
+    for threads in ["0", "-1", "100000"] {
+        let stderr = refused_training(
+            &format!("train-cli-threads{threads}"),
+            &["--task", "limit-cycle", &format!("--threads={threads}")],
+        );
+        assert!(
+            stderr.contains(&format!(
+                "threads must be between 1 and 1024, not {threads}"
+            )),
+            "{stderr}"
+        );
+    }
+}
+
+/// A context set reaching past the limit cycle's 1-D context is refused, not indexed
+/// out of the context while the data is prepared.
+#[test]
+fn train_refuses_context_sets_outside_the_context() {
+    let stderr = refused_training(
+        "train-cli-context-sets",
+        &["--task", "limit-cycle", "--context-sets", "0:5:3"],
+    );
+    assert!(stderr.contains("within the 1-D context"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+/// Local features far too wide to allocate are refused, for any task.
+#[test]
+fn train_refuses_absurdly_wide_local_features() {
+    let stderr = refused_training(
+        "train-cli-local-features",
+        &["--task", "limit-cycle", "--local-features", "100000"],
+    );
+    assert!(
+        stderr.contains("--local-features 100000: at most 1024"),
+        "{stderr}"
+    );
+}
+
+/// `--arrival` is a share of the training pairs: outside [0, 1] (NaN included) it is
+/// refused rather than silently treated as 0.
+#[test]
+fn train_refuses_an_arrival_share_outside_0_to_1() {
+    for arrival in ["1.5", "-1", "NaN"] {
+        let stderr = refused_training(
+            &format!("train-cli-arrival{arrival}"),
+            &["--task", "limit-cycle", &format!("--arrival={arrival}")],
+        );
+        assert!(
+            stderr.contains(&format!("it must be in [0, 1], not {arrival}")),
+            "{stderr}"
+        );
+    }
+}
+
+/// `ciflow train --demos <2 limit-cycle episodes> --out <out> ARGS`, small and quick.
+fn train_limit_cycle(scratch: &Scratch, out: &Path, args: &[&str]) -> std::process::Output {
+    let demos = scratch.arg("demos");
+    if !Path::new(&demos).exists() {
+        succeed(&[
+            "demos",
+            "--task",
+            "limit-cycle",
+            "--episodes",
+            "2",
+            "--out",
+            &demos,
+        ]);
+    }
+    let out = out.to_string_lossy();
+    let mut command = vec![
+        "train",
+        "--task",
+        "limit-cycle",
+        "--demos",
+        &demos,
+        "--out",
+        &out,
+        "--epochs",
+        "1",
+        "--layers",
+        "1",
+        "--hidden",
+        "4",
+    ];
+    command.extend_from_slice(args);
+    ciflow(&command)
+}
+
+/// An --out that is a file (or lies inside one) is refused before any training, and the
+/// file is left alone.
+#[test]
+fn train_refuses_an_out_path_that_is_a_file_before_training() {
+    let scratch = Scratch::new("train-cli-out-file");
+    let file = scratch.join("file");
+    std::fs::write(&file, "a user's file").unwrap();
+    for out in [file.clone(), file.join("policy")] {
+        let output = train_limit_cycle(&scratch, &out, &[]);
+        assert!(!output.status.success());
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(
+            stderr.contains(&format!("{} exists and is not a directory", file.display())),
+            "{stderr}"
+        );
+        let stdout = String::from_utf8_lossy(&output.stdout);
+        assert!(!stdout.contains("flow:"), "trained first: {stdout}");
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "a user's file");
+}
+
+/// Retraining into a checkpoint directory without --baseline removes the baseline the
+/// earlier run wrote there (it belongs to another flow), and nothing else: the user's
+/// files stay, in the directory and in `baseline/`.
+#[test]
+fn train_into_an_earlier_checkpoint_leaves_no_stale_baseline() {
+    let scratch = Scratch::new("train-cli-stale-baseline");
+    let policy = scratch.join("policy");
+    let baseline = policy.join("baseline");
+    let retrain = |args: &[&str]| {
+        let output = train_limit_cycle(&scratch, &policy, args);
+        assert!(
+            output.status.success(),
+            "{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+    };
+    retrain(&["--baseline"]);
+    assert!(baseline.join("config.json").exists());
+    std::fs::write(policy.join("notes.txt"), "kept").unwrap();
+    retrain(&[]);
+    assert!(!baseline.exists(), "the earlier run's baseline survived");
+    assert!(policy.join("config.json").exists() && policy.join("notes.txt").exists());
+
+    retrain(&["--baseline"]);
+    std::fs::write(baseline.join("notes.txt"), "kept").unwrap();
+    retrain(&[]);
+    let left: Vec<_> = std::fs::read_dir(&baseline)
+        .unwrap()
+        .map(|entry| entry.unwrap().file_name())
+        .collect();
+    assert_eq!(left, ["notes.txt"], "only the user's file stays");
+}
+
 /// What `ciflow train` prints about the data it leaves out (its first stdout lines).
 fn screening_line(stdout: &[u8]) -> String {
     String::from_utf8_lossy(stdout)

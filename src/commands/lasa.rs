@@ -2,15 +2,17 @@
 //! a stable flow against the behaviour-cloning baseline on each shape, or with
 //! `--ablation` what each choice of the flow's recipe buys.
 
+use std::collections::HashSet;
 use std::path::PathBuf;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use ciflow_envs::lasa;
 use ciflow_evaluation::lasa::{GOAL, REFERENCE_SHAPES};
 use ciflow_experiments::lasa::{self as benchmark, RunEpoch, TASK, ablation};
 
 use crate::progress;
 use ciflow_train::RecipeOverrides;
+use ciflow_train::trainer::check_config;
 
 #[derive(clap::Args, Debug)]
 pub struct LasaArgs {
@@ -36,11 +38,17 @@ pub fn run(args: LasaArgs) -> anyhow::Result<()> {
     // `ciflow train`'s configuration for `ciflow/Lasa-v0`: the goal as context.
     let recipe = ciflow_envs::registry::entry(TASK)?.training_recipe(GOAL.len())?;
     let config = args.model.apply(recipe, None)?;
+    check_config(&config).context("checking the training settings")?;
     let default = match args.ablation {
         true => REFERENCE_SHAPES.map(String::from).to_vec(),
         false => lasa::shape_names()?,
     };
     let names = benchmark::shape_names(args.shapes, default)?;
+    // A shape run twice would be trained twice and reported in two identical rows.
+    let mut seen = HashSet::new();
+    if let Some(repeated) = names.iter().find(|name| !seen.insert(*name)) {
+        bail!("--shapes names `{repeated}` twice");
+    }
     let budget = match args.ablation {
         true => ablation::budget(names.len(), &config),
         false => benchmark::budget(names.len(), &config),

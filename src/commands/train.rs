@@ -18,7 +18,9 @@ use ciflow_bridge::error::full_message;
 use ciflow_engine::flow::JointRange;
 use ciflow_envs::learning_curve::subset;
 use ciflow_envs::registry;
+use ciflow_train::baseline::{BASELINE_DIR, remove_stale_baseline};
 use ciflow_train::dataset::ForeignFields;
+use ciflow_train::trainer::{check_checkpoint_dir, flow_config};
 use ciflow_train::{
     BaselineTrainConfig, ContextOverrides, Progress, RecipeOverrides, Screening, train_baseline,
     train_flow_into,
@@ -57,7 +59,8 @@ pub struct TrainArgs {
     pub model: RecipeOverrides,
     #[command(flatten)]
     pub screening: Screening,
-    /// Also train the behaviour-cloning baseline into `<out>/baseline`.
+    /// Also train the behaviour-cloning baseline into `<out>/baseline` (without it, a
+    /// baseline an earlier run left there is removed: it would not match the new flow).
     #[arg(long)]
     pub baseline: bool,
     /// Publish each better checkpoint as policy NAME on ciflow/v2/policies/NAME/checkpoint
@@ -77,6 +80,7 @@ pub struct TrainArgs {
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let task = registry::entry(&args.task)?;
+    check_checkpoint_dir(&args.out).context("--out")?;
     let converted = args.out.join("demonstrations");
     let foreign = (&args.foreign, converted.as_path());
     let (spec, mut data) = episodes::demonstrations(
@@ -103,6 +107,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let mut config = args.model.apply(args.context.apply(recipe)?, robot)?;
     // The checkpoint builds the same task (and robot) the demonstrations were made in.
     config.task_kwargs = ciflow_envs::kwargs::to_json(&spec.env_kwargs);
+    // Everything training would refuse, before the checkpoint directory is touched.
+    flow_config(&data, &config).context("checking the training settings")?;
     let (latent, goal_context_indices) = (config.latent, &config.goal_context_indices);
     println!(
         "{}: {} episodes, state {}-D, context {}-D, dt = {} s; latent {latent:?}, target in \
@@ -126,6 +132,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         })
         .transpose()
         .context("--publish")?;
+    remove_stale_baseline(&args.out)?;
     let bar = progress::bar(config.optim.epochs as u64, "flow", "epochs");
     let on_epoch = |p: &Progress| {
         bar.set_position(p.epoch as u64);
@@ -184,7 +191,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         )
         .context("training the baseline")?;
         bar.finish();
-        let dir = args.out.join("baseline");
+        let dir = args.out.join(BASELINE_DIR);
         baseline
             .save(&dir)
             .with_context(|| format!("writing {}", dir.display()))?;

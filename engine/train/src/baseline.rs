@@ -2,6 +2,7 @@
 //! `ỹ_{k+1} = ỹ_k + dt · MLP(ỹ_k, c̃)` by least squares on the normalised finite
 //! differences — the negative control of the stability check.
 
+use std::io::ErrorKind;
 use std::path::Path;
 
 use ciflow_engine::flow::{BaselineConfig, CheckpointConfig, Goal};
@@ -9,12 +10,17 @@ use serde::{Deserialize, Serialize};
 use tch::{Kind, Tensor, nn};
 
 use crate::data::{Demonstrations, Transitions};
-use crate::error::TrainResult;
+use crate::error::{TrainError, TrainResult};
 use crate::nn::mlp::Mlp;
 use crate::nn::row;
 use crate::optimise::{OptimConfig, Progress, mean_value, optimise};
-use crate::trainer::{TrainConfig, double_var_store, save_checkpoint, split};
+use crate::trainer::{TrainConfig, check_threads, double_var_store, save_checkpoint, split};
 use ciflow_engine::flow::checkpoint::names::NET;
+use ciflow_engine::flow::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
+
+/// The subdirectory of a flow's checkpoint that holds the baseline trained beside it, on
+/// the same demonstrations (`ciflow train --baseline`).
+pub const BASELINE_DIR: &str = "baseline";
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct BaselineTrainConfig {
@@ -82,11 +88,37 @@ impl TrainedBaseline {
     }
 }
 
+/// Removes the baseline checkpoint an earlier run left in the flow checkpoint `dir` (in
+/// its [`BASELINE_DIR`]), so that a baseline found beside a flow was trained in the same
+/// run. Only the checkpoint's own files go, and the subdirectory if that empties it:
+/// anything else in it is the user's.
+pub fn remove_stale_baseline(dir: &Path) -> TrainResult<()> {
+    let baseline = dir.join(BASELINE_DIR);
+    if !baseline.is_dir() {
+        return Ok(());
+    }
+    let stale = |source| TrainError::StaleBaseline {
+        path: baseline.clone(),
+        source,
+    };
+    for file in [CONFIG_FILE, WEIGHTS_FILE] {
+        match std::fs::remove_file(baseline.join(file)) {
+            Err(e) if e.kind() != ErrorKind::NotFound => return Err(stale(e)),
+            _ => {}
+        }
+    }
+    match std::fs::remove_dir(&baseline) {
+        Err(e) if e.kind() != ErrorKind::DirectoryNotEmpty => Err(stale(e)),
+        _ => Ok(()),
+    }
+}
+
 pub fn train_baseline(
     data: &Demonstrations,
     train: &BaselineTrainConfig,
     progress: impl FnMut(&Progress),
 ) -> TrainResult<TrainedBaseline> {
+    check_threads(train.threads)?;
     let (d, m) = data.validate()?;
     let config = BaselineConfig {
         task: train.task.clone(),

@@ -1,5 +1,7 @@
 //! Typed errors of the trainer.
 
+use std::path::PathBuf;
+
 use ciflow_engine::flow::FlowError;
 
 #[derive(Debug, thiserror::Error)]
@@ -8,6 +10,17 @@ pub enum TrainError {
     InvalidData(String),
     #[error("invalid training configuration: {0}")]
     InvalidConfig(String),
+    /// A checkpoint would go where something other than a directory is: checked before
+    /// training, which would otherwise fail only when it first writes.
+    #[error("{} exists and is not a directory: a checkpoint is a directory", path.display())]
+    NotADirectory { path: PathBuf },
+    /// The baseline an earlier run left beside a flow could not be removed.
+    #[error("removing the earlier run's baseline {}", path.display())]
+    StaleBaseline {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("training diverged (non-finite loss) at epoch {epoch}")]
     Diverged { epoch: usize },
     #[error(transparent)]

@@ -13,6 +13,12 @@ use ciflow_engine::flow::{
 
 use crate::{Keep, OptimConfig, TrainConfig};
 
+/// Widest local features `--local-features` may ask for. Each coupling's `ψ` has a hidden
+/// layer twice as wide, so 1024 already means a 2048 × 1024 f64 layer (16 MB, 48 MB with
+/// Adam's moments) per coupling and set, against the set encoder's default summary of 32;
+/// 100 000 would need 160 GB for one such layer.
+pub const MAX_LOCAL_FEATURES: usize = 1024;
+
 /// A setting given that does not fit the recipe it would replace.
 #[derive(Debug, thiserror::Error)]
 pub enum OverrideError {
@@ -25,6 +31,11 @@ pub enum OverrideError {
     NoCentres { task: String },
     #[error("--joint-range: task `{task}` drives no robot whose limits it could respect")]
     NoJointRange { task: String },
+    #[error(
+        "--local-features {width}: at most {MAX_LOCAL_FEATURES} (each coupling's ψ has a hidden \
+         layer twice as wide)"
+    )]
+    TooManyLocalFeatures { width: usize },
 }
 
 /// The coupling layers, by name.
@@ -264,6 +275,9 @@ impl ContextOverrides {
         };
         let local = match self.local_features {
             Some(0) => None,
+            Some(width) if width > MAX_LOCAL_FEATURES => {
+                return Err(OverrideError::TooManyLocalFeatures { width });
+            }
             Some(width) => Some(LocalConfig {
                 hidden: vec![2 * width],
                 width,
@@ -417,6 +431,25 @@ mod tests {
         assert!(matches!(
             given(true).apply(plain, None),
             Err(OverrideError::NoJointRange { .. })
+        ));
+    }
+
+    #[test]
+    fn local_features_are_bounded() {
+        let width = |width| ContextOverrides {
+            local_features: Some(width),
+            ..ContextOverrides::default()
+        };
+        let widest = width(MAX_LOCAL_FEATURES)
+            .apply(recipe(CouplingKind::AFFINE))
+            .unwrap();
+        assert_eq!(
+            widest.set_encoder.local.map(|local| local.width),
+            Some(MAX_LOCAL_FEATURES)
+        );
+        assert!(matches!(
+            width(100_000).apply(recipe(CouplingKind::AFFINE)),
+            Err(OverrideError::TooManyLocalFeatures { width: 100_000 })
         ));
     }
 

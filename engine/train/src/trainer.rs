@@ -20,7 +20,7 @@
 use std::path::Path;
 
 use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
-use ciflow_engine::flow::{CheckpointConfig, FlowConfig};
+use ciflow_engine::flow::{CheckpointConfig, FlowConfig, Normalisation};
 pub use ciflow_engine::training::{DEFAULT_STATE_NOISE, TrainConfig};
 use tch::{Device, Kind, Tensor, nn};
 
@@ -32,6 +32,10 @@ use crate::policy::FlowModel;
 
 /// Initial states drawn per minibatch for the `log p(y₀ | c₀)` term.
 const INITIAL_ROWS_PER_BATCH: usize = 16;
+/// Most libtorch intra-op threads a run may ask for. libtorch aborts the process (stack
+/// overflow) when asked for 100 000 (10 000 still run), and these small networks gain
+/// nothing from more than a few; 1024 leaves room for any workstation's cores.
+pub const MAX_THREADS: i32 = 1024;
 
 /// A trained flow: its engine configuration and parameters.
 #[derive(Debug)]
@@ -96,6 +100,72 @@ pub fn double_var_store() -> nn::VarStore {
     vs
 }
 
+/// Refuses settings [`train_flow`] cannot run whatever the data, so that a command can
+/// check them before it loads, trains or writes anything; [`flow_config`] checks them
+/// with what needs the data's dimensions (the context sets, say).
+pub fn check_config(train: &TrainConfig) -> TrainResult<()> {
+    let optim = &train.optim;
+    let checks = [
+        (train.horizon >= 1, "horizon must be >= 1".to_owned()),
+        (
+            (0.0..1.0).contains(&train.validation_fraction),
+            format!(
+                "validation_fraction must be in [0, 1), not {}",
+                train.validation_fraction
+            ),
+        ),
+        (
+            train.state_noise.is_finite() && train.state_noise >= 0.0,
+            format!(
+                "state_noise must be finite and >= 0, not {}",
+                train.state_noise
+            ),
+        ),
+        (
+            (0.0..=1.0).contains(&train.arrival),
+            format!(
+                "arrival is a share of the training pairs: it must be in [0, 1], not {}",
+                train.arrival
+            ),
+        ),
+        // `optimise` refuses these too, but only once the data is prepared.
+        (
+            optim.epochs >= 1
+                && optim.batch_size >= 1
+                && optim.learning_rate > 0.0
+                && optim.learning_rate.is_finite(),
+            "epochs, batch_size and learning_rate must be positive".to_owned(),
+        ),
+    ];
+    match checks.into_iter().find(|(valid, _)| !valid) {
+        Some((_, problem)) => Err(TrainError::InvalidConfig(problem)),
+        None => check_threads(train.threads),
+    }
+}
+
+/// Refuses a libtorch thread count outside `1..=MAX_THREADS`: `tch` panics on fewer
+/// than one and libtorch aborts on far too many.
+pub(crate) fn check_threads(threads: i32) -> TrainResult<()> {
+    match (1..=MAX_THREADS).contains(&threads) {
+        true => Ok(()),
+        false => Err(TrainError::InvalidConfig(format!(
+            "threads must be between 1 and {MAX_THREADS}, not {threads}"
+        ))),
+    }
+}
+
+/// Refuses a checkpoint directory `dir` whose nearest existing ancestor (`dir` itself,
+/// if it exists) is not a directory, such as a file given for `dir`: writing there would
+/// fail only after training.
+pub fn check_checkpoint_dir(dir: &Path) -> TrainResult<()> {
+    match dir.ancestors().find(|path| path.exists()) {
+        Some(taken) if !taken.is_dir() => Err(TrainError::NotADirectory {
+            path: taken.to_owned(),
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// Splits episodes into (training, validation) with a seeded shuffle; the validation set
 /// is empty when `fraction` is 0 (or there is a single episode).
 pub(crate) fn split(
@@ -117,10 +187,12 @@ pub(crate) fn split(
     (episodes, validation)
 }
 
-/// The engine configuration for `data` under `train`.
+/// The engine configuration for `data` under `train`, which [`train_flow`] would run:
+/// settings it cannot run are refused here ([`check_config`] and the engine's checks).
 pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<FlowConfig> {
+    check_config(train)?;
     let (d, m) = data.validate()?;
-    let config = FlowConfig {
+    let mut config = FlowConfig {
         format: ciflow_engine::flow::checkpoint::config::FORMAT,
         task: train.task.clone(),
         task_kwargs: train.task_kwargs.clone(),
@@ -137,9 +209,14 @@ pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<Fl
         set_encoder: (!train.context_sets.is_empty()).then(|| train.set_encoder.clone()),
         contractions: train.contractions,
         joint_range: train.joint_range.clone(),
-        normalisation: data.normalisation(&train.context_sets, train.joint_range.as_ref()),
+        normalisation: Normalisation::identity(d, m),
         bounds: data.bounds(),
     };
+    // The context sets and the joint range are checked against the data's dimensions
+    // before the statistics are pooled over them: a set reaching past the context would
+    // index out of it.
+    config.validate()?;
+    config.normalisation = data.normalisation(&train.context_sets, train.joint_range.as_ref());
     config.validate()?;
     Ok(config)
 }
@@ -194,15 +271,6 @@ pub fn train_flow(
     train: &TrainConfig,
     mut progress: impl FnMut(&Progress, &Snapshot),
 ) -> TrainResult<TrainedFlow> {
-    if train.horizon == 0
-        || !(0.0..1.0).contains(&train.validation_fraction)
-        || !(train.state_noise.is_finite() && train.state_noise >= 0.0)
-    {
-        return Err(TrainError::InvalidConfig(
-            "horizon must be >= 1, validation_fraction in [0, 1) and state_noise finite and >= 0"
-                .into(),
-        ));
-    }
     let config = flow_config(data, train)?;
     tch::set_num_threads(train.threads);
     tch::manual_seed(train.optim.seed as i64);
@@ -272,7 +340,8 @@ pub fn train_flow(
 /// epoch that improves is written there at once (an interrupted run keeps its best so far),
 /// and at the end the parameters kept, if the last ones written were not those (with
 /// [`Keep::Last`](crate::Keep::Last)). `written` is called after each write with the
-/// figures of the epoch now on disk (to publish it, say); `progress` once per epoch.
+/// figures of the epoch now on disk (to publish it, say); `progress` once per epoch. A
+/// `dir` that cannot be a directory is refused first ([`check_checkpoint_dir`]).
 pub fn train_flow_into(
     dir: &Path,
     data: &Demonstrations,
@@ -280,6 +349,7 @@ pub fn train_flow_into(
     mut progress: impl FnMut(&Progress),
     mut written: impl FnMut(&Progress),
 ) -> TrainResult<TrainedFlow> {
+    check_checkpoint_dir(dir)?;
     // The epoch on disk, or the write that failed (training stops writing after one).
     let mut on_disk = Ok(0);
     let trained = train_flow(data, train, |p, snapshot| {
@@ -297,4 +367,103 @@ pub fn train_flow_into(
         written(kept.ok_or(TrainError::InvalidConfig("training ran no epoch".into()))?);
     }
     Ok(trained)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::Contexts;
+    use ciflow_engine::flow::{ContextSet, LatentKind};
+
+    fn config() -> TrainConfig {
+        TrainConfig::new("test", LatentKind::LimitCycle)
+    }
+
+    fn refusal(train: &TrainConfig) -> String {
+        match check_config(train) {
+            Err(TrainError::InvalidConfig(problem)) => problem,
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn thread_counts_libtorch_cannot_run_are_refused() {
+        for threads in [1, MAX_THREADS] {
+            check_config(&TrainConfig {
+                threads,
+                ..config()
+            })
+            .unwrap();
+        }
+        for threads in [0, -1, 100_000] {
+            assert_eq!(
+                refusal(&TrainConfig {
+                    threads,
+                    ..config()
+                }),
+                format!("threads must be between 1 and 1024, not {threads}")
+            );
+        }
+    }
+
+    #[test]
+    fn arrival_is_a_share() {
+        for arrival in [0.0, 0.25, 1.0] {
+            check_config(&TrainConfig {
+                arrival,
+                ..config()
+            })
+            .unwrap();
+        }
+        for arrival in [1.5, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(
+                refusal(&TrainConfig {
+                    arrival,
+                    ..config()
+                })
+                .contains("arrival is a share of the training pairs"),
+                "{arrival}"
+            );
+        }
+    }
+
+    /// A set reaching past a 1-D context is refused before the context's statistics are
+    /// pooled over it (which would index out of the context).
+    #[test]
+    fn context_sets_past_the_context_are_refused_before_the_data_is_read() {
+        let states = (0..5).map(|t| vec![t as f64, 1.0]).collect();
+        let data = Demonstrations {
+            episodes: vec![Episode::new(states, Contexts::PerEpisode(vec![0.5]))],
+            dt: 0.01,
+        };
+        let train = TrainConfig {
+            context_sets: vec![ContextSet {
+                start: 0,
+                count: 5,
+                size: 3,
+            }],
+            ..config()
+        };
+        let error = flow_config(&data, &train).unwrap_err();
+        assert!(
+            error.to_string().contains("within the 1-D context"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn a_checkpoint_directory_cannot_be_a_file() {
+        let dir =
+            std::env::temp_dir().join(format!("ciflow-checkpoint-dir-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        check_checkpoint_dir(&dir.join("new").join("checkpoint")).unwrap();
+        let file = dir.join("file");
+        std::fs::write(&file, "a user's file").unwrap();
+        for taken in [file.clone(), file.join("checkpoint")] {
+            assert!(
+                matches!(check_checkpoint_dir(&taken), Err(TrainError::NotADirectory { path }) if path == file)
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
