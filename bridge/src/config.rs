@@ -152,7 +152,7 @@ impl NetworkOptions {
             .map_err(|source| BridgeError::Open {
                 action,
                 hint,
-                source,
+                source: source.into(),
             })
     }
 
@@ -165,7 +165,7 @@ impl NetworkOptions {
         let mut config = match &self.config_file {
             Some(path) => Config::from_file(path).map_err(|source| BridgeError::ConfigFile {
                 path: path.clone(),
-                source,
+                source: source.into(),
             })?,
             None => default_config(role)?,
         };
@@ -215,7 +215,7 @@ fn insert(config: &mut Config, key: &str, json5: &str) -> Result<(), BridgeError
         .map_err(|source| BridgeError::ConfigSetting {
             key: key.to_owned(),
             value: json5.to_owned(),
-            source,
+            source: source.into(),
         })
 }
 

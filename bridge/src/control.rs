@@ -282,10 +282,7 @@ impl TelemetryStream {
             Ok(Some(sample)) => sample,
             Ok(None) => return Ok(None),
             Err(source) => {
-                return Err(BridgeError::Zenoh {
-                    action: "receiving the telemetry",
-                    source,
-                });
+                return Err(BridgeError::zenoh("receiving the telemetry")(source));
             }
         };
         let key = sample.key_expr().as_str();

@@ -27,14 +27,14 @@ pub enum BridgeError {
     ConfigFile {
         path: PathBuf,
         #[source]
-        source: zenoh::Error,
+        source: ZenohCause,
     },
     #[error("bad Zenoh setting {key} = {value}")]
     ConfigSetting {
         key: String,
         value: String,
         #[source]
-        source: zenoh::Error,
+        source: ZenohCause,
     },
     #[error("unknown Zenoh mode `{0}`; expected peer, client or router")]
     UnknownMode(String),
@@ -44,14 +44,14 @@ pub enum BridgeError {
         action: &'static str,
         hint: &'static str,
         #[source]
-        source: zenoh::Error,
+        source: ZenohCause,
     },
     /// A Zenoh operation on an open session failed.
     #[error("Zenoh failed while {action}")]
     Zenoh {
         action: &'static str,
         #[source]
-        source: zenoh::Error,
+        source: ZenohCause,
     },
     #[error("cannot spawn the engine's worker threads")]
     Worker(#[source] std::io::Error),
@@ -145,8 +145,69 @@ impl BridgeError {
     /// The error of a Zenoh operation, `action` saying what was being done ("declaring
     /// the engine's queryable").
     pub(crate) fn zenoh(action: &'static str) -> impl FnOnce(zenoh::Error) -> Self {
-        move |source| BridgeError::Zenoh { action, source }
+        move |source| BridgeError::Zenoh {
+            action,
+            source: source.into(),
+        }
     }
+}
+
+/// A Zenoh error as its reader needs it: Zenoh's messages end with the path and line of
+/// the Zenoh source that raised them, and wrap JSON5 errors in their debug form
+/// (`Json5Err(Message { msg: "…", location: … })`); this shows the message alone. The
+/// error itself stays reachable as [`ZenohCause::0`] and through `source()`.
+#[derive(Debug)]
+pub struct ZenohCause(pub zenoh::Error);
+
+impl From<zenoh::Error> for ZenohCause {
+    fn from(error: zenoh::Error) -> Self {
+        Self(error)
+    }
+}
+
+impl std::fmt::Display for ZenohCause {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&readable_zenoh_message(&self.0.to_string()))
+    }
+}
+
+impl std::error::Error for ZenohCause {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        self.0.source()
+    }
+}
+
+/// `text` without Zenoh's JSON5 debug wrapping and its ` at <file>.rs:<line>.` suffixes.
+fn readable_zenoh_message(text: &str) -> String {
+    const JSON5: &str = "Json5Err(Message { msg: \"";
+    let text = match text.find(JSON5) {
+        Some(start) => {
+            let message = &text[start + JSON5.len()..];
+            let end = message.find("\", location").unwrap_or(message.len());
+            message[..end].replace("\\\"", "\"")
+        }
+        None => text.to_owned(),
+    };
+    let mut readable = String::with_capacity(text.len());
+    let mut rest = text.as_str();
+    while let Some(at) = rest.find(" at ") {
+        let location = &rest[at + 4..];
+        // `<path>.rs:<line>`, then an optional full stop.
+        let path_end = location.find(char::is_whitespace).unwrap_or(location.len());
+        let path = location[..path_end].trim_end_matches('.');
+        let is_location = path
+            .rsplit_once(".rs:")
+            .is_some_and(|(_, line)| !line.is_empty() && line.bytes().all(|b| b.is_ascii_digit()));
+        if is_location {
+            readable.push_str(&rest[..at]);
+            rest = &location[path_end..];
+        } else {
+            readable.push_str(&rest[..at + 4]);
+            rest = location;
+        }
+    }
+    readable.push_str(rest);
+    readable
 }
 
 #[cfg(test)]
@@ -161,7 +222,10 @@ mod tests {
         let cause: zenoh::Error = Box::new(std::io::Error::other("connection refused"));
         let error = BridgeError::zenoh("declaring the engine's queryable")(cause);
         let source = error.source().expect("the Zenoh error is the source");
-        assert!(source.downcast_ref::<std::io::Error>().is_some());
+        let cause = source
+            .downcast_ref::<ZenohCause>()
+            .expect("carried as it came");
+        assert!(cause.0.downcast_ref::<std::io::Error>().is_some());
         assert_eq!(
             full_message(&error),
             "Zenoh failed while declaring the engine's queryable: connection refused"
@@ -175,6 +239,36 @@ mod tests {
         .unwrap_err();
         assert!(matches!(bad, BridgeError::ConfigSetting { .. }));
         assert!(bad.source().is_some());
+    }
+
+    #[test]
+    fn zenoh_messages_read_without_source_locations_or_debug_wrapping() {
+        let bad = NetworkOptions {
+            listen: vec!["foo".into()],
+            ..Default::default()
+        }
+        .to_zenoh_config(Role::Engine)
+        .unwrap_err();
+        let message = full_message(&bad);
+        assert!(
+            message.contains("Endpoints must be of the form"),
+            "{message}"
+        );
+        assert!(
+            !message.contains("Json5Err") && !message.contains(".rs:"),
+            "{message}"
+        );
+        assert_eq!(
+            readable_zenoh_message(
+                "Json5Err(Message { msg: \"bad \\\"x\\\" at /a/b/c.rs:12.\", location: None }) \
+                 at /z/config.rs:86."
+            ),
+            "bad \"x\""
+        );
+        assert_eq!(
+            readable_zenoh_message("refused at /z/link.rs:7. Retry at noon, at 12.rs:x"),
+            "refused Retry at noon, at 12.rs:x"
+        );
     }
 
     #[test]

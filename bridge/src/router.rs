@@ -31,7 +31,7 @@ impl Router {
                 .map_err(|source| BridgeError::ConfigSetting {
                     key: "access_control".into(),
                     value: rules,
-                    source,
+                    source: source.into(),
                 })?;
         }
         let zsession = zenoh::open(config)
@@ -39,7 +39,7 @@ impl Router {
             .map_err(|source| BridgeError::Open {
                 action: "start the router",
                 hint: "is its endpoint free, and are the certificate files readable?",
-                source,
+                source: source.into(),
             })?;
         Ok(Self { zsession })
     }

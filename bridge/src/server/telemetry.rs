@@ -64,10 +64,7 @@ impl TelemetryWatch {
     /// The telemetry of session `id`.
     pub fn session(&self, identity: &str, id: &str) -> Result<TelemetryPublisher, BridgeError> {
         let key = KeyExpr::try_from(keys::session(&self.engine, identity, id, "telemetry"))
-            .map_err(|source| BridgeError::Zenoh {
-                action: "building the telemetry key",
-                source,
-            })?;
+            .map_err(BridgeError::zenoh("building the telemetry key"))?;
         Ok(TelemetryPublisher {
             zsession: self.zsession.clone(),
             key,
