@@ -251,6 +251,25 @@ fn train_refuses_an_arrival_share_outside_0_to_1() {
     }
 }
 
+#[test]
+fn train_refuses_publishing_with_arguments_the_task_refuses() {
+    let stderr = refused_training(
+        "train-cli-publish-kwarg",
+        &[
+            "--task",
+            "limit-cycle",
+            "--publish",
+            "cycle",
+            "--kwarg",
+            "bogus=1",
+        ],
+    );
+    assert!(
+        stderr.contains("--kwarg") && stderr.contains("this task takes none"),
+        "{stderr}"
+    );
+}
+
 /// `ciflow train --demos <2 limit-cycle episodes> --out <out> ARGS`, small and quick.
 fn train_limit_cycle(scratch: &Scratch, out: &Path, args: &[&str]) -> std::process::Output {
     let demos = scratch.arg("demos");

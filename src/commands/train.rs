@@ -126,6 +126,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .as_deref()
         .map(|name| {
             let kwargs = task.arguments(&args.kwargs)?;
+            // Engines build the task from these: arguments it refuses would have every
+            // engine ignore each publication, while this side reported them sent.
+            (task.make_with)(&kwargs).context("--kwarg")?;
             let network = args.zenoh.network.options()?;
             let publisher = CheckpointPublisher::open(&network, name)?.with_kwargs(kwargs);
             anyhow::Ok(publisher.with_signer(args.signing.load()?))
