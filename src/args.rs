@@ -26,7 +26,9 @@ pub enum Command {
     /// rates in its task, log-likelihood on a dataset, or 2-D vector-field figure data (JSON).
     Evaluate(Box<commands::evaluate::EvaluateArgs>),
     /// LASA handwriting benchmark: per shape, a stable flow against a behaviour-cloning
-    /// MLP with the same budget; writes tables (DTW, swept area, final error, time) and plots.
+    /// MLP trained in the same run on the same demonstrations (the training options set the
+    /// flow's; the MLP keeps its own: up to 200 epochs, early-stopped); writes tables (DTW,
+    /// swept area, final error, time) and plots.
     Lasa(commands::lasa::LasaArgs),
     /// Start an engine that serves every task as a Gymnasium environment over Zenoh.
     Serve(commands::serve::ServeArgs),

@@ -6,7 +6,8 @@
 //! and writes the reports.
 //!
 //! - [`lasa`]: the LASA handwriting benchmark — per shape, a stable flow against the
-//!   unconstrained behaviour-cloning baseline with the same budget in the same run — and
+//!   unconstrained behaviour-cloning baseline trained in the same run on the same data,
+//!   with its own standing settings — and
 //!   [`lasa::ablation`], what each choice of the flow's recipe buys.
 
 pub mod error;

@@ -1,6 +1,8 @@
 //! The LASA handwriting benchmark. For each shape it trains a stable C-IFlow (the task's
-//! recipe for `ciflow/Lasa-v0`: the goal as context) and, with the same budget in the same
-//! run, the unconstrained MLP behaviour-cloning baseline; rolls both out noise-free from
+//! recipe for `ciflow/Lasa-v0`: the goal as context) and, in the same run on the same
+//! demonstrations, the unconstrained MLP behaviour-cloning baseline with its standing
+//! settings (up to 200 epochs, early-stopped, whatever the flow's options); rolls both
+//! out noise-free from
 //! every demonstration's start, in observation space (mm), for as many steps as the
 //! demonstration has; and scores the reproductions ([`ciflow_evaluation::lasa`]): DTW
 //! distance, swept error area and final-point error, with the training time.
