@@ -232,6 +232,15 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
             vec!["--perturb", "push", "--push-start", "1e9"],
             "after the episode's end",
         ),
+        (
+            vec![
+                "--field",
+                field.as_str(),
+                "--field-contexts",
+                "1e308,1e308,1e308,1e308",
+            ],
+            "is not finite: the context lies too far outside",
+        ),
     ];
     for (extra, message) in refusals {
         let refused = ciflow(

@@ -167,6 +167,19 @@ pub fn field(
     let mut fields = Vec::with_capacity(config.contexts.len());
     for context in &config.contexts {
         let [velocity_x, velocity_y] = velocity_grid(policy, &xs, &ys, context, &mut ws)?;
+        if velocity_x
+            .iter()
+            .chain(&velocity_y)
+            .flatten()
+            .any(|v| !v.is_finite())
+        {
+            return Err(EvaluationError::InvalidConfig(format!(
+                "the field at context {context:?} is not finite: the context lies too far \
+                 outside those the flow was trained on (from {:?} to {:?})",
+                policy.config().bounds.context_min,
+                policy.config().bounds.context_max
+            )));
+        }
         let (mut z_min, mut z_max) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         let mut z = [0.0; 2];
         for &y in &ys {
