@@ -424,6 +424,15 @@ impl Drop for DatasetWriter {
 pub fn read(dir: &Path) -> Result<(DatasetSpec, Vec<Episode>)> {
     let data = dir.join("data");
     let metadata_path = data.join(METADATA_FILE);
+    if !metadata_path.exists() && dir.join("meta").join("info.json").is_file() {
+        return Err(DatasetError::Format {
+            path: dir.to_path_buf(),
+            detail: "this is a LeRobot dataset (meta/info.json); name the fields that hold \
+                     the state with `ciflow train --state FIELD` or convert it with \
+                     `python -m ciflow.convert SOURCE OUT --state FIELD`"
+                .into(),
+        });
+    }
     let metadata = read_json(&metadata_path)?;
     let spec = spec_from_metadata(&metadata).map_err(|error| match error {
         MetadataError::Invalid(detail) => DatasetError::Format {
@@ -452,6 +461,16 @@ fn read_episode(dir: &Path, spec: &DatasetSpec) -> Result<Episode> {
     let metadata = read_json(&dir.join(METADATA_FILE))?;
     let path = arrow_file_in(dir)?;
     let file = fs::File::open(&path).map_err(io_error(&path))?;
+    // Arrow reads an empty file as an I/O error ("Invalid argument"), which hides that
+    // the recording stopped before the episode was written.
+    if file.metadata().map_err(io_error(&path))?.len() == 0 {
+        return Err(DatasetError::Format {
+            path,
+            detail: "the episode file is empty (0 bytes): the recording stopped before \
+                     writing it"
+                .into(),
+        });
+    }
     let reader =
         arrow_ipc::reader::FileReader::try_new_buffered(file, None).map_err(arrow_error(&path))?;
     let batches = reader

@@ -268,3 +268,36 @@ fn malformed_episodes_are_refused() {
     drop(writer);
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A LeRobot dataset given where this layout is read is named as one, with the way to
+/// read it, instead of a missing `data/metadata.json`.
+#[test]
+fn a_lerobot_dataset_is_recognised_as_one() {
+    let dir = scratch_dir("lerobot-read");
+    std::fs::create_dir_all(dir.join("meta")).unwrap();
+    std::fs::write(dir.join("meta").join("info.json"), "{}").unwrap();
+    let error = dataset::read(&dir).unwrap_err().to_string();
+    assert!(
+        error.contains("LeRobot dataset") && error.contains("--state FIELD"),
+        "{error}"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// An episode whose Arrow file was never written (0 bytes) is named as such.
+#[test]
+fn an_empty_episode_file_is_named() {
+    let dir = scratch_dir("empty-episode");
+    let out = dir.join("set");
+    record_expert_dataset(
+        &two_obstacles(1, 0, Credits::default()),
+        &out,
+        false,
+        |_| {},
+    )
+    .unwrap();
+    std::fs::write(out.join("data").join("0").join("part-0.arrow"), b"").unwrap();
+    let error = dataset::read(&out).unwrap_err().to_string();
+    assert!(error.contains("the episode file is empty"), "{error}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
