@@ -270,6 +270,28 @@ fn train_refuses_publishing_with_arguments_the_task_refuses() {
     );
 }
 
+#[test]
+fn train_from_zenoh_refuses_a_timeout_that_is_not_a_duration() {
+    for timeout in ["1e300", "0", "-1"] {
+        let scratch = Scratch::new(&format!("train-cli-timeout{timeout}"));
+        let output = ciflow(&[
+            "train",
+            "--task",
+            "limit-cycle",
+            "--from-zenoh",
+            "3",
+            &format!("--episode-timeout={timeout}"),
+            "--out",
+            &scratch.arg("policy"),
+        ]);
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(
+            !output.status.success() && stderr.contains("give a positive number of seconds up to"),
+            "{timeout}: {stderr}"
+        );
+    }
+}
+
 /// `ciflow train --demos <2 limit-cycle episodes> --out <out> ARGS`, small and quick.
 fn train_limit_cycle(scratch: &Scratch, out: &Path, args: &[&str]) -> std::process::Output {
     let demos = scratch.arg("demos");

@@ -57,7 +57,13 @@ pub fn demonstrations(
     let timeout = Duration::try_from_secs_f64(source.episode_timeout)
         .ok()
         .filter(|t| !t.is_zero())
-        .context("--episode-timeout must be a positive number of seconds")?;
+        .with_context(|| {
+            format!(
+                "--episode-timeout {:?}: give a positive number of seconds up to {:e}",
+                source.episode_timeout,
+                Duration::MAX.as_secs_f64()
+            )
+        })?;
     if let Some(dir) = demos {
         anyhow::ensure!(
             !dir.exists(),
