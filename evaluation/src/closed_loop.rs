@@ -56,6 +56,24 @@ pub enum Disturbance {
     Context(ContextSwitch),
 }
 
+impl std::fmt::Display for Disturbance {
+    /// One phrase for the printed summary, e.g. "pushed on link 1 at 1 s for 0.2 s".
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::None => write!(f, "undisturbed"),
+            Self::Push(push) => write!(
+                f,
+                "pushed on link {} at {} s for {} s (to a displacement >= {} m)",
+                push.link, push.start, push.duration, push.displacement
+            ),
+            Self::Context(ContextSwitch { time, tail }) => match tail {
+                Some(tail) => write!(f, "the last {tail} context entries changed at {time} s"),
+                None => write!(f, "the context changed at {time} s"),
+            },
+        }
+    }
+}
+
 /// Who chooses the actions of the evaluated episodes.
 #[derive(Clone, Copy, Debug)]
 pub enum Acting<'a> {
@@ -172,7 +190,7 @@ impl std::fmt::Display for EvaluationReport {
         let percent = |r: f64| format!("{:.1}%", 100.0 * r);
         write!(
             f,
-            "{} ({}) on {}, {:?}: success {}",
+            "{} ({}) on {}, {}: success {}",
             self.task,
             self.model,
             self.env_id,

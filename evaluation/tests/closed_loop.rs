@@ -263,6 +263,26 @@ fn a_context_switch_moves_only_the_target_and_holds() {
     }
 }
 
+/// The printed summary names the disturbance in words, not as a Rust value.
+#[test]
+fn disturbances_read_as_phrases() {
+    let push = Disturbance::Push(PushConfig {
+        link: 1,
+        ..PushConfig::default()
+    });
+    assert_eq!(
+        push.to_string(),
+        "pushed on link 1 at 1 s for 0.2 s (to a displacement >= 0.05 m)"
+    );
+    let switch = |tail| Disturbance::Context(ContextSwitch { time: 1.5, tail }).to_string();
+    assert_eq!(
+        switch(Some(2)),
+        "the last 2 context entries changed at 1.5 s"
+    );
+    assert_eq!(switch(None), "the context changed at 1.5 s");
+    assert_eq!(Disturbance::None.to_string(), "undisturbed");
+}
+
 #[test]
 fn bad_settings_are_typed_errors() {
     let model = Model::from(obstacle_flow(4));

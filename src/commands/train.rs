@@ -109,17 +109,28 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     config.task_kwargs = ciflow_envs::kwargs::to_json(&spec.env_kwargs);
     // Everything training would refuse, before the checkpoint directory is touched.
     flow_config(&data, &config).context("checking the training settings")?;
-    let (latent, goal_context_indices) = (config.latent, &config.goal_context_indices);
+    let target = match &config.goal_context_indices {
+        Some(indices) => format!("the target at context entries {indices:?}"),
+        None => "no target in the context".to_owned(),
+    };
+    let sets: Vec<String> = config.context_sets.iter().map(|s| s.to_string()).collect();
+    let sets = match sets.is_empty() {
+        true => "no unordered context sets".to_owned(),
+        false => format!("unordered context sets: {}", sets.join("; ")),
+    };
+    let contractions = match &config.contractions {
+        Some(c) => format!("{} radial contraction layers about {}", c.layers, c.centres),
+        None => "no radial contractions".to_owned(),
+    };
     println!(
-        "{}: {} episodes, state {}-D, context {}-D, dt = {} s; latent {latent:?}, target in \
-         context {goal_context_indices:?}, unordered context sets {:?}, contractions {:?}",
+        "{}: {} episodes, state {}-D, context {}-D, dt = {} s; latent {:?}, {target}, {sets}, \
+         {contractions}",
         spec.dataset_id,
         data.episodes.len(),
         data.episodes.first().map_or(0, |e| e.states[0].len()),
         spec.context_space.dim(),
         data.dt,
-        config.context_sets,
-        config.contractions
+        config.latent,
     );
     let publisher = args
         .publish

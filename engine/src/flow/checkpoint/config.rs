@@ -418,7 +418,7 @@ impl FlowConfig {
             };
             if !(shared(&norm.context_mean) && shared(&norm.context_std)) {
                 return Err(invalid(format!(
-                    "the slots of context set {set:?} need the same normalisation"
+                    "the slots of the context set ({set}) need the same normalisation"
                 )));
             }
         }
@@ -465,7 +465,7 @@ fn validate_context_sets(sets: &[ContextSet], m: usize) -> FlowResult<()> {
     for (i, set) in sorted.iter().enumerate() {
         if set.count == 0 || set.size == 0 || set.end() > m {
             return Err(invalid(format!(
-                "context set {set:?} needs count and size >= 1 and must end within the \
+                "the context set ({set}) needs count and size >= 1 and must end within the \
                  {m}-D context"
             )));
         }
@@ -473,7 +473,7 @@ fn validate_context_sets(sets: &[ContextSet], m: usize) -> FlowResult<()> {
             && next.start < set.end()
         {
             return Err(invalid(format!(
-                "context sets {set:?} and {next:?} overlap"
+                "the context sets ({set}) and ({next}) overlap"
             )));
         }
     }

@@ -39,6 +39,20 @@ pub struct ContextSet {
     pub size: usize,
 }
 
+impl std::fmt::Display for ContextSet {
+    /// "5 points of 3 at context entries 0..15".
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} points of {} at context entries {}..{}",
+            self.count,
+            self.size,
+            self.start,
+            self.end()
+        )
+    }
+}
+
 impl ContextSet {
     /// One past the set's last context index.
     pub fn end(&self) -> usize {
@@ -240,6 +254,14 @@ mod tests {
         count: 3,
         size: 2,
     };
+
+    #[test]
+    fn a_set_reads_as_its_points_and_entries() {
+        assert_eq!(
+            OBSTACLES.to_string(),
+            "3 points of 2 at context entries 1..7"
+        );
+    }
 
     #[test]
     fn the_rest_skips_every_set() {

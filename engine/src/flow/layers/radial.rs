@@ -69,7 +69,7 @@ impl ContractionConfig {
         let set = &self.centres;
         if set.size != state_dim || set.count == 0 || set.end() > context_dim {
             return Err(invalid(format!(
-                "contraction centres {set:?} need points of the state's dimension {state_dim} \
+                "contraction centres ({set}) need points of the state's dimension {state_dim} \
                  inside the {context_dim}-D context"
             )));
         }
