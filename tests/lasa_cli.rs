@@ -41,7 +41,7 @@ fn lasa_trained_flow_beats_its_untrained_self_and_nears_the_baseline() {
     // which Adam moves no weight by more than about 1e-12.
     let untrained = Scratch::new("lasa-untrained");
     let untrained_dir = untrained.dir().to_string_lossy().into_owned();
-    succeed(&[
+    let untrained_run = [
         "lasa",
         "--shapes",
         SHAPE,
@@ -52,7 +52,27 @@ fn lasa_trained_flow_beats_its_untrained_self_and_nears_the_baseline() {
         "--no-plots",
         "--out",
         &untrained_dir,
-    ]);
+    ];
+    succeed(&untrained_run);
+    // A second run into the same directory replaces the first only when asked, and only
+    // the run's own outputs.
+    let csv_before = std::fs::read(untrained.join("lasa.csv")).unwrap();
+    let again = ciflow(&untrained_run);
+    let stderr = String::from_utf8_lossy(&again.stderr);
+    assert!(
+        !again.status.success() && stderr.contains("holds an earlier run's results"),
+        "{stderr}"
+    );
+    assert_eq!(
+        std::fs::read(untrained.join("lasa.csv")).unwrap(),
+        csv_before
+    );
+    std::fs::write(untrained.join("notes.txt"), "mine").unwrap();
+    succeed(&[&untrained_run[..], &["--overwrite"]].concat());
+    assert_eq!(
+        std::fs::read_to_string(untrained.join("notes.txt")).unwrap(),
+        "mine"
+    );
 
     let csv = std::fs::read_to_string(out.join("lasa.csv")).unwrap();
     let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();

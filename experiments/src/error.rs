@@ -38,6 +38,12 @@ pub enum ExperimentError {
         #[source]
         source: FlowError,
     },
+    #[error(
+        "{} holds an earlier run's results (lasa.md, lasa.csv, lasa.png, checkpoints/ or \
+         plots/): pass --overwrite to replace them, or choose another directory",
+        path.display()
+    )]
+    EarlierRun { path: PathBuf },
     #[error("writing {}", path.display())]
     Write {
         path: PathBuf,

@@ -22,6 +22,10 @@ pub struct LasaArgs {
     /// Output directory (lasa.md, lasa.csv, checkpoints/, plots/, lasa.png).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace an earlier run's results in --out (lasa.md, lasa.csv, lasa.png,
+    /// checkpoints/, plots/; other files stay), which a run otherwise refuses.
+    #[arg(long)]
+    pub overwrite: bool,
     /// Skip the PNG plots (they need Python with matplotlib).
     #[arg(long)]
     pub no_plots: bool,
@@ -67,7 +71,7 @@ pub fn run(args: LasaArgs) -> anyhow::Result<()> {
     };
     let table = match args.ablation {
         true => ablation::run(&names, &config, &args.out, on_epoch)?,
-        false => benchmark::benchmark(&names, &config, &args.out, on_epoch)?,
+        false => benchmark::benchmark(&names, &config, &args.out, args.overwrite, on_epoch)?,
     };
     bar.finish_and_clear();
     if !args.ablation && !args.no_plots {

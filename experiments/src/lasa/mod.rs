@@ -304,15 +304,45 @@ fn settings(flow: &TrainConfig) -> String {
     )
 }
 
-/// Runs the benchmark on the shapes `names` with the flow's `config` into `out`, telling
-/// `on_epoch` after every epoch; returns the table it wrote to `lasa.md`.
+/// What [`benchmark`] writes into its directory.
+const RUN_OUTPUTS: [&str; 5] = ["lasa.md", "lasa.csv", "lasa.png", "checkpoints", "plots"];
+
+/// Removes an earlier run's [`RUN_OUTPUTS`] from `out` when `overwrite`, and refuses them
+/// otherwise: a run on other shapes would leave the earlier shapes' checkpoints and plots
+/// beside a table without them. Anything else in `out` stays.
+fn clear_earlier_run(out: &Path, overwrite: bool) -> ExperimentResult<()> {
+    let earlier: Vec<_> = RUN_OUTPUTS
+        .iter()
+        .map(|name| out.join(name))
+        .filter(|path| path.exists())
+        .collect();
+    if !earlier.is_empty() && !overwrite {
+        return Err(ExperimentError::EarlierRun {
+            path: out.to_owned(),
+        });
+    }
+    for path in earlier {
+        match path.is_dir() {
+            true => std::fs::remove_dir_all(&path),
+            false => std::fs::remove_file(&path),
+        }
+        .map_err(|source| ExperimentError::Write { path, source })?;
+    }
+    Ok(())
+}
+
+/// Runs the benchmark on the shapes `names` with the flow's `config` into `out` (an
+/// earlier run's results there are replaced only when `overwrite`), telling `on_epoch`
+/// after every epoch; returns the table it wrote to `lasa.md`.
 pub fn benchmark(
     names: &[String],
     config: &TrainConfig,
     out: &Path,
+    overwrite: bool,
     mut on_epoch: impl FnMut(&RunEpoch),
 ) -> ExperimentResult<String> {
     let start = Instant::now();
+    clear_earlier_run(out, overwrite)?;
     create_dir(out)?;
     let mut tally = Tally {
         done: 0,
