@@ -169,11 +169,16 @@ impl NetworkOptions {
             })?,
             None => default_config(role)?,
         };
-        if let Some(mode) = self.mode {
-            insert(&mut config, "mode", &json_string(mode.as_str()))?;
-        }
         if role == Role::Router {
+            if let Some(mode) = self.mode.filter(|mode| *mode != Mode::Router) {
+                return Err(BridgeError::InvalidArgument(format!(
+                    "a router runs in Zenoh's router mode, not {}",
+                    mode.as_str()
+                )));
+            }
             insert(&mut config, "mode", &json_string(Mode::Router.as_str()))?;
+        } else if let Some(mode) = self.mode {
+            insert(&mut config, "mode", &json_string(mode.as_str()))?;
         }
         if !self.connect.is_empty() {
             insert(&mut config, "connect/endpoints", &json_list(&self.connect))?;
@@ -231,6 +236,23 @@ fn json_list(items: &[String]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_router_refuses_any_other_mode() {
+        let asked = |mode| NetworkOptions {
+            mode: Some(mode),
+            ..NetworkOptions::default()
+        };
+        assert!(asked(Mode::Router).to_zenoh_config(Role::Router).is_ok());
+        let refused = asked(Mode::Client)
+            .to_zenoh_config(Role::Router)
+            .unwrap_err();
+        assert!(
+            refused.to_string().contains("router mode, not client"),
+            "{refused}"
+        );
+        assert!(asked(Mode::Client).to_zenoh_config(Role::Engine).is_ok());
+    }
 
     #[test]
     fn an_engine_reports_the_endpoints_it_was_told_or_the_default() {
