@@ -232,6 +232,9 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
             vec!["--perturb", "push", "--push-start", "1e9"],
             "after the episode's end",
         ),
+        // Settings of a disturbance that is not asked for, instead of silently unused.
+        (vec!["--push-start", "0.5"], "--perturb"),
+        (vec!["--switch-time", "0.5"], "--perturb"),
         (
             vec![
                 "--field",
@@ -243,14 +246,8 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
         ),
     ];
     for (extra, message) in refusals {
-        let refused = ciflow(
-            &[
-                &["evaluate", "--checkpoint", &policy, "--episodes", "1"][..],
-                &kwargs,
-                &extra,
-            ]
-            .concat(),
-        );
+        let refused =
+            ciflow(&[&["evaluate", "--checkpoint", &policy][..], &kwargs, &extra].concat());
         let stderr = String::from_utf8_lossy(&refused.stderr);
         assert!(
             !refused.status.success() && stderr.contains(message),
@@ -258,6 +255,25 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
         );
     }
     assert_eq!(std::fs::read(&config_file).unwrap(), config_before);
+    let unused = ciflow(&["stability", "--checkpoint", &policy, "--robot-push", "20"]);
+    let stderr = String::from_utf8_lossy(&unused.stderr);
+    assert!(
+        !unused.status.success() && stderr.contains("--robot-loop"),
+        "{stderr}"
+    );
+    let nll_pushed = ciflow(&[
+        "evaluate",
+        "--checkpoint",
+        &policy,
+        "--nll",
+        &demos,
+        "--perturb",
+        "push",
+    ]);
+    assert!(
+        !nll_pushed.status.success(),
+        "--perturb does not apply to --nll"
+    );
     // Another task's dataset is named as such, not as a context of the wrong size.
     let cycle = scratch.arg("cycle-demos");
     succeed(&[

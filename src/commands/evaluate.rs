@@ -59,44 +59,44 @@ pub struct EvaluateArgs {
     #[arg(long = "option", value_name = "NAME=VALUE", value_parser = parse_key_value)]
     pub options: Vec<(String, String)>,
     /// Number of episodes; episode i is reset with seed + i.
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = 100, conflicts_with_all = ["nll", "field"])]
     pub episodes: usize,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Velocity-feedback gain K_v of the actor (1/s).
     #[arg(long, default_value_t = DEFAULT_VELOCITY_GAIN)]
     pub velocity_gain: f64,
-    #[arg(long, value_enum, default_value = "none")]
+    #[arg(long, value_enum, default_value = "none", conflicts_with_all = ["nll", "field"])]
     pub perturb: PerturbArg,
     /// Push start (simulated s).
-    #[arg(long, default_value_t = PushConfig::default().start)]
+    #[arg(long, default_value_t = PushConfig::default().start, requires = "perturb")]
     pub push_start: f64,
     /// Push duration (s).
-    #[arg(long, default_value_t = PushConfig::default().duration)]
+    #[arg(long, default_value_t = PushConfig::default().duration, requires = "perturb")]
     pub push_duration: f64,
     /// Minimum displacement of the tracked point (pouring: the spout) from the unpushed
     /// run at equal times; the force grows until it is reached (m).
-    #[arg(long, default_value_t = PushConfig::default().displacement)]
+    #[arg(long, default_value_t = PushConfig::default().displacement, requires = "perturb")]
     pub push_displacement: f64,
     /// First push force tried (N).
-    #[arg(long, default_value_t = PushConfig::default().initial_force)]
+    #[arg(long, default_value_t = PushConfig::default().initial_force, requires = "perturb")]
     pub push_force: f64,
     /// Link pushed [default: the task's: the hand (last link) for pouring, the mass
     /// otherwise].
-    #[arg(long)]
+    #[arg(long, requires = "perturb")]
     pub push_link: Option<usize>,
     /// Distance to the unpushed path that counts as recovered (m).
-    #[arg(long, default_value_t = PushConfig::default().recovery_tolerance)]
+    #[arg(long, default_value_t = PushConfig::default().recovery_tolerance, requires = "perturb")]
     pub recovery_tolerance: f64,
     /// Recovery within this time after the push counts as prompt (s).
-    #[arg(long, default_value_t = PushConfig::default().recovery_deadline)]
+    #[arg(long, default_value_t = PushConfig::default().recovery_deadline, requires = "perturb")]
     pub recovery_deadline: f64,
     /// Time of the context change (simulated s).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, requires = "perturb")]
     pub switch_time: f64,
     /// Change only the last N context entries [default: the task's: the target (2) for
     /// obstacle-avoidance, the whole context otherwise].
-    #[arg(long)]
+    #[arg(long, requires = "perturb")]
     pub switch_tail: Option<usize>,
     /// Keep the traces of the first K episodes in the JSON.
     #[arg(long, default_value_t = 0)]

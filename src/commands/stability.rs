@@ -70,17 +70,17 @@ pub struct StabilityArgs {
     #[arg(long)]
     pub robot_loop: bool,
     /// Robot-loop rollouts, from rest at joint positions drawn uniformly over the limits.
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = 100, requires = "robot_loop")]
     pub robot_starts: usize,
     /// Robot-loop rollouts whose joint positions the JSON report keeps (for plots).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, requires = "robot_loop")]
     pub robot_traces: usize,
     /// Push every robot-loop rollout's last link with this force (N) for 0.2 s, 1 s after
     /// its start, in a random horizontal direction.
-    #[arg(long)]
+    #[arg(long, requires = "robot_loop")]
     pub robot_push: Option<f64>,
     /// Simulated seconds per robot-loop rollout.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = 60.0, requires = "robot_loop")]
     pub robot_duration: f64,
     /// The observation-space rollouts (training and far contexts, negative control) on
     /// engines; the robot loop stays in this process.
