@@ -105,6 +105,9 @@ def test_bad_input_raises_typed_errors_and_the_env_stays_usable(engine):
         with pytest.raises(ciflow.CiflowError) as context:
             env.reset(options={"context": env.context_space.high + 1.0})
         assert context.value.code == "out_of_bounds"
+        for seed in (2**64, -1, 1.5):
+            with pytest.raises(ValueError, match="a seed is a whole number"):
+                env.reset(seed=seed)
         env.reset(seed=0)
         observation, *_ = env.step(env.expert_action())
         assert np.isfinite(observation).all()
@@ -238,7 +241,7 @@ def test_make_vec_refuses_bad_sizes_seeds_and_action_shapes(engine):
     envs = gym.make_vec("ciflow/Obstacle-v0", num_envs=3, engine=engine[0], obstacles=1)
     try:
         for seeds, message in (([1, 2], "2 seeds for 3"), ([1, -2, 3], "whole number"),
-                               ([1, 2.5, 3], "whole number")):
+                               ([1, 2.5, 3], "whole number"), (2**70, "whole number")):
             with pytest.raises(ValueError, match=message):
                 envs.reset(seed=seeds)
         envs.reset(seed=0)

@@ -6,7 +6,9 @@ import gymnasium as gym
 import numpy as np
 
 from ciflow import connection
-from ciflow.spaces import box, construction_kwargs, from_wire, reset_options, to_wire
+from ciflow.spaces import (
+    box, construction_kwargs, from_wire, reset_options, seed_value, to_wire,
+)
 
 
 class CiflowEnv(gym.Env):
@@ -107,6 +109,7 @@ class CiflowEnv(gym.Env):
         return self._last_time
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        seed = None if seed is None else seed_value(seed)
         super().reset(seed=seed)
         observation, info = self._session.reset(
             seed, reset_options(self._reset_defaults, options)

@@ -36,6 +36,14 @@ def from_wire(data: bytes, dtype, shape=None) -> np.ndarray:
     return array.astype(dtype, copy=True)
 
 
+def seed_value(value) -> int:
+    """A seed as the engines take it: a whole number from 0 to 2⁶⁴ − 1."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
+            or not 0 <= int(value) < 2**64:
+        raise ValueError(f"a seed is a whole number from 0 to 2**64 - 1, not {value!r}")
+    return int(value)
+
+
 def reset_options(defaults: dict, options: dict | None) -> dict | None:
     """Reset options as the engine takes them: known fields as lists of floats,
     everything else in ``extra`` (task-specific numbers such as ``obstacles``)."""

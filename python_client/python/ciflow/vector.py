@@ -10,15 +10,9 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from ciflow import _native, connection
-from ciflow.spaces import box, construction_kwargs, from_wire, reset_options, to_wire
-
-
-def _seed(value) -> int:
-    """A seed as the engines take it: a whole number from 0 to 2⁶⁴ − 1."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
-            or not 0 <= int(value) < 2**64:
-        raise ValueError(f"a seed is a whole number from 0 to 2**64 - 1, not {value!r}")
-    return int(value)
+from ciflow.spaces import (
+    box, construction_kwargs, from_wire, reset_options, seed_value, to_wire,
+)
 
 
 class CiflowVectorEnv(gym.vector.VectorEnv):
@@ -102,11 +96,12 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
         Gymnasium's ``SyncVectorEnv``."""
         seeds = None
         if isinstance(seed, (list, tuple, np.ndarray)):
-            seeds = [None if s is None else _seed(s) for s in seed]
+            seeds = [None if s is None else seed_value(s) for s in seed]
             if len(seeds) != self.num_envs:
                 raise ValueError(f"{len(seeds)} seeds for {self.num_envs} environments")
             seed = None
         else:
+            seed = None if seed is None else seed_value(seed)
             super().reset(seed=seed)
         options = reset_options(self._reset_defaults, options)
         observations, info = _native.reset_batches(self._sessions, seed, options, seeds)
