@@ -30,6 +30,11 @@ fn two_obstacles(episodes: u64, seed: u64, credits: Credits) -> Recording {
     }
 }
 
+/// One expert episode of [`two_obstacles`] recorded at `out`.
+fn record_one_episode(out: &std::path::Path) {
+    record_expert_dataset(&two_obstacles(1, 0, Credits::default()), out, false, |_| {}).unwrap();
+}
+
 #[test]
 fn recorded_expert_episodes_read_back_identically() {
     let dir = scratch_dir("round-trip");
@@ -175,13 +180,7 @@ fn overwrite_replaces_only_a_dataset() {
 fn the_metadata_carry_the_environment_as_gymnasium_serializes_its_spec() {
     let dir = scratch_dir("env-spec");
     let out = dir.join("obstacles-v0");
-    record_expert_dataset(
-        &two_obstacles(1, 0, Credits::default()),
-        &out,
-        false,
-        |_| {},
-    )
-    .unwrap();
+    record_one_episode(&out);
     let text = std::fs::read_to_string(out.join("data/metadata.json")).unwrap();
     let metadata: serde_json::Value = serde_json::from_str(&text).unwrap();
     let env_spec: serde_json::Value =
@@ -289,13 +288,7 @@ fn a_lerobot_dataset_is_recognised_as_one() {
 fn an_empty_episode_file_is_named() {
     let dir = scratch_dir("empty-episode");
     let out = dir.join("set");
-    record_expert_dataset(
-        &two_obstacles(1, 0, Credits::default()),
-        &out,
-        false,
-        |_| {},
-    )
-    .unwrap();
+    record_one_episode(&out);
     std::fs::write(out.join("data").join("0").join("part-0.arrow"), b"").unwrap();
     let error = dataset::read(&out).unwrap_err().to_string();
     assert!(error.contains("the episode file is empty"), "{error}");
