@@ -1,6 +1,7 @@
 """Every task through ``gymnasium.make`` / ``gymnasium.make_vec`` against an engine in
 another process."""
 
+import subprocess
 import sys
 from pathlib import Path
 
@@ -160,6 +161,13 @@ def test_options_and_perturbations_cross_as_dicts_with_clear_errors(engine):
             assert never.value.code == "invalid_perturbation"
             assert "invalid perturbation: invalid perturbation" not in str(never.value)
         assert env.perturb_joint_torque(np.ones(2), duration=0.1, start=0.0) == env.sim_time
+        # A token that is not hexadecimal is named, from the API and the command line.
+        with pytest.raises(ValueError, match="not hexadecimal"):
+            ciflow.attach(env.session_id, "zz", engine=engine[0])
+        done = subprocess.run(
+            [sys.executable, "-m", "ciflow.perturb", "--session", env.session_id, "--token",
+             "zz", "--engine", engine[0]], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 2 and "not hexadecimal" in done.stderr, done.stderr
         # An engine without policies says how to give it one.
         with pytest.raises(ciflow.CiflowError, match="serves none .*--policy nobody="):
             env.run_policy("nobody")

@@ -188,8 +188,11 @@ def main(argv=None) -> int:
     if args.session:
         if not args.token:
             parser.error("--session needs --token")
-        control = ciflow.attach(args.session, args.token, args.engine, args.engine_name,
-                                args.zenoh_config)
+        try:
+            control = ciflow.attach(args.session, args.token, args.engine, args.engine_name,
+                                    args.zenoh_config)
+        except ValueError as error:
+            parser.error(str(error))
     elif args.task and args.policy:
         import gymnasium as gym
 

@@ -118,7 +118,16 @@ def attach(
     default endpoint); ``engine_name`` the engine's name (default: whichever engine holds
     the session); ``zenoh_config`` a Zenoh JSON5 file (e.g. to go through a router).
     """
-    token = bytes.fromhex(token) if isinstance(token, str) else bytes(token)
+    if isinstance(token, str):
+        try:
+            token = bytes.fromhex(token)
+        except ValueError:
+            raise ValueError(
+                f"token {token!r} is not hexadecimal: give the token_hex the session's "
+                "owner printed (env.unwrapped.token_hex)"
+            ) from None
+    else:
+        token = bytes(token)
     client = connection.client(engine or os.environ.get("CIFLOW_ENGINE") or None,
                                zenoh_config or os.environ.get("CIFLOW_ZENOH_CONFIG") or None)
     return Attached(client.attach(session, token, engine_name))
