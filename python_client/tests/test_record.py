@@ -121,6 +121,9 @@ def test_bad_input_is_rejected_before_anything_is_written(engine, tmp_path):
         record(TASK, 1, tmp_path / "a", kwargs={"obstacles": "many"}, **common)
     with pytest.raises(ValueError, match="nothing to do"):
         record(TASK, 1, None, **common)
+    with pytest.raises(ValueError, match="given as a construction argument"):
+        record(TASK, 1, tmp_path / "a", kwargs={"obstacles": 2}, options={"obstacles": 3},
+               **common)
     (tmp_path / "taken").mkdir()
     with pytest.raises(FileExistsError):
         record(TASK, 1, tmp_path / "taken", **common)

@@ -139,6 +139,13 @@ def record(
         _native.check_replaceable(str(out), overwrite)
     kwargs = construction_kwargs(task_id, kwargs or {})
     options = _task_numbers(task_id, options, "reset option")
+    # The metadata carry the construction arguments only (as `ciflow demos`'s recorder).
+    for key, value in options.items():
+        if key in kwargs and kwargs[key] != value:
+            raise ValueError(
+                f"`{key}` is given as a construction argument ({kwargs[key]}) and as a reset "
+                f"option ({value}): the dataset would be labelled with the first and hold "
+                "the second; give it once")
     dataset_id = dataset_id or f"ciflow/{name}-expert-v0"
 
     env = gym.make(task_id, engine=engine, zenoh_config=zenoh_config, **kwargs)
@@ -248,7 +255,8 @@ def main(argv=None) -> int:
             progress=not args.quiet,
             format=args.format,
         )
-    except (ValueError, TypeError, FileExistsError, _native.EngineUnreachable) as error:
+    except (ValueError, TypeError, FileExistsError, _native.EngineUnreachable,
+            _native.CiflowError) as error:
         print(f"ciflow.record: error: {error}", file=sys.stderr)
         return 2
     where = f"wrote {result.path}" if result.path else "wrote no dataset"
