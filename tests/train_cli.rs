@@ -242,7 +242,8 @@ fn train_refuses_an_arrival_share_outside_0_to_1() {
     for arrival in ["1.5", "-1", "NaN"] {
         let stderr = refused_training(
             &format!("train-cli-arrival{arrival}"),
-            &["--task", "limit-cycle", &format!("--arrival={arrival}")],
+            // Space-separated: a negative value is a value, not a flag.
+            &["--task", "limit-cycle", "--arrival", arrival],
         );
         assert!(
             stderr.contains(&format!("it must be in [0, 1], not {arrival}")),

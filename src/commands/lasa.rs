@@ -15,6 +15,9 @@ use ciflow_train::RecipeOverrides;
 use ciflow_train::trainer::check_config;
 
 #[derive(clap::Args, Debug)]
+// A negative setting (`--arrival -1`) reaches the check that explains it, instead of
+// being taken for a flag.
+#[command(allow_negative_numbers = true)]
 pub struct LasaArgs {
     /// Shapes to run, comma-separated (default: all 30).
     #[arg(long, value_delimiter = ',')]

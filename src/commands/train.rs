@@ -30,6 +30,9 @@ use crate::parse::parse_key_value;
 use crate::progress;
 
 #[derive(clap::Args, Debug)]
+// A negative setting (`--arrival -1`) reaches the check that explains it, instead of
+// being taken for a flag.
+#[command(allow_negative_numbers = true)]
 pub struct TrainArgs {
     /// Task (command-line name or Gymnasium id); recorded in the checkpoint, and the
     /// dataset must have been recorded on it (with --state: its training recipe only).
