@@ -13,7 +13,7 @@ use crate::error::{TrainError, TrainResult};
 
 /// Refuses settings the loop cannot run: no epoch, empty batches, a learning rate that
 /// is not a positive number.
-fn check(config: &OptimConfig) -> TrainResult<()> {
+pub(crate) fn check(config: &OptimConfig) -> TrainResult<()> {
     if config.epochs == 0
         || config.batch_size == 0
         || !(config.learning_rate > 0.0 && config.learning_rate.is_finite())

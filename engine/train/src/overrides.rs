@@ -13,11 +13,11 @@ use ciflow_engine::flow::{
 
 use crate::{Keep, OptimConfig, TrainConfig};
 
-/// Widest local features `--local-features` may ask for. Each coupling's `ψ` has a hidden
-/// layer twice as wide, so 1024 already means a 2048 × 1024 f64 layer (16 MB, 48 MB with
-/// Adam's moments) per coupling and set, against the set encoder's default summary of 32;
-/// 100 000 would need 160 GB for one such layer.
-pub const MAX_LOCAL_FEATURES: usize = 1024;
+/// Widest layer `--hidden` and `--local-features` may ask for. The recipes use 32 to 64;
+/// each coupling's `ψ` has a hidden layer twice as wide as its local features, so 1024
+/// already means a 2048 × 1024 f64 layer (16 MB, 48 MB with Adam's moments) per coupling
+/// and set, while 100 000 would need 160 GB for one such layer.
+pub const MAX_WIDTH: usize = 1024;
 
 /// A setting given that does not fit the recipe it would replace.
 #[derive(Debug, thiserror::Error)]
@@ -31,11 +31,8 @@ pub enum OverrideError {
     NoCentres { task: String },
     #[error("--joint-range: task `{task}` drives no robot whose limits it could respect")]
     NoJointRange { task: String },
-    #[error(
-        "--local-features {width}: at most {MAX_LOCAL_FEATURES} (each coupling's ψ has a hidden \
-         layer twice as wide)"
-    )]
-    TooManyLocalFeatures { width: usize },
+    #[error("{flag} {width}: at most {MAX_WIDTH} units per layer")]
+    TooWide { flag: &'static str, width: usize },
 }
 
 /// The coupling layers, by name.
@@ -197,6 +194,18 @@ impl RecipeOverrides {
             (Some(CouplingChoice::Affine), _) => CouplingKind::AFFINE,
             (None, affine) => affine,
         };
+        if let Some(width) = self
+            .hidden
+            .iter()
+            .flatten()
+            .copied()
+            .find(|&w| w > MAX_WIDTH)
+        {
+            return Err(OverrideError::TooWide {
+                flag: "--hidden",
+                width,
+            });
+        }
         let joint_range = match (self.joint_range, robot) {
             (Some(false), _) => None,
             (Some(true), Some(range)) => Some(range),
@@ -275,8 +284,11 @@ impl ContextOverrides {
         };
         let local = match self.local_features {
             Some(0) => None,
-            Some(width) if width > MAX_LOCAL_FEATURES => {
-                return Err(OverrideError::TooManyLocalFeatures { width });
+            Some(width) if width > MAX_WIDTH => {
+                return Err(OverrideError::TooWide {
+                    flag: "--local-features",
+                    width,
+                });
             }
             Some(width) => Some(LocalConfig {
                 hidden: vec![2 * width],
@@ -397,6 +409,23 @@ mod tests {
     }
 
     #[test]
+    fn hidden_widths_are_bounded() {
+        let hidden = |widths: Vec<usize>| RecipeOverrides {
+            hidden: Some(widths),
+            ..RecipeOverrides::default()
+        };
+        let widest = hidden(vec![MAX_WIDTH, 8]).apply(recipe(CouplingKind::AFFINE), None);
+        assert_eq!(widest.unwrap().hidden, [MAX_WIDTH, 8]);
+        assert!(matches!(
+            hidden(vec![8, 100_000]).apply(recipe(CouplingKind::AFFINE), None),
+            Err(OverrideError::TooWide {
+                flag: "--hidden",
+                width: 100_000
+            })
+        ));
+    }
+
+    #[test]
     fn joint_range_comes_from_the_robot_and_is_refused_without_one() {
         let range = JointRange {
             position_min: vec![-1.0; 2],
@@ -440,16 +469,19 @@ mod tests {
             local_features: Some(width),
             ..ContextOverrides::default()
         };
-        let widest = width(MAX_LOCAL_FEATURES)
+        let widest = width(MAX_WIDTH)
             .apply(recipe(CouplingKind::AFFINE))
             .unwrap();
         assert_eq!(
             widest.set_encoder.local.map(|local| local.width),
-            Some(MAX_LOCAL_FEATURES)
+            Some(MAX_WIDTH)
         );
         assert!(matches!(
             width(100_000).apply(recipe(CouplingKind::AFFINE)),
-            Err(OverrideError::TooManyLocalFeatures { width: 100_000 })
+            Err(OverrideError::TooWide {
+                flag: "--local-features",
+                width: 100_000
+            })
         ));
     }
 

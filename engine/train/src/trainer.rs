@@ -104,7 +104,6 @@ pub fn double_var_store() -> nn::VarStore {
 /// check them before it loads, trains or writes anything; [`flow_config`] checks them
 /// with what needs the data's dimensions (the context sets, say).
 pub fn check_config(train: &TrainConfig) -> TrainResult<()> {
-    let optim = &train.optim;
     let checks = [
         (train.horizon >= 1, "horizon must be >= 1".to_owned()),
         (
@@ -128,19 +127,13 @@ pub fn check_config(train: &TrainConfig) -> TrainResult<()> {
                 train.arrival
             ),
         ),
-        // `optimise` refuses these too, but only once the data is prepared.
-        (
-            optim.epochs >= 1
-                && optim.batch_size >= 1
-                && optim.learning_rate > 0.0
-                && optim.learning_rate.is_finite(),
-            "epochs, batch_size and learning_rate must be positive".to_owned(),
-        ),
     ];
-    match checks.into_iter().find(|(valid, _)| !valid) {
-        Some((_, problem)) => Err(TrainError::InvalidConfig(problem)),
-        None => check_threads(train.threads),
+    if let Some((_, problem)) = checks.into_iter().find(|(valid, _)| !valid) {
+        return Err(TrainError::InvalidConfig(problem));
     }
+    // The optimiser's own check, here before the data is prepared.
+    crate::optimise::check(&train.optim)?;
+    check_threads(train.threads)
 }
 
 /// Refuses a libtorch thread count outside `1..=MAX_THREADS`: `tch` panics on fewer
