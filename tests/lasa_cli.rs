@@ -182,6 +182,25 @@ fn lasa_refuses_bad_settings_before_writing_anything() {
     }
 }
 
+/// An ablation into a directory that holds an earlier ablation is refused before any
+/// training, and leaves it as it was.
+#[test]
+fn lasa_ablation_refuses_an_earlier_run_without_overwrite() {
+    let scratch = Scratch::new("lasa-ablation-again");
+    std::fs::write(scratch.join("ablation.md"), "earlier").unwrap();
+    let dir = scratch.dir().to_string_lossy().into_owned();
+    let output = ciflow(&["lasa", "--ablation", "--shapes", SHAPE, "--out", &dir]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !output.status.success() && stderr.contains("holds an earlier run's results"),
+        "{stderr}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(scratch.join("ablation.md")).unwrap(),
+        "earlier"
+    );
+}
+
 /// `--ablation` retrains the flow once per change to the recipe and the baseline once, on
 /// the shapes given, and reports every row with finite scores.
 #[test]

@@ -39,11 +39,11 @@ pub enum ExperimentError {
         source: FlowError,
     },
     #[error(
-        "{} holds an earlier run's results (lasa.md, lasa.csv, lasa.png, checkpoints/ or \
-         plots/): pass --overwrite to replace them, or choose another directory",
+        "{} holds an earlier run's results (one of {outputs}): pass --overwrite to replace \
+         them, or choose another directory",
         path.display()
     )]
-    EarlierRun { path: PathBuf },
+    EarlierRun { path: PathBuf, outputs: String },
     #[error("writing {}", path.display())]
     Write {
         path: PathBuf,

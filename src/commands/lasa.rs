@@ -26,7 +26,8 @@ pub struct LasaArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Replace an earlier run's results in --out (lasa.md, lasa.csv, lasa.png,
-    /// checkpoints/, plots/; other files stay), which a run otherwise refuses.
+    /// checkpoints/, plots/; with --ablation ablation.md, ablation.csv, checkpoints/;
+    /// other files stay), which a run otherwise refuses.
     #[arg(long)]
     pub overwrite: bool,
     /// Skip the PNG plots (they need Python with matplotlib).
@@ -73,7 +74,7 @@ pub fn run(args: LasaArgs) -> anyhow::Result<()> {
         ));
     };
     let table = match args.ablation {
-        true => ablation::run(&names, &config, &args.out, on_epoch)?,
+        true => ablation::run(&names, &config, &args.out, args.overwrite, on_epoch)?,
         false => benchmark::benchmark(&names, &config, &args.out, args.overwrite, on_epoch)?,
     };
     bar.finish_and_clear();

@@ -14,8 +14,8 @@ use ciflow_evaluation::lasa::{METRICS, Model, Scores, cell, mean};
 use ciflow_train::{DEFAULT_STATE_NOISE, Keep, OptimConfig, TrainConfig};
 
 use super::{
-    RunEpoch, Tally, create_dir, demonstrations, scored, settings, train_shape_baseline,
-    train_shape_flow, write,
+    RunEpoch, Tally, clear_earlier_run, create_dir, demonstrations, scored, settings,
+    train_shape_baseline, train_shape_flow, write,
 };
 use crate::error::ExperimentResult;
 
@@ -123,16 +123,22 @@ pub fn budget(shapes: usize, recipe: &TrainConfig) -> u64 {
     (shapes * (variants + OptimConfig::default().epochs)) as u64
 }
 
+/// What [`run`] writes into its directory.
+const RUN_OUTPUTS: [&str; 3] = ["ablation.md", "ablation.csv", "checkpoints"];
+
 /// Retrains the flow with each variant of `recipe` and the baseline once on the shapes
-/// `names` into `out`, telling `on_epoch` after every epoch; writes `ablation.md` and
+/// `names` into `out` (an earlier run's results there are replaced only when
+/// `overwrite`), telling `on_epoch` after every epoch; writes `ablation.md` and
 /// `ablation.csv` and returns the table.
 pub fn run(
     names: &[String],
     recipe: &TrainConfig,
     out: &Path,
+    overwrite: bool,
     mut on_epoch: impl FnMut(&RunEpoch),
 ) -> ExperimentResult<String> {
     let start = Instant::now();
+    clear_earlier_run(out, &RUN_OUTPUTS, overwrite)?;
     create_dir(out)?;
     let configs = variants(recipe);
     let mut tally = Tally {

@@ -307,11 +307,11 @@ fn settings(flow: &TrainConfig) -> String {
 /// What [`benchmark`] writes into its directory.
 const RUN_OUTPUTS: [&str; 5] = ["lasa.md", "lasa.csv", "lasa.png", "checkpoints", "plots"];
 
-/// Removes an earlier run's [`RUN_OUTPUTS`] from `out` when `overwrite`, and refuses them
+/// Removes an earlier run's `outputs` from `out` when `overwrite`, and refuses them
 /// otherwise: a run on other shapes would leave the earlier shapes' checkpoints and plots
 /// beside a table without them. Anything else in `out` stays.
-fn clear_earlier_run(out: &Path, overwrite: bool) -> ExperimentResult<()> {
-    let earlier: Vec<_> = RUN_OUTPUTS
+fn clear_earlier_run(out: &Path, outputs: &[&str], overwrite: bool) -> ExperimentResult<()> {
+    let earlier: Vec<_> = outputs
         .iter()
         .map(|name| out.join(name))
         .filter(|path| path.exists())
@@ -319,6 +319,7 @@ fn clear_earlier_run(out: &Path, overwrite: bool) -> ExperimentResult<()> {
     if !earlier.is_empty() && !overwrite {
         return Err(ExperimentError::EarlierRun {
             path: out.to_owned(),
+            outputs: outputs.join(", "),
         });
     }
     for path in earlier {
@@ -342,7 +343,7 @@ pub fn benchmark(
     mut on_epoch: impl FnMut(&RunEpoch),
 ) -> ExperimentResult<String> {
     let start = Instant::now();
-    clear_earlier_run(out, overwrite)?;
+    clear_earlier_run(out, &RUN_OUTPUTS, overwrite)?;
     create_dir(out)?;
     let mut tally = Tally {
         done: 0,
