@@ -19,8 +19,9 @@
 
 use std::path::Path;
 
+use ciflow_engine::flow::checkpoint::config::validate_context_sets;
 use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
-use ciflow_engine::flow::{CheckpointConfig, FlowConfig, Normalisation};
+use ciflow_engine::flow::{CheckpointConfig, FlowConfig};
 pub use ciflow_engine::training::{DEFAULT_STATE_NOISE, TrainConfig};
 use tch::{Device, Kind, Tensor, nn};
 
@@ -139,11 +140,12 @@ pub fn check_config(train: &TrainConfig) -> TrainResult<()> {
 /// Refuses a libtorch thread count outside `1..=MAX_THREADS`: `tch` panics on fewer
 /// than one and libtorch aborts on far too many.
 pub(crate) fn check_threads(threads: i32) -> TrainResult<()> {
-    match (1..=MAX_THREADS).contains(&threads) {
-        true => Ok(()),
-        false => Err(TrainError::InvalidConfig(format!(
+    if (1..=MAX_THREADS).contains(&threads) {
+        Ok(())
+    } else {
+        Err(TrainError::InvalidConfig(format!(
             "threads must be between 1 and {MAX_THREADS}, not {threads}"
-        ))),
+        )))
     }
 }
 
@@ -185,7 +187,13 @@ pub(crate) fn split(
 pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<FlowConfig> {
     check_config(train)?;
     let (d, m) = data.validate()?;
-    let mut config = FlowConfig {
+    // The statistics are pooled over the context sets and read through the joint range:
+    // both must fit the data first (a set reaching past the context would index out of it).
+    validate_context_sets(&train.context_sets, m)?;
+    if let Some(range) = &train.joint_range {
+        range.validate(d)?;
+    }
+    let config = FlowConfig {
         format: ciflow_engine::flow::checkpoint::config::FORMAT,
         task: train.task.clone(),
         task_kwargs: train.task_kwargs.clone(),
@@ -202,14 +210,9 @@ pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<Fl
         set_encoder: (!train.context_sets.is_empty()).then(|| train.set_encoder.clone()),
         contractions: train.contractions,
         joint_range: train.joint_range.clone(),
-        normalisation: Normalisation::identity(d, m),
+        normalisation: data.normalisation(&train.context_sets, train.joint_range.as_ref()),
         bounds: data.bounds(),
     };
-    // The context sets and the joint range are checked against the data's dimensions
-    // before the statistics are pooled over them: a set reaching past the context would
-    // index out of it.
-    config.validate()?;
-    config.normalisation = data.normalisation(&train.context_sets, train.joint_range.as_ref());
     config.validate()?;
     Ok(config)
 }

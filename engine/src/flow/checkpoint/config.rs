@@ -459,7 +459,7 @@ impl FlowConfig {
 
 /// Sets need elements of at least one entry, must lie inside a context of dimension `m`
 /// and must not overlap.
-fn validate_context_sets(sets: &[ContextSet], m: usize) -> FlowResult<()> {
+pub fn validate_context_sets(sets: &[ContextSet], m: usize) -> FlowResult<()> {
     let mut sorted = sets.to_vec();
     sorted.sort_by_key(|s| s.start);
     for (i, set) in sorted.iter().enumerate() {
