@@ -108,6 +108,27 @@ pub enum RecordingError {
     },
 }
 
+/// Refuses reset `options` that change what a construction argument of the same name in
+/// `kwargs` chose (LASA's and obstacle avoidance's options share their arguments' names):
+/// a dataset's metadata carry the construction arguments only, so its episodes would hold
+/// one thing and be labelled with another. Every recorder checks this.
+pub fn check_options_keep_kwargs(
+    kwargs: &Kwargs,
+    options: &std::collections::BTreeMap<String, f64>,
+) -> Result<(), RecordingError> {
+    match options.iter().find_map(|(key, option)| {
+        let kwarg = kwargs.get(key)?;
+        (*kwarg != Kwarg::Number(*option)).then_some((key, *option, kwarg))
+    }) {
+        Some((key, option, kwarg)) => Err(RecordingError::Conflict {
+            key: key.clone(),
+            kwarg: kwarg.to_string(),
+            option,
+        }),
+        None => Ok(()),
+    }
+}
+
 /// Records expert episodes into a dataset at `out`, atomically, in `recording.format`;
 /// `on_episode` is called after each episode (for progress bars). Returns the dataset's
 /// description.
@@ -122,19 +143,7 @@ pub fn record_expert_dataset(
     if episodes == 0 || seed.checked_add(episodes - 1).is_none() {
         return Err(RecordingError::Seeds { episodes, seed });
     }
-    // The metadata carry the construction arguments only, so a reset option must not
-    // change what one of them chose (LASA's and obstacle avoidance's options share their
-    // arguments' names).
-    if let Some((key, &option, kwarg)) = recording.options.iter().find_map(|(key, option)| {
-        let kwarg = recording.kwargs.get(key)?;
-        (*kwarg != Kwarg::Number(*option)).then_some((key, option, kwarg))
-    }) {
-        return Err(RecordingError::Conflict {
-            key: key.clone(),
-            kwarg: kwarg.to_string(),
-            option,
-        });
-    }
+    check_options_keep_kwargs(&recording.kwargs, &recording.options)?;
     let entry = crate::registry::entry(&recording.task)?;
     let mut env = (entry.make_with)(&recording.kwargs)?;
     let dataset_id = recording

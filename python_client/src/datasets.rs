@@ -360,6 +360,17 @@ pub fn record_expert(
 
 /// The number `text` stands for as reset option `key` of `task` (a number, or a name the
 /// task gives its values, e.g. LASA's `shape=Sshape`).
+/// Refuses reset `options` that contradict the construction arguments `kwargs` of the
+/// same name ([`ciflow_envs::rollout::check_options_keep_kwargs`]).
+#[pyfunction]
+pub fn check_options_keep_kwargs(
+    kwargs: BTreeMap<String, PyKwarg>,
+    options: BTreeMap<String, f64>,
+) -> PyResult<()> {
+    ciflow_envs::rollout::check_options_keep_kwargs(&kwargs_from_py(Some(kwargs)), &options)
+        .map_err(|e| PyValueError::new_err(full_message(&e)))
+}
+
 /// Refuses to replace `path` unless it is a dataset (or an empty directory) and
 /// `overwrite` is set ([`dataset::check_replaceable`]).
 #[pyfunction]

@@ -648,6 +648,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(datasets::record_expert, m)?)?;
     m.add_function(wrap_pyfunction!(datasets::task_value, m)?)?;
     m.add_function(wrap_pyfunction!(datasets::check_replaceable, m)?)?;
+    m.add_function(wrap_pyfunction!(datasets::check_options_keep_kwargs, m)?)?;
     m.add_function(wrap_pyfunction!(datasets::task_argument, m)?)?;
     m.add("CiflowError", m.py().get_type::<CiflowError>())?;
     m.add("EngineUnreachable", m.py().get_type::<EngineUnreachable>())?;

@@ -139,13 +139,7 @@ def record(
         _native.check_replaceable(str(out), overwrite)
     kwargs = construction_kwargs(task_id, kwargs or {})
     options = _task_numbers(task_id, options, "reset option")
-    # The metadata carry the construction arguments only (as `ciflow demos`'s recorder).
-    for key, value in options.items():
-        if key in kwargs and kwargs[key] != value:
-            raise ValueError(
-                f"`{key}` is given as a construction argument ({kwargs[key]}) and as a reset "
-                f"option ({value}): the dataset would be labelled with the first and hold "
-                "the second; give it once")
+    _native.check_options_keep_kwargs(kwargs, options)
     dataset_id = dataset_id or f"ciflow/{name}-expert-v0"
 
     env = gym.make(task_id, engine=engine, zenoh_config=zenoh_config, **kwargs)
