@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{Scratch, ciflow, succeed};
+use common::{Scratch, ciflow, refused, succeed};
 
 const SHAPE: &str = "Angle";
 /// Half the recipe's 30 epochs, to keep the test near 10 s.
@@ -57,12 +57,7 @@ fn lasa_trained_flow_beats_its_untrained_self_and_nears_the_baseline() {
     // A second run into the same directory replaces the first only when asked, and only
     // the run's own outputs.
     let csv_before = std::fs::read(untrained.join("lasa.csv")).unwrap();
-    let again = ciflow(&untrained_run);
-    let stderr = String::from_utf8_lossy(&again.stderr);
-    assert!(
-        !again.status.success() && stderr.contains("holds an earlier run's results"),
-        "{stderr}"
-    );
+    refused(&untrained_run, "holds an earlier run's results");
     assert_eq!(
         std::fs::read(untrained.join("lasa.csv")).unwrap(),
         csv_before
@@ -189,11 +184,9 @@ fn lasa_ablation_refuses_an_earlier_run_without_overwrite() {
     let scratch = Scratch::new("lasa-ablation-again");
     std::fs::write(scratch.join("ablation.md"), "earlier").unwrap();
     let dir = scratch.dir().to_string_lossy().into_owned();
-    let output = ciflow(&["lasa", "--ablation", "--shapes", SHAPE, "--out", &dir]);
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(
-        !output.status.success() && stderr.contains("holds an earlier run's results"),
-        "{stderr}"
+    refused(
+        &["lasa", "--ablation", "--shapes", SHAPE, "--out", &dir],
+        "holds an earlier run's results",
     );
     assert_eq!(
         std::fs::read_to_string(scratch.join("ablation.md")).unwrap(),

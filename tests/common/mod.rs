@@ -35,6 +35,18 @@ pub fn succeed(args: &[&str]) -> Output {
     output
 }
 
+/// Runs `ciflow <args>` and asserts that it fails with `message` in its stderr; returns
+/// the stderr.
+pub fn refused(args: &[&str], message: &str) -> String {
+    let output = ciflow(args);
+    let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
+    assert!(
+        !output.status.success() && stderr.contains(message),
+        "ciflow {args:?} should fail with `{message}`: {stderr}"
+    );
+    stderr
+}
+
 /// A fresh, empty directory under the system's temporary directory, removed on drop.
 /// The process id in its name keeps concurrent test runs apart.
 pub struct Scratch(PathBuf);
