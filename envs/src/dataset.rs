@@ -87,6 +87,12 @@ pub enum DatasetError {
          it, nor an empty directory): refusing to replace it"
     )]
     NotADataset(PathBuf),
+    #[error(
+        "dataset id `{0}` is not one Minari opens: ids are `namespace/name-vN` or \
+         `name-vN` (letters, digits, `_`, `-`; the namespace of at least two characters, \
+         `/` inside it allowed), e.g. `ciflow/limit-cycle-expert-v0`"
+    )]
+    InvalidId(String),
     #[error("writing the LeRobot dataset {path}")]
     Lerobot {
         path: PathBuf,
@@ -149,6 +155,35 @@ pub fn check_replaceable(path: &Path, overwrite: bool) -> Result<()> {
         Ok(())
     } else {
         Err(DatasetError::NotADataset(path.to_path_buf()))
+    }
+}
+
+/// Checks that Minari accepts `id` as a dataset id: `(namespace/)name-vN` as
+/// `minari.dataset.minari_dataset.parse_dataset_id` (0.5) parses it, which `MinariDataset`
+/// calls on opening. Its pattern takes `name` and `namespace` as runs of word characters
+/// and `-` (the namespace also `/`, but neither first nor last, and at least two
+/// characters) and makes the version optional, but a missing version then fails converting
+/// to a number, so it is required here.
+pub fn check_dataset_id(id: &str) -> Result<()> {
+    let word = |c: char| c.is_alphanumeric() || c == '_' || c == '-';
+    let valid = id.rsplit_once("-v").is_some_and(|(rest, version)| {
+        let version_ok = !version.is_empty() && version.bytes().all(|b| b.is_ascii_digit());
+        let (namespace, name) = match rest.rsplit_once('/') {
+            Some((namespace, name)) => (Some(namespace), name),
+            None => (None, rest),
+        };
+        let namespace_ok = namespace.is_none_or(|n| {
+            n.chars().count() >= 2
+                && !n.starts_with('/')
+                && !n.ends_with('/')
+                && n.chars().all(|c| word(c) || c == '/')
+        });
+        version_ok && namespace_ok && !name.is_empty() && name.chars().all(word)
+    });
+    if valid {
+        Ok(())
+    } else {
+        Err(DatasetError::InvalidId(id.to_owned()))
     }
 }
 
@@ -333,6 +368,7 @@ impl DatasetWriter {
     /// Starts a dataset at `dir` described by `spec`; a description naming the environment
     /// is filled in when `spec` has none (see [`DatasetWriter::spec`]).
     pub fn create(dir: &Path, mut spec: DatasetSpec, overwrite: bool) -> Result<Self> {
+        check_dataset_id(&spec.dataset_id)?;
         if spec.credits.description.is_none() {
             spec.credits.description = Some(default_description(&spec));
         }

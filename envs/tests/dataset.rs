@@ -294,3 +294,51 @@ fn an_empty_episode_file_is_named() {
     assert!(error.contains("the episode file is empty"), "{error}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// Ids Minari 0.5 opens and ids it refuses (`parse_dataset_id`); the Python tests check
+/// the same refusals against Minari itself (`test_record.py`).
+#[test]
+fn dataset_ids_minari_cannot_open_are_refused_before_recording() {
+    for id in [
+        "ciflow/limit-cycle-expert-v0",
+        "x-v0",
+        "a/b/c-v12",
+        "ab/x--v1",
+        "é_1-v3",
+    ] {
+        dataset::check_dataset_id(id).unwrap_or_else(|e| panic!("{id}: {e}"));
+    }
+    for id in [
+        "",
+        "foo",
+        "foo-v",
+        "foo-vx",
+        "-v1",
+        "a/x-v0",
+        "/ab/x-v1",
+        "ab/-v1",
+        "ab//-v1",
+        "ns/x y-v1",
+        "x-v1.2",
+    ] {
+        let refused = dataset::check_dataset_id(id).unwrap_err();
+        assert!(
+            matches!(refused, DatasetError::InvalidId(_)),
+            "{id}: {refused}"
+        );
+    }
+    let dir = scratch_dir("dataset-id");
+    let out = dir.join("demos");
+    let recording = Recording {
+        dataset_id: Some("limit cycle".into()),
+        ..two_obstacles(1, 0, Credits::default())
+    };
+    let refused = record_expert_dataset(&recording, &out, false, |_| {}).unwrap_err();
+    assert!(refused.to_string().contains("`limit cycle`"), "{refused}");
+    assert_eq!(
+        std::fs::read_dir(&dir).unwrap().count(),
+        0,
+        "nothing written"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}

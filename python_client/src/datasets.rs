@@ -72,6 +72,7 @@ impl PyDatasetSpec {
         algorithm_name: &str,
         kwargs: Option<BTreeMap<String, PyKwarg>>,
     ) -> PyResult<Self> {
+        dataset::check_dataset_id(dataset_id).map_err(dataset_error)?;
         let kwargs = kwargs_from_py(kwargs);
         let id: String = env_spec
             .get_item("id")?

@@ -124,6 +124,8 @@ def test_bad_input_is_rejected_before_anything_is_written(engine, tmp_path):
     with pytest.raises(ValueError, match="given as a construction argument"):
         record(TASK, 1, tmp_path / "a", kwargs={"obstacles": 2}, options={"obstacles": 3},
                **common)
+    with pytest.raises(ValueError, match="not one Minari opens"):
+        record(TASK, 1, tmp_path / "a", dataset_id="", **common)
     (tmp_path / "taken").mkdir()
     with pytest.raises(FileExistsError):
         record(TASK, 1, tmp_path / "taken", **common)
@@ -133,6 +135,31 @@ def test_bad_input_is_rejected_before_anything_is_written(engine, tmp_path):
         record(TASK, 1, tmp_path / "taken", overwrite=True, **common)
     assert (tmp_path / "taken" / "notes.txt").read_text() == "keep me"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["taken"]
+
+
+def test_dataset_ids_are_refused_exactly_where_minari_refuses_them():
+    """A dataset whose id Minari cannot parse would be written and then fail to open."""
+    from minari.dataset.minari_dataset import parse_dataset_id
+
+    space = {"low": [-1.0], "high": [1.0], "dtype": "float64"}
+    env_spec = {"id": TASK, "control_dt": 0.01, "observation_space": space,
+                "action_space": space, "context_space": space}
+    ids = ["ciflow/limit-cycle-expert-v0", "x-v0", "a/b/c-v12", "ab/x--v1", "é_1-v3", "",
+           "foo", "foo-v", "-v1", "a/x-v0", "/ab/x-v1", "ab/-v1", "ns/x y-v1", "x-v1.2",
+           "ab//x-v2", "x-v0-v1"]
+    for dataset_id in ids:
+        try:
+            parse_dataset_id(dataset_id)
+            minari_opens = True
+        except (ValueError, TypeError):  # TypeError: an id without a version
+            minari_opens = False
+        try:
+            _native.DatasetSpec(env_spec, dataset_id)
+            accepted = True
+        except ValueError as error:
+            assert "not one Minari opens" in str(error)
+            accepted = False
+        assert accepted == minari_opens, dataset_id
 
 
 def test_command_line_records_a_dataset_and_reports_errors(engine, tmp_path):

@@ -140,7 +140,8 @@ def record(
     kwargs = construction_kwargs(task_id, kwargs or {})
     options = _task_numbers(task_id, options, "reset option")
     _native.check_options_keep_kwargs(kwargs, options)
-    dataset_id = dataset_id or f"ciflow/{name}-expert-v0"
+    if dataset_id is None:
+        dataset_id = f"ciflow/{name}-expert-v0"
 
     env = gym.make(task_id, engine=engine, zenoh_config=zenoh_config, **kwargs)
     try:
