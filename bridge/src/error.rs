@@ -207,7 +207,24 @@ fn readable_zenoh_message(text: &str) -> String {
         }
     }
     readable.push_str(rest);
-    readable
+    without_single_wrappers(readable.trim_end())
+}
+
+/// `text` with Zenoh's debug form of one endpoint, `Single(<endpoint>)` (as in "Unable to
+/// connect to any of [Single(tcp/…)]!"), shown as the endpoint alone.
+fn without_single_wrappers(text: &str) -> String {
+    const SINGLE: &str = "Single(";
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(at) = rest.find(SINGLE) {
+        let inner = &rest[at + SINGLE.len()..];
+        let Some(end) = inner.find(')') else { break };
+        out.push_str(&rest[..at]);
+        out.push_str(&inner[..end]);
+        rest = &inner[end + 1..];
+    }
+    out.push_str(rest);
+    out
 }
 
 #[cfg(test)]
@@ -268,6 +285,13 @@ mod tests {
         assert_eq!(
             readable_zenoh_message("refused at /z/link.rs:7. Retry at noon, at 12.rs:x"),
             "refused Retry at noon, at 12.rs:x"
+        );
+        assert_eq!(
+            readable_zenoh_message(
+                "Unable to connect to any of [Single(tcp/127.0.0.1:1), Single(tcp/[::1]:2)]! \
+                 at /z/orchestrator.rs:447."
+            ),
+            "Unable to connect to any of [tcp/127.0.0.1:1, tcp/[::1]:2]!"
         );
     }
 

@@ -84,8 +84,11 @@ def resolve(
         try:
             client = _client(connect, zenoh_config)
         except _native.EngineUnreachable as error:
+            # An engine's name is looked for through the default endpoint.
+            where = connect or zenoh_config or default_endpoint()
+            looking_for = f" (looking for engine {engine!r})" if engine and not connect else ""
             raise _native.EngineUnreachable(
-                f"no ciflow engine reachable at {engine or zenoh_config}: {error}. {_HOW_TO_START}"
+                f"no ciflow engine reachable at {where}{looking_for}: {error}. {_HOW_TO_START}"
             ) from None
         if engine and not connect:
             client.engine_info(engine)  # raises EngineUnreachable if it does not answer

@@ -7,7 +7,7 @@ import numpy as np
 
 from ciflow import connection
 from ciflow.spaces import (
-    box, construction_kwargs, from_wire, reset_options, seed_value, to_wire,
+    actions_to_wire, box, construction_kwargs, from_wire, reset_options, seed_value,
 )
 
 
@@ -119,7 +119,7 @@ class CiflowEnv(gym.Env):
 
     def step(self, action):
         observation, reward, terminated, truncated, info, time = self._session.step(
-            to_wire(action)
+            actions_to_wire(action, self.action_space.shape, "the action dimension")
         )
         self._last_time = time
         info = dict(info)

@@ -29,6 +29,17 @@ def to_wire(values) -> bytes:
     return array.tobytes()
 
 
+def actions_to_wire(actions, shape: tuple, layout: str) -> bytes:
+    """``actions`` as :func:`to_wire` bytes, refused unless of exactly ``shape`` (as
+    ``Box.contains`` would): a reshape would pair numbers with the wrong environment or
+    joint. ``layout`` says what the shape holds, for the message."""
+    array = np.asarray(actions, dtype="<f8")
+    if array.shape != shape:
+        raise ValueError(f"actions of shape {array.shape}; this environment takes {shape} "
+                         f"({layout})")
+    return to_wire(array)
+
+
 def from_wire(data: bytes, dtype, shape=None) -> np.ndarray:
     array = np.frombuffer(data, dtype="<f8")
     if shape is not None:

@@ -11,7 +11,7 @@ from gymnasium.vector.utils import batch_space
 
 from ciflow import _native, connection
 from ciflow.spaces import (
-    box, construction_kwargs, from_wire, reset_options, seed_value, to_wire,
+    actions_to_wire, box, construction_kwargs, from_wire, reset_options, seed_value,
 )
 
 
@@ -108,12 +108,10 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
         return self._observations(observations), self._info(info)
 
     def step(self, actions):
-        actions = np.asarray(actions, dtype="<f8")
-        if actions.shape != self.action_space.shape:
-            raise ValueError(f"actions of shape {actions.shape}; this vector environment takes "
-                             f"{self.action_space.shape} (num_envs, action dimension)")
+        actions = actions_to_wire(actions, self.action_space.shape,
+                                  "num_envs, action dimension")
         observations, rewards, terminated, truncated, info = _native.step_batches(
-            self._sessions, to_wire(actions))
+            self._sessions, actions)
         return (
             self._observations(observations),
             np.frombuffer(rewards, dtype="<f8").copy(),
