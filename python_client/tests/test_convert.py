@@ -129,6 +129,9 @@ def test_a_dataset_written_by_lerobot_converts_exactly(tmp_path):
     out = convert(LEROBOT_FIXTURE, tmp_path / "out", "observation.state[0:2]", "observation.goal")
     spec, episodes = _native.read_dataset(str(out))
     assert spec["control_dt"] == 1 / 20
+    # The directory's name becomes an id Minari opens (the bare name is not one).
+    assert spec["dataset_id"] == f"lerobot/{LEROBOT_FIXTURE.name}-v0"
+    assert minari.MinariDataset(str(out / "data")).total_episodes == 3
     table = pq.read_table(LEROBOT_FIXTURE / "data" / "chunk-000" / "file-000.parquet")
     frames = table.to_pydict()
     assert len(episodes) == len(set(frames["episode_index"])) == 3

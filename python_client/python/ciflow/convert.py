@@ -229,10 +229,18 @@ def _lerobot(root: Path) -> Source:
 
     fps = info.get("fps")
     return Source(
-        kind=f"LeRobot {version}", dataset_id=root.name,
+        kind=f"LeRobot {version}", dataset_id=_minari_id(root.name),
         env_id=info.get("robot_type") or "unknown", algorithm_name="unknown",
         dt=1.0 / fps if fps else None, episodes=episodes,
     )
+
+
+def _minari_id(name: str) -> str:
+    """The Minari id of a LeRobot dataset's directory `name`: ``lerobot/<name>-v0`` (its
+    version kept if it ends in one), characters an id cannot hold as ``_``. The directory
+    name alone (``pusht``) is not an id Minari opens."""
+    clean = re.sub(r"[^\w-]", "_", name).strip("-") or "dataset"
+    return f"lerobot/{clean}" if re.search(r".-v\d+$", clean) else f"lerobot/{clean}-v0"
 
 
 def _concat(pq, files):
