@@ -8,7 +8,9 @@ mod common;
 
 use std::time::Duration;
 
-use common::{Scratch, ciflow, endpoint, line_with, small_obstacle_policy, spawn_ciflow, succeed};
+use common::{
+    Scratch, ciflow, endpoint, line_with, refused, small_obstacle_policy, spawn_ciflow, succeed,
+};
 use serde_json::Value;
 
 const PORT: u16 = 17_931;
@@ -134,6 +136,25 @@ fn episodes_spread_over_engines_give_the_in_process_report() {
         assert!(stderr.contains(&format!("engine `{engine}`")), "{stderr}");
     };
     fails_naming("spread-a,nowhere", "nowhere");
+    // Lists that could only be misread: each is refused before any work.
+    for (engines, message) in [
+        ("spread-a,spread-a", "engine `spread-a` is named twice"),
+        ("spread-a,", "engine name `` must be letters"),
+        ("*,spread-a", "`*` (every engine) and engine names together"),
+    ] {
+        refused(
+            &[
+                "evaluate",
+                "--checkpoint",
+                &policy,
+                "--engines",
+                engines,
+                "--connect",
+                &router,
+            ],
+            message,
+        );
+    }
     let (mut gone, _) = engines.pop().expect("two engines");
     gone.0.kill().expect("kill an engine");
     gone.0.wait().expect("the engine exits");

@@ -168,6 +168,7 @@ impl Client {
 
     /// Tasks and policies of one engine.
     pub fn engine_info(&self, engine: &str) -> Result<EngineInfo, BridgeError> {
+        check_name("engine name", engine)?;
         let reply: TasksReply = self.call(
             &keys::tasks(engine),
             &TasksRequest {

@@ -52,6 +52,21 @@ pub fn resolve_engines(
     task: &str,
 ) -> Result<Vec<String>, BridgeError> {
     let serves = |info: &EngineInfo| info.tasks.iter().any(|t| t.is_named(task));
+    if wanted.len() > 1 && wanted.iter().any(|w| w == "*") {
+        return Err(BridgeError::InvalidArgument(format!(
+            "`*` (every engine) and engine names together: {}",
+            wanted.join(",")
+        )));
+    }
+    if let Some(twice) = wanted
+        .iter()
+        .enumerate()
+        .find_map(|(i, w)| wanted[..i].contains(w).then_some(w))
+    {
+        return Err(BridgeError::InvalidArgument(format!(
+            "engine `{twice}` is named twice"
+        )));
+    }
     if wanted.iter().any(|w| w == "*") {
         let engines: Vec<String> = client
             .discover()?
@@ -77,9 +92,7 @@ pub fn resolve_engines(
                 BridgeError::InvalidArgument(format!("it does not serve {task}")),
             ));
         }
-        if !engines.contains(engine) {
-            engines.push(engine.clone());
-        }
+        engines.push(engine.clone());
     }
     if engines.is_empty() {
         return Err(BridgeError::InvalidArgument("no engine named".into()));
