@@ -154,12 +154,18 @@ fn bad_arguments_are_typed_errors() {
     invalid(&[("urdf", "/nonexistent/arm.urdf")], "urdf");
     invalid(&[("urdf", "<robot")], "urdf");
     invalid(&[("tool", "tool0")], "tool");
-    invalid(&[("urdf", UR5E), ("tool", "nowhere")], "urdf");
+    // Each error names the argument at fault, not the URDF it was applied to.
+    invalid(&[("urdf", UR5E), ("tool", "nowhere")], "tool");
     invalid(&[("urdf", UR5E), ("home", "0,0")], "home");
     invalid(&[("urdf", UR5E), ("home", "0,0,0,0,0,x")], "home");
     invalid(&[("urdf", UR5E), ("home", "0,-9,0,0,0,0")], "home");
-    invalid(&[("urdf", UR5E), ("armature", "0.1")], "urdf");
+    invalid(&[("urdf", UR5E), ("armature", "0.1")], "armature");
+    invalid(&[("urdf", UR5E), ("armature", "-1,0,0,0,0,0")], "armature");
     invalid(&[("urdf", UR5E), ("lock_joints", "=1")], "lock_joints");
+    invalid(
+        &[("urdf", UR5E), ("lock_joints", "no_such_joint")],
+        "lock_joints",
+    );
     invalid(&[("colour", "red")], "colour");
     // No joint left to move: none in the URDF, or all of them locked.
     invalid(

@@ -22,5 +22,5 @@ pub use error::ModelError;
 pub use frame::Frame;
 pub use joint::{Joint, JointKind};
 pub use limits::JointLimits;
-pub use model::{Body, Model};
+pub use model::{ARMATURE, Body, Model};
 pub use urdf::LockedJoint;

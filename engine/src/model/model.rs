@@ -6,6 +6,9 @@ use crate::spatial::{AxisAlignedRotation, Inertia, Se3};
 
 /// Standard gravity along `−z` of the base frame (Pinocchio's default), m/s².
 pub const STANDARD_GRAVITY: Real = 9.81;
+/// The name errors about the armature give it ([`ModelError::Dimension`],
+/// [`ModelError::InvalidLimits`]).
+pub const ARMATURE: &str = "armature";
 
 /// One movable body: the joint that moves it and its spatial inertia in its own frame.
 #[derive(Clone, Debug, PartialEq)]
@@ -132,17 +135,18 @@ impl Model {
         &self.armature
     }
 
+    /// Sets [`armature`](Self::armature); errors name it [`ARMATURE`].
     pub fn set_armature(&mut self, armature: DVector) -> Result<(), ModelError> {
         if armature.len() != self.nv() {
             return Err(ModelError::Dimension {
-                what: "armature",
+                what: ARMATURE,
                 expected: self.nv(),
                 actual: armature.len(),
             });
         }
         if let Some(joint) = armature.iter().position(|a| !(a.is_finite() && *a >= 0.0)) {
             return Err(ModelError::InvalidLimits {
-                what: "armature",
+                what: ARMATURE,
                 joint,
                 reason: "must be finite and >= 0",
             });

@@ -58,7 +58,7 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, LazyLock, Mutex};
 
 use ciflow_engine::math::{DVector, Vector3};
-use ciflow_engine::model::LockedJoint;
+use ciflow_engine::model::{ARMATURE, LockedJoint, ModelError};
 use ciflow_engine::robot::{DynamicsError, PANDA_HOME, Robot, SerialChain, UrdfOptions, panda};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -136,6 +136,21 @@ fn numbers(name: &str, text: &str) -> Result<Vec<f64>, EnvError> {
 }
 
 /// The arm the arguments describe (see the module docs).
+/// The argument a URDF arm's construction failed on: the tool, the locked joints, the
+/// armature, or else the document itself.
+fn argument_at_fault(error: &ModelError) -> &'static str {
+    match error {
+        ModelError::NoSuchFrame(_) => TOOL_ARGUMENT,
+        ModelError::Lock { .. } => LOCK_ARGUMENT,
+        ModelError::InvalidLimits { what, .. } | ModelError::Dimension { what, .. }
+            if *what == ARMATURE =>
+        {
+            ARMATURE_ARGUMENT
+        }
+        _ => URDF_ARGUMENT,
+    }
+}
+
 pub fn arm(kwargs: &Kwargs) -> Result<Arm, EnvError> {
     let keys: Vec<_> = TEXT_ARGUMENTS.iter().map(|a| a.key).collect();
     reject_unknown_options(kwargs, &keys)?;
@@ -178,7 +193,7 @@ pub fn arm(kwargs: &Kwargs) -> Result<Arm, EnvError> {
             };
             let chain =
                 SerialChain::from_urdf(urdf, &options).map_err(|e| EnvError::InvalidOption {
-                    name: URDF_ARGUMENT.into(),
+                    name: argument_at_fault(&e).into(),
                     detail: e.to_string(),
                 })?;
             if chain.dof() == 0 {
