@@ -159,6 +159,7 @@ fn bad_arguments_are_typed_errors() {
     invalid(&[("urdf", UR5E), ("home", "0,0")], "home");
     invalid(&[("urdf", UR5E), ("home", "0,0,0,0,0,x")], "home");
     invalid(&[("urdf", UR5E), ("home", "0,-9,0,0,0,0")], "home");
+    invalid(&[("urdf", UR5E), ("home", "0,nan,0,0,0,0")], "home");
     invalid(&[("urdf", UR5E), ("armature", "0.1")], "armature");
     invalid(&[("urdf", UR5E), ("armature", "-1,0,0,0,0,0")], "armature");
     invalid(&[("urdf", UR5E), ("lock_joints", "=1")], "lock_joints");

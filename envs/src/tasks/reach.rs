@@ -124,18 +124,23 @@ pub struct Arm {
     pub home: Vec<f64>,
 }
 
-/// A comma-separated list of numbers given as argument `name`.
+/// A comma-separated list of finite numbers given as argument `name`.
 fn numbers(name: &str, text: &str) -> Result<Vec<f64>, EnvError> {
-    text.split(',')
+    let invalid = |why: String| EnvError::InvalidOption {
+        name: name.into(),
+        detail: format!("`{text}`: {why}; comma-separated finite numbers are needed"),
+    };
+    let values = text
+        .split(',')
         .map(|v| v.trim().parse::<f64>())
         .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| EnvError::InvalidOption {
-            name: name.into(),
-            detail: format!("`{text}`: {e}; comma-separated numbers are needed"),
-        })
+        .map_err(|e| invalid(e.to_string()))?;
+    match values.iter().position(|v| !v.is_finite()) {
+        Some(i) => Err(invalid(format!("value {i} is {}", values[i]))),
+        None => Ok(values),
+    }
 }
 
-/// The arm the arguments describe (see the module docs).
 /// The argument a URDF arm's construction failed on: the tool, the locked joints, the
 /// armature, or else the document itself.
 fn argument_at_fault(error: &ModelError) -> &'static str {
@@ -151,6 +156,7 @@ fn argument_at_fault(error: &ModelError) -> &'static str {
     }
 }
 
+/// The arm the arguments describe (see the module docs).
 pub fn arm(kwargs: &Kwargs) -> Result<Arm, EnvError> {
     let keys: Vec<_> = TEXT_ARGUMENTS.iter().map(|a| a.key).collect();
     reject_unknown_options(kwargs, &keys)?;
@@ -234,7 +240,10 @@ pub fn arm(kwargs: &Kwargs) -> Result<Arm, EnvError> {
     {
         return Err(EnvError::InvalidOption {
             name: HOME_ARGUMENT.into(),
-            detail: format!("joint {i} = {} is outside its limits", home[i]),
+            detail: format!(
+                "joint {i} = {} is outside its limits [{}, {}]",
+                home[i], limits.q_min[i], limits.q_max[i]
+            ),
         });
     }
     Ok(Arm { robot, home })
