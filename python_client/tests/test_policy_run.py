@@ -199,3 +199,32 @@ def test_the_1khz_control_loop_example_calls_a_served_policy(policy_engine):
     missed, periods = (int(x) for x in line.split("missed ")[1].split(" deadlines")[0].split(" of "))
     # 500 periods of 1 ms: each was either answered in time or missed.
     assert periods == 500 and 0 < calls <= periods and missed <= periods
+
+
+def test_the_perturb_script_runs_exactly_its_duration_and_refuses_what_would_never_act(
+        policy_engine, tmp_path):
+    """At speed 0 the run outpaces its telemetry: the engine itself stops it after
+    --duration (before, the run went on to the episode's end). Pushes or context changes
+    past the end, and engine refusals, are errors without a traceback."""
+    endpoint, _name = policy_engine
+    script = [sys.executable, "-m", "ciflow.perturb", "--engine", endpoint, "--task",
+              "obstacle-avoidance", "--kwarg", "obstacles=1", "--seed", "3", "--policy",
+              "avoid", "--quiet"]
+    traces = tmp_path / "fast.json"
+    done = subprocess.run(script + ["--speed", "0", "--duration", "0.5", "--record",
+                                    str(traces)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    last = json.loads(traces.read_text())["samples"][-1]
+    assert (last["step"], last["time"]) == (50, pytest.approx(0.5)), last
+
+    for extra, message in (
+        (["--duration", "1", "--push", "joint=0:20,at=2,duration=0.1"], "would never act"),
+        (["--duration", "1", "--context-step", "at=1,value=0:0:0:0"], "would never act"),
+        (["--push", "joint=0:20,at=20,duration=0.1"], "the episode's length"),
+        (["--duration", "0"], "not a positive number of seconds"),
+        (["--duration", "1", "--push", "link=9,force=0:1:0,at=0.1,duration=0.1"],
+         "link 9 does not exist"),
+    ):
+        refused = subprocess.run(script + extra, capture_output=True, text=True, timeout=120)
+        assert refused.returncode == 2, refused.stderr
+        assert message in refused.stderr and "Traceback" not in refused.stderr, refused.stderr

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 
@@ -78,7 +79,21 @@ def parse_push(text: str) -> dict:
         raise argparse.ArgumentTypeError(f"bad --push `{text}`: {error}") from None
     if fields:
         raise argparse.ArgumentTypeError(f"unknown --push fields {sorted(fields)}")
+    if not all(math.isfinite(t) for t in timing.values()):
+        raise argparse.ArgumentTypeError(f"bad --push `{text}`: `at` and `duration` are "
+                                         "finite seconds")
     return {**push, **timing}
+
+
+def _positive_seconds(text: str) -> float:
+    """A finite, positive number of seconds (argparse type)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"`{text}` is not a positive number of seconds")
+    return value
 
 
 def parse_context_change(text: str) -> dict:
@@ -92,8 +107,10 @@ def parse_context_change(text: str) -> dict:
         }
     except (KeyError, ValueError) as error:
         raise argparse.ArgumentTypeError(f"bad context change `{text}`: {error}") from None
-    if fields or change["duration"] < 0:
-        raise argparse.ArgumentTypeError(f"bad context change `{text}`")
+    if fields or not (math.isfinite(change["at"]) and change["duration"] >= 0
+                      and math.isfinite(change["duration"])):
+        raise argparse.ArgumentTypeError(
+            f"bad context change `{text}`: `at` and `duration` (≥ 0) are finite seconds")
     return change
 
 
@@ -171,18 +188,40 @@ def main(argv=None) -> int:
                         default=[])
     parser.add_argument("--context-ramp", action="append", type=parse_context_change,
                         default=[])
-    parser.add_argument("--duration", type=float,
+    parser.add_argument("--duration", type=_positive_seconds,
                         help="stop after this many simulated seconds (default: episode end)")
     parser.add_argument("--record", help="write the telemetry to this JSON file")
     parser.add_argument("--plot", help="plot state/command/context to this PNG file")
     parser.add_argument("--rrd", help="save the run as a Rerun recording (ciflow[view])")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    parser.add_argument("--wait", type=float, default=10.0,
+    parser.add_argument("--wait", type=_positive_seconds, default=10.0,
                         help="give up after this many seconds without telemetry")
     args = parser.parse_args(argv)
     for change in args.context_step:
         change["duration"] = 0.0
+    if args.duration is not None:
+        _check_within(parser, args, args.duration, "--duration")
+    try:
+        return _perturb(parser, args)
+    except (ValueError, ciflow.CiflowError, ciflow.EngineUnreachable) as error:
+        print(f"ciflow.perturb: error: {error}", file=sys.stderr)
+        return 2
 
+
+def _check_within(parser, args, end: float, what: str) -> None:
+    """Refuses pushes and context changes that start at or after the run's end `end`
+    (simulated seconds, set by `what`): they would never act."""
+    for push in args.push:
+        if push["start"] >= end:
+            parser.error(f"a push at {push['start']} s starts at or after the run's end "
+                         f"({end} s, {what}): it would never act")
+    for change in args.context_step + args.context_ramp:
+        if change["at"] >= end:
+            parser.error(f"a context change at {change['at']} s starts at or after the run's "
+                         f"end ({end} s, {what}): it would never act")
+
+
+def _perturb(parser, args) -> int:
     env = None
     task, kwargs = None, {}
     if args.session:
@@ -202,6 +241,10 @@ def main(argv=None) -> int:
         except ValueError as error:
             parser.error(str(error))
         env = gym.make(task, engine=args.engine, zenoh_config=args.zenoh_config, **kwargs)
+        spec = env.unwrapped.task_spec
+        if args.duration is None:
+            _check_within(parser, args, spec["max_episode_steps"] * spec["control_dt"],
+                          "the episode's length")
         env.reset(seed=args.seed)
         control = env.unwrapped.attach()
         print(f"session {env.unwrapped.session_id} token {env.unwrapped.token_hex} "
@@ -218,7 +261,12 @@ def main(argv=None) -> int:
     # Tests and scripts may wait for this line before they start the run.
     print(f"scheduled {len(args.push)} push(es)", flush=True)
     if env is not None:
-        control.run_policy(args.policy, speed=args.speed)
+        # The engine stops the run itself: at speed 0 the run outpaces the telemetry, and a
+        # stop sent when a sample reports the end would arrive seconds of simulation late.
+        steps = None
+        if args.duration is not None:
+            steps = math.ceil(args.duration / env.unwrapped.task_spec["control_dt"] - 1e-9)
+        control.run_policy(args.policy, speed=args.speed, steps=steps)
     schedule = ContextSchedule(args.context_step + args.context_ramp)
     events += [{"kind": "context", "start": c["at"], "duration": c["duration"]}
                for c in schedule.pending]
