@@ -111,6 +111,32 @@ def test_a_dataset_is_recorded_episode_after_episode_with_its_pushes(tmp_path):
         assert logs[-1].startswith(f"episode {k}")
 
 
+def test_the_command_line_shows_the_episodes_asked_for_or_says_why_not(tmp_path, capsys):
+    """``--episodes K`` is episode K (it used to mean K to the end), and a selection of no
+    episode, or a file that cannot be read, is an error (exit 2) instead of an empty
+    recording or a traceback."""
+    _native.record_expert("limit-cycle", str(tmp_path / "ds"), 3, seed=0, kwargs={},
+                          options={})
+    save = ["--save", str(tmp_path / "ds.rrd")]
+    for episodes, shown in (("1", [1]), ("1:", [1, 2]), (":2", [0, 1])):
+        assert view.main(["--dataset", str(tmp_path / "ds"), "--episodes", episodes]
+                         + save) == 0
+        entities = rows_by_entity(tmp_path / "ds.rrd")
+        assert sorted({int(e.split("/")[2]) for e in entities if e.startswith("/episodes/")}) \
+            == shown, episodes
+    for argv, message in (
+        (["--dataset", str(tmp_path / "ds"), "--episodes", "3"], "select none of the 3"),
+        (["--dataset", str(tmp_path / "nowhere")], "No such file"),
+        (["--record", str(tmp_path / "ds" / "data" / "metadata.json")], "not a run recorded"),
+    ):
+        assert view.main(argv + save) == 2
+        assert message in capsys.readouterr().err, argv
+    for argv in (["--dataset", str(tmp_path / "ds"), "--episodes", "-1"],
+                 ["--watch", "*", "--timeout", "0"]):
+        with pytest.raises(SystemExit):
+            view.main(argv + save)
+
+
 def obstacle_run(obstacles: int) -> list[dict]:
     """20 expert steps of the obstacle task, its target moved 5 cm after the 11th."""
     env = gym.make("ciflow/Obstacle-v0", obstacles=obstacles)

@@ -42,6 +42,7 @@ import numpy as np
 
 import ciflow
 from ciflow import connection
+from ciflow.arguments import positive_seconds
 from ciflow.registration import task_entry
 from ciflow.remote import Attached
 
@@ -84,16 +85,6 @@ def parse_push(text: str) -> dict:
                                          "finite seconds")
     return {**push, **timing}
 
-
-def _positive_seconds(text: str) -> float:
-    """A finite, positive number of seconds (argparse type)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"`{text}` is not a positive number of seconds")
-    return value
 
 
 def parse_context_change(text: str) -> dict:
@@ -188,13 +179,13 @@ def main(argv=None) -> int:
                         default=[])
     parser.add_argument("--context-ramp", action="append", type=parse_context_change,
                         default=[])
-    parser.add_argument("--duration", type=_positive_seconds,
+    parser.add_argument("--duration", type=positive_seconds,
                         help="stop after this many simulated seconds (default: episode end)")
     parser.add_argument("--record", help="write the telemetry to this JSON file")
     parser.add_argument("--plot", help="plot state/command/context to this PNG file")
     parser.add_argument("--rrd", help="save the run as a Rerun recording (ciflow[view])")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    parser.add_argument("--wait", type=_positive_seconds, default=10.0,
+    parser.add_argument("--wait", type=positive_seconds, default=10.0,
                         help="give up after this many seconds without telemetry")
     args = parser.parse_args(argv)
     for change in args.context_step:

@@ -36,6 +36,7 @@ import threading
 import numpy as np
 
 from ciflow import _native, connection
+from ciflow.arguments import positive_seconds
 
 #: Samples with a context different from the previous one by more than this are logged
 #: as context changes.
@@ -332,6 +333,9 @@ def record_dataset(recording, path: str, episodes: slice | None = None,
                                     for space in ("observation", "context", "action"))
     dt = info["control_dt"]
     chosen = list(enumerate(all_episodes))[episodes or slice(None)]
+    if not chosen:
+        raise ValueError(f"episodes {episodes.start}:{episodes.stop} select none of the "
+                         f"{len(all_episodes)} episodes of {path}")
     send_layout(recording, [f"episodes/{k}" for k, _ in chosen])
     tracks, offset = [], 0.0
     for k, episode in chosen:
@@ -411,42 +415,71 @@ def main(argv=None) -> int:
     source.add_argument("--dataset", help="show every episode of this dataset directory")
     source.add_argument("--record", help="show a run recorded by ciflow.perturb --record")
     parser.add_argument("--session", help="with --watch: only this session id")
-    parser.add_argument("--episodes", help="with --dataset: a slice of episodes, e.g. 0:10")
+    parser.add_argument("--episodes", type=_episode_slice,
+                        help="with --dataset: episode K, or the slice of episodes A:B (either "
+                             "end may be left out), e.g. 0:10")
     parser.add_argument("--engine", help="endpoint to connect to, e.g. tcp/10.0.0.5:7447")
     parser.add_argument("--zenoh-config", help="Zenoh JSON5 file (e.g. via a router)")
     parser.add_argument("--policy", metavar="CHECKPOINT",
                         help="a 2-D flow policy's checkpoint directory: draw its vector field "
                              "and latent-grid deformation for each context shown")
-    parser.add_argument("--timeout", type=float, default=None,
+    parser.add_argument("--timeout", type=positive_seconds, default=None,
                         help="with --watch: stop after this many seconds without telemetry")
     parser.add_argument("--spawn", action="store_true", help="start a native viewer (default)")
     parser.add_argument("--serve", action="store_true", help="serve a web viewer")
     parser.add_argument("--save", metavar="FILE.rrd", help="write a recording")
     args = parser.parse_args(argv)
+    try:
+        return _view(parser, args)
+    except (OSError, ValueError, RuntimeError, _native.CiflowError,
+            _native.EngineUnreachable) as error:
+        print(f"ciflow.view: error: {error}", file=sys.stderr)
+        return 2
+
+
+def _episode_slice(text: str) -> slice:
+    """``K`` (episode K) or ``A:B`` (argparse type): indices from 0, neither negative."""
+    start, colon, stop = text.partition(":")
+    try:
+        bounds = [int(b) if b.strip() else None for b in (start, stop)]
+    except ValueError:
+        bounds = [-1]
+    if any(b is not None and b < 0 for b in bounds):
+        raise argparse.ArgumentTypeError(f"`{text}` is neither an episode K nor a slice A:B "
+                                         "of episode numbers (from 0)")
+    if not colon:
+        if bounds[0] is None:
+            raise argparse.ArgumentTypeError("an empty --episodes selects nothing")
+        return slice(bounds[0], bounds[0] + 1)
+    return slice(*bounds)
+
+
+def _view(parser, args) -> int:
     spawn = args.spawn or not (args.serve or args.save)
     recording = open_recording("ciflow", spawn=spawn, serve=args.serve, save=args.save)
     flow_field = _native.FlowField(args.policy) if args.policy else None
     if args.dataset:
-        episodes = None
-        if args.episodes:
-            start, _, stop = args.episodes.partition(":")
-            episodes = slice(int(start) if start else None, int(stop) if stop else None)
-        tracks = record_dataset(recording, args.dataset, episodes, flow_field)
+        tracks = record_dataset(recording, args.dataset, args.episodes, flow_field)
         print(f"{len(tracks)} episode(s) of {args.dataset}")
     elif args.record:
         with open(args.record) as file:
             record = json.load(file)
+        if not isinstance(record, dict) or "samples" not in record:
+            raise ValueError(f"{args.record} is not a run recorded by ciflow.perturb --record "
+                             "(no `samples`)")
         if not record.get("task"):
             parser.error(f"{args.record} names no task (an older ciflow.perturb, or one "
                          "whose engine did not say)")
         samples = [{k: np.asarray(v) if isinstance(v, list) else v for k, v in s.items()}
                    for s in record["samples"]]
         track = record_run(recording, record["task"], record.get("kwargs", {}), samples,
-                           record["events"], flow_field=flow_field)
+                           record.get("events", []), flow_field=flow_field)
         print(f"{track.samples} samples of {args.record}")
     else:
         client = connection.client(args.engine, args.zenoh_config)
         engine = None if args.watch == "*" else args.watch
+        if engine is not None:
+            client.engine_info(engine)  # an engine that does not answer is an error
         try:
             tracks = watch(recording, client, engine, args.session, args.timeout,
                            flow_field=flow_field)
