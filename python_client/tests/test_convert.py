@@ -159,7 +159,10 @@ def test_bad_requests_are_refused_with_where_and_why(minari_root, tmp_path):
         "states[0:2]": "no 'states' .there: actions, infos, observations, rewards",
         "observations/goal": "no 'observations/goal'",
         "observations": "is a Dict",
-        "observations/achieved_goal[5:9]": "selects no column",
+        "observations/achieved_goal[1:1]": "selects no column",
+        # numpy would quietly take the columns there are.
+        "observations/achieved_goal[0:9]": "reaches past the 2 columns",
+        "observations/achieved_goal[5]": "reaches past the 2 columns",
     }
     for state, message in cases.items():
         with pytest.raises(ConversionError, match=message):
@@ -170,6 +173,14 @@ def test_bad_requests_are_refused_with_where_and_why(minari_root, tmp_path):
         convert(source, tmp_path / "x", "observations/achieved_goal")
     with pytest.raises(ConversionError, match="not a positive number"):
         convert(source, tmp_path / "x", "observations/achieved_goal", dt=float("nan"))
+    # Replacing the source, or a directory holding it, would delete it.
+    before = sorted(str(p) for p in source.rglob("*"))
+    for out in (source, source.parent):
+        with pytest.raises(ConversionError, match="is or holds the source"):
+            convert(source, out, "observations/achieved_goal", dt=DT, overwrite=True)
+        with pytest.raises(ConversionError, match="is or holds the source"):
+            to_lerobot(source, out, overwrite=True)
+    assert sorted(str(p) for p in source.rglob("*")) == before, "the source is untouched"
     corrupt = foreign_dataset(minari_root, "corrupt", 2, corrupt=True)
     with pytest.raises(ConversionError, match="episode 1: state is NaN or infinite at step 30"):
         convert(corrupt, tmp_path / "x", "observations/achieved_goal", dt=DT)
@@ -220,6 +231,25 @@ def test_ciflow_train_fits_a_dataset_from_elsewhere(minari_root, tmp_path):
     assert "Traceback" not in refused.stderr
     assert not (tmp_path / "refused" / "config.json").exists()
 
+
+
+def test_a_dataset_without_context_goes_to_lerobot_and_back(tmp_path):
+    """LeRobot has no zero-width feature: a context-free dataset (here one converted
+    without --context) is written without an environment state (it used to fail in
+    pyarrow) and reads back the same, up to float32."""
+    _native.record_expert("limit-cycle", str(tmp_path / "cycle"), 2, seed=1)
+    free = convert(tmp_path / "cycle", tmp_path / "free", "observations[0:2]")
+    lerobot = to_lerobot(free, tmp_path / "lerobot")
+    info = json.loads((lerobot / "meta" / "info.json").read_text())
+    assert "observation.environment_state" not in info["features"]
+    back = convert(lerobot, tmp_path / "back", "observation.state",
+                   velocity="observation.velocity")
+    (_, original), (spec, returned) = (_native.read_dataset(str(p)) for p in (free, back))
+    assert spec["context_space"]["low"] == []
+    for a, b in zip(original, returned, strict=True):
+        np.testing.assert_array_equal(
+            np.frombuffer(b["observations"], "<f8"),
+            np.frombuffer(a["observations"], "<f8").astype(np.float32).astype(np.float64))
 
 
 def test_minari_to_lerobot_to_minari_is_exact_up_to_float32(tmp_path):

@@ -129,6 +129,14 @@ class Field:
                 f"episode {number}: field {self.text!r} holds {array.dtype}, not numbers"
             )
         array = array.astype(np.float64).reshape(len(array), -1)
+        width = array.shape[1]
+        if any(b is not None and not -width <= b <= width
+               for b in (self.columns.start, self.columns.stop)):
+            # numpy would quietly keep the columns there are.
+            raise ConversionError(
+                f"field {self.text!r} reaches past the {width} columns of "
+                f"{'/'.join(self.path)}"
+            )
         selected = array[:, self.columns]
         if selected.shape[1] == 0:
             raise ConversionError(
@@ -136,6 +144,16 @@ class Field:
                 f"{array.shape[1]}"
             )
         return selected
+
+
+def _check_apart(source: str | Path, out: str | Path) -> None:
+    """Refuses an `out` that is `source` or holds it: replacing it would delete the
+    source. (One inside the source only adds a directory to it; the replace check keeps
+    it from taking the place of the source's own files.)"""
+    source, out = Path(source).resolve(), Path(out).resolve()
+    if source == out or out in source.parents:
+        raise ConversionError(f"{out} is or holds the source {source}: write the converted "
+                              "dataset somewhere else")
 
 
 def open_source(path: str | Path) -> Source:
@@ -291,6 +309,7 @@ def convert(
     ``data`` directory; LeRobot: the directory holding ``meta/``) to `out`; returns
     `out`. `velocity` names the state's own rates where the data have them (else the
     forward difference stands in)."""
+    _check_apart(source, out)
     dataset = open_source(source)
     dt = time_step(dataset, dt)
     state_field = Field.parse(state)
@@ -359,11 +378,13 @@ def to_lerobot(source: str | Path, out: str | Path, task: str | None = None,
     """Writes the ciflow dataset at `source` as a LeRobot v3.0 dataset at `out` (one data
     file, one episodes file; numbers as float32, as LeRobot stores them): per frame
     ``observation.state`` = the position ``q``, ``observation.velocity`` = ``q̇``,
-    ``observation.environment_state`` = the context, ``action`` (the last frame's, which
-    no step follows, is zero), ``next.reward`` and ``next.done``. Returns `out`."""
+    ``observation.environment_state`` = the context (left out without one), ``action``
+    (the last frame's, which no step follows, is zero), ``next.reward`` and
+    ``next.done``. Returns `out`."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    _check_apart(source, out)
     spec, episodes = _native.read_dataset(str(source))
     out = Path(out)
     _native.check_replaceable(str(out), overwrite)
@@ -405,6 +426,10 @@ def to_lerobot(source: str | Path, out: str | Path, task: str | None = None,
         pa.array(np.asarray(columns[name], dtype=np.float32).reshape(-1), pa.float32()), dim)
     dims = {"observation.state": position_dim, "observation.velocity": position_dim,
             "observation.environment_state": context_dim, "action": action_dim}
+    if context_dim == 0:
+        # A context-free task (LASA, a converted dataset without --context): LeRobot has
+        # no zero-width feature, so the frames carry no environment state.
+        del dims["observation.environment_state"]
     arrays = {name: vector(name, dim) for name, dim in dims.items()}
     arrays["next.reward"] = pa.array(columns["next.reward"], pa.float32())
     arrays["next.done"] = pa.array(columns["next.done"], pa.bool_())
