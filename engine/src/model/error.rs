@@ -41,8 +41,8 @@ pub enum ModelError {
     NoSuchFrame(String),
     #[error("frame name `{0}` is used twice")]
     DuplicateFrame(String),
-    /// A per-joint value (a limit, or the armature: `what` is then [`ARMATURE`](super::ARMATURE)) out of its
-    /// domain; `what` names it.
+    /// A per-joint value out of its domain: a limit, or the armature (`what` is then
+    /// [`ARMATURE`](super::ARMATURE)); `what` names it.
     #[error("{what}[{joint}] is invalid: {reason}")]
     InvalidLimits {
         what: &'static str,

@@ -86,7 +86,6 @@ def parse_push(text: str) -> dict:
     return {**push, **timing}
 
 
-
 def parse_context_change(text: str) -> dict:
     """``at=3.0,value=a:b:...[,duration=1.0]`` → ``{at, value, duration}``."""
     fields = _fields(text)

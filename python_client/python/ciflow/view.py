@@ -440,13 +440,14 @@ def main(argv=None) -> int:
 def _episode_slice(text: str) -> slice:
     """``K`` (episode K) or ``A:B`` (argparse type): indices from 0, neither negative."""
     start, colon, stop = text.partition(":")
+    invalid = argparse.ArgumentTypeError(f"`{text}` is neither an episode K nor a slice A:B "
+                                         "of episode numbers (from 0)")
     try:
         bounds = [int(b) if b.strip() else None for b in (start, stop)]
     except ValueError:
-        bounds = [-1]
+        raise invalid from None
     if any(b is not None and b < 0 for b in bounds):
-        raise argparse.ArgumentTypeError(f"`{text}` is neither an episode K nor a slice A:B "
-                                         "of episode numbers (from 0)")
+        raise invalid
     if not colon:
         if bounds[0] is None:
             raise argparse.ArgumentTypeError("an empty --episodes selects nothing")
