@@ -543,4 +543,15 @@ fn train_builds_the_robots_limits_into_the_policy_on_request() {
     assert!(robot_loop["steps"].as_u64().unwrap() > 0, "{robot_loop}");
     assert_eq!(robot_loop["traces"].as_array().unwrap().len(), 1);
     assert_eq!(robot_loop["push"]["force"], 20.0, "{robot_loop}");
+    // A setting of a check not asked for is refused, not silently unused.
+    refused(
+        &[
+            "stability",
+            "--checkpoint",
+            &policy,
+            "--negative-control-starts",
+            "3",
+        ],
+        "--negative-control",
+    );
 }

@@ -61,7 +61,7 @@ pub struct StabilityArgs {
     #[arg(long)]
     pub negative_control: bool,
     /// Rollouts of the negative control (training contexts).
-    #[arg(long, default_value_t = 500)]
+    #[arg(long, default_value_t = 500, requires = "negative_control")]
     pub negative_control_starts: usize,
     /// Threads for the rollouts [default: the machine's cores].
     #[arg(long)]
