@@ -235,6 +235,12 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
         // Settings of a disturbance that is not asked for, instead of silently unused.
         (vec!["--push-start", "0.5"], "--perturb"),
         (vec!["--switch-time", "0.5"], "--perturb"),
+        (vec!["--field-resolution", "5"], "--field"),
+        (vec!["--field-window", "0,1,0,1"], "--field"),
+        (
+            vec!["--field", field.as_str(), "--trajectories", "2"],
+            "cannot be used with",
+        ),
         (
             vec![
                 "--field",

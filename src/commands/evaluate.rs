@@ -99,7 +99,7 @@ pub struct EvaluateArgs {
     #[arg(long, requires = "perturb")]
     pub switch_tail: Option<usize>,
     /// Keep the traces of the first K episodes in the JSON.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, conflicts_with_all = ["nll", "field"])]
     pub trajectories: usize,
     #[command(flatten)]
     pub on: EnginesArgs,
@@ -121,23 +121,23 @@ pub struct EvaluateArgs {
     pub field: Option<PathBuf>,
     /// Contexts of the field figures, `;`-separated, each comma-separated (e.g. "0;0.5;1")
     /// [default: the first 3 episodes' contexts of --field-demos].
-    #[arg(long)]
+    #[arg(long, requires = "field")]
     pub field_contexts: Option<String>,
     /// Dataset whose positions are copied into the field JSON for overlays.
-    #[arg(long)]
+    #[arg(long, requires = "field")]
     pub field_demos: Option<PathBuf>,
     /// Field window x_min,x_max,y_min,y_max (e.g. -60,10,-15,40) [default: the
     /// demonstrations' box, widened].
-    #[arg(long, allow_hyphen_values = true, value_parser = parse_window)]
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_window, requires = "field")]
     pub field_window: Option<[f64; 4]>,
     /// Field grid points per axis.
-    #[arg(long, default_value_t = 25)]
+    #[arg(long, default_value_t = 25, requires = "field")]
     pub field_resolution: usize,
     /// Steps of each field rollout.
-    #[arg(long, default_value_t = 1000)]
+    #[arg(long, default_value_t = 1000, requires = "field")]
     pub field_steps: usize,
     /// Latent grid lines per axis.
-    #[arg(long, default_value_t = 11)]
+    #[arg(long, default_value_t = 11, requires = "field")]
     pub field_lines: usize,
 }
 
