@@ -289,6 +289,21 @@ fn train_from_zenoh_refuses_a_timeout_that_is_not_a_duration() {
             "give a positive number of seconds up to",
         );
     }
+    // Without --from-zenoh there is no episode to wait for: refused, not unused.
+    let scratch = Scratch::new("train-cli-timeout-unused");
+    refused(
+        &[
+            "train",
+            "--task",
+            "limit-cycle",
+            "--demos",
+            &scratch.arg("demos"),
+            "--episode-timeout=5",
+            "--out",
+            &scratch.arg("policy"),
+        ],
+        "--from-zenoh",
+    );
 }
 
 /// `ciflow train --demos <2 limit-cycle episodes> --out <out> ARGS`, small and quick.

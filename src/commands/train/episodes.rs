@@ -23,8 +23,13 @@ pub struct ZenohSource {
     /// trainer before the recorders: earlier episodes are not replayed.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..), conflicts_with = "state")]
     pub from_zenoh: Option<u64>,
-    /// Longest wait for the next episode, in seconds.
-    #[arg(long, default_value_t = 300.0, value_name = "SECONDS")]
+    /// With --from-zenoh: longest wait for the next episode, in seconds.
+    #[arg(
+        long,
+        default_value_t = 300.0,
+        value_name = "SECONDS",
+        requires = "from_zenoh"
+    )]
     pub episode_timeout: f64,
     /// Zenoh flags of --from-zenoh and --publish (default: a client of the engine on
     /// tcp/127.0.0.1:7447, through which recorders publish and engines listen).
