@@ -24,7 +24,7 @@ use ciflow_engine::flow::checkpoint::{self, CONFIG_FILE, WEIGHTS_FILE};
 use ciflow_envs::ResetOptions;
 use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::tasks::obstacle_avoidance;
-use common::{Scratch, ciflow, code, connect, endpoint, line_with, serve, spawn_ciflow};
+use common::{Scratch, ciflow, code, connect, endpoint, line_with, refused, serve, spawn_ciflow};
 
 const OBSTACLE: &str = "ciflow/Obstacle-v0";
 
@@ -118,6 +118,17 @@ fn served_policy_acts_like_the_in_process_actor_and_bad_checkpoints_are_refused(
         assert!(!output.status.success(), "{args:?} must fail");
         assert!(stderr.contains(expected), "{args:?}: {stderr}");
     }
+    // Policy arguments without a policy to apply them to.
+    refused(
+        &[
+            "serve",
+            "--listen",
+            &endpoint,
+            "--policy-kwarg",
+            "obstacles=1",
+        ],
+        "--policy",
+    );
 }
 
 /// Waits until the engine lists policy `name` with `epoch`.

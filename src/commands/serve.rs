@@ -37,7 +37,12 @@ pub struct ServeArgs {
     /// Construction argument of the policies' task, as given to `ciflow demos --kwarg`
     /// when the checkpoint's data was made (e.g. obstacles=1; repeatable). Without any,
     /// each checkpoint's own recorded arguments apply.
-    #[arg(long = "policy-kwarg", value_name = "NAME=VALUE", value_parser = parse_number_pair)]
+    #[arg(
+        long = "policy-kwarg",
+        value_name = "NAME=VALUE",
+        value_parser = parse_number_pair,
+        requires = "policies"
+    )]
     pub policy_kwargs: Vec<(String, f64)>,
     #[command(flatten)]
     pub limits: ciflow_bridge::Limits,
