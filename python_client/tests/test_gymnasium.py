@@ -267,3 +267,35 @@ def test_unreachable_engine_says_how_to_start_one():
     with pytest.raises(ciflow.EngineUnreachable) as error:
         gym.make("ciflow/LimitCycle-v0", engine="tcp/127.0.0.1:9")
     assert "ciflow serve" in str(error.value)
+
+
+ASYNC_SCRIPT = """
+import sys
+import gymnasium as gym
+import numpy as np
+import ciflow  # noqa: F401
+
+if __name__ == "__main__":
+    envs = gym.make_vec("ciflow/LimitCycle-v0", num_envs=2, engine=sys.argv[1],
+                        vectorization_mode="async", vector_kwargs={"context": sys.argv[2]})
+    envs.reset(seed=0)
+    observations, *_ = envs.step(np.zeros((2, 2)))
+    print("stepped", observations.shape)
+    envs.close()
+"""
+
+
+def test_gymnasium_s_async_vector_env_works_with_spawn_and_says_why_not_with_fork(
+        engine, tmp_path):
+    """Zenoh's threads do not survive fork: a worker forked after the parent opened a
+    session (Gymnasium opens one for the spaces) used to hang on its first request. It
+    now fails at once, naming the fix; spawned workers work."""
+    script = tmp_path / "async_envs.py"
+    script.write_text(ASYNC_SCRIPT)
+    spawned = subprocess.run([sys.executable, str(script), engine[0], "spawn"],
+                             capture_output=True, text=True, timeout=120)
+    assert spawned.returncode == 0 and "stepped (2, 5)" in spawned.stdout, spawned.stderr
+    forked = subprocess.run([sys.executable, str(script), engine[0], "fork"],
+                            capture_output=True, text=True, timeout=120)
+    assert forked.returncode != 0
+    assert "forked after its parent opened one" in forked.stderr, forked.stderr

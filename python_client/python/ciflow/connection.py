@@ -26,6 +26,46 @@ _HOW_TO_START = (
 )
 
 
+# Zenoh's runtime (its threads and the sessions on them) does not survive `fork`: a
+# process forked after this one opened a session would hang on its first request. Such a
+# child refuses to open sessions instead (see `_refuse_in_forked_child`).
+_opened_a_session = False
+_forked_after_a_session = False
+# The parent's clients, kept from being dropped in a forked child: closing their sessions
+# there would wait on threads that exist only in the parent.
+_inherited: list = []
+
+_FORKED = (
+    "ciflow cannot open a Zenoh session in a process forked after its parent opened one "
+    "(Zenoh's threads do not survive fork; the request would hang). Start worker processes "
+    "with 'spawn' or 'forkserver', e.g. gymnasium.make_vec(..., vectorization_mode='async', "
+    "vector_kwargs={'context': 'spawn'}), or use ciflow's own vector environment (the "
+    "default vectorization_mode), which steps every environment in this process."
+)
+
+
+def _after_fork_in_child() -> None:
+    global _forked_after_a_session, _embedded
+    if _opened_a_session:
+        _forked_after_a_session = True
+        _inherited.extend(_clients.values())
+        _inherited.append(_embedded)
+        _clients.clear()
+        _embedded = None
+
+
+os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
+def _refuse_in_forked_child() -> None:
+    """Marks that this process opens a session, unless it is a child forked after its
+    parent opened one (then raises)."""
+    global _opened_a_session
+    if _forked_after_a_session:
+        raise RuntimeError(_FORKED)
+    _opened_a_session = True
+
+
 def _looks_like_endpoint(text: str) -> bool:
     return "/" in text and ":" in text
 
@@ -45,6 +85,7 @@ def _client(connect: str | None, zenoh_config: str | None) -> _native.ClientHand
     key = (connect, zenoh_config, identity)
     client = _clients.get(key)
     if client is None:
+        _refuse_in_forked_child()
         client = _native.ClientHandle.open(
             config=zenoh_config, connect=[connect] if connect else None, identity=identity
         )
@@ -58,6 +99,7 @@ def _embedded_client() -> _native.ClientHandle:
     key = _EMBEDDED
     if key in _clients:
         return _clients[key]
+    _refuse_in_forked_child()
     _embedded = _native.Engine(listen=[default_endpoint()])
     client = _native.ClientHandle.for_engine(_embedded)
     _clients[key] = client
