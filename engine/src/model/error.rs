@@ -41,14 +41,14 @@ pub enum ModelError {
     NoSuchFrame(String),
     #[error("frame name `{0}` is used twice")]
     DuplicateFrame(String),
-    /// A per-joint value out of its domain: a limit, or the armature (`what` is then
-    /// [`ARMATURE`](super::ARMATURE)); `what` names it.
-    #[error("{what}[{joint}] is invalid: {reason}")]
+    #[error("joint limit {what}[{joint}] is invalid: {reason}")]
     InvalidLimits {
         what: &'static str,
         joint: usize,
         reason: &'static str,
     },
+    #[error("armature[{joint}] is invalid: {reason}")]
+    InvalidArmature { joint: usize, reason: &'static str },
     #[error("{what}: expected {expected} entries, got {actual}")]
     Dimension {
         what: &'static str,

@@ -41,12 +41,12 @@ impl JointLimits {
     /// symmetric bounds are positive.
     pub fn validate(&self, dof: usize) -> Result<(), ModelError> {
         let named = [
-            ("joint limit q_min", &self.q_min),
-            ("joint limit q_max", &self.q_max),
-            ("joint limit qd_max", &self.qd_max),
-            ("joint limit qdd_max", &self.qdd_max),
-            ("joint limit tau_max", &self.tau_max),
-            ("joint limit tau_rate_max", &self.tau_rate_max),
+            ("q_min", &self.q_min),
+            ("q_max", &self.q_max),
+            ("qd_max", &self.qd_max),
+            ("qdd_max", &self.qdd_max),
+            ("tau_max", &self.tau_max),
+            ("tau_rate_max", &self.tau_rate_max),
         ];
         for (what, values) in named {
             if values.len() != dof {
@@ -75,7 +75,7 @@ impl JointLimits {
         }
         if let Some(joint) = (0..dof).find(|&i| self.q_min[i] > self.q_max[i]) {
             return Err(ModelError::InvalidLimits {
-                what: "joint limit q_min",
+                what: "q_min",
                 joint,
                 reason: "greater than q_max",
             });

@@ -6,8 +6,8 @@ use crate::spatial::{AxisAlignedRotation, Inertia, Se3};
 
 /// Standard gravity along `−z` of the base frame (Pinocchio's default), m/s².
 pub const STANDARD_GRAVITY: Real = 9.81;
-/// The name errors about the armature give it ([`ModelError::Dimension`],
-/// [`ModelError::InvalidLimits`]).
+/// The name a wrong number of armature entries is reported under
+/// ([`ModelError::Dimension`]).
 pub const ARMATURE: &str = "armature";
 
 /// One movable body: the joint that moves it and its spatial inertia in its own frame.
@@ -135,7 +135,7 @@ impl Model {
         &self.armature
     }
 
-    /// Sets [`armature`](Self::armature); errors name it [`ARMATURE`].
+    /// Sets [`armature`](Self::armature): one finite, non-negative entry per joint.
     pub fn set_armature(&mut self, armature: DVector) -> Result<(), ModelError> {
         if armature.len() != self.nv() {
             return Err(ModelError::Dimension {
@@ -145,8 +145,7 @@ impl Model {
             });
         }
         if let Some(joint) = armature.iter().position(|a| !(a.is_finite() && *a >= 0.0)) {
-            return Err(ModelError::InvalidLimits {
-                what: ARMATURE,
+            return Err(ModelError::InvalidArmature {
                 joint,
                 reason: "must be finite and >= 0",
             });

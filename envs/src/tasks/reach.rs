@@ -147,11 +147,8 @@ fn argument_at_fault(error: &ModelError) -> &'static str {
     match error {
         ModelError::NoSuchFrame(_) => TOOL_ARGUMENT,
         ModelError::Lock { .. } => LOCK_ARGUMENT,
-        ModelError::InvalidLimits { what, .. } | ModelError::Dimension { what, .. }
-            if *what == ARMATURE =>
-        {
-            ARMATURE_ARGUMENT
-        }
+        ModelError::InvalidArmature { .. } => ARMATURE_ARGUMENT,
+        ModelError::Dimension { what, .. } if *what == ARMATURE => ARMATURE_ARGUMENT,
         _ => URDF_ARGUMENT,
     }
 }
