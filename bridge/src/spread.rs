@@ -52,22 +52,13 @@ pub fn resolve_engines(
     task: &str,
 ) -> Result<Vec<String>, BridgeError> {
     let serves = |info: &EngineInfo| info.tasks.iter().any(|t| t.is_named(task));
-    if wanted.len() > 1 && wanted.iter().any(|w| w == "*") {
-        return Err(BridgeError::InvalidArgument(format!(
-            "`*` (every engine) and engine names together: {}",
-            wanted.join(",")
-        )));
-    }
-    if let Some(twice) = wanted
-        .iter()
-        .enumerate()
-        .find_map(|(i, w)| wanted[..i].contains(w).then_some(w))
-    {
-        return Err(BridgeError::InvalidArgument(format!(
-            "engine `{twice}` is named twice"
-        )));
-    }
     if wanted.iter().any(|w| w == "*") {
+        if wanted.len() > 1 {
+            return Err(BridgeError::InvalidArgument(format!(
+                "`*` (every engine) and engine names together: {}",
+                wanted.join(",")
+            )));
+        }
         let engines: Vec<String> = client
             .discover()?
             .into_iter()
@@ -81,7 +72,18 @@ pub fn resolve_engines(
         }
         return Ok(engines);
     }
-    let mut engines = Vec::with_capacity(wanted.len());
+    if let Some(twice) = wanted
+        .iter()
+        .enumerate()
+        .find_map(|(i, w)| wanted[..i].contains(w).then_some(w))
+    {
+        return Err(BridgeError::InvalidArgument(format!(
+            "engine `{twice}` is named twice"
+        )));
+    }
+    if wanted.is_empty() {
+        return Err(BridgeError::InvalidArgument("no engine named".into()));
+    }
     for engine in wanted {
         let info = client
             .engine_info(engine)
@@ -92,12 +94,8 @@ pub fn resolve_engines(
                 BridgeError::InvalidArgument(format!("it does not serve {task}")),
             ));
         }
-        engines.push(engine.clone());
     }
-    if engines.is_empty() {
-        return Err(BridgeError::InvalidArgument("no engine named".into()));
-    }
-    Ok(engines)
+    Ok(wanted.to_vec())
 }
 
 /// Publishes the checkpoint `dir` for the task built with `kwargs` until every engine of
