@@ -25,8 +25,11 @@ use ciflow_bridge::zenoh::Wait;
 use ciflow_bridge::zenoh::query::ConsolidationMode;
 use ciflow_bridge::{Client, EngineServer, Limits, NetworkOptions, Role, ServerOptions};
 
+#[path = "support/in_process.rs"]
+mod in_process;
 #[path = "support/timing.rs"]
 mod timing;
+use in_process::in_process_rate;
 use timing::{micros, time_calls};
 
 const TASK: &str = "ciflow/LimitCycle-v0";
@@ -50,65 +53,9 @@ const LIMITS: Limits = Limits {
     ..Limits::DEFAULT
 };
 
-/// Env-steps per second of `envs` environments of the task called directly, split over
-/// `threads` threads that step their share concurrently, one step each in turn: from a
-/// reset, `untimed` steps per environment, then `timed` ones (with the same zero action
-/// as the batched runs). One environment on one thread stays in cache and is what the
-/// engine cannot beat per core; thousands on every core are what the engine itself has
-/// to do.
-fn local_rate(
-    task: &str,
-    envs: usize,
-    threads: usize,
-    (untimed, timed): (usize, usize),
-) -> Result<f64, Box<dyn std::error::Error + Send + Sync>> {
-    let options = ciflow_envs::ResetOptions::default();
-    let mut batch = Vec::with_capacity(envs);
-    for seed in 0..envs as u64 {
-        let mut env = ciflow_envs::make(task)?;
-        env.reset(Some(seed), &options)?;
-        batch.push(env);
-    }
-    let action = vec![0.0; batch[0].spec().action_space.dim()];
-    let share = envs.div_ceil(threads);
-    let start = std::sync::Barrier::new(threads + 1);
-    let elapsed = std::thread::scope(|scope| {
-        let workers: Vec<_> = batch
-            .chunks_mut(share)
-            .map(|envs| {
-                let (start, action, options) = (&start, &action, &options);
-                scope.spawn(move || -> Result<(), ciflow_envs::EnvError> {
-                    let mut step_all = |rounds| {
-                        for _ in 0..rounds {
-                            for env in envs.iter_mut() {
-                                let step = env.step(action)?;
-                                if step.terminated || step.truncated {
-                                    env.reset(None, options)?;
-                                }
-                            }
-                        }
-                        Ok(())
-                    };
-                    let warmed = step_all(untimed);
-                    // Meet the others even after a failure, so that none waits forever.
-                    start.wait();
-                    warmed.and_then(|()| step_all(timed))
-                })
-            })
-            .collect();
-        start.wait();
-        let clock = Instant::now();
-        for worker in workers {
-            worker.join().expect("a stepping thread panicked")?;
-        }
-        Ok::<_, ciflow_envs::EnvError>(clock.elapsed())
-    })?;
-    Ok((timed * envs) as f64 / elapsed.as_secs_f64())
-}
-
 /// Env-steps per second of one environment of the task alone on this thread.
 fn alone_rate(task: &str) -> Result<f64, Box<dyn std::error::Error + Send + Sync>> {
-    local_rate(task, 1, 1, (0, 200_000))
+    in_process_rate(task, 1, 1, (0, 200_000))
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
@@ -287,7 +234,7 @@ fn batched_rates(
         "  reference: the task called directly, one thread, no network: {:.0} env-steps/s \
          (4096 environments in turn: {:.0})",
         alone_rate(task)?,
-        local_rate(
+        in_process_rate(
             task,
             4096,
             1,
@@ -311,7 +258,7 @@ fn batched_rates(
             let alone = alone_rate(task)?;
             // The steps of the served measurement.
             let steps = (UNTIMED_STEPS, requests_per_measurement(n as usize));
-            let in_process = local_rate(task, n as usize, threads, steps)?;
+            let in_process = in_process_rate(task, n as usize, threads, steps)?;
             // The clients take turns going first, so what the first measurement of a round
             // pays (caches the reference left cold) is not always the same client's.
             let mut order: Vec<usize> = (0..batches.len()).collect();
