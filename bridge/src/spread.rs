@@ -27,6 +27,7 @@ use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 use crate::client::{Client, EngineInfo};
 use crate::error::BridgeError;
 use crate::publisher::CheckpointPublisher;
+use crate::retry::retry_within;
 use crate::signing::CheckpointSigner;
 
 /// Queries each engine has in flight at once.
@@ -39,13 +40,19 @@ pub const ROLLOUT_SHARE: usize = 4;
 /// How long [`load_checkpoint`] waits for every engine to list the checkpoint.
 pub const LOAD_TIMEOUT: Duration = Duration::from_secs(15);
 
+/// How long [`resolve_engines`] keeps asking a named engine that no query reaches: one
+/// started a moment ago has not declared itself yet, and a client that joined as a Zenoh
+/// peer is linked to the engines only after the router's gossip.
+pub const JOIN_GRACE: Duration = Duration::from_secs(3);
+
 /// How often [`load_checkpoint`] publishes again while it waits: a publication sent
 /// before Zenoh has routed the engines' subscriptions reaches nobody.
 const REPUBLISH_INTERVAL: Duration = Duration::from_millis(500);
 
-/// The engines `wanted` names, to run work of `task` (Gymnasium id or short name): every
-/// reachable engine that serves it for `["*"]` (at least one must), else the names given,
-/// each asked whether it is there and serves it.
+/// The engines `wanted` names, to run work of `task` (Gymnasium id or short name) on, or to
+/// spread a vector environment over: every reachable engine that serves it, in name order,
+/// for `["*"]` (at least one must), else the names given, each asked (for up to
+/// [`JOIN_GRACE`] while no query reaches it) whether it is there and serves it.
 pub fn resolve_engines(
     client: &Client,
     wanted: &[String],
@@ -85,9 +92,12 @@ pub fn resolve_engines(
         return Err(BridgeError::InvalidArgument("no engine named".into()));
     }
     for engine in wanted {
-        let info = client
-            .engine_info(engine)
-            .map_err(|source| engine_error(engine, source))?;
+        let info = retry_within(
+            JOIN_GRACE,
+            || client.engine_info(engine),
+            |outcome| matches!(outcome, Err(BridgeError::NoEngine { .. })),
+        )
+        .map_err(|source| engine_error(engine, source))?;
         if !serves(&info) {
             return Err(engine_error(
                 engine,

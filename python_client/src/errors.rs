@@ -37,6 +37,8 @@ pub fn to_py(error: BridgeError) -> PyErr {
             BridgeError::NoEngine { .. }
             | BridgeError::NoReply { .. }
             | BridgeError::Zenoh { .. } => EngineUnreachable::new_err(message),
+            // What the caller asked of it was wrong (e.g. a task it does not serve).
+            BridgeError::InvalidArgument(_) => PyValueError::new_err(message),
             _ => CiflowError::new_err(message),
         },
         BridgeError::ConfigFile { .. }

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use ciflow_bridge::{
     ANY_ENGINE, BatchSeeds, Client, EngineServer, EpisodePublisher, Mode, NetworkOptions,
-    RemoteEnv, ServerOptions, SessionControl, TelemetryStream, vector,
+    RemoteEnv, ServerOptions, SessionControl, TelemetryStream, spread, vector,
 };
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -171,6 +171,19 @@ impl ClientHandle {
             .detach(|| self.client.engine_info(engine))
             .map_err(to_py)?;
         engine_to_dict(py, &info)
+    }
+
+    /// The engines to spread `task` over: `["*"]` for every reachable engine serving it
+    /// (name order), else the names given once each, each waited for a moment if it does
+    /// not answer yet and checked to serve the task (`spread::resolve_engines`).
+    fn resolve_engines(
+        &self,
+        py: Python<'_>,
+        task: &str,
+        engines: Vec<String>,
+    ) -> PyResult<Vec<String>> {
+        py.detach(|| spread::resolve_engines(&self.client, &engines, task))
+            .map_err(to_py)
     }
 
     /// Opens a session of `num_envs` environments of `task` on `engine`, built with the

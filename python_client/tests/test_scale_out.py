@@ -5,6 +5,7 @@ a single engine's for the same seeds and actions, and a vanished engine is an er
 import os
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -102,6 +103,13 @@ def test_every_engine_serving_the_task_is_found_in_name_order(cluster):
         gym.make_vec(TASK, num_envs=4, engine=router, engines=["scale-a", "nope"])
     with pytest.raises(ValueError, match="twice"):
         gym.make_vec(TASK, num_envs=4, engine=router, engines=["scale-a", "scale-a"])
+    with pytest.raises(ValueError, match="engine names together"):
+        gym.make_vec(TASK, num_envs=4, engine=router, engines=["*", "scale-a"])
+    # A name no engine can have is refused at once, without the grace a late engine gets.
+    started = time.monotonic()
+    with pytest.raises(ValueError, match="engine name `no such` must be"):
+        gym.make_vec(TASK, num_envs=4, engine=router, engines=["scale-a", "no such"])
+    assert time.monotonic() - started < 1.0
 
 
 def thread_policies(pid: int) -> dict[str, set[int]]:
@@ -139,13 +147,17 @@ def test_engines_run_all_their_threads_as_batch_threads(cluster):
 
 
 def test_an_engine_still_starting_is_waited_for(cluster):
-    """Named engines that do not answer the first discovery (just started, or linked to
-    a peer's client only after the router's gossip) are looked for again for a moment."""
+    """A named engine that does not answer yet (started a moment later, or linked to a
+    peer's client only after the router's gossip) is asked again for a moment
+    (`spread::JOIN_GRACE`): here it starts more than the second a single request retries
+    an unrouted query for, so only the grace finds it."""
     router, _ = cluster
-    late = subprocess.Popen(
+    late: list[subprocess.Popen] = []
+    starter = threading.Timer(1.2, lambda: late.append(subprocess.Popen(
         [str(BINARY), "serve", "--name", "scale-late", "--connect", router,
          "--listen", f"tcp/127.0.0.1:{free_port()}"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)))
+    starter.start()
     try:
         envs = gym.make_vec(TASK, num_envs=4, engine=router, engines=["scale-a", "scale-late"],
                             obstacles=1)
@@ -154,8 +166,10 @@ def test_an_engine_still_starting_is_waited_for(cluster):
         envs.step(np.zeros((4, 2)))
         envs.close()
     finally:
-        late.terminate()
-        late.wait(timeout=10)
+        starter.join()
+        for process in late:
+            process.terminate()
+            process.wait(timeout=10)
 
 
 def test_engines_started_without_options_on_one_machine_all_meet(private_default_endpoint):

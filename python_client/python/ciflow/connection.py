@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import threading
-import time
 
 from ciflow import _native
 
@@ -14,11 +13,6 @@ _clients: dict[tuple, _native.ClientHandle] = {}
 _embedded: _native.Engine | None = None
 # The key of the embedded engine's client among those of `_client`.
 _EMBEDDED = ("embedded", None, None)
-
-# How long named engines that did not answer the first discovery are looked for again: an
-# engine still starting, or one a peer's client links to only once the router's gossip
-# named it, answers within a moment.
-_JOIN_GRACE_S = 2.0
 
 _HOW_TO_START = (
     "Start an engine with `ciflow serve --listen tcp/0.0.0.0:7447` on that machine "
@@ -164,29 +158,11 @@ def resolve_engines(
             f"no ciflow engine reachable at {engine or zenoh_config or default_endpoint()}: "
             f"{error}. {_HOW_TO_START}") from None
 
-    def serving() -> set[str]:
-        return {info["name"] for info in client.discover() if _serves(info, task)}
-
-    found = serving()
-    if engines == "*":
-        if not found:
-            raise _native.EngineUnreachable(f"no ciflow engine serving {task} answered. "
-                                            + _HOW_TO_START)
-        return client, sorted(found)
-    if isinstance(engines, str) or not engines:
+    if engines != "*" and (isinstance(engines, str) or not engines):
         raise ValueError(f"engines= takes a list of engine names or '*', not {engines!r}")
-    if len(set(engines)) != len(engines):
-        raise ValueError(f"engines= names an engine twice: {engines}")
-    deadline = time.monotonic() + _JOIN_GRACE_S
-    while any(name not in found for name in engines) and time.monotonic() < deadline:
-        time.sleep(0.05)
-        found |= serving()
-    missing = [name for name in engines if name not in found]
-    if missing:
-        raise _native.EngineUnreachable(
-            f"engine(s) {missing} did not answer or do not serve {task} "
-            f"(serving it: {sorted(found) or 'none'})")
-    return client, list(engines)
+    # The one lookup the command line's --engines uses too: duplicates, names and engines
+    # that are missing (after a moment's grace) or do not serve the task are refused there.
+    return client, client.resolve_engines(task, ["*"] if engines == "*" else list(engines))
 
 
 def _serves(info: dict, task: str) -> bool:
