@@ -9,11 +9,11 @@ use crate::control::{ComputedTorque, JointMask, Saturation};
 use crate::math::{DVector, Real, Vector3};
 use crate::robot::Robot;
 
-/// What happened during one control period.
+/// What happened during one control period. The torque command applied over it (after
+/// the limits) is the controller's [`command`](ComputedTorque::command); it is not copied
+/// here, since a step of thousands of batched environments would allocate for it each.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StepReport {
-    /// The torque command applied (after the limits), held over the period.
-    pub tau: DVector,
     /// Which joints the torque and rate limits changed.
     pub saturation: Saturation,
     /// Joints that touched an end stop during the period.
@@ -268,7 +268,6 @@ impl Simulator {
             }
         }
         Ok(StepReport {
-            tau: self.controller.command().clone(),
             saturation,
             end_stops,
             over_speed,
@@ -320,7 +319,8 @@ impl Simulator {
         self.robot.as_mut()
     }
 
-    /// The controller, e.g. for its last request before the limits.
+    /// The controller, e.g. for its last command (the torque applied over the last period)
+    /// or its last request before the limits.
     pub fn controller(&self) -> &ComputedTorque {
         &self.controller
     }
