@@ -62,6 +62,9 @@ pub enum BridgeError {
          at a running engine (`engine=\"tcp/<host>:<port>\"` or CIFLOW_ENGINE)"
     )]
     NoEngine { key: String },
+    /// Asked for every engine serving a task (`*`), none that serves it answered.
+    #[error("no engine serving {task} answered; start some with `ciflow serve`")]
+    NoEngineServing { task: String },
     /// An engine took the request but its reply did not come before the timeout: it is
     /// overloaded or stuck, or the link dropped while it worked.
     #[error(

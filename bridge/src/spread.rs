@@ -73,9 +73,7 @@ pub fn resolve_engines(
             .map(|e| e.name)
             .collect();
         if engines.is_empty() {
-            return Err(BridgeError::InvalidArgument(format!(
-                "no engine serving {task} answered; start some with `ciflow serve`"
-            )));
+            return Err(BridgeError::NoEngineServing { task: task.into() });
         }
         return Ok(engines);
     }

@@ -26,6 +26,7 @@ pub fn to_py(error: BridgeError) -> PyErr {
     match error {
         BridgeError::Remote(reply) => remote(&reply, ""),
         BridgeError::NoEngine { .. }
+        | BridgeError::NoEngineServing { .. }
         | BridgeError::NoReply { .. }
         | BridgeError::Open { .. }
         | BridgeError::Zenoh { .. }

@@ -112,6 +112,20 @@ def test_every_engine_serving_the_task_is_found_in_name_order(cluster):
     assert time.monotonic() - started < 1.0
 
 
+def test_every_engine_of_none_is_an_unreachable_error():
+    """``engines="*"`` through a router that no engine joined."""
+    if not BINARY.exists():
+        pytest.skip(f"{BINARY} not built (cargo build --release)")
+    router = f"tcp/127.0.0.1:{free_port()}"
+    alone = start_process([str(BINARY), "router", "--listen", router])
+    try:
+        with pytest.raises(ciflow.EngineUnreachable, match="no engine serving ciflow/Obstacle-v0"):
+            gym.make_vec(TASK, num_envs=2, engine=router, engines="*")
+    finally:
+        alone.terminate()
+        alone.wait(timeout=10)
+
+
 def thread_policies(pid: int) -> dict[str, set[int]]:
     """The scheduling policies of process ``pid``'s threads by thread name (Linux:
     field 41 of ``/proc/<pid>/task/*/stat``; 0 the normal policy, 3 ``SCHED_BATCH``)."""
