@@ -101,5 +101,6 @@ def main() -> int:
             print(f"    1 then 2 threads in one process, no Zenoh: {summary(in_process)}")
     return 0
 
+
 if __name__ == "__main__":
     sys.exit(main())
