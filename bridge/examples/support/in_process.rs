@@ -24,7 +24,8 @@ pub fn in_process_rate(
     }
     let action = vec![0.0; batch[0].spec().action_space.dim()];
     let share = envs.div_ceil(threads);
-    let start = std::sync::Barrier::new(threads + 1);
+    // Fewer environments than threads make fewer shares: the barrier waits for those.
+    let start = std::sync::Barrier::new(envs.div_ceil(share) + 1);
     let elapsed = std::thread::scope(|scope| {
         let workers: Vec<_> = batch
             .chunks_mut(share)
