@@ -11,9 +11,11 @@
 //!   lives in the `ciflow-train` crate, the only libtorch user);
 //! - [`nn`]: the neural-network numerics the policies run on (dual numbers, dense layers
 //!   with an AVX2 kernel);
-//! - [`training`]: the settings of a training run, so tasks can carry their recipes.
+//! - [`training`]: the settings of a training run, so tasks can carry their recipes;
+//! - [`allocations`]: counting heap allocations, for the tests of allocation-free steps.
 
 pub mod algorithm;
+pub mod allocations;
 pub mod control;
 pub mod flow;
 pub mod math;

@@ -3,54 +3,16 @@
 //! point mass's whole step (a copy of the torque command in every `StepReport` made the
 //! obstacle task's step 10–20 % slower).
 //!
-//! The heap allocations of this thread are counted by a global allocator of this test
-//! binary alone, so other tests' threads do not disturb the count.
+//! The heap allocations of this thread are counted by this test binary's global allocator
+//! ([`ciflow_engine::allocations`]), so other tests' threads do not disturb the count.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
+use ciflow_engine::allocations::{CountingAllocator, count_allocations};
 use ciflow_engine::math::DVector;
 use ciflow_engine::robot::{PANDA_HOME, PointMass2d, panda};
 use ciflow_engine::sim::{SimConfig, Simulator};
 
-struct CountingAllocator;
-
-thread_local! {
-    /// Allocations of this thread while counting, or `None` while not counting.
-    static COUNT: Cell<Option<usize>> = const { Cell::new(None) };
-}
-
-fn note_allocation() {
-    // `try_with`: threads being torn down have no thread-locals left, and count nothing.
-    let _ = COUNT.try_with(|count| count.set(count.get().map(|n| n + 1)));
-}
-
-// SAFETY: every call is forwarded unchanged to the system allocator.
-unsafe impl GlobalAlloc for CountingAllocator {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        note_allocation();
-        unsafe { System.alloc(layout) }
-    }
-
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        note_allocation();
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
 static ALLOCATOR: CountingAllocator = CountingAllocator;
-
-/// Heap allocations `work` makes on this thread.
-fn allocations(work: impl FnOnce()) -> usize {
-    COUNT.with(|count| count.set(Some(0)));
-    work();
-    COUNT.with(|count| count.take()).expect("counting")
-}
 
 #[test]
 fn a_step_allocates_nothing() {
@@ -75,7 +37,7 @@ fn a_step_allocates_nothing() {
         let mut torque = vec![0.0; dof];
         // The first step may size what the controller keeps between steps.
         sim.step(&qdd_desired).unwrap();
-        let made = allocations(|| {
+        let made = count_allocations(|| {
             for _ in 0..100 {
                 let report = sim.step(&qdd_desired).unwrap();
                 assert!(report.end_stops.is_empty());
@@ -92,7 +54,7 @@ fn a_step_allocates_nothing() {
 #[test]
 fn the_counter_sees_a_vector_copy() {
     let torque = DVector::from_element(7, 1.0);
-    let made = allocations(|| {
+    let made = count_allocations(|| {
         let copy = std::hint::black_box(torque.clone());
         assert_eq!(copy.len(), 7);
     });

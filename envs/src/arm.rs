@@ -19,8 +19,8 @@ use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
 use rand_chacha::ChaCha8Rng;
 
 use crate::env::{
-    Env, EnvError, EnvSpec, Info, Outcome, PERTURBED_INFO, Phase, ResetOptions, Step,
-    observation_of,
+    Env, EnvError, EnvSpec, Info, Outcome, PERTURBED_INFO, Phase, ResetOptions, StepOutcome,
+    observation_of, start_trail, write_observation,
 };
 use crate::scene::{self, Body, Scene};
 use crate::seeding::EpisodeRng;
@@ -236,25 +236,31 @@ impl<T: ArmTask> Env for ArmEnv<T> {
         self.phase = Phase::Running;
         self.steps = 0;
         let pose = self.pose()?;
-        self.trail = vec![T::traced_point(&pose)];
+        start_trail(
+            &mut self.trail,
+            T::traced_point(&pose),
+            self.spec.max_episode_steps,
+        );
         Ok((self.observation(), self.outcome(&pose).info))
     }
 
-    fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
+    fn step_into(
+        &mut self,
+        action: &[f64],
+        observation: &mut [f64],
+    ) -> Result<StepOutcome, EnvError> {
         self.phase.running()?;
         self.spec.action_space.check("action", action)?;
+        self.spec.check_observation_buffer(observation)?;
         self.simulator.step(action).map_err(EnvError::Simulation)?;
         self.steps += 1;
         let pose = self.pose()?;
         self.trail.push(T::traced_point(&pose));
         let outcome = self.outcome(&pose);
-        let observation = self.observation();
-        Ok(self.phase.finish_step(
-            outcome,
-            observation,
-            self.steps,
-            self.spec.max_episode_steps,
-        ))
+        write_observation(&self.simulator, &self.context, observation);
+        Ok(self
+            .phase
+            .finish_step(outcome, self.steps, self.spec.max_episode_steps))
     }
 
     fn expert_action(&self) -> Result<Vec<f64>, EnvError> {

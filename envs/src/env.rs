@@ -68,6 +68,20 @@ impl EnvSpec {
         Ok(observation.split_at(expected - self.context_space.dim()))
     }
 
+    /// Refuses a buffer for [`Env::step_into`] whose length is not the observation's.
+    pub fn check_observation_buffer(&self, buffer: &[f64]) -> Result<(), EnvError> {
+        let expected = self.observation_space.dim();
+        if buffer.len() == expected {
+            Ok(())
+        } else {
+            Err(EnvError::WrongDimension {
+                what: "observation buffer",
+                expected,
+                got: buffer.len(),
+            })
+        }
+    }
+
     /// This spec, shared with every living environment whose spec equals it: the
     /// thousands of environments of a batched session then check their actions against
     /// one copy of the bounds, which stays in cache, instead of one copy each.
@@ -198,21 +212,19 @@ impl Phase {
         }
     }
 
-    /// The [`Step`] into `outcome` after the episode's `steps`-th control period:
+    /// The [`StepOutcome`] of `outcome` after the episode's `steps`-th control period:
     /// truncated at `max_episode_steps` unless it terminated. Either ends the episode.
     pub fn finish_step(
         &mut self,
         outcome: Outcome,
-        observation: Vec<f64>,
         steps: u32,
         max_episode_steps: u32,
-    ) -> Step {
+    ) -> StepOutcome {
         let truncated = !outcome.terminated && steps >= max_episode_steps;
         if outcome.terminated || truncated {
             *self = Phase::Ended;
         }
-        Step {
-            observation,
+        StepOutcome {
             reward: outcome.reward,
             terminated: outcome.terminated,
             truncated,
@@ -224,7 +236,27 @@ impl Phase {
 /// The observation `[q, q̇, c]` of a simulated robot's state and the context, the layout
 /// of every task ([`EnvSpec::position_dim`]).
 pub fn observation_of(simulator: &Simulator, context: &[f64]) -> Vec<f64> {
-    [simulator.q().as_slice(), simulator.qd().as_slice(), context].concat()
+    let mut observation = vec![0.0; simulator.q().len() + simulator.qd().len() + context.len()];
+    write_observation(simulator, context, &mut observation);
+    observation
+}
+
+/// Starts an episode's trail (the points `render` draws) at `first`, with room for every
+/// step of the episode, so that steps never grow it; its memory is kept from one episode
+/// to the next.
+pub fn start_trail<P>(trail: &mut Vec<P>, first: P, max_episode_steps: u32) {
+    trail.clear();
+    trail.reserve(max_episode_steps as usize + 1);
+    trail.push(first);
+}
+
+/// [`observation_of`] written into `buffer`, which has its length.
+pub fn write_observation(simulator: &Simulator, context: &[f64], buffer: &mut [f64]) {
+    let (q, rest) = buffer.split_at_mut(simulator.q().len());
+    let (qd, c) = rest.split_at_mut(simulator.qd().len());
+    q.copy_from_slice(simulator.q().as_slice());
+    qd.copy_from_slice(simulator.qd().as_slice());
+    c.copy_from_slice(context);
 }
 
 /// What a task tells about one state: Gymnasium's reward, termination and info.
@@ -246,6 +278,29 @@ pub struct Step {
     pub info: Info,
 }
 
+/// The result of one [`Env::step_into`]: a [`Step`] but its observation, which went into
+/// the caller's buffer.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepOutcome {
+    pub reward: f64,
+    pub terminated: bool,
+    pub truncated: bool,
+    pub info: Info,
+}
+
+impl StepOutcome {
+    /// The [`Step`] of this outcome and its observation.
+    pub fn with_observation(self, observation: Vec<f64>) -> Step {
+        Step {
+            observation,
+            reward: self.reward,
+            terminated: self.terminated,
+            truncated: self.truncated,
+            info: self.info,
+        }
+    }
+}
+
 /// A task with Gymnasium semantics.
 ///
 /// Seeding follows Gymnasium: `reset(Some(seed))` reseeds the RNG, `reset(None)` continues
@@ -261,7 +316,20 @@ pub trait Env: Send {
     ) -> Result<(Vec<f64>, Info), EnvError>;
 
     /// Applies the desired acceleration for one control period.
-    fn step(&mut self, action: &[f64]) -> Result<Step, EnvError>;
+    fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
+        let mut observation = vec![0.0; self.spec().observation_space.dim()];
+        let outcome = self.step_into(action, &mut observation)?;
+        Ok(outcome.with_observation(observation))
+    }
+
+    /// [`step`](Self::step) with the observation written into `observation` (its length
+    /// checked before anything moves), for callers that step many environments into one
+    /// buffer: a step then allocates nothing for it.
+    fn step_into(
+        &mut self,
+        action: &[f64],
+        observation: &mut [f64],
+    ) -> Result<StepOutcome, EnvError>;
 
     /// The expert's action for the current state and context.
     fn expert_action(&self) -> Result<Vec<f64>, EnvError>;

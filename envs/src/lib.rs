@@ -32,6 +32,6 @@ pub mod space;
 pub mod tasks;
 pub mod vitruvian;
 
-pub use env::{Env, EnvError, EnvSpec, Info, ResetOptions, Step};
+pub use env::{Env, EnvError, EnvSpec, Info, ResetOptions, Step, StepOutcome};
 pub use registry::{make, make_with, tasks};
 pub use space::{BoxSpace, Dtype};

@@ -15,7 +15,8 @@ use nalgebra::Vector2;
 use rand_chacha::ChaCha8Rng;
 
 use crate::env::{
-    Env, EnvError, EnvSpec, Info, Outcome, Phase, ResetOptions, Step, observation_of,
+    Env, EnvError, EnvSpec, Info, Outcome, Phase, ResetOptions, StepOutcome, observation_of,
+    start_trail, write_observation,
 };
 use crate::expert::tracking::{VelocityField, tracking_acceleration};
 use crate::raster::{BLACK, BLUE, Canvas, View};
@@ -202,24 +203,26 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         self.context = context;
         self.phase = Phase::Running;
         self.steps = 0;
-        self.trail = vec![x0];
+        start_trail(&mut self.trail, x0, self.spec.max_episode_steps);
         Ok((self.observation(), self.outcome().info))
     }
 
-    fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
+    fn step_into(
+        &mut self,
+        action: &[f64],
+        observation: &mut [f64],
+    ) -> Result<StepOutcome, EnvError> {
         self.phase.running()?;
         self.spec.action_space.check("action", action)?;
+        self.spec.check_observation_buffer(observation)?;
         self.simulator.step(action).map_err(EnvError::Simulation)?;
         self.steps += 1;
         self.trail.push(self.state().0);
         let outcome = self.outcome();
-        let observation = self.observation();
-        Ok(self.phase.finish_step(
-            outcome,
-            observation,
-            self.steps,
-            self.spec.max_episode_steps,
-        ))
+        write_observation(&self.simulator, &self.context, observation);
+        Ok(self
+            .phase
+            .finish_step(outcome, self.steps, self.spec.max_episode_steps))
     }
 
     fn expert_action(&self) -> Result<Vec<f64>, EnvError> {

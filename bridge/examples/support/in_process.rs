@@ -32,10 +32,12 @@ pub fn in_process_rate(
             .map(|envs| {
                 let (start, action, options) = (&start, &action, &options);
                 scope.spawn(move || -> Result<(), ciflow_envs::EnvError> {
+                    // Into one buffer, as the engine steps its batches.
+                    let mut observation = vec![0.0; envs[0].spec().observation_space.dim()];
                     let mut step_all = |rounds| {
                         for _ in 0..rounds {
                             for env in envs.iter_mut() {
-                                let step = env.step(action)?;
+                                let step = env.step_into(action, &mut observation)?;
                                 if step.terminated || step.truncated {
                                     env.reset(None, options)?;
                                 }

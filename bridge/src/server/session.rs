@@ -200,7 +200,7 @@ impl Session {
             ));
         }
         let slot = self.slot(request.index)?;
-        if slot.observation.is_empty() || slot.episode_over {
+        if slot.needs_reset() {
             return Err(EnvError::NeedsReset.into());
         }
         self.runs += 1;
@@ -310,10 +310,11 @@ impl Session {
         let slot = self.single("step")?;
         let step = slot.step(action)?;
         let time = slot.time();
+        let observation = slot.observation.clone();
         self.telemetry.offer(&self.id, &self.envs[0]);
         Ok(encode(&StepReply {
             v: PROTOCOL_VERSION,
-            observation: F64s(step.observation),
+            observation: F64s(observation),
             reward: step.reward,
             terminated: step.terminated,
             truncated: step.truncated,
@@ -371,8 +372,8 @@ impl Session {
         let mut rewards = vec![0.0; n];
         let mut terminated = vec![0u8; n];
         let mut truncated = vec![0u8; n];
-        // Each rayon task steps a chunk straight into its slices of the reply and frees
-        // its steps' buffers itself: no per-environment work is left to this thread.
+        // Each rayon task steps a chunk and copies it into its slices of the reply: no
+        // per-environment work is left to this thread.
         let chunks: Vec<Result<InfoColumns, ErrorReply>> = self
             .envs
             .par_chunks_mut(BATCH_CHUNK)
@@ -401,7 +402,7 @@ impl Session {
                             }
                         };
                         observations[i * observation_dim..(i + 1) * observation_dim]
-                            .copy_from_slice(&step.observation);
+                            .copy_from_slice(&slot.observation);
                         rewards[i] = step.reward;
                         terminated[i] = u8::from(step.terminated);
                         truncated[i] = u8::from(step.truncated);

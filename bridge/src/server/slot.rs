@@ -2,7 +2,7 @@
 //! time, the last command, and whether the episode ended (for next-step autoreset).
 
 use ciflow_envs::env::PERTURBED_INFO;
-use ciflow_envs::{Env, EnvError, Info, ResetOptions, Step};
+use ciflow_envs::{Env, EnvError, Info, ResetOptions, StepOutcome};
 
 pub(crate) struct EnvSlot {
     pub env: Box<dyn Env>,
@@ -53,21 +53,27 @@ impl EnvSlot {
         Ok((observation, info))
     }
 
-    /// One control period. The action is checked here too, so that a task that forgets a
-    /// check still answers with a typed error.
-    pub fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
+    /// Whether the environment must be reset before it steps: never reset, or its episode
+    /// ended.
+    pub fn needs_reset(&self) -> bool {
+        self.observation.is_empty() || self.episode_over
+    }
+
+    /// One control period; the new observation is [`observation`](Self::observation). The
+    /// action is checked here too, so that a task that forgets a check still answers with
+    /// a typed error.
+    pub fn step(&mut self, action: &[f64]) -> Result<StepOutcome, EnvError> {
         check_vector("action", action, self.command.len())?;
-        if self.episode_over {
+        if self.needs_reset() {
             return Err(EnvError::NeedsReset);
         }
-        let step = self.env.step(action)?;
+        let outcome = self.env.step_into(action, &mut self.observation)?;
         self.steps += 1;
         self.command.copy_from_slice(action);
-        self.observation.clone_from(&step.observation);
-        self.reward = step.reward;
-        self.episode_over = step.terminated || step.truncated;
-        self.perturbed = pushed(&step.info);
-        Ok(step)
+        self.reward = outcome.reward;
+        self.episode_over = outcome.terminated || outcome.truncated;
+        self.perturbed = pushed(&outcome.info);
+        Ok(outcome)
     }
 
     /// A step with Gymnasium's next-step autoreset: if the previous step ended the
@@ -76,13 +82,12 @@ impl EnvSlot {
         &mut self,
         action: &[f64],
         options: &ResetOptions,
-    ) -> Result<Step, EnvError> {
+    ) -> Result<StepOutcome, EnvError> {
         if !self.episode_over {
             return self.step(action);
         }
-        let (observation, info) = self.reset(None, options)?;
-        Ok(Step {
-            observation,
+        let (_, info) = self.reset(None, options)?;
+        Ok(StepOutcome {
             reward: 0.0,
             terminated: false,
             truncated: false,

@@ -18,7 +18,7 @@ use ciflow_engine::flow::checkpoint;
 use ciflow_engine::flow::{CheckpointConfig, CouplingKind, FlowConfig, LatentKind, Weights};
 use ciflow_engine::sim::Perturbation;
 use ciflow_envs::scene::{Body, Scene, Shape};
-use ciflow_envs::{BoxSpace, Dtype, Env, EnvError, EnvSpec, Info, ResetOptions, Step};
+use ciflow_envs::{BoxSpace, Dtype, Env, EnvError, EnvSpec, Info, ResetOptions, StepOutcome};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -91,15 +91,20 @@ impl Env for Fixture {
         Ok((self.observation(), info))
     }
 
-    fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
+    fn step_into(
+        &mut self,
+        action: &[f64],
+        observation: &mut [f64],
+    ) -> Result<StepOutcome, EnvError> {
         self.spec.action_space.check("action", action)?;
+        self.spec.check_observation_buffer(observation)?;
         assert!(action[0] != PANIC_ACTION, "fixture asked to panic");
         self.x += action[0] * self.spec.control_dt;
         self.steps += 1;
         let mut info = Info::new();
         info.insert("distance".into(), (self.x - self.context).abs());
-        Ok(Step {
-            observation: self.observation(),
+        observation.copy_from_slice(&self.observation());
+        Ok(StepOutcome {
             reward: -(self.x - self.context).abs(),
             terminated: false,
             truncated: self.steps >= EPISODE_STEPS,
