@@ -5,7 +5,9 @@ growth includes one-time costs (thread pools, the task's shared data, and Zenoh'
 memory: the engine's 16 MiB pool in the first session, zenoh-shm's watchdog with its 8 MiB
 channel and the client's mapped segment in the second), so the cost per 1000 environments
 is the median growth of the sessions after the first two, whose growths are printed
-beside it.
+beside it. Then each session in turn steps for an episode's length (zero actions,
+next-step autoreset), and the growths this adds are printed the same way: what an engine
+that has been stepping holds on top.
 
     python bench/engine_memory.py [PATH_TO_CIFLOW]
 """
@@ -18,6 +20,7 @@ import time
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 
 import ciflow  # noqa: F401  (registers the environments)
 
@@ -40,9 +43,15 @@ def resident_kib(pid: int) -> int:
     raise RuntimeError("no VmRSS")
 
 
-def engine_growth(binary: str, task: str, kwargs: dict) -> list[float]:
+def growths(sizes: list[int]) -> list[float]:
+    """MiB between consecutive sizes in KiB."""
+    return [(after - before) / 1024 for before, after in zip(sizes, sizes[1:])]
+
+
+def engine_growth(binary: str, task: str, kwargs: dict) -> tuple[list[float], list[float]]:
     """MiB an engine grows by when a client makes and resets ENVS environments of task,
-    for each of SESSIONS sessions in turn (all kept open)."""
+    for each of SESSIONS sessions in turn (all kept open); then MiB it grows by while
+    each session in turn steps for an episode's length."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
@@ -59,9 +68,15 @@ def engine_growth(binary: str, task: str, kwargs: dict) -> list[float]:
             sessions.append(envs)
             time.sleep(0.2)
             sizes.append(resident_kib(engine.pid))
+        stepped = [sizes[-1]]
+        for envs in sessions:
+            actions = np.zeros(envs.action_space.shape)
+            for _ in range(envs.task_spec["max_episode_steps"]):
+                envs.step(actions)
+            stepped.append(resident_kib(engine.pid))
         for envs in sessions:
             envs.close()
-        return [(after - before) / 1024 for before, after in zip(sizes, sizes[1:])]
+        return growths(sizes), growths(stepped)
     finally:
         engine.terminate()
         engine.wait(timeout=10)
@@ -70,13 +85,14 @@ def engine_growth(binary: str, task: str, kwargs: dict) -> list[float]:
 def main() -> int:
     binary = sys.argv[1] if len(sys.argv) > 1 else str(ROOT / "target/release/ciflow")
     print(f"engine resident memory per {ENVS} environments (made and reset, fresh engine "
-          f"each, {SESSIONS} sessions): median growth of sessions 3-{SESSIONS}, "
-          "then every session's growth")
+          f"each, {SESSIONS} sessions), then while each session steps an episode's length: "
+          f"median growth of sessions 3-{SESSIONS}, then every session's growth")
     for task, kwargs in TASKS:
-        growth = engine_growth(binary, task, kwargs)
-        steady = statistics.median(growth[2:])
-        each = " ".join(f"{g:5.1f}" for g in growth)
-        print(f"  {task:24s} {steady:6.1f} MiB   ({each})", flush=True)
+        made, stepped = engine_growth(binary, task, kwargs)
+        for what, growth in (("made and reset", made), ("then stepped", stepped)):
+            steady = statistics.median(growth[2:])
+            each = " ".join(f"{g:5.1f}" for g in growth)
+            print(f"  {task:24s} {what:15s} {steady:6.1f} MiB   ({each})", flush=True)
     return 0
 
 

@@ -469,3 +469,34 @@ fn telemetry_flows_while_a_viewer_subscribes() {
     assert_eq!(telemetry.state.0.len(), 1);
     assert_eq!(telemetry.command.0, vec![0.0]);
 }
+
+/// The environments of a batch record no trail (an episode's positions, which outweigh
+/// the rest of an environment), so their frames draw none; a session of one environment
+/// draws its trail, in the planar tasks' blue.
+#[test]
+fn only_a_single_environment_draws_its_trail() {
+    let engine = start_engine(27418);
+    let client = connect(27418);
+    let trail_pixels = |num_envs: u32| {
+        let env = client
+            .make(
+                engine.name(),
+                "ciflow/LimitCycle-v0",
+                num_envs,
+                &no_kwargs(),
+            )
+            .unwrap();
+        env.reset_batch(Some(0), None).unwrap();
+        for _ in 0..100 {
+            let actions: Vec<f64> = (0..num_envs).flat_map(|i| env.expert(i).unwrap()).collect();
+            env.step_batch(&actions).unwrap();
+        }
+        let frame = env.render(0, 160, 160).unwrap();
+        frame
+            .chunks_exact(3)
+            .filter(|pixel| *pixel == ciflow_envs::raster::BLUE)
+            .count()
+    };
+    assert!(trail_pixels(1) > 50, "a single environment draws its trail");
+    assert_eq!(trail_pixels(2), 0, "a batch's environment draws none");
+}

@@ -20,13 +20,14 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::env::{
     Env, EnvError, EnvSpec, Info, Outcome, PERTURBED_INFO, Phase, ResetOptions, StepOutcome,
-    observation_of, start_trail, write_observation,
+    observation_of, write_observation,
 };
 use crate::scene::{self, Body, Scene};
 use crate::seeding::EpisodeRng;
 use crate::shading::{self, Camera, Picture};
 use crate::space::{BoxSpace, Dtype};
 use crate::tasks::arm_start;
+use crate::trail::Trail;
 
 /// Physics and control periods of every arm task, s.
 const PHYSICS_DT: f64 = 0.001;
@@ -90,7 +91,7 @@ pub struct ArmEnv<T: ArmTask> {
     phase: Phase,
     steps: u32,
     /// The traced point's positions this episode, drawn by `render`.
-    trail: Vec<Vector3>,
+    trail: Trail<Vector3>,
 }
 
 impl<T: ArmTask> ArmEnv<T> {
@@ -142,7 +143,7 @@ impl<T: ArmTask> ArmEnv<T> {
             context: Vec::new(),
             phase: Phase::NeedsReset,
             steps: 0,
-            trail: Vec::new(),
+            trail: Trail::default(),
         })
     }
 
@@ -179,15 +180,18 @@ impl<T: ArmTask> ArmEnv<T> {
     }
 
     /// The shaded picture `render` returns, with which body each pixel shows: the
-    /// [`Env::scene`] of the current observation and the traced point's trail, seen by
-    /// the task's camera (blank before the first reset).
+    /// [`Env::scene`] of the current observation and the traced point's trail (unless
+    /// [`Env::record_trail`] turned it off), seen by the task's camera (blank before the
+    /// first reset).
     pub fn picture(&self, width: u32, height: u32) -> Result<Picture, EnvError> {
         let mut scene = Scene::default();
         if self.phase != Phase::NeedsReset {
             scene = self.scene(&self.observation())?;
-            scene
-                .bodies
-                .push(scene::trail(self.task.setup().trail, &self.trail));
+            if !self.trail.points().is_empty() {
+                scene
+                    .bodies
+                    .push(scene::trail(self.task.setup().trail, self.trail.points()));
+            }
         }
         shading::render(&scene, &self.task.camera(), width, height)
     }
@@ -236,11 +240,8 @@ impl<T: ArmTask> Env for ArmEnv<T> {
         self.phase = Phase::Running;
         self.steps = 0;
         let pose = self.pose()?;
-        start_trail(
-            &mut self.trail,
-            T::traced_point(&pose),
-            self.spec.max_episode_steps,
-        );
+        self.trail
+            .start(T::traced_point(&pose), self.spec.max_episode_steps);
         Ok((self.observation(), self.outcome(&pose).info))
     }
 
@@ -290,6 +291,10 @@ impl<T: ArmTask> Env for ArmEnv<T> {
 
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
         Ok(self.picture(width, height)?.into_pixels())
+    }
+
+    fn record_trail(&mut self, recording: bool) {
+        self.trail.record(recording);
     }
 
     fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {

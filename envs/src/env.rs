@@ -241,15 +241,6 @@ pub fn observation_of(simulator: &Simulator, context: &[f64]) -> Vec<f64> {
     observation
 }
 
-/// Starts an episode's trail (the points `render` draws) at `first`, with room for every
-/// step of the episode, so that steps never grow it; its memory is kept from one episode
-/// to the next.
-pub fn start_trail<P>(trail: &mut Vec<P>, first: P, max_episode_steps: u32) {
-    trail.clear();
-    trail.reserve(max_episode_steps as usize + 1);
-    trail.push(first);
-}
-
 /// [`observation_of`] written into `buffer`, which has its length.
 pub fn write_observation(simulator: &Simulator, context: &[f64], buffer: &mut [f64]) {
     let (q, rest) = buffer.split_at_mut(simulator.q().len());
@@ -349,6 +340,11 @@ pub trait Env: Send {
 
     /// Renders the current state as an RGB image, row-major `height × width × 3`.
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError>;
+
+    /// Whether steps record the trail [`render`](Self::render) draws behind the robot (on
+    /// when made; turning it off frees it). An episode's trail can outweigh the rest of
+    /// the environment, so an engine turns it off for the environments of a batch.
+    fn record_trail(&mut self, recording: bool);
 
     /// The task's bodies at `observation` (state then context, as `step` returns it): the
     /// robot, the context's objects (pot, obstacles, target, outline), what viewers show.

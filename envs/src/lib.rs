@@ -30,6 +30,7 @@ pub mod seeding;
 pub mod shading;
 pub mod space;
 pub mod tasks;
+pub mod trail;
 pub mod vitruvian;
 
 pub use env::{Env, EnvError, EnvSpec, Info, ResetOptions, Step, StepOutcome};

@@ -16,13 +16,14 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::env::{
     Env, EnvError, EnvSpec, Info, Outcome, Phase, ResetOptions, StepOutcome, observation_of,
-    start_trail, write_observation,
+    write_observation,
 };
 use crate::expert::tracking::{VelocityField, tracking_acceleration};
 use crate::raster::{BLACK, BLUE, Canvas, View};
 use crate::scene::{Body, Scene, Shape, planar};
 use crate::seeding::EpisodeRng;
 use crate::space::{BoxSpace, Dtype};
+use crate::trail::Trail;
 
 /// Mass of the point, kg.
 pub const MASS: f64 = 1.0;
@@ -83,7 +84,7 @@ pub struct PlanarEnv<T: PlanarTask> {
     phase: Phase,
     steps: u32,
     /// Positions visited this episode, drawn by `render`.
-    trail: Vec<Vector2<f64>>,
+    trail: Trail<Vector2<f64>>,
 }
 
 impl<T: PlanarTask> PlanarEnv<T> {
@@ -122,7 +123,7 @@ impl<T: PlanarTask> PlanarEnv<T> {
             context: Vec::new(),
             phase: Phase::NeedsReset,
             steps: 0,
-            trail: Vec::new(),
+            trail: Trail::default(),
         })
     }
 
@@ -203,7 +204,7 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         self.context = context;
         self.phase = Phase::Running;
         self.steps = 0;
-        start_trail(&mut self.trail, x0, self.spec.max_episode_steps);
+        self.trail.start(x0, self.spec.max_episode_steps);
         Ok((self.observation(), self.outcome().info))
     }
 
@@ -256,10 +257,14 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         let mut canvas = Canvas::new(width, height, self.task.setup().workspace)?;
         if self.phase != Phase::NeedsReset {
             self.task.draw(&mut canvas);
-            canvas.polyline(&self.trail, false, BLUE, 2.0);
+            canvas.polyline(self.trail.points(), false, BLUE, 2.0);
             canvas.disc(&self.state().0, self.point_radius(), BLACK);
         }
         Ok(canvas.into_pixels())
+    }
+
+    fn record_trail(&mut self, recording: bool) {
+        self.trail.record(recording);
     }
 
     /// The point mass as a ball on the plane `z = 0`, and the task's context bodies.

@@ -297,6 +297,26 @@ fn render_shows_the_cup_held_by_the_hand_above_the_pot() {
     }
 }
 
+/// The picture draws the cup's trail behind the scene's bodies, and none once
+/// `record_trail(false)` turned it off (as an engine does for a batch).
+#[test]
+fn the_picture_draws_the_trail_unless_it_is_off() {
+    let trail_pixels = |recording: bool| {
+        let mut env = pouring::make().unwrap();
+        env.record_trail(recording);
+        let (observation, _) = env.reset(Some(0), &ResetOptions::default()).unwrap();
+        let bodies = env.scene(&observation).unwrap().bodies.len();
+        for _ in 0..300 {
+            env.step(&env.expert_action().unwrap()).unwrap();
+        }
+        // The trail is the body after the scene's.
+        env.picture(480, 480).unwrap().pixels_of(bodies).len()
+    };
+    let drawn = trail_pixels(true);
+    assert!(drawn > 20, "{drawn} pixels");
+    assert_eq!(trail_pixels(false), 0);
+}
+
 #[test]
 fn the_scene_of_an_observation_needs_no_reset_and_refuses_bad_observations() {
     let mut env = pouring::make().unwrap();

@@ -1075,7 +1075,12 @@ fn build_envs(
                 )));
             }
             (factory.make)(kwargs)
-                .map(EnvSlot::new)
+                .map(|mut env| {
+                    // Nobody watches the environments of a batch one by one: their
+                    // episodes' trails would outweigh the rest of them.
+                    env.record_trail(num_envs == 1);
+                    EnvSlot::new(env)
+                })
                 .map_err(ErrorReply::from)
         })
         .collect()

@@ -132,6 +132,9 @@ impl Env for Fixture {
         Ok(vec![shade; (width * height * 3) as usize])
     }
 
+    /// The fixture keeps no trail.
+    fn record_trail(&mut self, _recording: bool) {}
+
     /// A ball at `x` on the line.
     fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {
         let (state, _) = self.spec.split_observation(observation)?;
