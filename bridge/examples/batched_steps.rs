@@ -31,11 +31,8 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
         Some(list) => list.split(',').map(str::to_owned).collect(),
         None => vec![
             client
-                .discover()?
-                .into_iter()
-                .find(|e| e.tasks.iter().any(|t| t.is_named(task)))
-                .ok_or_else(|| format!("no engine at {endpoint} serves {task}"))?
-                .name,
+                .first_engine_serving(Some(task))?
+                .ok_or_else(|| format!("no engine at {endpoint} serves {task}"))?,
         ],
     };
     // Shares differ by at most one, in the order of the engines.

@@ -77,14 +77,9 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     let client = Client::open(&NetworkOptions::endpoint(Role::Client, &endpoint))?;
     let engine = match args.get(1) {
         Some(name) => name.clone(),
-        None => {
-            client
-                .discover()?
-                .into_iter()
-                .find(|e| e.tasks.iter().any(|t| t.spec.id == TASK))
-                .ok_or("no engine serves the 2-D task")?
-                .name
-        }
+        None => client
+            .first_engine_serving(Some(TASK))?
+            .ok_or("no engine serves the 2-D task")?,
     };
 
     let env = client.make(&engine, TASK, 1, &BTreeMap::new())?;

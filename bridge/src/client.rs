@@ -51,6 +51,13 @@ pub struct EngineInfo {
     pub policies: Vec<PolicyInfo>,
 }
 
+impl EngineInfo {
+    /// Whether the engine serves `task` (Gymnasium id or short name).
+    pub fn serves(&self, task: &str) -> bool {
+        self.tasks.iter().any(|t| t.is_named(task))
+    }
+}
+
 impl From<TasksReply> for EngineInfo {
     fn from(reply: TasksReply) -> Self {
         Self {
@@ -164,6 +171,16 @@ impl Client {
         engines.sort_by(|a, b| a.name.cmp(&b.name));
         engines.dedup_by(|a, b| a.name == b.name);
         Ok(engines)
+    }
+
+    /// The name of the first reachable engine, in name order, that serves `task` (any
+    /// engine for `None`); `None` when no engine does.
+    pub fn first_engine_serving(&self, task: Option<&str>) -> Result<Option<String>, BridgeError> {
+        Ok(self
+            .discover()?
+            .into_iter()
+            .find(|engine| task.is_none_or(|task| engine.serves(task)))
+            .map(|engine| engine.name))
     }
 
     /// Tasks and policies of one engine.

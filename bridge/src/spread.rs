@@ -24,7 +24,7 @@ use ciflow_evaluation::stability::{Ending, StabilityConfig};
 use ciflow_evaluation::stability_check::Subject;
 use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 
-use crate::client::{Client, EngineInfo};
+use crate::client::Client;
 use crate::error::BridgeError;
 use crate::publisher::CheckpointPublisher;
 use crate::retry::retry_within;
@@ -58,7 +58,6 @@ pub fn resolve_engines(
     wanted: &[String],
     task: &str,
 ) -> Result<Vec<String>, BridgeError> {
-    let serves = |info: &EngineInfo| info.tasks.iter().any(|t| t.is_named(task));
     if wanted.iter().any(|w| w == "*") {
         if wanted.len() > 1 {
             return Err(BridgeError::InvalidArgument(format!(
@@ -69,8 +68,8 @@ pub fn resolve_engines(
         let engines: Vec<String> = client
             .discover()?
             .into_iter()
-            .filter(serves)
-            .map(|e| e.name)
+            .filter(|engine| engine.serves(task))
+            .map(|engine| engine.name)
             .collect();
         if engines.is_empty() {
             return Err(BridgeError::NoEngineServing { task: task.into() });
@@ -96,7 +95,7 @@ pub fn resolve_engines(
             |outcome| matches!(outcome, Err(BridgeError::NoEngine { .. })),
         )
         .map_err(|source| engine_error(engine, source))?;
-        if !serves(&info) {
+        if !info.serves(task) {
             return Err(engine_error(
                 engine,
                 BridgeError::InvalidArgument(format!("it does not serve {task}")),

@@ -500,3 +500,24 @@ fn only_a_single_environment_draws_its_trail() {
     assert!(trail_pixels(1) > 50, "a single environment draws its trail");
     assert_eq!(trail_pixels(2), 0, "a batch's environment draws none");
 }
+
+/// The default engine of a task is the first reachable one serving it, by Gymnasium id
+/// or short name; none serves a task nobody registered.
+#[test]
+fn the_first_engine_serving_a_task_is_found_by_id_or_name() {
+    let engine = start_engine(27420);
+    let client = connect(27420);
+    let name = Some(engine.name().to_owned());
+    assert_eq!(client.first_engine_serving(Some(FIXTURE_ID)).unwrap(), name);
+    assert_eq!(
+        client.first_engine_serving(Some("limit-cycle")).unwrap(),
+        name
+    );
+    assert_eq!(client.first_engine_serving(None).unwrap(), name);
+    assert_eq!(
+        client
+            .first_engine_serving(Some("ciflow/NoSuch-v0"))
+            .unwrap(),
+        None
+    );
+}

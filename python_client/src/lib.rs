@@ -166,6 +166,14 @@ impl ClientHandle {
             .collect()
     }
 
+    /// The name of the first reachable engine, in name order, that serves `task` (any
+    /// engine for `None`); `None` when no engine does.
+    #[pyo3(signature = (task=None))]
+    fn first_engine_serving(&self, py: Python<'_>, task: Option<&str>) -> PyResult<Option<String>> {
+        py.detach(|| self.client.first_engine_serving(task))
+            .map_err(to_py)
+    }
+
     fn engine_info<'py>(&self, py: Python<'py>, engine: &str) -> PyResult<Bound<'py, PyDict>> {
         let info = py
             .detach(|| self.client.engine_info(engine))

@@ -100,13 +100,6 @@ def _embedded_client() -> _native.ClientHandle:
     return client
 
 
-def _pick(client: _native.ClientHandle, task: str | None) -> str | None:
-    for engine in client.discover():
-        if task is None or _serves(engine, task):
-            return engine["name"]
-    return None
-
-
 def resolve(
     task: str | None, engine: str | None = None, zenoh_config: str | None = None
 ) -> tuple[_native.ClientHandle, str]:
@@ -129,7 +122,7 @@ def resolve(
         if engine and not connect:
             client.engine_info(engine)  # raises EngineUnreachable if it does not answer
             return client, engine
-        name = _pick(client, task)
+        name = client.first_engine_serving(task)
         if name is None:
             raise _native.EngineUnreachable(
                 f"no ciflow engine serving {task} answered via {engine or zenoh_config}. "
@@ -165,16 +158,12 @@ def resolve_engines(
     return client, client.resolve_engines(task, ["*"] if engines == "*" else list(engines))
 
 
-def _serves(info: dict, task: str) -> bool:
-    return any(task in (t["spec"]["id"], t["name"]) for t in info["tasks"])
-
-
 def _default(task: str | None) -> tuple[_native.ClientHandle, str]:
     if _EMBEDDED in _clients:
         return _clients[_EMBEDDED], _embedded.name
     try:
         client = _client(None, None)
-        name = _pick(client, task)
+        name = client.first_engine_serving(task)
         if name is not None:
             return client, name
     except _native.EngineUnreachable:
@@ -184,7 +173,7 @@ def _default(task: str | None) -> tuple[_native.ClientHandle, str]:
     except _native.EngineUnreachable:
         # Another process started an engine on the default endpoint just now.
         client = _client(None, None)
-        name = _pick(client, task)
+        name = client.first_engine_serving(task)
         if name is None:
             raise
         return client, name
