@@ -589,8 +589,9 @@ impl RemoteEnv {
         &self.control
     }
 
-    /// Renders environment `index` as `height × width × 3` RGB bytes. The frame travels
-    /// over pub/sub; the query only carries its header.
+    /// Renders environment `index` as `height × width × 3` RGB bytes, without the trail of
+    /// its episode when the session has more than one environment (their engine keeps
+    /// none). The frame travels over pub/sub; the query only carries its header.
     pub fn render(&self, index: u32, width: u32, height: u32) -> Result<Vec<u8>, BridgeError> {
         let mut frames = self.frames.lock().unwrap_or_else(|p| p.into_inner());
         let first_use = frames.is_none();

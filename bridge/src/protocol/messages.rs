@@ -381,6 +381,7 @@ pub struct DescribeReply {
 }
 
 /// `…/render`: the frame is published on `…/session/<session>/frame`; subscribe first.
+/// The environments of a session of more than one draw no trail: they keep none.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RenderRequest {
     pub v: u16,
