@@ -52,34 +52,20 @@ impl EnvSpec {
         &self,
         observation: &'a [f64],
     ) -> Result<(&'a [f64], &'a [f64]), EnvError> {
-        let expected = self.observation_space.dim();
-        if observation.len() != expected {
-            return Err(EnvError::WrongDimension {
-                what: "observation",
-                expected,
-                got: observation.len(),
-            });
-        }
+        self.observation_space
+            .check_dim("observation", observation)?;
         if observation.iter().any(|v| !v.is_finite()) {
             return Err(EnvError::NotFinite {
                 what: "observation",
             });
         }
-        Ok(observation.split_at(expected - self.context_space.dim()))
+        Ok(observation.split_at(observation.len() - self.context_space.dim()))
     }
 
     /// Refuses a buffer for [`Env::step_into`] whose length is not the observation's.
     pub fn check_observation_buffer(&self, buffer: &[f64]) -> Result<(), EnvError> {
-        let expected = self.observation_space.dim();
-        if buffer.len() == expected {
-            Ok(())
-        } else {
-            Err(EnvError::WrongDimension {
-                what: "observation buffer",
-                expected,
-                got: buffer.len(),
-            })
-        }
+        self.observation_space
+            .check_dim("observation buffer", buffer)
     }
 
     /// This spec, shared with every living environment whose spec equals it: the

@@ -40,15 +40,22 @@ impl BoxSpace {
                 .all(|(v, (lo, hi))| v.is_finite() && *lo <= *v && *v <= *hi)
     }
 
-    /// Like [`BoxSpace::contains`], but says what is wrong with `x` (named `what`).
-    pub fn check(&self, what: &'static str, x: &[f64]) -> Result<(), EnvError> {
-        if x.len() != self.dim() {
-            return Err(EnvError::WrongDimension {
+    /// Refuses `x` (named `what`) unless it has the space's dimension.
+    pub fn check_dim(&self, what: &'static str, x: &[f64]) -> Result<(), EnvError> {
+        if x.len() == self.dim() {
+            Ok(())
+        } else {
+            Err(EnvError::WrongDimension {
                 what,
                 expected: self.dim(),
                 got: x.len(),
-            });
+            })
         }
+    }
+
+    /// Like [`BoxSpace::contains`], but says what is wrong with `x` (named `what`).
+    pub fn check(&self, what: &'static str, x: &[f64]) -> Result<(), EnvError> {
+        self.check_dim(what, x)?;
         if x.iter().any(|v| !v.is_finite()) {
             return Err(EnvError::NotFinite { what });
         }
