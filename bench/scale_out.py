@@ -7,14 +7,22 @@ straight to them). Two tasks: the limit cycle, whose step is cheap beside the re
 around it (also with 16 384 environments, where the per-request cost counts for less),
 and the Panda pouring, whose ten 1 ms substeps make the engines the work.
 
+Each measurement also reads the CPU time every process spent per step (`/proc`): the
+engines', the router's and this client's. With one engine, the engine's share of the step
+is all a second engine can halve; the client and the router work per request, so the
+ratio cannot pass Amdahl's bound 2 / (2 - share), printed beside it (from the
+rounds' medians, so a noisy round's ratio may land above it).
+
 Each round also steps the same environments in one process on one and then two threads,
 no Zenoh (`bridge/examples/in_process_steps.rs`, about 2 s each): two cores give no more
 than that ratio without serving either, so it is printed beside the engines' ratio.
 
-    python bench/scale_out.py ROUTER_ENDPOINT ENGINE_A ENGINE_B IN_PROCESS_STEPS_BINARY
+    python bench/scale_out.py ROUTER_ENDPOINT ENGINE_A ENGINE_B IN_PROCESS_STEPS_BINARY \
+        router=PID,ENGINE_A=PID,ENGINE_B=PID
 """
 
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -31,20 +39,36 @@ RUNS = (("ciflow/LimitCycle-v0", 4096), ("ciflow/LimitCycle-v0", 16384),
 SECONDS, ROUNDS = 5.0, 3
 
 
-def steps_per_second(task: str, num_envs: int, engines: list[str], **join) -> float:
+def cpu_seconds(pid: int) -> float:
+    """User and system CPU time the process `pid` has spent, all its threads."""
+    with open(f"/proc/{pid}/stat") as stat:
+        fields = stat.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def steps_per_second(task: str, num_envs: int, engines: list[str], processes: dict[str, int],
+                     **join) -> tuple[float, dict[str, float]]:
+    """Env-steps/s, and the seconds of CPU per step of the engines used, the router and
+    this client (`processes`: pid by name)."""
     envs = gym.make_vec(task, num_envs=num_envs, engines=engines, **join)
     # Zero desired acceleration: every task accepts it, and the Panda holds its pose.
     actions = np.zeros((num_envs,) + envs.single_action_space.shape)
     envs.reset(seed=0)
     for _ in range(20):  # warm-up
         envs.step(actions)
+    watched = {name: pid for name, pid in processes.items()
+               if name in engines or name == "router"}
+    watched["client"] = os.getpid()
+    cpu = {name: cpu_seconds(pid) for name, pid in watched.items()}
     steps, started = 0, time.perf_counter()
     while time.perf_counter() - started < SECONDS:
         envs.step(actions)
         steps += 1
     elapsed = time.perf_counter() - started
+    cpu = {name: (cpu_seconds(pid) - cpu[name]) / steps for name, pid in watched.items()}
+    cpu["step"] = elapsed / steps
     envs.close()
-    return steps * num_envs / elapsed
+    return steps * num_envs / elapsed, cpu
 
 
 def in_process_steps_per_second(binary: str, task: str, num_envs: int, threads: int,
@@ -53,6 +77,22 @@ def in_process_steps_per_second(binary: str, task: str, num_envs: int, threads: 
     run = subprocess.run([binary, task, str(num_envs), str(threads), str(steps)],
                          capture_output=True, text=True, check=True)
     return json.loads(run.stdout)["env_steps_per_s"]
+
+
+def cpu_summary(engines: list[str], cpus: list[dict[str, float]]) -> str:
+    """Median CPU ms per step of each process over the rounds."""
+    def ms(name):
+        return np.median([cpu[name] for cpu in cpus]) * 1e3
+    return (f"engine{'s' if len(engines) > 1 else ''} "
+            + " + ".join(f"{ms(engine):.2f}" for engine in engines)
+            + f", client {ms('client'):.2f}, router {ms('router'):.2f}")
+
+
+def amdahl(engine: str, cpus: list[dict[str, float]]) -> str:
+    """The one engine's median share of a step's time and the ratio it bounds."""
+    share = min(1.0, float(np.median([cpu[engine] / cpu["step"] for cpu in cpus])))
+    return (f"one engine busy {100 * share:.0f} % of a step: a second can halve only that, "
+            f"ratio about {2 / (2 - share):.2f} at most (the rounds vary)")
 
 
 def summary(rounds: list[tuple[float, float]]) -> str:
@@ -77,6 +117,8 @@ def peer_config(router: str, directory: Path) -> str:
 
 def main() -> int:
     router, a, b, in_process_binary = sys.argv[1:5]
+    processes = {name: int(pid) for name, pid in
+                 (entry.split("=") for entry in sys.argv[5].split(","))}
     print(f"One stepping thread per engine; {ROUNDS} rounds of {SECONDS:.0f} s on 1 then 2 "
           "engines: median (range) of the rounds")
     with tempfile.TemporaryDirectory() as directory:
@@ -85,11 +127,16 @@ def main() -> int:
         for task, num_envs in RUNS:
             # The machine's load drifts: each round measures everything, side by side.
             served = {how: [] for how, _ in joins}
+            cpus = {how: ([], []) for how, _ in joins}
             in_process = []
             for _ in range(ROUNDS):
                 for how, join in joins:
-                    served[how].append((steps_per_second(task, num_envs, [a], **join),
-                                        steps_per_second(task, num_envs, [a, b], **join)))
+                    (one, cpu_one), (two, cpu_two) = (
+                        steps_per_second(task, num_envs, engines, processes, **join)
+                        for engines in ([a], [a, b]))
+                    served[how].append((one, two))
+                    cpus[how][0].append(cpu_one)
+                    cpus[how][1].append(cpu_two)
                 # About 2 s per measurement, at the rate one engine just served.
                 steps = max(5, round(2.0 * served[joins[0][0]][-1][0] / num_envs))
                 in_process.append(tuple(
@@ -98,6 +145,10 @@ def main() -> int:
             print(f"  {task}, {num_envs} environments:")
             for how, rounds in served.items():
                 print(f"    1 then 2 engines, {how}: {summary(rounds)}  (goal >= 1.7)")
+                one, two = cpus[how]
+                print(f"      CPU ms per step, 1 engine: {cpu_summary([a], one)}; "
+                      f"2 engines: {cpu_summary([a, b], two)}")
+                print(f"      {amdahl(a, one)}")
             print(f"    1 then 2 threads in one process, no Zenoh: {summary(in_process)}")
     return 0
 

@@ -17,11 +17,15 @@ pids=()
 trap 'kill "${pids[@]}" 2>/dev/null; wait 2>/dev/null || true' EXIT
 "$CIFLOW" router --listen "$ROUTER" > /tmp/ciflow-bench-router.log &
 pids+=($!)
+# Process ids by name, for the CPU each process spends per step (scale_out.py).
+processes="router=$!"
 for _ in $(seq 100); do grep -q ready /tmp/ciflow-bench-router.log && break; sleep 0.1; done
 for k in 0 1; do
     RAYON_NUM_THREADS=1 taskset -c "$k" "$CIFLOW" serve --name "scale-$k" --connect "$ROUTER" \
         --listen "tcp/127.0.0.1:$((PORT + 1 + k))" > "/tmp/ciflow-bench-engine-$k.log" &
     pids+=($!)
+    processes+=",scale-$k=$!"
     for _ in $(seq 100); do grep -q ready "/tmp/ciflow-bench-engine-$k.log" && break; sleep 0.1; done
 done
-"$PYTHON" bench/scale_out.py "$ROUTER" scale-0 scale-1 "$CARGO_TARGET_DIR/release/examples/in_process_steps"
+"$PYTHON" bench/scale_out.py "$ROUTER" scale-0 scale-1 "$CARGO_TARGET_DIR/release/examples/in_process_steps" \
+    "$processes"
