@@ -3,6 +3,7 @@
 //! error reply ([`ErrorReply`]). `PROTOCOL.md` is the
 //! language-neutral description of the same thing.
 
+pub mod batch_step;
 pub mod checkpoint;
 pub mod episodes;
 pub mod error;
@@ -11,6 +12,7 @@ pub mod keys;
 pub mod messages;
 pub mod wire;
 
+pub use batch_step::{BatchStepRows, BatchStepWriter};
 pub use checkpoint::{CheckpointMsg, CheckpointSignature, RunRequest};
 pub use episodes::{EpisodeError, EpisodeMsg, decode_episode};
 pub use error::{ErrorCode, ErrorReply};
@@ -24,16 +26,7 @@ use serde::de::DeserializeOwned;
 
 /// Encodes a message as a MessagePack map with named fields.
 pub fn encode<T: Serialize>(message: &T) -> Vec<u8> {
-    encode_into(Vec::new(), message)
-}
-
-/// [`encode`] into a buffer of `capacity` bytes: a reply of megabytes then grows without
-/// being copied again.
-pub fn encode_with_capacity<T: Serialize>(message: &T, capacity: usize) -> Vec<u8> {
-    encode_into(Vec::with_capacity(capacity), message)
-}
-
-fn encode_into<T: Serialize>(mut buffer: Vec<u8>, message: &T) -> Vec<u8> {
+    let mut buffer = Vec::new();
     rmp_serde::encode::write_named(&mut buffer, message)
         .expect("protocol messages always serialize");
     buffer

@@ -17,10 +17,10 @@ use super::telemetry::TelemetryPublisher;
 use crate::error::full_message;
 use crate::policy::Policy;
 use crate::protocol::{
-    AckReply, ActionReply, BatchResetReply, BatchSeeds, BatchStepReply, ContextCheckReply,
+    AckReply, ActionReply, BatchResetReply, BatchSeeds, BatchStepWriter, ContextCheckReply,
     ContextRequest, DescribeReply, ErrorCode, ErrorReply, F64s, FrameHeader, PROTOCOL_VERSION,
     PerturbRequest, PerturbationKindMsg, ResetReply, ResetRequest, RunRequest, StepReply,
-    TOKEN_BYTES, encode, encode_with_capacity,
+    TOKEN_BYTES, encode,
 };
 
 /// Environments per rayon task in `step_batch`: below this, threads cost more than they
@@ -46,6 +46,8 @@ pub(crate) struct Session {
     run: Option<(Run, RunPermit)>,
     /// Runs started so far: each run's id, so a stopped driver never steps a later run.
     runs: u64,
+    /// Info columns of the last `step_batch` reply: the room the next one reserves.
+    info_columns: usize,
 }
 
 /// One of the engine's `max_runs` places for a running policy, held by the session while
@@ -125,6 +127,7 @@ impl Session {
             frames: 0,
             run: None,
             runs: 0,
+            info_columns: 0,
         }
     }
 
@@ -368,67 +371,54 @@ impl Session {
         let (action_dim, observation_dim) = (self.spec.action_space.dim(), self.observation_dim());
         check_vector("actions", actions, n * action_dim)?;
         let options = &self.reset_options;
-        let mut observations = vec![0.0; n * observation_dim];
-        let mut rewards = vec![0.0; n];
-        let mut terminated = vec![0u8; n];
-        let mut truncated = vec![0u8; n];
-        // Each rayon task steps a chunk and copies it into its slices of the reply: no
+        // Room for as many info columns as the last step reported (their keys and
+        // headers included), so that appending them does not move the rows.
+        let info_bytes = self.info_columns * (8 * n + 64);
+        let mut reply = BatchStepWriter::new(n, observation_dim, info_bytes);
+        // Each rayon task steps a chunk and writes its rows into the reply: no
         // per-environment work is left to this thread.
-        let chunks: Vec<Result<InfoColumns, ErrorReply>> = self
+        let chunks: Vec<_> = self
             .envs
-            .par_chunks_mut(BATCH_CHUNK)
-            .zip(actions.par_chunks((BATCH_CHUNK * action_dim).max(1)))
-            .zip(observations.par_chunks_mut((BATCH_CHUNK * observation_dim).max(1)))
-            .zip(rewards.par_chunks_mut(BATCH_CHUNK))
-            .zip(terminated.par_chunks_mut(BATCH_CHUNK))
-            .zip(truncated.par_chunks_mut(BATCH_CHUNK))
+            .chunks_mut(BATCH_CHUNK)
+            .zip(actions.chunks((BATCH_CHUNK * action_dim).max(1)))
+            .zip(reply.rows().blocks(BATCH_CHUNK))
+            .collect();
+        let chunks: Vec<Result<InfoColumns, ErrorReply>> = chunks
+            .into_par_iter()
             .enumerate()
-            .map(
-                |(
-                    chunk,
-                    (((((slots, actions), observations), rewards), terminated), truncated),
-                )| {
-                    let mut infos = InfoColumns::new(slots.len());
-                    // The others still step when one fails, as they would one by one.
-                    let mut failure = None;
-                    for (i, slot) in slots.iter_mut().enumerate() {
-                        let action = &actions[i * action_dim..(i + 1) * action_dim];
-                        let index = chunk * BATCH_CHUNK + i;
-                        let step = match slot.step_autoreset(action, options.of(index)) {
-                            Ok(step) => step,
-                            Err(e) => {
-                                failure.get_or_insert_with(|| in_env(index, e));
-                                continue;
-                            }
-                        };
-                        observations[i * observation_dim..(i + 1) * observation_dim]
-                            .copy_from_slice(&slot.observation);
-                        rewards[i] = step.reward;
-                        terminated[i] = u8::from(step.terminated);
-                        truncated[i] = u8::from(step.truncated);
-                        infos.set(i, &step.info);
+            .map(|(chunk, ((slots, actions), mut rows))| {
+                let mut infos = InfoColumns::new(slots.len());
+                // The others still step when one fails, as they would one by one.
+                let mut failure = None;
+                for (i, slot) in slots.iter_mut().enumerate() {
+                    let action = &actions[i * action_dim..(i + 1) * action_dim];
+                    let index = chunk * BATCH_CHUNK + i;
+                    match slot.step_autoreset(action, options.of(index)) {
+                        Ok(step) => {
+                            rows.set(
+                                i,
+                                &slot.observation,
+                                step.reward,
+                                step.terminated,
+                                step.truncated,
+                            );
+                            infos.set(i, &step.info);
+                        }
+                        Err(e) => {
+                            failure.get_or_insert_with(|| in_env(index, e));
+                        }
                     }
-                    failure.map_or(Ok(infos), Err)
-                },
-            )
+                }
+                failure.map_or(Ok(infos), Err)
+            })
             .collect();
         let mut info = InfoColumns::new(n);
         for (chunk, columns) in chunks.into_iter().enumerate() {
             info.splice(chunk * BATCH_CHUNK, columns?);
         }
+        self.info_columns = info.columns.len();
         self.telemetry.offer(&self.id, &self.envs[0]);
-        // The columns' bytes, and room for the field names and headers.
-        let reals = observations.len() + rewards.len() + info.columns.len() * n;
-        let capacity = 8 * reals + 2 * n + 1024;
-        let reply = BatchStepReply {
-            v: PROTOCOL_VERSION,
-            observations: F64s(observations),
-            rewards: F64s(rewards),
-            terminated: ByteBuf::from(terminated),
-            truncated: ByteBuf::from(truncated),
-            info: info.into_map(),
-        };
-        Ok(encode_with_capacity(&reply, capacity))
+        Ok(reply.finish(&info.into_map()))
     }
 
     pub fn expert(&mut self, index: u32) -> Result<Vec<u8>, ErrorReply> {
@@ -587,7 +577,7 @@ impl InfoColumns {
     fn set(&mut self, index: usize, info: &Info) {
         for (position, (key, value)) in info.iter().enumerate() {
             let column = match self.columns.get(position) {
-                Some((name, _)) if name == key => &mut self.columns[position].1,
+                Some((name, _)) if same_key(name, key) => &mut self.columns[position].1,
                 _ => self.column(key),
             };
             column[index] = *value;
@@ -630,6 +620,12 @@ impl InfoColumns {
         }
         columns
     }
+}
+
+/// Whether two info keys are equal, by address first: a task reports the same `'static`
+/// keys at every step, so the bytes rarely need comparing.
+fn same_key(a: &str, b: &str) -> bool {
+    (std::ptr::eq(a.as_ptr(), b.as_ptr()) && a.len() == b.len()) || a == b
 }
 
 #[cfg(test)]
