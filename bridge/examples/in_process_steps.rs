@@ -1,6 +1,7 @@
 //! Env-steps per second of `NUM_ENVS` environments of a task stepped in this process, no
-//! Zenoh, split over `THREADS` threads (zero actions, autoreset, `STEPS` timed steps each
-//! after one untimed); prints `{"task", "num_envs", "threads", "env_steps_per_s"}` as
+//! Zenoh, split over `THREADS` threads each stepping its share free-running, never waiting
+//! for the others (zero actions, autoreset, `STEPS` timed steps each after one untimed):
+//! the most two cores can step, which bounds what two engines can. Prints `{"task", "num_envs", "threads", "env_steps_per_s"}` as
 //! one JSON line. `bench/scale_out.py` runs it on one and two threads beside the engines
 //! it spreads the same environments over: what two cores give without serving bounds
 //! what two engines can.
@@ -22,7 +23,13 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     if num_envs == 0 || threads == 0 || steps == 0 {
         return Err("NUM_ENVS, THREADS and STEPS must be positive".into());
     }
-    let rate = in_process::in_process_rate(task, num_envs, threads, (1, steps))?;
+    let rate = in_process::in_process_rate(
+        task,
+        num_envs,
+        threads,
+        (1, steps),
+        in_process::Pace::FreeRunning,
+    )?;
     println!(
         "{{\"task\": \"{task}\", \"num_envs\": {num_envs}, \"threads\": {threads}, \
          \"env_steps_per_s\": {rate:.1}}}"

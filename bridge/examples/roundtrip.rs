@@ -29,7 +29,7 @@ use ciflow_bridge::{Client, EngineServer, Limits, NetworkOptions, Role, ServerOp
 mod in_process;
 #[path = "support/timing.rs"]
 mod timing;
-use in_process::in_process_rate;
+use in_process::{Pace, in_process_rate};
 use timing::{micros, time_calls};
 
 const TASK: &str = "ciflow/LimitCycle-v0";
@@ -55,7 +55,7 @@ const LIMITS: Limits = Limits {
 
 /// Env-steps per second of one environment of the task alone on this thread.
 fn alone_rate(task: &str) -> Result<f64, Box<dyn std::error::Error + Send + Sync>> {
-    in_process_rate(task, 1, 1, (0, 200_000))
+    in_process_rate(task, 1, 1, (0, 200_000), Pace::Lockstep)
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
@@ -233,12 +233,16 @@ fn batched_rates(
             task,
             4096,
             1,
-            (UNTIMED_STEPS, requests_per_measurement(4096))
+            (UNTIMED_STEPS, requests_per_measurement(4096)),
+            Pace::Lockstep
         )?
     );
     println!(
         "  ratio: served / ({threads} threads x one environment alone); in process: served / the \
-         same environments stepped in process on {threads} threads (both measured in the same round)"
+         same environments stepped as a batch in process on {threads} threads, every step of all \
+         of them before the next (free-running: each thread its share all the steps through, \
+         never waiting for the others, which bounds any synchronous batch); all measured in the \
+         same round"
     );
     for n in BATCH_SIZES {
         let batches = clients
@@ -249,11 +253,14 @@ fn batched_rates(
         let mut rates = vec![Vec::new(); batches.len()];
         let mut ratios = vec![Vec::new(); batches.len()];
         let mut in_process_ratios = vec![Vec::new(); batches.len()];
+        let mut free_running_ratios = vec![Vec::new(); batches.len()];
         for round in 0..BATCH_ROUNDS {
             let alone = alone_rate(task)?;
             // The steps of the served measurement.
             let steps = (UNTIMED_STEPS, requests_per_measurement(n as usize));
-            let in_process = in_process_rate(task, n as usize, threads, steps)?;
+            let in_process = in_process_rate(task, n as usize, threads, steps, Pace::Lockstep)?;
+            let free_running =
+                in_process_rate(task, n as usize, threads, steps, Pace::FreeRunning)?;
             // The clients take turns going first, so what the first measurement of a round
             // pays (caches the reference left cold) is not always the same client's.
             let mut order: Vec<usize> = (0..batches.len()).collect();
@@ -266,19 +273,26 @@ fn batched_rates(
                 rates[k].push(rate);
                 ratios[k].push(rate / (threads as f64 * alone));
                 in_process_ratios[k].push(rate / in_process);
+                free_running_ratios[k].push(rate / free_running);
             }
         }
         let columns: Vec<String> = clients
             .iter()
-            .zip(rates.iter_mut().zip(&mut ratios).zip(&mut in_process_ratios))
-            .map(|((name, _), ((rates, ratios), in_process_ratios))| {
+            .zip(
+                rates
+                    .iter_mut()
+                    .zip(&mut ratios)
+                    .zip(in_process_ratios.iter_mut().zip(&mut free_running_ratios)),
+            )
+            .map(|((name, _), ((rates, ratios), (in_process_ratios, free_running_ratios)))| {
                 let (rate, _) = median_and_range(rates);
                 let (ratio, (low, high)) = median_and_range(ratios);
                 let (in_process, (in_low, in_high)) = median_and_range(in_process_ratios);
+                let (free_running, _) = median_and_range(free_running_ratios);
                 let request_ms = 1e3 * n as f64 / rate;
                 format!(
                     "{name} {rate:>9.0}/s ({request_ms:.2} ms) ratio {ratio:.2} ({low:.2}-{high:.2}) \
-                     in process {in_process:.2} ({in_low:.2}-{in_high:.2})"
+                     in process {in_process:.2} ({in_low:.2}-{in_high:.2}, free-running {free_running:.2})"
                 )
             })
             .collect();

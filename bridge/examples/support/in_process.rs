@@ -1,10 +1,26 @@
 //! Stepping in process, no Zenoh: the reference the served benchmarks measure themselves
 //! against (the round-trip example, the scale-out and in-process-steps ones).
 
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
+/// How the threads stepping a batch in process keep pace with one another.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pace {
+    /// As a synchronous vector environment (Gymnasium's, an engine's `step_batch`) steps:
+    /// every environment takes step `k` before any takes step `k + 1`, because the actions
+    /// of step `k + 1` are chosen from all the observations of step `k`. The threads meet
+    /// at a spinning barrier after each step: a sleeping one would wait to be woken, which
+    /// costs more than its share of a step on a small virtual machine.
+    Lockstep,
+    /// Each thread steps its share all the steps through without waiting for the others:
+    /// faster than any synchronous batch (no thread ever waits for the slowest), so an
+    /// upper bound.
+    FreeRunning,
+}
+
 /// Env-steps per second of `envs` environments of the task called directly, split over
-/// `threads` threads that step their share concurrently, one step each in turn: from a
+/// `threads` threads that step their share concurrently, paced as `pace` says: from a
 /// reset (seeds `0..envs`), `untimed` steps per environment, then `timed` ones (with the
 /// zero action of the served runs). One environment on one thread stays in cache and is
 /// what the engine cannot beat per core; thousands on every core are what the engine
@@ -14,6 +30,7 @@ pub fn in_process_rate(
     envs: usize,
     threads: usize,
     (untimed, timed): (usize, usize),
+    pace: Pace,
 ) -> Result<f64, Box<dyn std::error::Error + Send + Sync>> {
     let options = ciflow_envs::ResetOptions::default();
     let mut batch = Vec::with_capacity(envs);
@@ -24,31 +41,44 @@ pub fn in_process_rate(
     }
     let action = vec![0.0; batch[0].spec().action_space.dim()];
     let share = envs.div_ceil(threads);
-    // Fewer environments than threads make fewer shares: the barrier waits for those.
-    let start = std::sync::Barrier::new(envs.div_ceil(share) + 1);
+    // Fewer environments than threads make fewer shares: the barriers wait for those.
+    let shares = envs.div_ceil(share);
+    let start = std::sync::Barrier::new(shares + 1);
+    let each_step = SpinBarrier::new(shares);
     let elapsed = std::thread::scope(|scope| {
         let workers: Vec<_> = batch
             .chunks_mut(share)
             .map(|envs| {
-                let (start, action, options) = (&start, &action, &options);
+                let (start, each_step, action, options) = (&start, &each_step, &action, &options);
                 scope.spawn(move || -> Result<(), ciflow_envs::EnvError> {
                     // Into one buffer, as the engine steps its batches.
                     let mut observation = vec![0.0; envs[0].spec().observation_space.dim()];
-                    let mut step_all = |rounds| {
+                    // After a failure the thread steps no more but still meets the
+                    // others at every barrier, so that none of them waits forever.
+                    let mut failure = None;
+                    let mut step_all = |rounds, failure: &mut Option<ciflow_envs::EnvError>| {
                         for _ in 0..rounds {
-                            for env in envs.iter_mut() {
-                                let step = env.step_into(action, &mut observation)?;
-                                if step.terminated || step.truncated {
-                                    env.reset(None, options)?;
-                                }
+                            if failure.is_none() {
+                                *failure = envs
+                                    .iter_mut()
+                                    .try_for_each(|env| {
+                                        let step = env.step_into(action, &mut observation)?;
+                                        if step.terminated || step.truncated {
+                                            env.reset(None, options)?;
+                                        }
+                                        Ok::<_, ciflow_envs::EnvError>(())
+                                    })
+                                    .err();
+                            }
+                            if pace == Pace::Lockstep {
+                                each_step.wait();
                             }
                         }
-                        Ok(())
                     };
-                    let warmed = step_all(untimed);
-                    // Meet the others even after a failure, so that none waits forever.
+                    step_all(untimed, &mut failure);
                     start.wait();
-                    warmed.and_then(|()| step_all(timed))
+                    step_all(timed, &mut failure);
+                    failure.map_or(Ok(()), Err)
                 })
             })
             .collect();
@@ -60,4 +90,42 @@ pub fn in_process_rate(
         Ok::<_, ciflow_envs::EnvError>(clock.elapsed())
     })?;
     Ok((timed * envs) as f64 / elapsed.as_secs_f64())
+}
+
+/// A barrier that spins (yielding the core after a while, in case the threads outnumber
+/// the cores) instead of sleeping.
+struct SpinBarrier {
+    parties: usize,
+    arrived: AtomicUsize,
+    /// Meetings completed: a waiter leaves when it changes.
+    meetings: AtomicUsize,
+}
+
+impl SpinBarrier {
+    fn new(parties: usize) -> Self {
+        Self {
+            parties,
+            arrived: AtomicUsize::new(0),
+            meetings: AtomicUsize::new(0),
+        }
+    }
+
+    fn wait(&self) {
+        const SPINS_BEFORE_YIELDING: u32 = 1 << 12;
+        let meeting = self.meetings.load(Ordering::Acquire);
+        if self.arrived.fetch_add(1, Ordering::AcqRel) + 1 == self.parties {
+            self.arrived.store(0, Ordering::Relaxed);
+            self.meetings.fetch_add(1, Ordering::Release);
+            return;
+        }
+        let mut spins = 0u32;
+        while self.meetings.load(Ordering::Acquire) == meeting {
+            if spins < SPINS_BEFORE_YIELDING {
+                spins += 1;
+                std::hint::spin_loop();
+            } else {
+                std::thread::yield_now();
+            }
+        }
+    }
 }
