@@ -1,10 +1,10 @@
 //! Env-steps per second of `NUM_ENVS` environments of a task stepped in this process, no
-//! Zenoh, split over `THREADS` threads each stepping its share free-running, never waiting
-//! for the others (zero actions, autoreset, `STEPS` timed steps each after one untimed):
-//! the most two cores can step, which bounds what two engines can. Prints `{"task", "num_envs", "threads", "env_steps_per_s"}` as
-//! one JSON line. `bench/scale_out.py` runs it on one and two threads beside the engines
-//! it spreads the same environments over: what two cores give without serving bounds
-//! what two engines can.
+//! Zenoh, split over `THREADS` threads that each step their share free-running, never
+//! waiting for the others (zero actions, autoreset, `STEPS` timed steps each after one
+//! untimed); prints `{"task", "num_envs", "threads", "env_steps_per_s"}` as one JSON line.
+//! `bench/scale_out.py` runs it on one and two threads beside the engines it spreads the
+//! same environments over: what two cores give, without serving and without waiting for
+//! each other, bounds what two engines can.
 //!
 //! ```text
 //! cargo run --release -p ciflow-bridge --example in_process_steps -- TASK NUM_ENVS THREADS STEPS
