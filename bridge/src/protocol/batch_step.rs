@@ -18,7 +18,6 @@
 //!        | "terminated" bin(n) | "truncated" bin(n) | "info" map(..)
 //! ```
 
-use std::collections::BTreeMap;
 use std::ops::Range;
 
 use super::{F64s, PROTOCOL_VERSION};
@@ -99,13 +98,53 @@ impl BatchStepWriter {
         }
     }
 
-    /// The encoded reply, with the info columns (key → one value per environment).
-    pub fn finish(mut self, info: &BTreeMap<String, F64s>) -> Vec<u8> {
+    /// The encoded reply, with the info columns: each key, in increasing order, with its
+    /// values block by block, `num_envs` in all (the blocks need not be the rows').
+    ///
+    /// # Panics
+    /// If a key's blocks do not hold `num_envs` values: the caller sized the reply for its
+    /// own batch.
+    pub fn finish<'a, B: IntoIterator<Item = InfoBlock<'a>>>(
+        mut self,
+        info: impl ExactSizeIterator<Item = (&'a str, B)>,
+    ) -> Vec<u8> {
+        let num_envs = self.terminated.len();
         write(rmp::encode::write_str(&mut self.buffer, "info"));
-        rmp_serde::encode::write_named(&mut self.buffer, info)
-            .expect("info columns always serialize");
+        let keys = u32::try_from(info.len()).expect("under 4 billion info keys");
+        write(rmp::encode::write_map_len(&mut self.buffer, keys));
+        for (key, blocks) in info {
+            write(rmp::encode::write_str(&mut self.buffer, key));
+            let bytes = u32::try_from(8 * num_envs).expect("a batch's column is under 4 GiB");
+            write(rmp::encode::write_bin_len(&mut self.buffer, bytes));
+            let start = self.buffer.len();
+            for block in blocks {
+                match block {
+                    InfoBlock::Values(values) => {
+                        self.buffer.extend_from_slice(&F64s::le_bytes(values));
+                    }
+                    InfoBlock::Missing(count) => {
+                        let nan = f64::NAN.to_le_bytes();
+                        self.buffer.extend((0..count).flat_map(|_| nan));
+                    }
+                }
+            }
+            assert_eq!(
+                self.buffer.len() - start,
+                8 * num_envs,
+                "info `{key}` holds a value for each of {num_envs} environments"
+            );
+        }
         self.buffer
     }
+}
+
+/// A block of consecutive environments' values of one info column.
+#[derive(Clone, Copy, Debug)]
+pub enum InfoBlock<'a> {
+    /// Their values (NaN where one did not report the key).
+    Values(&'a [f64]),
+    /// This many environments, none of which reported the key: NaN for each.
+    Missing(usize),
 }
 
 impl<'a> BatchStepRows<'a> {
@@ -178,14 +217,16 @@ fn write<T, E: std::fmt::Debug>(result: Result<T, E>) -> T {
 
 #[cfg(test)]
 mod tests {
+    use std::collections::BTreeMap;
+
     use serde_bytes::ByteBuf;
 
     use super::*;
     use crate::protocol::{BatchStepReply, encode};
 
-    /// Rows set block by block, in any order, give the serializer's bytes for the same
-    /// reply: with bins of every header size (8-, 16- and 32-bit lengths), no info, and
-    /// NaN info values.
+    /// Rows set block by block, in any order, and info columns given block by block give
+    /// the serializer's bytes for the same reply: with bins of every header size (8-, 16-
+    /// and 32-bit lengths), no info, NaN info values and whole blocks without a key.
     #[test]
     fn rows_written_in_place_encode_as_the_serializer_does() {
         for (n, d, keys) in [(3, 2, 2), (5_000, 2, 1), (1, 0, 0), (0, 3, 0), (700, 7, 3)] {
@@ -196,7 +237,10 @@ mod tests {
             let truncated: Vec<u8> = (0..n).map(|i| u8::from(i % 5 == 4)).collect();
             let info: BTreeMap<String, F64s> = (0..keys)
                 .map(|k| {
-                    let column = (0..n).map(|i| if i % 4 == k { f64::NAN } else { value(i, k) });
+                    // Key `k` is missing from every third block of 100 environments
+                    // from block `k` on, and from single environments elsewhere.
+                    let missing = |i: usize| i % 4 == k || (i / 100) % 3 == k;
+                    let column = (0..n).map(|i| if missing(i) { f64::NAN } else { value(i, k) });
                     (format!("key{k}"), F64s(column.collect()))
                 })
                 .collect();
@@ -217,7 +261,17 @@ mod tests {
                     );
                 }
             }
-            let in_place = writer.finish(&info);
+            // Info in blocks of 100 values, a block of NaN given as missing.
+            let in_place = writer.finish(info.iter().map(|(key, values)| {
+                let blocks = values.0.chunks(100).map(|block| {
+                    if block.iter().all(|v| v.is_nan()) {
+                        InfoBlock::Missing(block.len())
+                    } else {
+                        InfoBlock::Values(block)
+                    }
+                });
+                (key.as_str(), blocks)
+            }));
 
             let serialized = encode(&BatchStepReply {
                 v: PROTOCOL_VERSION,

@@ -2,7 +2,7 @@
 //! secret token. Each method implements one operation and returns the encoded reply.
 
 use std::borrow::Cow;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
 
@@ -18,9 +18,9 @@ use crate::error::full_message;
 use crate::policy::Policy;
 use crate::protocol::{
     AckReply, ActionReply, BatchResetReply, BatchSeeds, BatchStepWriter, ContextCheckReply,
-    ContextRequest, DescribeReply, ErrorCode, ErrorReply, F64s, FrameHeader, PROTOCOL_VERSION,
-    PerturbRequest, PerturbationKindMsg, ResetReply, ResetRequest, RunRequest, StepReply,
-    TOKEN_BYTES, encode,
+    ContextRequest, DescribeReply, ErrorCode, ErrorReply, F64s, FrameHeader, InfoBlock,
+    PROTOCOL_VERSION, PerturbRequest, PerturbationKindMsg, ResetReply, ResetRequest, RunRequest,
+    StepReply, TOKEN_BYTES, encode,
 };
 
 /// Environments per rayon task in `step_batch`: below this, threads cost more than they
@@ -412,13 +412,11 @@ impl Session {
                 failure.map_or(Ok(infos), Err)
             })
             .collect();
-        let mut info = InfoColumns::new(n);
-        for (chunk, columns) in chunks.into_iter().enumerate() {
-            info.splice(chunk * BATCH_CHUNK, columns?);
-        }
-        self.info_columns = info.columns.len();
+        let parts = chunks.into_iter().collect::<Result<Vec<_>, _>>()?;
         self.telemetry.offer(&self.id, &self.envs[0]);
-        Ok(reply.finish(&info.into_map()))
+        let info = InfoColumns::merged(&parts);
+        self.info_columns = info.len();
+        Ok(reply.finish(info))
     }
 
     pub fn expert(&mut self, index: u32) -> Result<Vec<u8>, ErrorReply> {
@@ -598,11 +596,32 @@ impl InfoColumns {
         &mut self.columns[at].1
     }
 
-    /// Copies the columns of the environments `offset..offset + part.len`.
-    fn splice(&mut self, offset: usize, part: InfoColumns) {
-        for (key, values) in &part.columns {
-            self.column(key)[offset..offset + part.len].copy_from_slice(values);
-        }
+    /// The values of `key`, if any environment reported it.
+    fn values(&self, key: &str) -> Option<&[f64]> {
+        self.columns
+            .iter()
+            .find(|(name, _)| name == key)
+            .map(|(_, values)| values.as_slice())
+    }
+
+    /// The columns of consecutive parts of a batch as one, as
+    /// [`BatchStepWriter::finish`] takes them: every key that any part reports, in
+    /// increasing order, with its values part by part (missing from the parts that do not
+    /// report it).
+    fn merged(
+        parts: &[InfoColumns],
+    ) -> impl ExactSizeIterator<Item = (&str, impl Iterator<Item = InfoBlock<'_>>)> {
+        let keys: BTreeSet<&str> = parts
+            .iter()
+            .flat_map(|part| part.columns.iter().map(|(key, _)| key.as_ref()))
+            .collect();
+        keys.into_iter().map(move |key| {
+            let blocks = parts.iter().map(move |part| match part.values(key) {
+                Some(values) => InfoBlock::Values(values),
+                None => InfoBlock::Missing(part.len),
+            });
+            (key, blocks)
+        })
     }
 
     /// The columns as the protocol carries them.
@@ -637,7 +656,7 @@ mod tests {
     }
 
     /// Keys an environment does not report are NaN in its row, whatever the order in
-    /// which the keys first appear, within a chunk and across spliced chunks.
+    /// which the keys first appear, within a chunk and across merged chunks.
     #[test]
     fn columns_hold_every_key_and_nan_where_an_environment_has_none() {
         let first = [
@@ -646,10 +665,24 @@ mod tests {
             info(&[("a", 5.0), ("b", 6.0), ("c", 7.0)]),
         ];
         let second = [info(&[("d", 8.0)]), info(&[("a", 9.0), ("b", 10.0)])];
-        let mut all = InfoColumns::new(5);
-        all.splice(0, InfoColumns::from_infos(&first));
-        all.splice(3, InfoColumns::from_infos(&second));
-        let map = all.into_map();
+        let parts = [
+            InfoColumns::from_infos(&first),
+            InfoColumns::from_infos(&second),
+        ];
+        let map: BTreeMap<&str, Vec<f64>> = InfoColumns::merged(&parts)
+            .map(|(key, blocks)| {
+                let values = blocks.flat_map(|block| match block {
+                    InfoBlock::Values(values) => values.to_vec(),
+                    InfoBlock::Missing(count) => vec![f64::NAN; count],
+                });
+                (key, values.collect())
+            })
+            .collect();
+        assert_eq!(
+            map.keys().copied().collect::<Vec<_>>(),
+            ["a", "b", "c", "d"],
+            "keys in increasing order"
+        );
         let nan = f64::NAN;
         let expected = [
             ("a", [1.0, nan, 5.0, nan, 9.0]),
@@ -659,7 +692,7 @@ mod tests {
         ];
         assert_eq!(map.len(), expected.len());
         for (key, values) in expected {
-            let column = &map[key].0;
+            let column = &map[key];
             for (got, want) in column.iter().zip(values) {
                 assert!(
                     got == &want || (got.is_nan() && want.is_nan()),
