@@ -3,11 +3,12 @@
 //!
 //! An engine steps thousands of environments per `step_batch`; filling column vectors
 //! and then serializing them wrote every row twice more (a zeroed vector, then the
-//! serializer's copy), 0.5 MiB per 4 096 obstacle environments, and those misses cost
-//! more than the copies' instructions. Here the rows' columns are reserved inside the
-//! encoded message, parallel tasks fill disjoint blocks of them, and the info columns —
-//! whose keys are known only after stepping — are appended last, where the message's
-//! field order puts them. The bytes are exactly those of `encode(&BatchStepReply { .. })`
+//! serializer's copy), 0.5 MiB per 4 096 obstacle environments. Here the rows' columns
+//! are reserved inside the encoded message and parallel tasks fill disjoint blocks of
+//! them; the info columns, whose keys are known only after stepping, are appended last
+//! (where the message's field order puts them) from each task's block of values. Per
+//! obstacle env-step that took cachegrind's count from 32.7 to 27.2 L1d misses and 5 419
+//! to 5 234 instructions. The bytes are exactly those of `encode(&BatchStepReply { .. })`
 //! (a test checks it), so clients decode the reply as any other.
 //!
 //! Layout (MessagePack, named fields, in [`BatchStepReply`](super::BatchStepReply)'s
