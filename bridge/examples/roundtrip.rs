@@ -7,8 +7,9 @@
 //!    engine's host that takes the payloads through Zenoh's shared memory and from one
 //!    whose configuration turns it off (the network path), as ratios to two references
 //!    measured in the same round: one environment alone on one thread, times the cores
-//!    (what the engine cannot beat), and the same environments stepped in this process
-//!    on every core (what serving adds to the stepping itself).
+//!    (what the engine cannot beat), and the same environments stepped as a batch in
+//!    this process on every core, in lockstep (what serving adds to the stepping itself;
+//!    the free-running figure, each core never waiting for the others, beside it).
 //!
 //! ```text
 //! cargo run --release -p ciflow-bridge --example roundtrip -- [ENDPOINT] [ENGINE]
