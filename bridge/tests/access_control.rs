@@ -350,6 +350,7 @@ fn behind_the_secure_router_every_attack_is_refused_while_alice_keeps_stepping()
     assert!(steps > 100, "alice stepped {steps} times");
     env.step(&[0.0]).expect("alice's session is intact");
     let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&policy_dir);
 }
 
 /// The negative control: on the default open network (no router, no certificates) the
