@@ -56,10 +56,10 @@ pub fn in_process_rate(
                     // After a failure the thread steps no more but still meets the
                     // others at every barrier, so that none of them waits forever.
                     let mut failure = None;
-                    let mut step_all = |rounds, failure: &mut Option<ciflow_envs::EnvError>| {
+                    let mut step_all = |rounds| {
                         for _ in 0..rounds {
                             if failure.is_none() {
-                                *failure = envs
+                                failure = envs
                                     .iter_mut()
                                     .try_for_each(|env| {
                                         let step = env.step_into(action, &mut observation)?;
@@ -75,9 +75,9 @@ pub fn in_process_rate(
                             }
                         }
                     };
-                    step_all(untimed, &mut failure);
+                    step_all(untimed);
                     start.wait();
-                    step_all(timed, &mut failure);
+                    step_all(timed);
                     failure.map_or(Ok(()), Err)
                 })
             })
