@@ -3,11 +3,13 @@
 * raw Zenoh query round trip from Python (eclipse-zenoh querier on the engine's ``ping``,
   with a payload the size of a step request);
 * ``env.step`` through ``gymnasium.make`` (all of Gymnasium's default wrappers);
-* batched env-steps/s through ``gymnasium.make_vec`` (one request per step).
+* batched env-steps/s through ``gymnasium.make_vec`` (one request per step), with the CPU
+  time and page faults of this process per step.
 
 Usage: python bench/roundtrip_python.py ENDPOINT
 """
 
+import resource
 import sys
 import time
 
@@ -77,20 +79,26 @@ def main(endpoint: str) -> None:
     ping.undeclare()
     session.close()
 
-    print(f"batched stepping from Python ({TASK}, gymnasium.make_vec)")
-    for n in (1024, 16384, 65536):
+    print(f"batched stepping from Python ({TASK}, gymnasium.make_vec; this process's CPU "
+          "and page faults per step call)")
+    for n in (1024, 4096, 16384, 65536):
         envs = gym.make_vec(TASK, num_envs=n, engine=endpoint)
         envs.reset(seed=0)
         actions = np.zeros((n,) + envs.single_action_space.shape)
-        envs.step(actions)
-        rounds = max(5, min(100, 1_000_000 // n))
-        start = time.perf_counter()
+        for _ in range(5):
+            envs.step(actions)
+        rounds = max(10, min(400, 2_000_000 // n))
+        usage, start = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
         for _ in range(rounds):
             envs.step(actions)
         elapsed = time.perf_counter() - start
+        used = resource.getrusage(resource.RUSAGE_SELF)
+        cpu = used.ru_utime + used.ru_stime - usage.ru_utime - usage.ru_stime
         print(
             f"  num_envs {n:>7}: {rounds * n / elapsed:>12.0f} env-steps/s   "
-            f"({elapsed * 1e3 / rounds:.2f} ms per step call)"
+            f"({elapsed * 1e3 / rounds:.2f} ms per step call; client CPU "
+            f"{cpu * 1e3 / rounds:.2f} ms, {(used.ru_minflt - usage.ru_minflt) / rounds:.1f} "
+            "page faults)"
         )
         envs.close()
 

@@ -9,7 +9,7 @@ use ciflow_envs::{BoxSpace, Dtype, EnvSpec, ResetOptions};
 use pyo3::conversion::FromPyObjectOwned;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyDict};
+use pyo3::types::{PyByteArray, PyBytes, PyDict};
 
 /// A construction argument from Python: a number (`obstacles=2`) or a string (a URDF).
 #[derive(FromPyObject)]
@@ -58,13 +58,42 @@ pub fn floats_to_bytes<'py>(py: Python<'py>, values: &[f64]) -> Bound<'py, PyByt
     PyBytes::new(py, &F64s::le_bytes(values))
 }
 
+/// `values` as little-endian `f64` bytes in a new `bytearray`, for arrays handed to the
+/// caller: `np.frombuffer` reads a `bytearray` in place and writable, where `bytes` would
+/// need a second copy to be writable. The batched calls return their results this way:
+/// each copy of a batch is a fresh allocation of its size, whose pages the allocator gives
+/// back and takes again at every step.
+pub fn floats_to_bytearray<'py>(
+    py: Python<'py>,
+    values: &[f64],
+) -> PyResult<Bound<'py, PyByteArray>> {
+    PyByteArray::new_with(py, size_of_val(values), |bytes| {
+        bytes.copy_from_slice(&F64s::le_bytes(values));
+        Ok(())
+    })
+}
+
+/// Flags as one byte each (`0` or `1`, numpy's `bool`) in a new `bytearray`.
+pub fn flags_to_bytearray<'py>(
+    py: Python<'py>,
+    flags: &[bool],
+) -> PyResult<Bound<'py, PyByteArray>> {
+    PyByteArray::new_with(py, flags.len(), |bytes| {
+        for (byte, &flag) in bytes.iter_mut().zip(flags) {
+            *byte = u8::from(flag);
+        }
+        Ok(())
+    })
+}
+
+/// Info columns by key, each as [`floats_to_bytearray`].
 pub fn columns_to_dict<'py>(
     py: Python<'py>,
     columns: &BTreeMap<String, Vec<f64>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let dict = PyDict::new(py);
     for (key, values) in columns {
-        dict.set_item(key, floats_to_bytes(py, values))?;
+        dict.set_item(key, floats_to_bytearray(py, values)?)?;
     }
     Ok(dict)
 }

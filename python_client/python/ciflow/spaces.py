@@ -40,11 +40,13 @@ def actions_to_wire(actions, shape: tuple, layout: str) -> bytes:
     return to_wire(array)
 
 
-def from_wire(data: bytes, dtype, shape=None) -> np.ndarray:
+def from_wire(data: bytes | bytearray, dtype, shape=None) -> np.ndarray:
+    """Little-endian ``f64`` bytes as a writable array of ``dtype`` that owns its values:
+    a ``bytearray`` is read in place, ``bytes`` (read-only) are copied."""
     array = np.frombuffer(data, dtype="<f8")
     if shape is not None:
         array = array.reshape(shape)
-    return array.astype(dtype, copy=True)
+    return array.astype(dtype, copy=not isinstance(data, bytearray))
 
 
 def seed_value(value) -> int:

@@ -112,11 +112,12 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
                                   "num_envs, action dimension")
         observations, rewards, terminated, truncated, info = _native.step_batches(
             self._sessions, actions)
+        # The engine's bytearrays become the arrays, writable and without a copy.
         return (
             self._observations(observations),
-            np.frombuffer(rewards, dtype="<f8").copy(),
-            np.frombuffer(terminated, dtype=np.uint8).astype(bool),
-            np.frombuffer(truncated, dtype=np.uint8).astype(bool),
+            np.frombuffer(rewards, dtype="<f8"),
+            np.frombuffer(terminated, dtype=np.bool_),
+            np.frombuffer(truncated, dtype=np.bool_),
             self._info(info),
         )
 
@@ -129,7 +130,7 @@ class CiflowVectorEnv(gym.vector.VectorEnv):
         mask."""
         info = {}
         for key in sorted(columns):
-            values = np.frombuffer(columns[key], dtype="<f8").copy()
+            values = np.frombuffer(columns[key], dtype="<f8")
             info[key] = values
             info[f"_{key}"] = ~np.isnan(values)
         return info
