@@ -36,18 +36,38 @@ impl F64s {
         }
     }
 
-    /// Decodes little-endian `f64` bytes; `None` if the length is not a multiple of 8.
+    /// Decodes little-endian `f64` bytes; `None` if the length is not a multiple of 8. On a
+    /// little-endian CPU one copy of the bytes (every batch request and reply is decoded
+    /// here; converting them one by one took 7 % of a Python client's CPU per step of 4 096
+    /// limit-cycle environments), a conversion of each value elsewhere.
     pub fn from_le_bytes(bytes: &[u8]) -> Option<Vec<f64>> {
         if !bytes.len().is_multiple_of(8) {
             return None;
         }
-        Some(
-            bytes
-                .chunks_exact(8)
-                .map(|c| f64::from_le_bytes(c.try_into().expect("chunks of 8")))
-                .collect(),
-        )
+        let len = bytes.len() / 8;
+        if cfg!(target_endian = "little") {
+            let mut values = Vec::<f64>::with_capacity(len);
+            // SAFETY: the allocation holds `len` f64s, `bytes.len()` bytes, which the copy
+            // fills entirely before `set_len`; any 8 bytes are a valid `f64`, and a
+            // byte-wise copy has no alignment requirement.
+            unsafe {
+                std::ptr::copy_nonoverlapping(
+                    bytes.as_ptr(),
+                    values.as_mut_ptr().cast::<u8>(),
+                    bytes.len(),
+                );
+                values.set_len(len);
+            }
+            Some(values)
+        } else {
+            Some(bytes.chunks_exact(8).map(f64_from_le_chunk).collect())
+        }
     }
+}
+
+/// One little-endian `f64` from a chunk of exactly 8 bytes.
+fn f64_from_le_chunk(chunk: &[u8]) -> f64 {
+    f64::from_le_bytes(chunk.try_into().expect("chunks of 8"))
 }
 
 impl From<Vec<f64>> for F64s {
@@ -98,6 +118,41 @@ impl<'de> Visitor<'de> for F64sVisitor {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn from_le_bytes_gives_every_value_bit_for_bit() {
+        // Every bit pattern class: NaNs with payloads, infinities, signed zeros,
+        // subnormals, and pseudo-random patterns, at every length up to 41 values.
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut patterns = vec![
+            0x7ff8_dead_beef_0001,
+            0xfff0_0000_0000_0001,
+            0x7ff0_0000_0000_0000,
+            0x8000_0000_0000_0000,
+            0x0000_0000_0000_0001,
+            0x800f_ffff_ffff_ffff,
+        ];
+        patterns.extend((0..35).map(|_| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        }));
+        let bytes: Vec<u8> = patterns.iter().flat_map(|p| p.to_le_bytes()).collect();
+        for len in 0..=patterns.len() {
+            let decoded = F64s::from_le_bytes(&bytes[..8 * len]).expect("whole values");
+            let expected: Vec<u64> = bytes[..8 * len]
+                .chunks_exact(8)
+                .map(|c| f64_from_le_chunk(c).to_bits())
+                .collect();
+            let bits: Vec<u64> = decoded.iter().map(|v| v.to_bits()).collect();
+            assert_eq!(bits, expected, "{len} values");
+            assert_eq!(bits, patterns[..len], "{len} values");
+        }
+        for len in [1, 7, 9, 15] {
+            assert_eq!(F64s::from_le_bytes(&bytes[..len]), None, "{len} bytes");
+        }
+    }
 
     #[test]
     fn bin_and_array_forms_decode_to_the_same_values() {
