@@ -285,12 +285,12 @@ impl ClientHandle {
         engine: &str,
         policy: &str,
         observations: &[u8],
-    ) -> PyResult<Bound<'py, PyBytes>> {
+    ) -> PyResult<Bound<'py, PyByteArray>> {
         let observations = floats_from_bytes("observations", observations)?;
         let actions = py
             .detach(|| self.client.act(engine, policy, &observations))
             .map_err(to_py)?;
-        Ok(floats_to_bytes(py, &actions))
+        floats_to_bytearray(py, &actions)
     }
 }
 

@@ -180,6 +180,10 @@ def test_a_served_policy_acts_for_a_plain_loop_without_gymnasium(policy_engine):
     np.testing.assert_array_equal(batch[0], action)
     np.testing.assert_array_equal(batch[2], action)
     assert not np.array_equal(batch[1], action)
+    # The caller's own arrays, as Gymnasium's are: scaling one in place changes no other.
+    assert action.flags.writeable and batch.flags.writeable
+    action *= 0.5
+    np.testing.assert_array_equal(batch[0], 2.0 * action)
     with pytest.raises(ValueError, match=r"\(8,\) or \(n, 8\)"):
         policy.act(observation[:-1])
     with pytest.raises(ciflow.EngineUnreachable, match="serves a policy named 'nobody'"):

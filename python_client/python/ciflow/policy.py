@@ -39,7 +39,8 @@ class Policy:
 
     def act(self, observation) -> np.ndarray:
         """``q̈_des`` for one observation (shape ``(observation_dim,)``) or a batch
-        (``(n, observation_dim)``); the result has the same leading shape."""
+        (``(n, observation_dim)``); the result has the same leading shape, and is the
+        caller's own (writable) array."""
         rows = np.ascontiguousarray(observation, dtype=np.float64)
         if rows.ndim not in (1, 2) or rows.shape[-1] != self.observation_dim:
             raise ValueError(
