@@ -60,9 +60,8 @@ pub fn floats_to_bytes<'py>(py: Python<'py>, values: &[f64]) -> Bound<'py, PyByt
 
 /// `values` as little-endian `f64` bytes in a new `bytearray`, for arrays handed to the
 /// caller: `np.frombuffer` reads a `bytearray` in place and writable, where `bytes` would
-/// need a second copy to be writable. The batched calls return their results this way:
-/// each copy of a batch is a fresh allocation of its size, whose pages the allocator gives
-/// back and takes again at every step.
+/// need a second copy to be writable. The batched calls return their results this way, so
+/// a batch's values are copied once out of the decoded reply, not twice.
 pub fn floats_to_bytearray<'py>(
     py: Python<'py>,
     values: &[f64],
