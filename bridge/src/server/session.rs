@@ -395,8 +395,7 @@ impl Session {
                     let index = chunk * BATCH_CHUNK + i;
                     match slot.step_autoreset(action, options.of(index)) {
                         Ok(step) => {
-                            rows.set(
-                                i,
+                            rows.push(
                                 &slot.observation,
                                 step.reward,
                                 step.terminated,
@@ -405,6 +404,8 @@ impl Session {
                             infos.set(i, &step.info);
                         }
                         Err(e) => {
+                            // The rows stay in place; this reply will not be sent.
+                            rows.push_failed();
                             failure.get_or_insert_with(|| in_env(index, e));
                         }
                     }
