@@ -164,10 +164,11 @@ impl BatchStepWriter {
         );
         // SAFETY: the capacity reaches `end` (reserved in `new`). Below `end`, `new`
         // wrote every column's header, and the last `rows` wrote every row: its blocks
-        // cover the rows without overlap (`split_at`), each wrote its rows `..written` in
-        // full (`push`), and their `written` add up to `num_envs`, the rows of all blocks,
-        // so every block wrote all of its rows. The count was read after every block was
-        // dropped: they borrow `self` mutably, and `finish` takes it by value.
+        // cover the rows without overlap (`split_off_front`), each wrote its rows
+        // `..written` in full (`push`), and their `written` add up to `num_envs`, the rows
+        // of all blocks, so every block wrote all of its rows. The count was read after
+        // every block was dropped: they borrow `self` mutably, and `finish` takes it by
+        // value.
         unsafe { self.buffer.set_len(self.end) };
         write(rmp::encode::write_str(&mut self.buffer, "info"));
         let keys = u32::try_from(info.len()).expect("under 4 billion info keys");
