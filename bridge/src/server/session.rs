@@ -393,8 +393,9 @@ impl Session {
                 for (i, slot) in slots.iter_mut().enumerate() {
                     let action = &actions[i * action_dim..(i + 1) * action_dim];
                     let index = chunk * BATCH_CHUNK + i;
+                    // `ref`: the outcome is read in place, not copied out of the result.
                     match slot.step_autoreset(action, options.of(index)) {
-                        Ok(step) => {
+                        Ok(ref step) => {
                             rows.push(
                                 &slot.observation,
                                 step.reward,
