@@ -18,18 +18,15 @@ pub enum Command {
     Robot(commands::robot::RobotArgs),
     /// Record expert demonstrations of a task into a Minari dataset.
     Demos(commands::demos::DemosArgs),
-    /// Train a stable conditioned policy by exact maximum likelihood on demonstrations.
-    Train(Box<commands::train::TrainArgs>),
+    #[command(about = ciflow_cli::TRAIN_ABOUT, disable_help_flag = true)]
+    Train(commands::torch::Forwarded),
     /// Measure how many noise-free rollouts of a trained policy converge.
     Stability(Box<commands::stability::StabilityArgs>),
     /// Evaluate a checkpoint: closed-loop success, collision, spill and push-recovery
     /// rates in its task, log-likelihood on a dataset, or 2-D vector-field figure data (JSON).
     Evaluate(Box<commands::evaluate::EvaluateArgs>),
-    /// LASA handwriting benchmark: per shape, a stable flow against a behaviour-cloning
-    /// MLP trained in the same run on the same demonstrations (the training options set the
-    /// flow's; the MLP keeps its own: up to 200 epochs, early-stopped); writes tables (DTW,
-    /// swept area, final error, time) and plots.
-    Lasa(commands::lasa::LasaArgs),
+    #[command(about = ciflow_cli::LASA_ABOUT, disable_help_flag = true)]
+    Lasa(commands::torch::Forwarded),
     /// Start an engine that serves every task as a Gymnasium environment over Zenoh.
     Serve(commands::serve::ServeArgs),
     /// Run the Zenoh router that joins machines, optionally with access control.

@@ -6,8 +6,8 @@ use anyhow::Context;
 use ciflow_envs::dataset::{Credits, DatasetFormat};
 use ciflow_envs::rollout::{Recording, record_expert_dataset};
 
-use crate::parse::parse_key_value;
-use crate::progress;
+use ciflow_cli::parse::parse_key_value;
+use ciflow_cli::progress;
 
 /// Arguments of `ciflow demos`.
 #[derive(clap::Args, Debug)]

@@ -26,9 +26,9 @@ use ciflow_evaluation::{
 use clap::ValueEnum;
 use serde::Serialize;
 
-use super::network::EnginesArgs;
-use crate::parse::{parse_contexts, parse_key_value, parse_window};
-use crate::progress;
+use ciflow_cli::network::EnginesArgs;
+use ciflow_cli::parse::{parse_contexts, parse_key_value, parse_window};
+use ciflow_cli::progress;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum PerturbArg {

@@ -2,10 +2,8 @@
 
 pub mod demos;
 pub mod evaluate;
-pub mod lasa;
-pub mod network;
 pub mod robot;
 pub mod router;
 pub mod serve;
 pub mod stability;
-pub mod train;
+pub mod torch;

@@ -4,7 +4,7 @@
 use anyhow::Context;
 use ciflow_bridge::{AccessPolicy, Router};
 
-use super::network::NetworkArgs;
+use ciflow_cli::network::NetworkArgs;
 
 /// Run a Zenoh router (any `zenohd` does the same job). Every other process joins it as a
 /// Zenoh client (`--connect tcp/<router>:7447`, or a `--config` file).

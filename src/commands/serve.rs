@@ -8,8 +8,8 @@ use ciflow_bridge::{
     CheckpointPolicy, EngineServer, Kwargs, Policy, ServerOptions, default_endpoint, scheduling,
 };
 
-use super::network::NetworkArgs;
-use crate::parse::{parse_named_dir, parse_number_pair};
+use ciflow_cli::network::NetworkArgs;
+use ciflow_cli::parse::{parse_named_dir, parse_number_pair};
 
 /// Start an engine that hosts environment sessions for Zenoh clients (Python
 /// `gymnasium.make("ciflow/...")`, or any Zenoh client following bridge/PROTOCOL.md).

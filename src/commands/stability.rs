@@ -26,8 +26,8 @@ use ciflow_evaluation::stability_check::{
     StabilityCheck, Stage, check_stability, check_stability_with,
 };
 
-use super::network::EnginesArgs;
-use crate::progress;
+use ciflow_cli::network::EnginesArgs;
+use ciflow_cli::progress;
 
 #[derive(clap::Args, Debug)]
 pub struct StabilityArgs {

@@ -10,7 +10,7 @@ use ciflow_envs::lasa;
 use ciflow_evaluation::lasa::{GOAL, REFERENCE_SHAPES};
 use ciflow_experiments::lasa::{self as benchmark, RunEpoch, TASK, ablation};
 
-use crate::progress;
+use ciflow_cli::progress;
 use ciflow_train::RecipeOverrides;
 use ciflow_train::trainer::check_config;
 

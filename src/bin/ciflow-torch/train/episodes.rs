@@ -11,8 +11,8 @@ use ciflow_envs::registry::TaskEntry;
 use ciflow_train::dataset::{self, ForeignFields};
 use ciflow_train::{Demonstrations, Screened, Screening};
 
-use crate::commands::network::NetworkArgs;
-use crate::progress;
+use ciflow_cli::network::NetworkArgs;
+use ciflow_cli::progress;
 
 /// Where the demonstrations come from besides `--demos`.
 #[derive(clap::Args, Debug)]

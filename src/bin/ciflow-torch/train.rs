@@ -26,8 +26,8 @@ use ciflow_train::{
     train_flow_into,
 };
 
-use crate::parse::parse_key_value;
-use crate::progress;
+use ciflow_cli::parse::parse_key_value;
+use ciflow_cli::progress;
 
 #[derive(clap::Args, Debug)]
 // A negative setting (`--arrival -1`) reaches the check that explains it, instead of
