@@ -11,10 +11,16 @@ use args::Command;
 use clap::Parser;
 
 fn main() -> ExitCode {
+    let arguments: Vec<_> = std::env::args_os().skip(1).collect();
+    // Before clap, whose own `help train` knows only the forwarding stub.
+    if let Some(command) = commands::torch::help_asked_for(&arguments) {
+        let result = commands::torch::run([command.into(), "--help".into()]);
+        return ciflow_cli::report::exit_code(result);
+    }
     let result = match args::Cli::parse().command {
         Command::Robot(args) => commands::robot::run(args),
         Command::Demos(args) => commands::demos::run(args),
-        Command::Train(_) | Command::Lasa(_) => commands::torch::run(),
+        Command::Train(_) | Command::Lasa(_) => commands::torch::run(arguments),
         Command::Stability(args) => commands::stability::run(*args),
         Command::Evaluate(args) => commands::evaluate::run(*args),
         Command::Serve(args) => commands::serve::run(args),

@@ -37,18 +37,22 @@ fn only_ciflow_torch_loads_libtorch() {
 
 #[test]
 fn train_and_lasa_take_their_options_through_ciflow() {
-    let help =
-        |command: &str| String::from_utf8_lossy(&succeed(&[command, "--help"]).stdout).into_owned();
-    let train = help("train");
+    let stdout = |args: &[&str]| String::from_utf8_lossy(&succeed(args).stdout).into_owned();
+    let train = stdout(&["train", "--help"]);
     assert!(
         train.contains("Usage: ciflow train") && train.contains("--demos"),
         "{train}"
     );
-    let lasa = help("lasa");
+    let lasa = stdout(&["lasa", "--help"]);
     assert!(lasa.contains("--ablation"), "{lasa}");
     // Its errors and exit status are the caller's.
     refused(&["train", "--out", "x"], "--task <TASK>");
     refused(&["lasa", "--no-such-option"], "--no-such-option");
+    // `help <command>` says the same, and clap still answers it for the other commands.
+    assert_eq!(stdout(&["help", "train"]), train);
+    assert_eq!(stdout(&["help", "lasa"]), lasa);
+    let serve = stdout(&["help", "serve"]);
+    assert!(serve.contains("Usage: ciflow serve"), "{serve}");
 }
 
 #[test]
