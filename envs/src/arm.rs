@@ -65,9 +65,9 @@ pub trait ArmTask: Send + 'static {
     fn pose(&self, robot: &dyn Robot, q: &[f64]) -> Result<Self::Pose, EnvError>;
     /// The point of `pose` whose trail `render` draws.
     fn traced_point(pose: &Self::Pose) -> Vector3;
-    /// Reward, termination and the task's own info at `pose` (the environment adds
-    /// [`PERTURBED_INFO`] and `time`).
-    fn evaluate(&self, pose: &Self::Pose) -> Outcome;
+    /// Reward and termination at `pose`; the task's own info values go into `info` (the
+    /// environment adds [`PERTURBED_INFO`] and `time`).
+    fn evaluate(&self, pose: &Self::Pose, info: &mut Info) -> Outcome;
     /// The expert's `q̈_des` at `(q, q̇)` for the current context, before clipping.
     fn expert_acceleration(
         &self,
@@ -164,11 +164,14 @@ impl<T: ArmTask> ArmEnv<T> {
         observation_of(&self.simulator, &self.context)
     }
 
-    fn outcome(&self, pose: &T::Pose) -> Outcome {
-        let mut outcome = self.task.evaluate(pose);
+    /// Reward and termination at `pose`; `info` replaced by the task's values,
+    /// [`PERTURBED_INFO`] and `time`.
+    fn outcome(&self, pose: &T::Pose, info: &mut Info) -> Outcome {
+        info.clear();
+        let outcome = self.task.evaluate(pose, info);
         let perturbed = f64::from(u8::from(self.simulator.perturbed()));
-        outcome.info.insert(PERTURBED_INFO.into(), perturbed);
-        outcome.info.insert("time".into(), self.simulator.time());
+        info.insert(PERTURBED_INFO.into(), perturbed);
+        info.insert("time".into(), self.simulator.time());
         outcome
     }
 
@@ -242,13 +245,16 @@ impl<T: ArmTask> Env for ArmEnv<T> {
         let pose = self.pose()?;
         self.trail
             .start(T::traced_point(&pose), self.spec.max_episode_steps);
-        Ok((self.observation(), self.outcome(&pose).info))
+        let mut info = Info::new();
+        self.outcome(&pose, &mut info);
+        Ok((self.observation(), info))
     }
 
     fn step_into(
         &mut self,
         action: &[f64],
         observation: &mut [f64],
+        info: &mut Info,
     ) -> Result<StepOutcome, EnvError> {
         self.phase.running()?;
         self.spec.action_space.check("action", action)?;
@@ -257,7 +263,7 @@ impl<T: ArmTask> Env for ArmEnv<T> {
         self.steps += 1;
         let pose = self.pose()?;
         self.trail.push(T::traced_point(&pose));
-        let outcome = self.outcome(&pose);
+        let outcome = self.outcome(&pose, info);
         write_observation(&self.simulator, &self.context, observation);
         Ok(self
             .phase

@@ -214,7 +214,6 @@ impl Phase {
             reward: outcome.reward,
             terminated: outcome.terminated,
             truncated,
-            info: outcome.info,
         }
     }
 }
@@ -236,13 +235,13 @@ pub fn write_observation(simulator: &Simulator, context: &[f64], buffer: &mut [f
     c.copy_from_slice(context);
 }
 
-/// What a task tells about one state: Gymnasium's reward, termination and info.
-#[derive(Clone, Debug, PartialEq)]
+/// What a task tells about one state: Gymnasium's reward and termination. Its info goes
+/// into an [`Info`] the caller owns, the same keys at every step and at reset (datasets
+/// store them as columns).
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Outcome {
     pub reward: f64,
     pub terminated: bool,
-    /// The same keys at every step and at reset (datasets store them as columns).
-    pub info: Info,
 }
 
 /// The result of one [`Env::step`].
@@ -255,25 +254,24 @@ pub struct Step {
     pub info: Info,
 }
 
-/// The result of one [`Env::step_into`]: a [`Step`] but its observation, which went into
-/// the caller's buffer.
-#[derive(Clone, Debug, PartialEq)]
+/// The result of one [`Env::step_into`]: a [`Step`] but its observation and info, which
+/// went into the caller's buffers. Small enough to come back in registers.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepOutcome {
     pub reward: f64,
     pub terminated: bool,
     pub truncated: bool,
-    pub info: Info,
 }
 
 impl StepOutcome {
-    /// The [`Step`] of this outcome and its observation.
-    pub fn with_observation(self, observation: Vec<f64>) -> Step {
+    /// The [`Step`] of this outcome, its observation and its info.
+    pub fn with_observation(self, observation: Vec<f64>, info: Info) -> Step {
         Step {
             observation,
             reward: self.reward,
             terminated: self.terminated,
             truncated: self.truncated,
-            info: self.info,
+            info,
         }
     }
 }
@@ -295,17 +293,20 @@ pub trait Env: Send {
     /// Applies the desired acceleration for one control period.
     fn step(&mut self, action: &[f64]) -> Result<Step, EnvError> {
         let mut observation = vec![0.0; self.spec().observation_space.dim()];
-        let outcome = self.step_into(action, &mut observation)?;
-        Ok(outcome.with_observation(observation))
+        let mut info = Info::new();
+        let outcome = self.step_into(action, &mut observation, &mut info)?;
+        Ok(outcome.with_observation(observation, info))
     }
 
     /// [`step`](Self::step) with the observation written into `observation` (its length
-    /// checked before anything moves), for callers that step many environments into one
-    /// buffer: a step then allocates nothing for it.
+    /// checked before anything moves) and the info into `info` (cleared first, its memory
+    /// kept), for callers that step many environments into buffers of their own: a step
+    /// then allocates nothing, and copies no info from one place to the next.
     fn step_into(
         &mut self,
         action: &[f64],
         observation: &mut [f64],
+        info: &mut Info,
     ) -> Result<StepOutcome, EnvError>;
 
     /// The expert's action for the current state and context.

@@ -45,6 +45,12 @@ impl Info {
         }
     }
 
+    /// Removes every entry, keeping the memory (an environment refills the same `Info`
+    /// at every step).
+    pub fn clear(&mut self) {
+        self.0.clear();
+    }
+
     pub fn get(&self, key: &str) -> Option<&f64> {
         self.0.iter().find(|(k, _)| k == key).map(|(_, v)| v)
     }
@@ -102,10 +108,17 @@ impl FromIterator<(InfoKey, f64)> for Info {
     /// A repeated key keeps its first place and its last value, as `insert` would.
     fn from_iter<I: IntoIterator<Item = (InfoKey, f64)>>(entries: I) -> Self {
         let mut info = Self::new();
-        for (key, value) in entries {
-            info.insert(key, value);
-        }
+        info.extend(entries);
         info
+    }
+}
+
+impl Extend<(InfoKey, f64)> for Info {
+    /// Inserts each entry in turn, as [`Info::insert`].
+    fn extend<I: IntoIterator<Item = (InfoKey, f64)>>(&mut self, entries: I) {
+        for (key, value) in entries {
+            self.insert(key, value);
+        }
     }
 }
 

@@ -67,7 +67,9 @@ pub trait PlanarTask: Send + 'static {
     fn field(&self) -> &dyn VelocityField;
     /// `k_v` of the expert's [`tracking_acceleration`], 1/s.
     fn velocity_gain(&self) -> f64;
-    fn evaluate(&self, x: &Vector2<f64>, xd: &Vector2<f64>) -> Outcome;
+    /// Reward and termination at `(x, ẋ)`; the task's own info values go into `info` (the
+    /// environment adds `time`).
+    fn evaluate(&self, x: &Vector2<f64>, xd: &Vector2<f64>, info: &mut Info) -> Outcome;
     /// Draws the task's scene (targets, obstacles, outlines) under the trajectory.
     fn draw(&self, canvas: &mut Canvas);
     /// The context's objects (targets, obstacles, outlines) in the plane `z = 0`.
@@ -146,10 +148,12 @@ impl<T: PlanarTask> PlanarEnv<T> {
         observation_of(&self.simulator, &self.context)
     }
 
-    fn outcome(&self) -> Outcome {
+    /// Reward and termination now; `info` replaced by the task's values and `time`.
+    fn outcome(&self, info: &mut Info) -> Outcome {
         let (x, xd) = self.state();
-        let mut outcome = self.task.evaluate(&x, &xd);
-        outcome.info.insert("time".into(), self.simulator.time());
+        info.clear();
+        let outcome = self.task.evaluate(&x, &xd, info);
+        info.insert("time".into(), self.simulator.time());
         outcome
     }
 }
@@ -205,13 +209,16 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         self.phase = Phase::Running;
         self.steps = 0;
         self.trail.start(x0, self.spec.max_episode_steps);
-        Ok((self.observation(), self.outcome().info))
+        let mut info = Info::new();
+        self.outcome(&mut info);
+        Ok((self.observation(), info))
     }
 
     fn step_into(
         &mut self,
         action: &[f64],
         observation: &mut [f64],
+        info: &mut Info,
     ) -> Result<StepOutcome, EnvError> {
         self.phase.running()?;
         self.spec.action_space.check("action", action)?;
@@ -219,7 +226,7 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         self.simulator.step(action).map_err(EnvError::Simulation)?;
         self.steps += 1;
         self.trail.push(self.state().0);
-        let outcome = self.outcome();
+        let outcome = self.outcome(info);
         write_observation(&self.simulator, &self.context, observation);
         Ok(self
             .phase

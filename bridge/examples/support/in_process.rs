@@ -51,8 +51,9 @@ pub fn in_process_rate(
             .map(|envs| {
                 let (start, each_step, action, options) = (&start, &each_step, &action, &options);
                 scope.spawn(move || -> Result<(), ciflow_envs::EnvError> {
-                    // Into one buffer, as the engine steps its batches.
+                    // Into one buffer each, as the engine steps its batches.
                     let mut observation = vec![0.0; envs[0].spec().observation_space.dim()];
+                    let mut info = ciflow_envs::Info::new();
                     // After a failure the thread steps no more but still meets the
                     // others at every barrier, so that none of them waits forever.
                     let mut failure = None;
@@ -62,7 +63,8 @@ pub fn in_process_rate(
                                 failure = envs
                                     .iter_mut()
                                     .try_for_each(|env| {
-                                        let step = env.step_into(action, &mut observation)?;
+                                        let step =
+                                            env.step_into(action, &mut observation, &mut info)?;
                                         if step.terminated || step.truncated {
                                             env.reset(None, options)?;
                                         }

@@ -233,10 +233,12 @@ impl Session {
         last: bool,
     ) -> Result<bool, ErrorReply> {
         let slot = &mut self.envs[run.index];
+        // What a driven run reports is the slot's (telemetry), not the step's info.
+        let mut info = Info::new();
         let outcome = policy
             .act_into(&slot.observation, action)
             .map_err(|e| ErrorReply::new(ErrorCode::Policy, full_message(&e)))
-            .and_then(|()| slot.step(action).map_err(ErrorReply::from));
+            .and_then(|()| slot.step(action, &mut info).map_err(ErrorReply::from));
         let going_on = matches!(&outcome, Ok(step) if !(step.terminated || step.truncated || last));
         if !going_on {
             self.run = None;
@@ -311,7 +313,8 @@ impl Session {
 
     pub fn step(&mut self, action: &[f64]) -> Result<Vec<u8>, ErrorReply> {
         let slot = self.single("step")?;
-        let step = slot.step(action)?;
+        let mut info = Info::new();
+        let step = slot.step(action, &mut info)?;
         let time = slot.time();
         let observation = slot.observation.clone();
         self.telemetry.offer(&self.id, &self.envs[0]);
@@ -321,7 +324,7 @@ impl Session {
             reward: step.reward,
             terminated: step.terminated,
             truncated: step.truncated,
-            info: step.info,
+            info,
             time,
         }))
     }
@@ -388,21 +391,22 @@ impl Session {
             .enumerate()
             .map(|(chunk, ((slots, actions), mut rows))| {
                 let mut infos = InfoColumns::new(slots.len());
+                // One info for the chunk, refilled by every environment in turn.
+                let mut info = Info::new();
                 // The others still step when one fails, as they would one by one.
                 let mut failure = None;
                 for (i, slot) in slots.iter_mut().enumerate() {
                     let action = &actions[i * action_dim..(i + 1) * action_dim];
                     let index = chunk * BATCH_CHUNK + i;
-                    // `ref`: the outcome is read in place, not copied out of the result.
-                    match slot.step_autoreset(action, options.of(index)) {
-                        Ok(ref step) => {
+                    match slot.step_autoreset(action, options.of(index), &mut info) {
+                        Ok(step) => {
                             rows.push(
                                 &slot.observation,
                                 step.reward,
                                 step.terminated,
                                 step.truncated,
                             );
-                            infos.set(i, &step.info);
+                            infos.set(i, &info);
                         }
                         Err(e) => {
                             // The rows stay in place; this reply will not be sent.

@@ -59,39 +59,40 @@ impl EnvSlot {
         self.observation.is_empty() || self.episode_over
     }
 
-    /// One control period; the new observation is [`observation`](Self::observation). The
-    /// action is checked here too, so that a task that forgets a check still answers with
-    /// a typed error.
-    pub fn step(&mut self, action: &[f64]) -> Result<StepOutcome, EnvError> {
+    /// One control period; the new observation is [`observation`](Self::observation), its
+    /// info replaces `info`'s. The action is checked here too, so that a task that forgets
+    /// a check still answers with a typed error.
+    pub fn step(&mut self, action: &[f64], info: &mut Info) -> Result<StepOutcome, EnvError> {
         check_vector("action", action, self.command.len())?;
         if self.needs_reset() {
             return Err(EnvError::NeedsReset);
         }
-        let outcome = self.env.step_into(action, &mut self.observation)?;
+        let outcome = self.env.step_into(action, &mut self.observation, info)?;
         self.steps += 1;
         self.command.copy_from_slice(action);
         self.reward = outcome.reward;
         self.episode_over = outcome.terminated || outcome.truncated;
-        self.perturbed = pushed(&outcome.info);
+        self.perturbed = pushed(info);
         Ok(outcome)
     }
 
     /// A step with Gymnasium's next-step autoreset: if the previous step ended the
-    /// episode, the action is ignored and the environment resets instead (RNG continuing).
+    /// episode, the action is ignored and the environment resets instead (RNG continuing),
+    /// its reset info in `info`.
     pub fn step_autoreset(
         &mut self,
         action: &[f64],
         options: &ResetOptions,
+        info: &mut Info,
     ) -> Result<StepOutcome, EnvError> {
         if !self.episode_over {
-            return self.step(action);
+            return self.step(action, info);
         }
-        let (_, info) = self.reset(None, options)?;
+        (_, *info) = self.reset(None, options)?;
         Ok(StepOutcome {
             reward: 0.0,
             terminated: false,
             truncated: false,
-            info,
         })
     }
 

@@ -95,20 +95,20 @@ impl Env for Fixture {
         &mut self,
         action: &[f64],
         observation: &mut [f64],
+        info: &mut Info,
     ) -> Result<StepOutcome, EnvError> {
         self.spec.action_space.check("action", action)?;
         self.spec.check_observation_buffer(observation)?;
         assert!(action[0] != PANIC_ACTION, "fixture asked to panic");
         self.x += action[0] * self.spec.control_dt;
         self.steps += 1;
-        let mut info = Info::new();
+        info.clear();
         info.insert("distance".into(), (self.x - self.context).abs());
         observation.copy_from_slice(&self.observation());
         Ok(StepOutcome {
             reward: -(self.x - self.context).abs(),
             terminated: false,
             truncated: self.steps >= EPISODE_STEPS,
-            info,
         })
     }
 

@@ -343,17 +343,17 @@ impl PlanarTask for Lasa {
         20.0
     }
 
-    fn evaluate(&self, x: &Vector2<f64>, _xd: &Vector2<f64>) -> Outcome {
+    fn evaluate(&self, x: &Vector2<f64>, _xd: &Vector2<f64>, info: &mut Info) -> Outcome {
         let distance = (x - self.goal()).norm();
         let success = distance < GOAL_TOLERANCE;
+        info.extend([
+            ("distance_to_goal".into(), distance),
+            (SUCCESS_INFO.into(), f64::from(u8::from(success))),
+            ("shape".into(), self.shape as f64),
+        ]);
         Outcome {
             reward: -distance,
             terminated: success,
-            info: Info::from([
-                ("distance_to_goal".into(), distance),
-                (SUCCESS_INFO.into(), f64::from(u8::from(success))),
-                ("shape".into(), self.shape as f64),
-            ]),
         }
     }
 

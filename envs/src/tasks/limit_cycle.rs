@@ -221,18 +221,18 @@ impl PlanarTask for LimitCycle {
         25.0
     }
 
-    fn evaluate(&self, x: &Vector2<f64>, _xd: &Vector2<f64>) -> Outcome {
+    fn evaluate(&self, x: &Vector2<f64>, _xd: &Vector2<f64>, info: &mut Info) -> Outcome {
         let error = self.field.outline.distance(x);
+        info.extend([
+            ("outline_error".into(), error),
+            (
+                SUCCESS_INFO.into(),
+                f64::from(u8::from(error < SUCCESS_DISTANCE)),
+            ),
+        ]);
         Outcome {
             reward: -error,
             terminated: false,
-            info: Info::from([
-                ("outline_error".into(), error),
-                (
-                    SUCCESS_INFO.into(),
-                    f64::from(u8::from(error < SUCCESS_DISTANCE)),
-                ),
-            ]),
         }
     }
 

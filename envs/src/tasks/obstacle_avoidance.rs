@@ -290,11 +290,16 @@ impl PlanarTask for ObstacleAvoidance {
         20.0
     }
 
-    fn evaluate(&self, x: &Vector2<f64>, xd: &Vector2<f64>) -> Outcome {
+    fn evaluate(&self, x: &Vector2<f64>, xd: &Vector2<f64>, info: &mut Info) -> Outcome {
         let distance = (x - self.field.target).norm();
         let collision = self.collides(x);
         let success = !collision && distance < SUCCESS_DISTANCE && xd.norm() < SUCCESS_SPEED;
         let flag = |b: bool| f64::from(u8::from(b));
+        info.extend([
+            ("distance_to_target".into(), distance),
+            ("collision".into(), flag(collision)),
+            (SUCCESS_INFO.into(), flag(success)),
+        ]);
         Outcome {
             reward: if collision {
                 COLLISION_REWARD
@@ -302,11 +307,6 @@ impl PlanarTask for ObstacleAvoidance {
                 -distance
             },
             terminated: collision || success,
-            info: Info::from([
-                ("distance_to_target".into(), distance),
-                ("collision".into(), flag(collision)),
-                (SUCCESS_INFO.into(), flag(success)),
-            ]),
         }
     }
 

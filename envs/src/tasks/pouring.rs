@@ -252,26 +252,26 @@ impl ArmTask for Pouring {
         cup.spout
     }
 
-    fn evaluate(&self, cup: &CupPose) -> Outcome {
+    fn evaluate(&self, cup: &CupPose, info: &mut Info) -> Outcome {
         let tilt = cup.tilt();
         let distance = (cup.spout - self.target.point).norm();
         let over = over_opening(&self.pot, &cup.spout);
         let spill = tilt >= SPILL_TILT && !over;
         let success = tilt >= POURING_TILT && over;
         let flag = |b: bool| f64::from(u8::from(b));
+        info.extend([
+            ("spout_x".into(), cup.spout.x),
+            ("spout_y".into(), cup.spout.y),
+            ("spout_z".into(), cup.spout.z),
+            ("tilt".into(), tilt),
+            ("pour_distance".into(), distance),
+            ("over_pot".into(), flag(over)),
+            ("spill".into(), flag(spill)),
+            (SUCCESS_INFO.into(), flag(success)),
+        ]);
         Outcome {
             reward: if spill { SPILL_REWARD } else { -distance },
             terminated: spill,
-            info: Info::from([
-                ("spout_x".into(), cup.spout.x),
-                ("spout_y".into(), cup.spout.y),
-                ("spout_z".into(), cup.spout.z),
-                ("tilt".into(), tilt),
-                ("pour_distance".into(), distance),
-                ("over_pot".into(), flag(over)),
-                ("spill".into(), flag(spill)),
-                (SUCCESS_INFO.into(), flag(success)),
-            ]),
         }
     }
 

@@ -418,21 +418,21 @@ impl ArmTask for Reach {
         *tool
     }
 
-    fn evaluate(&self, tool: &Vector3) -> Outcome {
+    fn evaluate(&self, tool: &Vector3, info: &mut Info) -> Outcome {
         let distance = (tool - self.goal).norm();
+        info.extend([
+            ("tool_x".into(), tool.x),
+            ("tool_y".into(), tool.y),
+            ("tool_z".into(), tool.z),
+            ("distance_to_target".into(), distance),
+            (
+                SUCCESS_INFO.into(),
+                f64::from(u8::from(distance < SUCCESS_RADIUS)),
+            ),
+        ]);
         Outcome {
             reward: -distance,
             terminated: false,
-            info: Info::from([
-                ("tool_x".into(), tool.x),
-                ("tool_y".into(), tool.y),
-                ("tool_z".into(), tool.z),
-                ("distance_to_target".into(), distance),
-                (
-                    SUCCESS_INFO.into(),
-                    f64::from(u8::from(distance < SUCCESS_RADIUS)),
-                ),
-            ]),
         }
     }
 
