@@ -68,8 +68,8 @@ impl Info {
     }
 
     /// The entries, in the order their keys were first set.
-    pub fn iter(&self) -> impl ExactSizeIterator<Item = (&InfoKey, &f64)> {
-        self.into_iter()
+    pub fn iter(&self) -> Iter<'_> {
+        Iter(self.0.iter())
     }
 }
 
@@ -122,15 +122,32 @@ impl Extend<(InfoKey, f64)> for Info {
     }
 }
 
+/// The entries of an [`Info`], in the order their keys were first set. A type of its own
+/// rather than a `map` over the slice's iterator through a function pointer, which an
+/// engine called indirectly for every value of every environment it stepped.
+pub struct Iter<'a>(std::slice::Iter<'a, (InfoKey, f64)>);
+
+impl<'a> Iterator for Iter<'a> {
+    type Item = (&'a InfoKey, &'a f64);
+
+    #[inline]
+    fn next(&mut self) -> Option<Self::Item> {
+        self.0.next().map(|(key, value)| (key, value))
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        self.0.size_hint()
+    }
+}
+
+impl ExactSizeIterator for Iter<'_> {}
+
 impl<'a> IntoIterator for &'a Info {
     type Item = (&'a InfoKey, &'a f64);
-    type IntoIter = std::iter::Map<
-        std::slice::Iter<'a, (InfoKey, f64)>,
-        fn(&'a (InfoKey, f64)) -> (&'a InfoKey, &'a f64),
-    >;
+    type IntoIter = Iter<'a>;
 
-    fn into_iter(self) -> Self::IntoIter {
-        self.0.iter().map(|(k, v)| (k, v))
+    fn into_iter(self) -> Iter<'a> {
+        self.iter()
     }
 }
 
