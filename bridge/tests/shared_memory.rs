@@ -2,7 +2,10 @@
 //! reply) to each other through Zenoh's shared memory instead of copying them through
 //! the socket: the reply's bytes arrive in a `/dev/shm` segment mapped into the client.
 //! A client whose configuration turns shared memory off gets them over the network — the
-//! negative control of the same check.
+//! negative control of the same check. A `step_batch` reply is written into shared memory
+//! by the engine itself, not copied there by Zenoh: it arrives there even from an engine
+//! whose Zenoh moves no reply into shared memory, and reaches a network-only client all
+//! the same.
 
 #![cfg(target_os = "linux")]
 
@@ -11,10 +14,14 @@ mod common;
 use std::ops::Range;
 use std::time::Duration;
 
-use ciflow_bridge::protocol::keys;
-use ciflow_bridge::{NetworkOptions, Role};
+use ciflow_bridge::protocol::{
+    BatchStepReply, BatchStepRequest, F64s, PROTOCOL_VERSION, encode, keys,
+};
+use ciflow_bridge::{EngineServer, NetworkOptions, RemoteEnv, Role, ServerOptions};
 use common::*;
+use serde_bytes::ByteBuf;
 use zenoh::Wait;
+use zenoh::bytes::ZBytes;
 
 /// Larger than Zenoh's threshold for moving a message into shared memory (3 KiB) and
 /// than one network batch (64 KiB), as a batch of 4096 environments' replies is.
@@ -46,8 +53,13 @@ fn echo_arrives_in_shared_memory(client: &zenoh::Session, engine: &str) -> bool 
     let reply = replies.recv().expect("the engine replies");
     let echo = reply.result().expect("a payload, not an error").payload();
     assert_eq!(*echo.to_bytes(), payload[..], "the echo is the payload");
+    in_shared_memory(echo)
+}
+
+/// Whether every byte of `payload` lies in a shared-memory segment mapped here.
+fn in_shared_memory(payload: &ZBytes) -> bool {
     let mappings = shared_memory_mappings();
-    echo.slices().all(|slice| {
+    payload.slices().all(|slice| {
         let start = slice.as_ptr() as usize;
         let end = start + slice.len();
         mappings.iter().any(|m| m.start <= start && end <= m.end)
@@ -80,6 +92,118 @@ fn large_payloads_between_engine_and_client_on_one_host_travel_in_shared_memory(
         assert!(
             !echo_arrives_in_shared_memory(&network_only, engine.name()),
             "a client with shared memory off got the reply in shared memory"
+        );
+    }
+}
+
+/// Environments of the batch: its reply (`2 · 8` bytes of observation, 8 of reward and 2
+/// of flags each, 104 KiB) is well past Zenoh's threshold for shared memory.
+const BATCH: u32 = 4096;
+
+/// The bytes of the engine's `step_batch` reply to `actions`, sent by hand so that its
+/// payload can be looked at, with whether they arrived in shared memory.
+fn step_batch_by_hand(
+    env: &RemoteEnv,
+    client: &zenoh::Session,
+    actions: &[f64],
+) -> (Vec<u8>, bool) {
+    let key = keys::session(
+        env.engine(),
+        keys::ANONYMOUS,
+        env.session_id(),
+        "step_batch",
+    );
+    let request = encode(&BatchStepRequest {
+        v: PROTOCOL_VERSION,
+        token: ByteBuf::from(env.token()),
+        actions: F64s(actions.to_vec()),
+    });
+    let replies = client
+        .get(key)
+        .payload(request)
+        .timeout(Duration::from_secs(15))
+        .wait()
+        .expect("query sent");
+    let reply = replies.recv().expect("the engine replies");
+    let payload = reply.result().expect("a payload, not an error").payload();
+    (payload.to_bytes().into_owned(), in_shared_memory(payload))
+}
+
+#[test]
+fn the_engine_writes_batch_replies_into_shared_memory_itself() {
+    let port = 27404;
+    // Zenoh on the engine's side moves queries and puts into shared memory, not replies.
+    let config = std::env::temp_dir().join(format!("ciflow-test-{port}-no-reply-shm.json5"));
+    std::fs::write(
+        &config,
+        r#"{ transport: { shared_memory: { transport_optimization: { messages: ["put", "query"] } } } }"#,
+    )
+    .unwrap();
+    let mut network = NetworkOptions::endpoint(Role::Engine, &endpoint(port));
+    network.config_file = Some(config.clone());
+    let mut options = ServerOptions::default();
+    options.tasks.push(fixture_task());
+    options.name = Some(format!("test-{port}"));
+    let engine = EngineServer::open(&network, options).expect("engine starts");
+    std::fs::remove_file(&config).unwrap();
+
+    let client_options = NetworkOptions::endpoint(Role::Client, &endpoint(port));
+    let client = zenoh::open(client_options.to_zenoh_config(Role::Client).unwrap())
+        .wait()
+        .unwrap();
+    let mut network_only = client_options.to_zenoh_config(Role::Client).unwrap();
+    network_only
+        .insert_json5("transport/shared_memory/enabled", "false")
+        .unwrap();
+    let network_only = zenoh::open(network_only).wait().unwrap();
+
+    // The same batch, seeds and actions, for a client on shared memory and one without.
+    let by_shared_memory = ciflow_bridge::Client::with_session(client.clone()).unwrap();
+    let by_network = ciflow_bridge::Client::with_session(network_only.clone()).unwrap();
+    let make = |client: &ciflow_bridge::Client| {
+        let env = client
+            .make(engine.name(), FIXTURE_ID, BATCH, &Default::default())
+            .expect("a batch session");
+        env.reset_batch(Some(7), None).expect("reset");
+        env
+    };
+    let (env, twin) = (make(&by_shared_memory), make(&by_network));
+    // The pool is set up on the first large message; until then replies come on the heap.
+    let mut step = 0;
+    let mut arrived_shared = false;
+    while !arrived_shared && step < 200 {
+        step += 1;
+        let actions: Vec<f64> = (0..BATCH)
+            .map(|i| f64::from(i % 13) * 0.01 * f64::from(step))
+            .collect();
+        let (reply, shared) = step_batch_by_hand(&env, &client, &actions);
+        let (twin_reply, twin_shared) = step_batch_by_hand(&twin, &network_only, &actions);
+        assert!(
+            !twin_shared,
+            "a client with shared memory off got the reply in shared memory"
+        );
+        assert!(
+            reply == twin_reply,
+            "step {step}: the same reply either way"
+        );
+        let decoded: BatchStepReply = rmp_serde::from_slice(&reply).expect("a step_batch reply");
+        assert_eq!(decoded.observations.0.len(), 2 * BATCH as usize);
+        arrived_shared = shared;
+        if !shared {
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+    assert!(
+        arrived_shared,
+        "no batch reply arrived in shared memory in {step} steps"
+    );
+
+    // The control: a large reply the engine does not write itself stays off shared memory,
+    // so it was the engine, not Zenoh, that put the batch's there.
+    for _ in 0..3 {
+        assert!(
+            !echo_arrives_in_shared_memory(&client, engine.name()),
+            "Zenoh moved a reply into shared memory though its configuration says not to"
         );
     }
 }

@@ -4,8 +4,9 @@
 //! An engine steps thousands of environments per `step_batch`; filling column vectors
 //! and then serializing them wrote every row twice more (a zeroed vector, then the
 //! serializer's copy), 0.5 MiB per 4 096 obstacle environments. Here the rows' columns
-//! are reserved inside the encoded message and parallel tasks fill disjoint blocks of
-//! them; the info columns, whose keys are known only after stepping, are appended last
+//! are reserved inside the encoded message (in a `Vec`, or in any [`MessageBuffer`]: the
+//! engine's are in shared memory, which Zenoh sends without a copy) and parallel tasks
+//! fill disjoint blocks of them; the info columns, whose keys are known only after stepping, are appended last
 //! (where the message's field order puts them) from each task's block of values. Per
 //! obstacle env-step that took cachegrind's count from 32.7 to 27.2 L1d misses and 5 419
 //! to 5 234 instructions. Since 2026-12-04 the rows are not zeroed before the tasks write
@@ -23,11 +24,152 @@
 //!        | "terminated" bin(n) | "truncated" bin(n) | "info" map(..)
 //! ```
 
+use std::io;
 use std::mem::{MaybeUninit, take};
 use std::ops::Range;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use super::{F64s, PROTOCOL_VERSION};
+
+/// Memory a message is encoded into: a `Vec<u8>`, or a buffer of fixed size (the engine's
+/// replies in Zenoh's shared memory) that moves what it holds to the heap when asked for
+/// more room than it has.
+pub trait MessageBuffer {
+    /// Bytes written so far.
+    fn len(&self) -> usize;
+
+    /// Whether no byte is written yet.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Makes room for at least `additional` bytes past [`len`](Self::len).
+    fn reserve(&mut self, additional: usize);
+
+    /// The room past [`len`](Self::len): at least what the last
+    /// [`reserve`](Self::reserve) asked for.
+    ///
+    /// # Safety
+    /// The caller writes only initialised bytes into it: the room may be memory that is
+    /// read as bytes already (a shared-memory buffer is all bytes, whatever was in it).
+    unsafe fn spare_capacity_mut(&mut self) -> &mut [MaybeUninit<u8>];
+
+    /// Sets the length to `new_len`.
+    ///
+    /// # Safety
+    /// `new_len` is at most `len` plus the spare room, and every byte below it is
+    /// initialised.
+    unsafe fn set_len(&mut self, new_len: usize);
+
+    /// Appends `bytes`.
+    fn extend_from_slice(&mut self, bytes: &[u8]) {
+        self.reserve(bytes.len());
+        let len = self.len();
+        // SAFETY: `fill` writes initialised bytes, the room holds at least `bytes.len()`
+        // (just reserved), and after it every byte below `len + bytes.len()` is written.
+        unsafe {
+            fill(&mut self.spare_capacity_mut()[..bytes.len()], bytes);
+            self.set_len(len + bytes.len());
+        }
+    }
+}
+
+impl MessageBuffer for Vec<u8> {
+    fn len(&self) -> usize {
+        Vec::len(self)
+    }
+
+    fn reserve(&mut self, additional: usize) {
+        Vec::reserve(self, additional);
+    }
+
+    unsafe fn spare_capacity_mut(&mut self) -> &mut [MaybeUninit<u8>] {
+        Vec::spare_capacity_mut(self)
+    }
+
+    unsafe fn set_len(&mut self, new_len: usize) {
+        // SAFETY: the caller's promise is `Vec::set_len`'s.
+        unsafe { Vec::set_len(self, new_len) }
+    }
+
+    fn extend_from_slice(&mut self, bytes: &[u8]) {
+        Vec::extend_from_slice(self, bytes);
+    }
+}
+
+/// A [`MessageBuffer`] as an [`io::Write`], for MessagePack's encoder.
+struct Appender<'a, B>(&'a mut B);
+
+impl<B: MessageBuffer> io::Write for Appender<'_, B> {
+    fn write(&mut self, bytes: &[u8]) -> io::Result<usize> {
+        self.0.extend_from_slice(bytes);
+        Ok(bytes.len())
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+/// Where the parts of a reply of `num_envs` environments go, up to the info columns.
+struct Layout {
+    /// The message's first bytes: the map's header and the version.
+    head: Vec<u8>,
+    /// Each row column's header (its key and its bin's length), with where it starts.
+    headers: Vec<(usize, Vec<u8>)>,
+    observations: Range<usize>,
+    rewards: Range<usize>,
+    terminated: Range<usize>,
+    truncated: Range<usize>,
+}
+
+impl Layout {
+    fn new(num_envs: usize, observation_dim: usize) -> Self {
+        let mut head = Vec::new();
+        write(rmp::encode::write_map_len(&mut head, 6));
+        write(rmp::encode::write_str(&mut head, "v"));
+        write(rmp::encode::write_uint(
+            &mut head,
+            u64::from(PROTOCOL_VERSION),
+        ));
+        let lengths = [
+            ("observations", 8 * num_envs * observation_dim),
+            ("rewards", 8 * num_envs),
+            ("terminated", num_envs),
+            ("truncated", num_envs),
+        ];
+        // Each column's header right before its bytes.
+        let mut headers = Vec::with_capacity(lengths.len());
+        let mut columns = Vec::with_capacity(lengths.len());
+        let mut offset = head.len();
+        for (name, bytes) in lengths {
+            let mut header = Vec::new();
+            write(rmp::encode::write_str(&mut header, name));
+            let length = u32::try_from(bytes).expect("a batch's column is under 4 GiB");
+            write(rmp::encode::write_bin_len(&mut header, length));
+            let header_len = header.len();
+            headers.push((offset, header));
+            offset += header_len;
+            columns.push(offset..offset + bytes);
+            offset += bytes;
+        }
+        let [observations, rewards, terminated, truncated] =
+            <[Range<usize>; 4]>::try_from(columns).expect("four columns");
+        Self {
+            head,
+            headers,
+            observations,
+            rewards,
+            terminated,
+            truncated,
+        }
+    }
+
+    /// The length of the message up to its info columns.
+    fn end(&self) -> usize {
+        self.truncated.end
+    }
+}
 
 /// A `step_batch` reply being written: the header and the rows' columns, then
 /// [`finish`](Self::finish) appends the info columns.
@@ -37,10 +179,10 @@ use super::{F64s, PROTOCOL_VERSION};
 /// thread a pass over the whole reply before any task began). [`BatchStepRows::push`]
 /// writes a block's rows in order, each block counts the rows it wrote when it is dropped,
 /// and `finish` takes the bytes only if the last [`rows`](Self::rows) wrote every row.
-pub struct BatchStepWriter {
+pub struct BatchStepWriter<B: MessageBuffer = Vec<u8>> {
     /// The message up to the first column's bytes; the columns and the headers between
-    /// them are in its spare capacity, up to `end`.
-    buffer: Vec<u8>,
+    /// them are in its spare room, up to `end`.
+    buffer: B,
     end: usize,
     observation_dim: usize,
     observations: Range<usize>,
@@ -66,55 +208,52 @@ pub struct BatchStepRows<'a> {
 }
 
 impl BatchStepWriter {
-    /// The reply of `num_envs` environments with `observation_dim` observations each;
-    /// `info_bytes` is room reserved for the info columns so that appending them does not
-    /// move the rows (an estimate: more is allocated if needed).
+    /// The reply of `num_envs` environments with `observation_dim` observations each, in a
+    /// `Vec`; `info_bytes` is room reserved for the info columns so that appending them
+    /// does not move the rows (an estimate: more is allocated if needed).
     pub fn new(num_envs: usize, observation_dim: usize, info_bytes: usize) -> Self {
-        let mut buffer = Vec::new();
-        write(rmp::encode::write_map_len(&mut buffer, 6));
-        write(rmp::encode::write_str(&mut buffer, "v"));
-        write(rmp::encode::write_uint(
-            &mut buffer,
-            u64::from(PROTOCOL_VERSION),
-        ));
-        let lengths = [
-            ("observations", 8 * num_envs * observation_dim),
-            ("rewards", 8 * num_envs),
-            ("terminated", num_envs),
-            ("truncated", num_envs),
-        ];
-        // Each column's header (its key and its bin's length) right before its bytes.
-        let mut headers = Vec::new();
-        let mut columns = Vec::with_capacity(lengths.len());
-        let mut offset = buffer.len();
-        for (name, bytes) in lengths {
-            let mut header = Vec::new();
-            write(rmp::encode::write_str(&mut header, name));
-            let length = u32::try_from(bytes).expect("a batch's column is under 4 GiB");
-            write(rmp::encode::write_bin_len(&mut header, length));
-            let header_len = header.len();
-            headers.push((offset, header));
-            offset += header_len;
-            columns.push(offset..offset + bytes);
-            offset += bytes;
-        }
-        let end = offset;
-        buffer.reserve_exact(end - buffer.len() + info_bytes);
+        Self::new_in(Vec::new(), num_envs, observation_dim, info_bytes)
+    }
+
+    /// The length of the reply of `num_envs` environments with `observation_dim`
+    /// observations each, without its info columns: the room to give
+    /// [`new_in`](Self::new_in) besides theirs.
+    pub fn len_before_info(num_envs: usize, observation_dim: usize) -> usize {
+        Layout::new(num_envs, observation_dim).end()
+    }
+}
+
+impl<B: MessageBuffer> BatchStepWriter<B> {
+    /// As [`BatchStepWriter::new`], written into `buffer`, which must be empty.
+    ///
+    /// # Panics
+    /// If `buffer` holds bytes already.
+    pub fn new_in(
+        mut buffer: B,
+        num_envs: usize,
+        observation_dim: usize,
+        info_bytes: usize,
+    ) -> Self {
+        assert!(buffer.is_empty(), "a reply is written into an empty buffer");
+        let layout = Layout::new(num_envs, observation_dim);
+        let end = layout.end();
+        buffer.extend_from_slice(&layout.head);
         let len = buffer.len();
-        let spare = buffer.spare_capacity_mut();
-        for (at, header) in &headers {
+        buffer.reserve(end - len + info_bytes);
+        // SAFETY: only the headers' bytes are written, at places below `end`, inside the
+        // room just reserved.
+        let spare = unsafe { buffer.spare_capacity_mut() };
+        for (at, header) in &layout.headers {
             fill(&mut spare[at - len..at - len + header.len()], header);
         }
-        let [observations, rewards, terminated, truncated] =
-            <[Range<usize>; 4]>::try_from(columns).expect("four columns");
         Self {
             buffer,
             end,
             observation_dim,
-            observations,
-            rewards,
-            terminated,
-            truncated,
+            observations: layout.observations,
+            rewards: layout.rewards,
+            terminated: layout.terminated,
+            truncated: layout.truncated,
             rows_written: AtomicUsize::new(0),
         }
     }
@@ -124,7 +263,9 @@ impl BatchStepWriter {
     pub fn rows(&mut self) -> BatchStepRows<'_> {
         *self.rows_written.get_mut() = 0;
         let len = self.buffer.len();
-        let spare = &mut self.buffer.spare_capacity_mut()[..self.end - len];
+        // SAFETY: the rows are written with `push` and `push_failed`, which write
+        // initialised bytes only.
+        let spare = unsafe { &mut self.buffer.spare_capacity_mut()[..self.end - len] };
         // The columns follow one another, each after its own header.
         let at = |position: usize| position - len;
         let (_, rest) = spare.split_at_mut(at(self.observations.start));
@@ -152,17 +293,17 @@ impl BatchStepWriter {
     /// # Panics
     /// If the last [`rows`](Self::rows) did not write every row, or a key's blocks do not
     /// hold `num_envs` values: the caller sized the reply for its own batch.
-    pub fn finish<'a, B: IntoIterator<Item = InfoBlock<'a>>>(
+    pub fn finish<'a, I: IntoIterator<Item = InfoBlock<'a>>>(
         mut self,
-        info: impl ExactSizeIterator<Item = (&'a str, B)>,
-    ) -> Vec<u8> {
+        info: impl ExactSizeIterator<Item = (&'a str, I)>,
+    ) -> B {
         let num_envs = self.terminated.len();
         assert_eq!(
             *self.rows_written.get_mut(),
             num_envs,
             "every one of the {num_envs} rows is written before the reply is finished"
         );
-        // SAFETY: the capacity reaches `end` (reserved in `new`). Below `end`, `new`
+        // SAFETY: the room reaches `end` (reserved in `new_in`). Below `end`, `new_in`
         // wrote every column's header, and the last `rows` wrote every row: its blocks
         // cover the rows without overlap (`split_off_front`), each wrote its rows
         // `..written` in full (`push`), and their `written` add up to `num_envs`, the rows
@@ -170,27 +311,27 @@ impl BatchStepWriter {
         // every block was dropped: they borrow `self` mutably, and `finish` takes it by
         // value.
         unsafe { self.buffer.set_len(self.end) };
-        write(rmp::encode::write_str(&mut self.buffer, "info"));
+        let buffer = &mut self.buffer;
+        write(rmp::encode::write_str(&mut Appender(buffer), "info"));
         let keys = u32::try_from(info.len()).expect("under 4 billion info keys");
-        write(rmp::encode::write_map_len(&mut self.buffer, keys));
+        write(rmp::encode::write_map_len(&mut Appender(buffer), keys));
+        let nan = f64::NAN.to_le_bytes();
         for (key, blocks) in info {
-            write(rmp::encode::write_str(&mut self.buffer, key));
+            write(rmp::encode::write_str(&mut Appender(buffer), key));
             let bytes = u32::try_from(8 * num_envs).expect("a batch's column is under 4 GiB");
-            write(rmp::encode::write_bin_len(&mut self.buffer, bytes));
-            let start = self.buffer.len();
+            write(rmp::encode::write_bin_len(&mut Appender(buffer), bytes));
+            let start = buffer.len();
+            buffer.reserve(8 * num_envs);
             for block in blocks {
                 match block {
-                    InfoBlock::Values(values) => {
-                        self.buffer.extend_from_slice(&F64s::le_bytes(values));
-                    }
+                    InfoBlock::Values(values) => buffer.extend_from_slice(&F64s::le_bytes(values)),
                     InfoBlock::Missing(count) => {
-                        let nan = f64::NAN.to_le_bytes();
-                        self.buffer.extend((0..count).flat_map(|_| nan));
+                        (0..count).for_each(|_| buffer.extend_from_slice(&nan))
                     }
                 }
             }
             assert_eq!(
-                self.buffer.len() - start,
+                buffer.len() - start,
                 8 * num_envs,
                 "info `{key}` holds a value for each of {num_envs} environments"
             );
@@ -323,9 +464,9 @@ fn fill(to: &mut [MaybeUninit<u8>], bytes: &[u8]) {
     }
 }
 
-/// Writing MessagePack into a `Vec` cannot fail.
+/// Writing MessagePack into a `Vec` or a [`MessageBuffer`] cannot fail.
 fn write<T, E: std::fmt::Debug>(result: Result<T, E>) -> T {
-    result.expect("writing to a Vec cannot fail")
+    result.expect("writing into memory cannot fail")
 }
 
 #[cfg(test)]

@@ -12,7 +12,7 @@ pub mod keys;
 pub mod messages;
 pub mod wire;
 
-pub use batch_step::{BatchStepRows, BatchStepWriter, InfoBlock};
+pub use batch_step::{BatchStepRows, BatchStepWriter, InfoBlock, MessageBuffer};
 pub use checkpoint::{CheckpointMsg, CheckpointSignature, RunRequest};
 pub use episodes::{EpisodeError, EpisodeMsg, decode_episode};
 pub use error::{ErrorCode, ErrorReply};

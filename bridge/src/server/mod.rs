@@ -17,6 +17,7 @@
 mod driver;
 mod hot_load;
 mod policy_table;
+mod reply_memory;
 mod session;
 mod slot;
 mod telemetry;
@@ -36,6 +37,7 @@ use ciflow_evaluation::stability::StabilityConfig;
 use ciflow_evaluation::{Acting, EpisodeBatch, run_episodes};
 use rayon::prelude::*;
 use zenoh::Wait;
+use zenoh::bytes::ZBytes;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Subscriber;
 use zenoh::qos::CongestionControl;
@@ -45,6 +47,7 @@ use zenoh::sample::SampleKind;
 use self::driver::{Driver, Schedulers};
 use self::hot_load::{RefusalLog, hot_load};
 pub(crate) use self::policy_table::PolicyTable;
+use self::reply_memory::ReplyMemory;
 use self::session::{RunPermit, Session};
 use self::slot::EnvSlot;
 use self::telemetry::TelemetryWatch;
@@ -215,6 +218,7 @@ impl EngineServer {
             clients: ClientTable::default(),
             runs: Arc::new(AtomicU32::new(0)),
             schedulers,
+            reply_memory: ReplyMemory::new(&zsession),
         });
 
         let clients = {
@@ -397,9 +401,14 @@ struct Shared {
     /// Policy runs driving a session now.
     runs: Arc<AtomicU32>,
     schedulers: Schedulers,
+    /// Where `step_batch` replies are written.
+    reply_memory: ReplyMemory,
 }
 
-type Answer = Result<Vec<u8>, ErrorReply>;
+/// A reply encoded by the operation that answers.
+type Encoded = Result<Vec<u8>, ErrorReply>;
+/// A reply as it is sent: most are [`Encoded`], a `step_batch` one may be in shared memory.
+type Answer = Result<ZBytes, ErrorReply>;
 
 /// Where the engine keeps session `id` of `identity`: sessions are found by their owner's
 /// identity and id together, so a key under one identity never reaches another's session.
@@ -534,7 +543,7 @@ impl Shared {
         query: &Query,
         deadline: Deadline,
     ) -> Answer {
-        match route {
+        let encoded = match route {
             None => Err(ErrorReply::new(
                 ErrorCode::UnknownOperation,
                 format!(
@@ -569,7 +578,7 @@ impl Shared {
                 identity,
                 session,
                 op,
-            }) => self.session_op(identity, session, op, payload),
+            }) => return self.session_op(identity, session, op, payload),
             Some(Route::PolicyAct { policy }) => {
                 self.act(policy, decode_request(payload)?, deadline)
             }
@@ -579,13 +588,14 @@ impl Shared {
             Some(Route::PolicyStability { policy }) => {
                 self.stability(policy, decode_request(payload)?, deadline)
             }
-        }
+        };
+        encoded.map(ZBytes::from)
     }
 
     /// Opens a session for the process `<identity>/<instance>`. The identity comes from
     /// the key, which a router's access control can tie to an authenticated peer; the
     /// payload only says which of the identity's processes owns the session.
-    fn make(&self, identity: &str, request: MakeRequest, deadline: Deadline) -> Answer {
+    fn make(&self, identity: &str, request: MakeRequest, deadline: Deadline) -> Encoded {
         if !keys::is_plain_chunk(&request.instance) {
             return Err(ErrorReply::new(
                 ErrorCode::InvalidRequest,
@@ -717,7 +727,7 @@ impl Shared {
                 format!("session `{id}` was closed after an internal error"),
             ));
         };
-        match op {
+        let encoded = match op {
             SessionOp::Describe => Ok(session.describe()),
             SessionOp::Reset => {
                 let request: ResetRequest = decode_request(payload)?;
@@ -741,7 +751,7 @@ impl Shared {
                 let request: BatchStepRequest = decode_request(payload)?;
                 session.authorize(&request.token)?;
                 session.ensure_idle(op.as_str())?;
-                session.step_batch(&request.actions.0)
+                return session.step_batch(&request.actions.0, &self.reply_memory);
             }
             SessionOp::Run => {
                 let request: RunRequest = decode_request(payload)?;
@@ -837,7 +847,8 @@ impl Shared {
                     time,
                 }))
             }
-        }
+        };
+        encoded.map(ZBytes::from)
     }
 
     /// The factory of `task` (Gymnasium id or short name).
@@ -862,7 +873,7 @@ impl Shared {
 
     /// Episodes `first..first + count` of the evaluation `request.config` of checkpoint
     /// policy `name`, one at a time so the deadline is looked at between episodes.
-    fn evaluate(&self, name: &str, request: EvaluateRequest, deadline: Deadline) -> Answer {
+    fn evaluate(&self, name: &str, request: EvaluateRequest, deadline: Deadline) -> Encoded {
         let policy = self.policy(name)?;
         let model = checkpoint_model(name, policy.as_ref())?;
         let config = &request.config;
@@ -898,7 +909,7 @@ impl Shared {
     /// checkpoint policy `name` (or of its negative control), one at a time so the
     /// deadline is looked at between rollouts; on one thread, the request being one of
     /// several in flight.
-    fn stability(&self, name: &str, request: StabilityRequest, deadline: Deadline) -> Answer {
+    fn stability(&self, name: &str, request: StabilityRequest, deadline: Deadline) -> Encoded {
         let policy = self.policy(name)?;
         let model = checkpoint_model(name, policy.as_ref())?;
         let config = StabilityConfig {
@@ -939,7 +950,7 @@ impl Shared {
         })
     }
 
-    fn act(&self, name: &str, request: ActRequest, deadline: Deadline) -> Answer {
+    fn act(&self, name: &str, request: ActRequest, deadline: Deadline) -> Encoded {
         let policy = self.policy(name)?;
         let info = policy.info();
         let observation_dim = info.observation_dim as usize;

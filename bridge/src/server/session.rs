@@ -11,7 +11,9 @@ use ciflow_envs::registry::Kwargs;
 use ciflow_envs::{EnvError, EnvSpec, Info, ResetOptions};
 use rayon::prelude::*;
 use serde_bytes::ByteBuf;
+use zenoh::bytes::ZBytes;
 
+use super::reply_memory::ReplyMemory;
 use super::slot::{EnvSlot, check_vector};
 use super::telemetry::TelemetryPublisher;
 use crate::error::full_message;
@@ -369,7 +371,12 @@ impl Session {
         }))
     }
 
-    pub fn step_batch(&mut self, actions: &[f64]) -> Result<Vec<u8>, ErrorReply> {
+    /// Steps every environment (next-step autoreset) and encodes the reply in `memory`.
+    pub fn step_batch(
+        &mut self,
+        actions: &[f64],
+        memory: &ReplyMemory,
+    ) -> Result<ZBytes, ErrorReply> {
         let n = self.envs.len();
         let (action_dim, observation_dim) = (self.spec.action_space.dim(), self.observation_dim());
         check_vector("actions", actions, n * action_dim)?;
@@ -377,7 +384,9 @@ impl Session {
         // Room for as many info columns as the last step reported (their keys and
         // headers included), so that appending them does not move the rows.
         let info_bytes = self.info_columns * (8 * n + 64);
-        let mut reply = BatchStepWriter::new(n, observation_dim, info_bytes);
+        let rows_bytes = BatchStepWriter::len_before_info(n, observation_dim);
+        let buffer = memory.buffer(rows_bytes + info_bytes);
+        let mut reply = BatchStepWriter::new_in(buffer, n, observation_dim, info_bytes);
         // Each rayon task steps a chunk and writes its rows into the reply: no
         // per-environment work is left to this thread.
         let chunks: Vec<_> = self
@@ -422,7 +431,7 @@ impl Session {
         self.telemetry.offer(&self.id, &self.envs[0]);
         let info = InfoColumns::merged(&parts);
         self.info_columns = info.len();
-        Ok(reply.finish(info))
+        Ok(reply.finish(info).into())
     }
 
     pub fn expert(&mut self, index: u32) -> Result<Vec<u8>, ErrorReply> {
