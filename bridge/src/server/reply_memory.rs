@@ -137,6 +137,7 @@ mod tests {
     use zenoh::shm::ShmProviderBuilder;
 
     use super::*;
+    use crate::protocol::{BatchStepWriter, InfoBlock};
 
     fn shared(capacity: usize) -> ReplyBuffer {
         let provider = ShmProviderBuilder::default_backend(1 << 20)
@@ -181,5 +182,45 @@ mod tests {
         assert!(bytes[..4000].iter().all(|&b| b == 1));
         assert!(bytes[4000..4200].iter().all(|&b| b == 2));
         assert!(bytes[4200..].iter().all(|&b| b == 3));
+    }
+
+    /// A batch reply written into shared memory is byte for byte the one written on the
+    /// heap: with room for its info columns, and without, when it moves to the heap at
+    /// its first info column.
+    #[test]
+    fn a_batch_reply_in_shared_memory_is_the_one_on_the_heap() {
+        let (n, d) = (300, 2);
+        let values: Vec<f64> = (0..n).map(|i| i as f64 / 3.0).collect();
+        let write = |mut writer: BatchStepWriter<ReplyBuffer>| {
+            let blocks = writer.rows().blocks(64).into_iter();
+            for (mut rows, block) in blocks.zip(values.chunks(64)) {
+                for &value in block {
+                    rows.push(&[value, -value], 0.5 * value, value > 50.0, false);
+                }
+            }
+            let info = [
+                ("a", [InfoBlock::Values(&values[..])]),
+                ("b", [InfoBlock::Missing(n)]),
+            ];
+            writer.finish(info.into_iter())
+        };
+        let on_heap = write(BatchStepWriter::new_in(
+            ReplyBuffer::Heap(Vec::new()),
+            n,
+            d,
+            0,
+        ));
+        let ReplyBuffer::Heap(expected) = &on_heap else {
+            panic!("a heap buffer stays on the heap");
+        };
+        let rows = BatchStepWriter::len_before_info(n, d);
+        for (room, stays_shared) in [(rows + 2 * (8 * n + 64), true), (rows, false)] {
+            let reply = write(BatchStepWriter::new_in(shared(room), n, d, room - rows));
+            assert_eq!(reply.is_shared(), stays_shared, "room for {room} bytes");
+            assert!(
+                *ZBytes::from(reply).to_bytes() == expected[..],
+                "room for {room} bytes"
+            );
+        }
     }
 }
