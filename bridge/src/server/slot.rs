@@ -61,12 +61,16 @@ impl EnvSlot {
 
     /// One control period; the new observation is [`observation`](Self::observation), its
     /// info replaces `info`'s. The action is checked here too, so that a task that forgets
-    /// a check still answers with a typed error.
+    /// a check still answers with a typed error; and `info` is cleared here too, so that a
+    /// task that forgets to clear it does not pass the keys of the environment stepped
+    /// before (in a batch, the same `info` goes from one environment to the next) on as
+    /// its own.
     pub fn step(&mut self, action: &[f64], info: &mut Info) -> Result<StepOutcome, EnvError> {
         check_vector("action", action, self.command.len())?;
         if self.needs_reset() {
             return Err(EnvError::NeedsReset);
         }
+        info.clear();
         let outcome = self.env.step_into(action, &mut self.observation, info)?;
         self.steps += 1;
         self.command.copy_from_slice(action);
@@ -131,4 +135,94 @@ pub(crate) fn check_vector(
         return Err(EnvError::NotFinite { what });
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use ciflow_engine::sim::Perturbation;
+    use ciflow_envs::EnvSpec;
+    use ciflow_envs::scene::Scene;
+
+    use super::*;
+
+    /// A task that adds its step's info to whatever `info` held, as a user's task that
+    /// forgets to clear it would: a built-in task underneath.
+    struct Forgetful(Box<dyn Env>);
+
+    impl Env for Forgetful {
+        fn spec(&self) -> &EnvSpec {
+            self.0.spec()
+        }
+
+        fn reset(
+            &mut self,
+            seed: Option<u64>,
+            options: &ResetOptions,
+        ) -> Result<(Vec<f64>, Info), EnvError> {
+            self.0.reset(seed, options)
+        }
+
+        fn step_into(
+            &mut self,
+            action: &[f64],
+            observation: &mut [f64],
+            info: &mut Info,
+        ) -> Result<StepOutcome, EnvError> {
+            let mut own = Info::new();
+            let outcome = self.0.step_into(action, observation, &mut own)?;
+            info.extend(own.iter().map(|(key, value)| (key.clone(), *value)));
+            Ok(outcome)
+        }
+
+        fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
+            self.0.expert_action()
+        }
+
+        fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
+            self.0.set_context(context)
+        }
+
+        fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError> {
+            self.0.perturb(perturbation)
+        }
+
+        fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
+            self.0.render(width, height)
+        }
+
+        fn record_trail(&mut self, recording: bool) {
+            self.0.record_trail(recording);
+        }
+
+        fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {
+            self.0.scene(observation)
+        }
+    }
+
+    /// The info a step leaves is that step's alone, even from a task that does not clear
+    /// it; the same task stepped directly keeps the stale key, so the test can see one.
+    #[test]
+    fn a_step_reports_only_its_own_info_even_from_a_task_that_forgets_to_clear_it() {
+        let task = || Forgetful(ciflow_envs::make("ciflow/Obstacle-v0").unwrap());
+        let stale = || -> Info { [("stale".into(), 1.0)].into_iter().collect() };
+        let mut slot = EnvSlot::new(Box::new(task()));
+        slot.reset(Some(3), &ResetOptions::default()).unwrap();
+        let action = vec![0.0; slot.command.len()];
+        let mut info = stale();
+        slot.step(&action, &mut info).unwrap();
+        assert!(info.get("stale").is_none(), "a stale key in {info:?}");
+        assert!(!info.is_empty(), "the task's own info");
+
+        let mut direct = task();
+        direct.reset(Some(3), &ResetOptions::default()).unwrap();
+        let mut observation = slot.observation.clone();
+        let mut info = stale();
+        direct
+            .step_into(&action, &mut observation, &mut info)
+            .unwrap();
+        assert!(
+            info.get("stale").is_some(),
+            "the control keeps the stale key"
+        );
+    }
 }
