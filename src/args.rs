@@ -1,6 +1,8 @@
 //! Command-line arguments: one struct per subcommand, documented for `--help`.
 
-use clap::{Parser, Subcommand};
+use std::ffi::{OsStr, OsString};
+
+use clap::{CommandFactory, Parser, Subcommand};
 
 use crate::commands;
 
@@ -31,4 +33,19 @@ pub enum Command {
     Serve(commands::serve::ServeArgs),
     /// Run the Zenoh router that joins machines, optionally with access control.
     Router(commands::router::RouterArgs),
+}
+
+/// The command whose help `arguments` (a command line without the program's name) ask for
+/// as `help <command>`, if that command runs in `ciflow-torch`: clap's own `help`
+/// subcommand would show only the forwarding stub's usage, and `ciflow-torch` knows the
+/// real options. Those commands are the ones that leave their help flag to it
+/// (`disable_help_flag` above).
+pub fn forwarded_help(arguments: &[OsString]) -> Option<&OsStr> {
+    let [help, command] = arguments else {
+        return None;
+    };
+    let forwarded = Cli::command()
+        .find_subcommand(command)
+        .is_some_and(clap::Command::is_disable_help_flag_set);
+    (help == "help" && forwarded).then_some(command.as_os_str())
 }

@@ -13,8 +13,8 @@ use clap::Parser;
 fn main() -> ExitCode {
     let arguments: Vec<_> = std::env::args_os().skip(1).collect();
     // Before clap, whose own `help train` knows only the forwarding stub.
-    if let Some(command) = commands::torch::help_asked_for(&arguments) {
-        let result = commands::torch::run([command.into(), "--help".into()]);
+    if let Some(command) = args::forwarded_help(&arguments) {
+        let result = commands::torch::run([command.to_owned(), "--help".into()]);
         return ciflow_cli::report::exit_code(result);
     }
     let result = match args::Cli::parse().command {

@@ -23,19 +23,6 @@ pub struct Forwarded {
     pub args: Vec<OsString>,
 }
 
-/// The commands `ciflow-torch` runs.
-const COMMANDS: [&str; 2] = ["train", "lasa"];
-
-/// The command whose help `arguments` (a command line without the program's name) ask for
-/// as `help train` or `help lasa`. clap's own `help` subcommand would show only the
-/// forwarding stub's usage; `ciflow-torch` knows the real options.
-pub fn help_asked_for(arguments: &[OsString]) -> Option<&str> {
-    match arguments {
-        [help, command] if help == "help" => COMMANDS.into_iter().find(|c| command == c),
-        _ => None,
-    }
-}
-
 /// Runs `arguments` (`train …`, `lasa …`: the command line without the program's name,
 /// untouched, as clap's parse of them would lose what `ciflow-torch` must see) in
 /// `ciflow-torch`; returns only if it could not be started (on Unix), or with its failure.
