@@ -213,31 +213,26 @@ impl BatchStepWriter {
     /// `Vec`; `info_bytes` is room reserved for the info columns so that appending them
     /// does not move the rows (an estimate: more is allocated if needed).
     pub fn new(num_envs: usize, observation_dim: usize, info_bytes: usize) -> Self {
-        Self::new_in(Vec::new(), num_envs, observation_dim, info_bytes)
-    }
-
-    /// The length of the reply of `num_envs` environments with `observation_dim`
-    /// observations each, without its info columns: the room to give
-    /// [`new_in`](Self::new_in) besides theirs.
-    pub fn len_before_info(num_envs: usize, observation_dim: usize) -> usize {
-        Layout::new(num_envs, observation_dim).end()
+        Self::new_in(Vec::with_capacity, num_envs, observation_dim, info_bytes)
     }
 }
 
 impl<B: MessageBuffer> BatchStepWriter<B> {
-    /// As [`BatchStepWriter::new`], written into `buffer`, which must be empty.
+    /// As [`BatchStepWriter::new`], written into the empty buffer `allocate` returns when
+    /// given the reply's length with `info_bytes` of info columns.
     ///
     /// # Panics
-    /// If `buffer` holds bytes already.
+    /// If that buffer holds bytes already.
     pub fn new_in(
-        mut buffer: B,
+        allocate: impl FnOnce(usize) -> B,
         num_envs: usize,
         observation_dim: usize,
         info_bytes: usize,
     ) -> Self {
-        assert!(buffer.is_empty(), "a reply is written into an empty buffer");
         let layout = Layout::new(num_envs, observation_dim);
         let end = layout.end();
+        let mut buffer = allocate(end + info_bytes);
+        assert!(buffer.is_empty(), "a reply is written into an empty buffer");
         buffer.extend_from_slice(&layout.head);
         let len = buffer.len();
         buffer.reserve(end - len + info_bytes);

@@ -205,7 +205,7 @@ mod tests {
             writer.finish(info.into_iter())
         };
         let on_heap = write(BatchStepWriter::new_in(
-            ReplyBuffer::Heap(Vec::new()),
+            |_| ReplyBuffer::Heap(Vec::new()),
             n,
             d,
             0,
@@ -213,13 +213,16 @@ mod tests {
         let ReplyBuffer::Heap(expected) = &on_heap else {
             panic!("a heap buffer stays on the heap");
         };
-        let rows = BatchStepWriter::len_before_info(n, d);
-        for (room, stays_shared) in [(rows + 2 * (8 * n + 64), true), (rows, false)] {
-            let reply = write(BatchStepWriter::new_in(shared(room), n, d, room - rows));
-            assert_eq!(reply.is_shared(), stays_shared, "room for {room} bytes");
+        for (info_bytes, stays_shared) in [(2 * (8 * n + 64), true), (0, false)] {
+            let reply = write(BatchStepWriter::new_in(shared, n, d, info_bytes));
+            assert_eq!(
+                reply.is_shared(),
+                stays_shared,
+                "room for {info_bytes} info bytes"
+            );
             assert!(
                 *ZBytes::from(reply).to_bytes() == expected[..],
-                "room for {room} bytes"
+                "room for {info_bytes} info bytes"
             );
         }
     }

@@ -384,9 +384,8 @@ impl Session {
         // Room for as many info columns as the last step reported (their keys and
         // headers included), so that appending them does not move the rows.
         let info_bytes = self.info_columns * (8 * n + 64);
-        let rows_bytes = BatchStepWriter::len_before_info(n, observation_dim);
-        let buffer = memory.buffer(rows_bytes + info_bytes);
-        let mut reply = BatchStepWriter::new_in(buffer, n, observation_dim, info_bytes);
+        let mut reply =
+            BatchStepWriter::new_in(|len| memory.buffer(len), n, observation_dim, info_bytes);
         // Each rayon task steps a chunk and writes its rows into the reply: no
         // per-environment work is left to this thread.
         let chunks: Vec<_> = self
