@@ -12,7 +12,8 @@
 //! engine a request was preempted by that engine's threads waking to serve it, so the
 //! second engine got its request a scheduler slice (1.5–2 ms) later in 14–38 % of the
 //! steps (the client a Zenoh peer of the engines); with the engines as batch processes, in
-//! 3–9 % (README, benchmarks). A waiting engine still runs as soon as its core is free.
+//! 3–9 % (`bench/README.md`, "Two engines"). A waiting engine still runs as soon as its
+//! core is free.
 
 use std::io;
 

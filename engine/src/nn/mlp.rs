@@ -21,7 +21,8 @@
 //! `f32` moves the outputs by about 1e-8 relative, far inside the 1e-5 of the parity test
 //! against tch (`engine/train/tests/parity.rs`). Rounding the activations and summing in
 //! `f32` as well (8-wide) was tried and not kept: 14 % off the action, but the flows
-//! amplify the rounding past 1e-4 relative in their actions (README, benchmarks).
+//! amplify the rounding past 1e-4 relative in their actions (`bench/README.md`, "One
+//! policy action").
 
 use std::marker::PhantomData;
 
@@ -215,8 +216,8 @@ fn tanh(simd: Simd, x: f64) -> f64 {
 ///
 /// AVX-512 halves the instructions per multiply-add. On this project's VMs (AMD Zen 5,
 /// 512-bit operations at full width) it and the activations' 8-wide loops took the
-/// pouring-sized action with 2×64 conditioners from 12.2–12.8 to 8.0–8.5 µs (README,
-/// `cargo bench --bench flow`).
+/// pouring-sized action with 2×64 conditioners from 12.2–12.8 to 8.0–8.5 µs
+/// (`cargo bench --bench flow`, `bench/README.md`).
 #[cfg(target_arch = "x86_64")]
 mod kernel {
     use std::arch::x86_64::*;

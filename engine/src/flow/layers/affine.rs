@@ -9,7 +9,8 @@
 //! forward pass through a point an inverse pass recorded reuses that pass's primal
 //! scales. Transformed one coordinate at a time, with libm's `exp` in every pass, the
 //! affine transforms were about a quarter of a policy action; now the pouring action
-//! takes 6.8–6.9 µs instead of 8.2–8.8 (`cargo bench --bench flow`, README).
+//! takes 6.8–6.9 µs instead of 8.2–8.8 (`cargo bench --bench flow`,
+//! `bench/README.md`).
 
 use crate::nn::scalar::{Scalar, exp_non_positive_with, tanh_with};
 
