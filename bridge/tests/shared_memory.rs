@@ -143,6 +143,7 @@ fn the_engine_writes_batch_replies_into_shared_memory_itself() {
     network.config_file = Some(config.clone());
     let mut options = ServerOptions::default();
     options.tasks.push(fixture_task());
+    options.tasks.push(long_keyed_fixture_task());
     options.name = Some(format!("test-{port}"));
     let engine = EngineServer::open(&network, options).expect("engine starts");
     std::fs::remove_file(&config).unwrap();
@@ -160,14 +161,17 @@ fn the_engine_writes_batch_replies_into_shared_memory_itself() {
     // The same batch, seeds and actions, for a client on shared memory and one without.
     let by_shared_memory = ciflow_bridge::Client::with_session(client.clone()).unwrap();
     let by_network = ciflow_bridge::Client::with_session(network_only.clone()).unwrap();
-    let make = |client: &ciflow_bridge::Client| {
+    let make = |client: &ciflow_bridge::Client, task: &str| {
         let env = client
-            .make(engine.name(), FIXTURE_ID, BATCH, &Default::default())
+            .make(engine.name(), task, BATCH, &Default::default())
             .expect("a batch session");
         env.reset_batch(Some(7), None).expect("reset");
         env
     };
-    let (env, twin) = (make(&by_shared_memory), make(&by_network));
+    let (env, twin) = (
+        make(&by_shared_memory, FIXTURE_ID),
+        make(&by_network, FIXTURE_ID),
+    );
     // The pool is set up on the first large message; until then replies come on the heap.
     let mut step = 0;
     let mut arrived_shared = false;
@@ -197,6 +201,23 @@ fn the_engine_writes_batch_replies_into_shared_memory_itself() {
         arrived_shared,
         "no batch reply arrived in shared memory in {step} steps"
     );
+
+    // With the pool set up, a new session's replies are written in place from its first
+    // step, the room for their info columns taken from the reset's keys; and a task whose
+    // info key is longer than the reply's estimate per key has its replies written in
+    // place from its second step, the room taken from the step before.
+    let actions = vec![0.1; BATCH as usize];
+    for (task, first_in_place) in [(FIXTURE_ID, 1), (LONG_KEYED_FIXTURE_ID, 2)] {
+        let env = make(&by_shared_memory, task);
+        for step in 1..=3 {
+            let (reply, shared) = step_batch_by_hand(&env, &client, &actions);
+            let decoded: BatchStepReply = rmp_serde::from_slice(&reply).expect("a reply");
+            assert_eq!(decoded.info.len(), 1, "{task}: one info column");
+            if step >= first_in_place {
+                assert!(shared, "{task}: reply {step} of a new session was copied");
+            }
+        }
+    }
 
     // The control: a large reply the engine does not write itself stays off shared memory,
     // so it was the engine, not Zenoh, that put the batch's there.

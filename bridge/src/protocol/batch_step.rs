@@ -254,6 +254,12 @@ impl<B: MessageBuffer> BatchStepWriter<B> {
         }
     }
 
+    /// Length of the reply before its info columns, which [`finish`](Self::finish)
+    /// appends.
+    pub fn info_offset(&self) -> usize {
+        self.end
+    }
+
     /// Every row, to write: all of them, through these rows or the blocks they split into,
     /// before [`finish`](Self::finish). A new call starts the count again.
     pub fn rows(&mut self) -> BatchStepRows<'_> {

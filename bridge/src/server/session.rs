@@ -21,8 +21,8 @@ use crate::policy::Policy;
 use crate::protocol::{
     AckReply, ActionReply, BatchResetReply, BatchSeeds, BatchStepWriter, ContextCheckReply,
     ContextRequest, DescribeReply, ErrorCode, ErrorReply, F64s, FrameHeader, InfoBlock,
-    PROTOCOL_VERSION, PerturbRequest, PerturbationKindMsg, ResetReply, ResetRequest, RunRequest,
-    StepReply, TOKEN_BYTES, encode,
+    MessageBuffer, PROTOCOL_VERSION, PerturbRequest, PerturbationKindMsg, ResetReply, ResetRequest,
+    RunRequest, StepReply, TOKEN_BYTES, encode,
 };
 
 /// Environments per rayon task in `step_batch`: below this, threads cost more than they
@@ -48,8 +48,10 @@ pub(crate) struct Session {
     run: Option<(Run, RunPermit)>,
     /// Runs started so far: each run's id, so a stopped driver never steps a later run.
     runs: u64,
-    /// Info columns of the last `step_batch` reply: the room the next one reserves.
-    info_columns: usize,
+    /// Room for the info columns of a `step_batch` reply (their keys and headers
+    /// included): the most they took so far, at least the estimate the last batch reset's
+    /// keys give before the first step.
+    info_bytes: usize,
 }
 
 /// One of the engine's `max_runs` places for a running policy, held by the session while
@@ -129,7 +131,7 @@ impl Session {
             frames: 0,
             run: None,
             runs: 0,
-            info_columns: 0,
+            info_bytes: 0,
         }
     }
 
@@ -364,10 +366,15 @@ impl Session {
         }
         self.reset_options = options;
         self.telemetry.offer(&self.id, &self.envs[0]);
+        let info = InfoColumns::from_infos(&infos);
+        // Tasks report again at each step what they report at a reset, most of them: room
+        // for those columns, with a key of up to 64 bytes each, lets the first step's
+        // reply be written in place too.
+        self.info_bytes = self.info_bytes.max(info.columns.len() * (8 * n + 64));
         Ok(encode(&BatchResetReply {
             v: PROTOCOL_VERSION,
             observations: F64s(observations),
-            info: InfoColumns::from_infos(&infos).into_map(),
+            info: info.into_map(),
         }))
     }
 
@@ -381,11 +388,14 @@ impl Session {
         let (action_dim, observation_dim) = (self.spec.action_space.dim(), self.observation_dim());
         check_vector("actions", actions, n * action_dim)?;
         let options = &self.reset_options;
-        // Room for as many info columns as the last step reported (their keys and
-        // headers included), so that appending them does not move the rows.
-        let info_bytes = self.info_columns * (8 * n + 64);
-        let mut reply =
-            BatchStepWriter::new_in(|len| memory.buffer(len), n, observation_dim, info_bytes);
+        // Room for the info columns, so that appending them does not move the rows.
+        let mut reply = BatchStepWriter::new_in(
+            |len| memory.buffer(len),
+            n,
+            observation_dim,
+            self.info_bytes,
+        );
+        let info_offset = reply.info_offset();
         // Each rayon task steps a chunk and writes its rows into the reply: no
         // per-environment work is left to this thread.
         let chunks: Vec<_> = self
@@ -428,9 +438,9 @@ impl Session {
             .collect();
         let parts = chunks.into_iter().collect::<Result<Vec<_>, _>>()?;
         self.telemetry.offer(&self.id, &self.envs[0]);
-        let info = InfoColumns::merged(&parts);
-        self.info_columns = info.len();
-        Ok(reply.finish(info).into())
+        let reply = reply.finish(InfoColumns::merged(&parts));
+        self.info_bytes = self.info_bytes.max(reply.len() - info_offset);
+        Ok(reply.into())
     }
 
     pub fn expert(&mut self, index: u32) -> Result<Vec<u8>, ErrorReply> {

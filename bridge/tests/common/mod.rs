@@ -26,6 +26,11 @@ pub const FIXTURE_ID: &str = "test/Fixture-v0";
 /// An action whose first element is this value makes the fixture panic.
 pub const PANIC_ACTION: f64 = 12345.0;
 pub const EPISODE_STEPS: u64 = 5;
+/// The fixture's variant whose info key is [`LONG_INFO_KEY`].
+pub const LONG_KEYED_FIXTURE_ID: &str = "test/LongKeyedFixture-v0";
+/// An info key longer than a reply's estimate of 64 bytes per key.
+pub const LONG_INFO_KEY: &str =
+    "distance_from_the_context_in_metres_as_a_task_with_verbose_names_would_put_it";
 
 /// A 1-D integrator `x ← x + a·dt` with context `c` (observation `[x, c]`), truncated
 /// after [`EPISODE_STEPS`] steps; reward `-|x - c|`.
@@ -35,6 +40,8 @@ pub struct Fixture {
     x: f64,
     context: f64,
     steps: u64,
+    /// The key of the step's info value, `distance` unless made [`Fixture::long_keyed`].
+    info_key: &'static str,
     pub perturbations: Vec<Perturbation>,
 }
 
@@ -55,8 +62,17 @@ impl Fixture {
             x: 0.0,
             context: 0.0,
             steps: 0,
+            info_key: "distance",
             perturbations: Vec::new(),
         }
+    }
+
+    /// The fixture reporting its distance under [`LONG_INFO_KEY`].
+    pub fn long_keyed() -> Self {
+        let mut fixture = Self::new();
+        fixture.spec.id = LONG_KEYED_FIXTURE_ID.into();
+        fixture.info_key = LONG_INFO_KEY;
+        fixture
     }
 
     fn observation(&self) -> Vec<f64> {
@@ -103,7 +119,7 @@ impl Env for Fixture {
         self.x += action[0] * self.spec.control_dt;
         self.steps += 1;
         info.clear();
-        info.insert("distance".into(), (self.x - self.context).abs());
+        info.insert(self.info_key.into(), (self.x - self.context).abs());
         observation.copy_from_slice(&self.observation());
         Ok(StepOutcome {
             reward: -(self.x - self.context).abs(),
@@ -150,6 +166,14 @@ pub fn fixture_task() -> TaskFactory {
         id: FIXTURE_ID.into(),
         name: "fixture".into(),
         make: Arc::new(|_| Ok(Box::new(Fixture::new()) as Box<dyn Env>)),
+    }
+}
+
+pub fn long_keyed_fixture_task() -> TaskFactory {
+    TaskFactory {
+        id: LONG_KEYED_FIXTURE_ID.into(),
+        name: "long-keyed-fixture".into(),
+        make: Arc::new(|_| Ok(Box::new(Fixture::long_keyed()) as Box<dyn Env>)),
     }
 }
 
