@@ -124,6 +124,28 @@ pub fn tanh_with<const FUSED: bool>(x: f64) -> f64 {
     ((1.0 - e) / (1.0 + e)).copysign(x)
 }
 
+/// `(softplus(x), σ(x))` from one exponential, for callers that need both.
+#[inline]
+pub fn softplus_and_sigmoid(x: f64) -> (f64, f64) {
+    let e = exp_non_positive(-x.abs());
+    (softplus_from(x, e), sigmoid_from(x, e))
+}
+
+/// `σ(x) = 1 / (1 + e^{-x})` from `e = e^{-|x|}`, so neither side overflows:
+/// `1 / (1 + e)` for `x ≥ 0`, `e / (1 + e)` otherwise.
+#[inline(always)]
+fn sigmoid_from(x: f64, e: f64) -> f64 {
+    let s = 1.0 / (1.0 + e);
+    if x >= 0.0 { s } else { e * s }
+}
+
+/// `softplus(x) = ln(1 + e^x) = max(x, 0) + ln(1 + e)` from `e = e^{-|x|}`, without
+/// overflow.
+#[inline(always)]
+fn softplus_from(x: f64, e: f64) -> f64 {
+    x.max(0.0) + f64::ln_1p(e)
+}
+
 /// A forward-mode dual number `re + du·ε` with `ε² = 0`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Dual<S> {
@@ -195,15 +217,12 @@ impl Scalar for f64 {
         f64::atan2(self, x)
     }
     #[inline]
-    /// `1 / (1 + e^{-x})`, from `e^{-|x|}` so neither side overflows.
     fn sigmoid(self) -> Self {
-        let e = exp_non_positive(-self.abs());
-        let s = 1.0 / (1.0 + e);
-        if self >= 0.0 { s } else { e * s }
+        sigmoid_from(self, exp_non_positive(-self.abs()))
     }
     #[inline]
     fn softplus(self) -> Self {
-        self.max(0.0) + f64::ln_1p(exp_non_positive(-self.abs()))
+        softplus_from(self, exp_non_positive(-self.abs()))
     }
     #[inline(always)]
     fn compose(self, derivatives: &[f64]) -> Self {

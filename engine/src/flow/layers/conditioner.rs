@@ -359,19 +359,17 @@ impl Conditioner {
     }
 
     /// The second-order tangent `dθ + dθ̇ ε₂ = ∂θ/∂x_k (x_k + ẋ_k ε₂) · (dx + dẋ ε₂)` at
-    /// the point of a recorded `Dual<f64>` [`eval`](Self::eval) (the context is fixed).
-    pub fn second_tangent(
+    /// the point of a recorded `Dual<f64>` [`eval`](Self::eval) (the context is fixed),
+    /// as `[dθ, dθ̇]` in `scratch` ([`Mlp::second_tangent`]).
+    pub fn second_tangent<'s>(
         &self,
         record: &[f64],
         dx: [&[f64]; 2],
-        scratch: &mut ConditionerTangentScratch,
-        dtheta: [&mut [f64]; 2],
-    ) {
+        scratch: &'s mut ConditionerTangentScratch,
+    ) -> [&'s [f64]; 2] {
         let (mlp_record, local_record) = record.split_at(2 * self.mlp.record_len());
         if self.local.is_empty() {
-            return self
-                .mlp
-                .second_tangent(mlp_record, dx, &mut scratch.mlp, dtheta);
+            return self.mlp.second_tangent(mlp_record, dx, &mut scratch.mlp);
         }
         let [input, input_dot] = &mut scratch.input_tangent;
         let (head, features) = input.split_at_mut(self.kept);
@@ -383,10 +381,14 @@ impl Conditioner {
             [features, features_dot],
             &mut scratch.feature_tangent,
             &mut scratch.local,
-            |net, record, scratch, out| net.second_tangent(record, dx, scratch, out),
+            |net, record, scratch, out| {
+                for (out, plane) in out.into_iter().zip(net.second_tangent(record, dx, scratch)) {
+                    out.copy_from_slice(plane);
+                }
+            },
         );
         let [input, input_dot] = &scratch.input_tangent;
         self.mlp
-            .second_tangent(mlp_record, [input, input_dot], &mut scratch.mlp, dtheta);
+            .second_tangent(mlp_record, [input, input_dot], &mut scratch.mlp)
     }
 }

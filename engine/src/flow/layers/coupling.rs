@@ -181,9 +181,8 @@ pub struct TangentScratch {
     /// The transformed coordinates in dual numbers, and the primal pass's primal values.
     dual_state: Vec<Dual<f64>>,
     primal: Vec<f64>,
-    /// The kept coordinates' second-order tangent `(dx, dẋ)`, and `(dθ, dθ̇)`.
+    /// The kept coordinates' second-order tangent `(dx, dẋ)`.
     kept_second: [Vec<f64>; 2],
-    params_second: [Vec<f64>; 2],
     nested_params: Vec<Dual<Dual<f64>>>,
     conditioner: ConditionerTangentScratch,
 }
@@ -202,7 +201,6 @@ impl TangentScratch {
             dual_state: vec![zero; coupling.transformed.len()],
             primal: vec![0.0; coupling.primal_len()],
             kept_second: std::array::from_fn(|_| vec![0.0; coupling.kept.len()]),
-            params_second: std::array::from_fn(|_| vec![0.0; outputs]),
             nested_params: vec![nested_zero; outputs],
             conditioner: ConditionerTangentScratch::new(&coupling.conditioner),
         }
@@ -462,18 +460,16 @@ impl Coupling {
         {
             (*d, *d_dot) = (xi.du.re, xi.du.du);
         }
-        let [dtheta, dtheta_dot] = &mut scratch.params_second;
-        self.conditioner.second_tangent(
+        let [dtheta, dtheta_dot] = self.conditioner.second_tangent(
             &record.activations,
             [dx, dx_dot],
             &mut scratch.conditioner,
-            [dtheta, dtheta_dot],
         );
         let (theta, theta_dot) = record.params.split_at(dtheta.len());
         let nested = theta
             .iter()
             .zip(theta_dot)
-            .zip(dtheta.iter().zip(dtheta_dot.iter()));
+            .zip(dtheta.iter().zip(dtheta_dot));
         for (t, ((p, p_dot), (dp, dp_dot))) in scratch.nested_params.iter_mut().zip(nested) {
             *t = Dual::new(Dual::new(*p, *p_dot), Dual::new(*dp, *dp_dot));
         }

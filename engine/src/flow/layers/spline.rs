@@ -24,7 +24,7 @@
 //! take no transcendental function at all.
 
 use crate::flow::checkpoint::config::{SPLINE_MIN_BIN, SPLINE_MIN_DERIVATIVE};
-use crate::nn::scalar::{Scalar, exp_non_positive_with};
+use crate::nn::scalar::{Scalar, exp_non_positive_with, softplus_and_sigmoid};
 
 #[derive(Clone, Copy, Debug)]
 pub struct SplineTransform {
@@ -128,10 +128,9 @@ impl SplineTransform {
         let Some(theta) = self.raw_derivative(j, raw) else {
             return [1.0, 0.0, 0.0];
         };
-        let a = theta.value() + self.derivative_shift;
-        let sigmoid = a.sigmoid();
+        let (softplus, sigmoid) = softplus_and_sigmoid(theta.value() + self.derivative_shift);
         [
-            a.softplus() + SPLINE_MIN_DERIVATIVE,
+            softplus + SPLINE_MIN_DERIVATIVE,
             sigmoid,
             sigmoid * (1.0 - sigmoid),
         ]
@@ -158,14 +157,18 @@ impl SplineTransform {
             }
             let (bin_slot, rest) = record.split_first_mut().expect("primal_len > 0");
             let (exps, derivatives) = rest.split_at_mut(2 * k);
-            for (sizes, e) in theta[..2 * k].chunks_exact(k).zip(exps.chunks_exact_mut(k)) {
-                // Softmax is shift-invariant: `e^{θ − max θ} ≤ 1` cannot overflow.
-                let max = sizes
-                    .iter()
-                    .map(|s| s.value())
-                    .fold(f64::NEG_INFINITY, f64::max);
+            let (widths, heights) = exps.split_at_mut(k);
+            let sides = [(&theta[..k], widths), (&theta[k..2 * k], heights)];
+            for (sizes, e) in sides {
+                // The primal values gathered first, so the exponentials' loop reads
+                // contiguous values and vectorises.
                 for (e, s) in e.iter_mut().zip(sizes) {
-                    *e = exp_non_positive_with::<FUSED>(s.value() - max);
+                    *e = s.value();
+                }
+                // Softmax is shift-invariant: `e^{θ − max θ} ≤ 1` cannot overflow.
+                let max = e.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                for e in e.iter_mut() {
+                    *e = exp_non_positive_with::<FUSED>(*e - max);
                 }
             }
             let (widths, heights) = exps.split_at(k);
