@@ -474,8 +474,8 @@ def held_out_and_demonstrated(report, folder, radial, generic, baseline):
             and (demonstrated := load(folder / model / "eval_demos.json")) is not None]
     if not rows:
         return
-    report.add("", "Held-out episodes beside the demonstrations' own (the contexts and starts "
-               "the model was trained on):", "",
+    report.add("", "Held-out episodes beside the demonstrations' own (their contexts and "
+               "starts; the model fitted 80 % of them, the rest held out for validation):", "",
                "| model | held-out: goal reached | collision | demonstrations' own: goal "
                "reached | collision |", "|---|---|---|---|---|")
     for name, held_out, demonstrated in rows:
@@ -749,6 +749,10 @@ def stability(report, root):
         loop = measured.get("robot_loop")
         names.append(path.stem)
         through = "not run" if loop is None else f"{percent(loop['fraction'])} of {loop['rollouts']}"
+        robot_control = measured.get("robot_loop_negative_control")
+        if robot_control is not None:
+            through += (f"; its negative control flagged in "
+                        f"{percent(1 - robot_control['fraction'])} of {robot_control['rollouts']}")
         control = measured.get("negative_control")
         flagged = "—" if control is None else (
             f"{percent(1 - control['fraction'])} of {control['rollouts']}")

@@ -3,10 +3,11 @@
 //! for contexts from the box scaled by `far_context_scale`; optionally the negative
 //! control that the check must catch — the same flow with its latent run backwards in time
 //! ([`Policy::time_reversed`]), a model of the same class whose attractor repels — and the
-//! rollouts through the computed-torque simulator of the flow's robot ([`robot_loop`]).
+//! rollouts through the computed-torque simulator of the flow's robot ([`robot_loop`]),
+//! with the negative control driving the robot as well when both are asked for.
 //!
 //! A flow must converge from every start; the behaviour-cloning baseline need not.
-//! [`StabilityCheckReport::verdict`] fails when the negative control slipped through.
+//! [`StabilityCheckReport::verdict`] fails when a negative control slipped through.
 //!
 //! [`Policy::time_reversed`]: ciflow_engine::flow::Policy::time_reversed
 //! [`robot_loop`]: crate::robot_loop
@@ -28,6 +29,9 @@ use crate::stability::{self, Ending, StabilityConfig, StabilityReport};
 /// The share of the negative control's rollouts the check must flag.
 pub const NEGATIVE_CONTROL_FLAGGED: f64 = 0.99;
 
+/// The robot loop's longest physics step, s.
+const MAX_PHYSICS_DT: f64 = 1e-3;
+
 /// Settings of [`check_stability`].
 #[derive(Clone, Debug)]
 pub struct StabilityCheck {
@@ -35,9 +39,11 @@ pub struct StabilityCheck {
     pub rollouts: StabilityConfig,
     /// The far contexts come from the training box scaled by this factor.
     pub far_context_scale: f64,
-    /// Rollouts of the negative control (flows only; `None`: no control).
+    /// Rollouts of the negative control in observation space (flows only; `None`: no
+    /// control, in observation space or through the robot).
     pub negative_control_starts: Option<usize>,
-    /// The robot loop (flows only; `None`: not run).
+    /// The robot loop (flows only; `None`: not run), for the negative control as well
+    /// when it runs.
     pub robot_loop: Option<RobotLoopConfig>,
 }
 
@@ -52,6 +58,9 @@ pub struct StabilityCheckReport {
     pub negative_control: Option<StabilityReport>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub robot_loop: Option<RobotLoopReport>,
+    /// The negative control through the robot loop.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robot_loop_negative_control: Option<RobotLoopReport>,
     /// What was run, for the text report.
     #[serde(skip)]
     pub check: StabilityCheck,
@@ -64,6 +73,7 @@ pub enum Stage {
     FarContexts,
     NegativeControl,
     RobotLoop,
+    RobotLoopNegativeControl,
 }
 
 impl Stage {
@@ -73,6 +83,7 @@ impl Stage {
             Stage::FarContexts => "far contexts",
             Stage::NegativeControl => "negative control",
             Stage::RobotLoop => "robot loop",
+            Stage::RobotLoopNegativeControl => "robot-loop negative control",
         }
     }
 }
@@ -199,22 +210,32 @@ pub fn check_stability_with(
         }
         None => None,
     };
-    let robot_loop = match (flow, &check.robot_loop) {
+    let (robot_loop, robot_loop_negative_control) = match (flow, &check.robot_loop) {
         (Some(policy), Some(config)) => {
             let mut simulator = robot_simulator(policy, check.rollouts.scale)?;
-            let stage = Stage::RobotLoop;
-            let report = measure_robot_loop(policy, &mut simulator, config, |done| {
-                progress(stage, config.starts, done)
-            })?;
-            Some(report)
+            let mut measure = |policy: &Policy, stage: Stage| {
+                measure_robot_loop(policy, &mut simulator, config, |done| {
+                    progress(stage, config.starts, done)
+                })
+            };
+            let report = measure(policy, Stage::RobotLoop)?;
+            let control = match check.negative_control_starts {
+                Some(_) => Some(measure(
+                    &policy.time_reversed(),
+                    Stage::RobotLoopNegativeControl,
+                )?),
+                None => None,
+            };
+            (Some(report), control)
         }
-        _ => None,
+        _ => (None, None),
     };
     Ok(StabilityCheckReport {
         observation_space,
         far_contexts,
         negative_control,
         robot_loop,
+        robot_loop_negative_control,
         check: check.clone(),
     })
 }
@@ -223,8 +244,11 @@ pub fn check_stability_with(
 /// 1 kg point mass confined to the demonstrations' box scaled by `scale` about its centre.
 pub fn robot_simulator(policy: &Policy, scale: f64) -> EvaluationResult<Simulator> {
     let config = policy.config();
+    // Whole physics steps of at most the tasks' 1 ms in each control period, which is the
+    // policy's: a LASA shape's is its recording's sampling period (2.97 ms for Angle).
+    let substeps = (config.dt / MAX_PHYSICS_DT * (1.0 - 1e-9)).ceil().max(1.0);
     let sim_config = SimConfig {
-        physics_dt: config.dt.min(1e-3),
+        physics_dt: config.dt / substeps,
         control_dt: config.dt,
         ..SimConfig::default()
     };
@@ -256,30 +280,49 @@ pub fn robot_simulator(policy: &Policy, scale: f64) -> EvaluationResult<Simulato
     Ok(Simulator::new(robot, sim_config).map_err(RobotLoopError::from)?)
 }
 
-/// The negative control slipped through the check.
+/// A negative control slipped through the check.
 #[derive(Debug, thiserror::Error)]
 #[error(
-    "the stability check missed its negative control: {converged} of {rollouts} rollouts of \
-     the time-reversed flow counted as converged"
+    "the stability check missed its negative control {place}: {converged} of {rollouts} \
+     rollouts of the time-reversed flow counted as converged"
 )]
 pub struct NegativeControlMissed {
+    /// `in observation space` or `through the robot`.
+    pub place: &'static str,
     pub converged: usize,
     pub rollouts: usize,
 }
 
 impl StabilityCheckReport {
-    /// Fails unless the check flagged at least [`NEGATIVE_CONTROL_FLAGGED`] of the negative
-    /// control's rollouts (when it ran).
+    /// Fails unless the check flagged at least [`NEGATIVE_CONTROL_FLAGGED`] of each negative
+    /// control's rollouts (those that ran).
     pub fn verdict(&self) -> Result<(), NegativeControlMissed> {
-        match &self.negative_control {
-            Some(report) if 1.0 - report.fraction < NEGATIVE_CONTROL_FLAGGED => {
-                Err(NegativeControlMissed {
-                    converged: report.converged,
-                    rollouts: report.rollouts,
-                })
+        let controls = [
+            (
+                "in observation space",
+                self.negative_control
+                    .as_ref()
+                    .map(|r| (r.converged, r.rollouts)),
+            ),
+            (
+                "through the robot",
+                self.robot_loop_negative_control
+                    .as_ref()
+                    .map(|r| (r.converged, r.rollouts)),
+            ),
+        ];
+        for (place, control) in controls {
+            if let Some((converged, rollouts)) = control
+                && 1.0 - converged as f64 / (rollouts as f64) < NEGATIVE_CONTROL_FLAGGED
+            {
+                return Err(NegativeControlMissed {
+                    place,
+                    converged,
+                    rollouts,
+                });
             }
-            _ => Ok(()),
         }
+        Ok(())
     }
 }
 
@@ -340,6 +383,16 @@ impl fmt::Display for StabilityCheckReport {
                 report.steps,
                 report.over_speed_steps,
                 report.held_steps,
+            )?;
+        }
+        if let Some(report) = &self.robot_loop_negative_control {
+            writeln!(
+                f,
+                "robot-loop negative control (the same flow, its latent run backwards, \
+                 driving the robot): {:.1}% flagged ({} of {} did not converge)",
+                100.0 * (1.0 - report.fraction),
+                report.rollouts - report.converged,
+                report.rollouts,
             )?;
         }
         Ok(())

@@ -1,7 +1,8 @@
 //! Measured stability: 100% for random (untrained) flows of every variant; and the check
 //! can fail: it flags the same flows with their latent run backwards in time (a negative
-//! control of the same class) and the unconstrained behaviour-cloning baseline; and it
-//! counts the rollouts that stall at a spurious attractor.
+//! control of the same class), in observation space and driving the robot, and the
+//! unconstrained behaviour-cloning baseline; and it counts the rollouts that stall at a
+//! spurious attractor.
 
 // The engine's flow test fixtures, shared rather than copied.
 #[path = "../../engine/tests/flow_common/mod.rs"]
@@ -9,11 +10,12 @@ mod flow_common;
 
 use ciflow_engine::flow::MeanDynamics;
 use ciflow_engine::flow::{
-    BaselineConfig, BehaviourCloning, Bounds, FlowResult, Goal, Normalisation, Weights,
+    BaselineConfig, BehaviourCloning, Bounds, FlowResult, Goal, Normalisation, Policy, Weights,
 };
 use ciflow_engine::math::distance;
 use ciflow_envs::actor::Model;
 use ciflow_evaluation::EvaluationError;
+use ciflow_evaluation::robot_loop::RobotLoopConfig;
 use ciflow_evaluation::stability::{StabilityConfig, TOLERANCE_FACTORS, measure};
 use ciflow_evaluation::stability_check::{StabilityCheck, check_stability};
 use flow_common::*;
@@ -322,4 +324,48 @@ fn the_baseline_has_no_negative_control() {
         check_stability(&model, &whole_check(Some(20)), |_, _, _| {}),
         Err(EvaluationError::InvalidConfig(_))
     ));
+}
+
+/// Through the robot as well: a flow drives the task's point mass to its attractor, the
+/// same flow with its latent run backwards drives it nowhere near, and the verdict refuses
+/// a robot-loop control that converged. The control period is a LASA shape's, which no
+/// whole number of 1 ms physics steps fills.
+#[test]
+fn the_robot_loop_flags_the_time_reversed_flow_driving_the_robot() {
+    let mut config = variants()[0].clone();
+    config.task = "lasa".into();
+    config.dt = 0.002968502735264841;
+    // Weights small enough that the motions stay inside the robot's limits, which a
+    // converging flow need not do.
+    let weights = Weights::random(&config.parameter_shapes(), 0.05, &mut rng(7));
+    let model = Model::from(Policy::new(&config, weights).unwrap());
+    let with_robot = |negative_control_starts| StabilityCheck {
+        robot_loop: Some(RobotLoopConfig {
+            starts: 4,
+            duration: 60.0,
+            ..RobotLoopConfig::default()
+        }),
+        ..whole_check(negative_control_starts)
+    };
+    let report = check_stability(&model, &with_robot(Some(20)), |_, _, _| {}).unwrap();
+    let robot = report.robot_loop.as_ref().expect("the robot loop ran");
+    assert_eq!(robot.fraction, 1.0, "{report}");
+    let control = report
+        .robot_loop_negative_control
+        .as_ref()
+        .expect("the control drove the robot too");
+    assert_eq!((control.converged, control.rollouts), (0, 4), "{report}");
+    assert!(report.verdict().is_ok(), "{report}");
+    assert!(report.to_string().contains("robot-loop negative control"));
+
+    let mut missed = report.clone();
+    missed.robot_loop_negative_control = report.robot_loop.clone();
+    let error = missed.verdict().unwrap_err();
+    assert_eq!(
+        (error.place, error.converged, error.rollouts),
+        ("through the robot", 4, 4)
+    );
+
+    let without = check_stability(&model, &with_robot(None), |_, _, _| {}).unwrap();
+    assert!(without.robot_loop.is_some() && without.robot_loop_negative_control.is_none());
 }

@@ -57,7 +57,7 @@ pub struct StabilityArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Also check the flow with its latent run backwards in time, which must fail the
-    /// check (flows only).
+    /// check (flows only); with `--robot-loop`, driving the robot as well.
     #[arg(long)]
     pub negative_control: bool,
     /// Rollouts of the negative control (training contexts).
