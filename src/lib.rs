@@ -16,5 +16,5 @@ pub const TRAIN_ABOUT: &str =
 /// What `ciflow lasa` does, for both programs' `--help`.
 pub const LASA_ABOUT: &str = "LASA handwriting benchmark: per shape, a stable flow against a \
      behaviour-cloning MLP trained in the same run on the same demonstrations (the training \
-     options set the flow's; the MLP keeps its own: up to 200 epochs, early-stopped); writes \
+     options set the flow's; the MLP keeps its own: all the demonstrations, 200 epochs); writes \
      tables (DTW, swept area, final error, time) and plots";

@@ -7,7 +7,7 @@
 //!
 //! - [`lasa`]: the LASA handwriting benchmark — per shape, a stable flow against the
 //!   unconstrained behaviour-cloning baseline trained in the same run on the same data,
-//!   with its own standing settings — and
+//!   with settings of its own — and
 //!   [`lasa::ablation`], what each choice of the flow's recipe buys.
 
 pub mod error;
