@@ -84,6 +84,13 @@ fn panda_converges_without_torque_limits_and_reports_saturation_with_them() {
     };
     let report = measure_robot_loop(&policy, &mut sim, &aggressive, |_| {}).unwrap();
     assert!(report.saturated > 0, "{report:?}");
+
+    // The negative control of the check through the robot (`ciflow stability
+    // --robot-loop --negative-control`): the same flow with its latent run backwards
+    // drives the arm, within its real limits, and never counts as converged.
+    let mut sim = Simulator::new(Box::new(panda()), SimConfig::default()).unwrap();
+    let report = measure_robot_loop(&policy.time_reversed(), &mut sim, &check(3), |_| {}).unwrap();
+    assert_eq!(report.converged, 0, "{report:?}");
 }
 
 #[test]
