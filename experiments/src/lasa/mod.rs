@@ -141,8 +141,9 @@ fn train_shape_flow(
 /// ([`BaselineTrainConfig::new`]) whatever the flow's recipe says, except that it fits
 /// the same demonstrations as the flow, all of them — with none held out there is nothing
 /// to stop early on, so it trains its whole budget and keeps the last epoch — and that
-/// its seed follows the flow's. Held out for early stopping, one of the seven, it scored
-/// worse on average (README, "LASA handwriting benchmark").
+/// its seed follows the flow's. With one of the seven held out for early stopping instead,
+/// it was further from the demonstrations on 23 of the 30 shapes (README, "LASA
+/// handwriting benchmark").
 pub fn baseline_config(flow: &TrainConfig) -> BaselineTrainConfig {
     let goal = Goal::ContextIndices {
         indices: flow.goal_context_indices.clone().unwrap_or_default(),
