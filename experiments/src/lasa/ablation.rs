@@ -11,11 +11,11 @@ use std::time::Instant;
 use ciflow_engine::flow::{CouplingKind, LatentKind};
 use ciflow_envs::lasa;
 use ciflow_evaluation::lasa::{METRICS, Model, Scores, cell, mean};
-use ciflow_train::{DEFAULT_STATE_NOISE, Keep, OptimConfig, TrainConfig};
+use ciflow_train::{DEFAULT_STATE_NOISE, Keep, TrainConfig};
 
 use super::{
-    RunEpoch, Tally, clear_earlier_run, create_dir, demonstrations, scored, settings,
-    train_shape_baseline, train_shape_flow, write,
+    RunEpoch, Tally, baseline_config, clear_earlier_run, create_dir, demonstrations, scored,
+    settings, train_shape_baseline, train_shape_flow, write,
 };
 use crate::error::ExperimentResult;
 
@@ -120,7 +120,7 @@ fn variants(recipe: &TrainConfig) -> Vec<TrainConfig> {
 /// The epochs [`run`] spends at most on `shapes` shapes: every variant's and the baseline's.
 pub fn budget(shapes: usize, recipe: &TrainConfig) -> u64 {
     let variants: usize = variants(recipe).iter().map(|c| c.optim.epochs).sum();
-    (shapes * (variants + OptimConfig::default().epochs)) as u64
+    (shapes * (variants + baseline_config(recipe).optim.epochs)) as u64
 }
 
 /// What [`run`] writes into its directory.
