@@ -361,7 +361,9 @@ def plan(out: pathlib.Path) -> list[Job]:
 
     def obstacle_evaluations(policy, k, results):
         """The held-out episodes, and the demonstrations' own (the recording's seeds give
-        its contexts and starts): whether a model fits its data, not only generalises."""
+        its contexts and starts), which `ciflow evaluate` divides into those the model was
+        fitted to and those its training held out: whether a model fits its data, not
+        only generalises."""
         task = ["--kwarg", f"obstacles={k}"]
         return [evaluate(policy, *task, "--episodes", OBSTACLE_EVALUATION_EPISODES,
                          "--seed", TEST_SEED, "--trajectories", 8, "--out", results / "eval.json"),

@@ -15,7 +15,8 @@ Layout of EXPERIMENTS_DIR (every file optional: a missing one gives a "not run" 
     obstacles/<K>-generic/{eval,field}.json  the same for the generic INN (no contractions)
     obstacles/<K>[-generic]/eval_demos.json, obstacles/3-baseline/eval_demos.json
                                       ciflow evaluate on the demonstrations' own episodes
-                                      (the recording's seeds: its contexts and starts)
+                                      (the recording's seeds: its contexts and starts),
+                                      fitted and held-out ones apart (training_split)
     pouring/nll/<F>_seed<S>_train.json, <F>_seed<S>_test.json   (F: fraction of the demos)
     pouring/eval.json                 ciflow evaluate (no perturbation), 100 episodes
     pouring/push.json                 ciflow evaluate --perturb push
@@ -462,8 +463,9 @@ def held_out_and_demonstrated(report, folder, radial, generic, baseline):
     """Each obstacle model on the held-out episodes (`radial`, `generic`: the evaluations
     already read, by obstacle count; `baseline`: the 3-obstacle control's) beside the
     demonstrations' own (the recording's contexts and starts, where the expert never
-    collides): a model that fails on both does not fit its data, one that fails only on the
-    first does not generalise."""
+    collides), those the model was fitted to apart from those its training held out for
+    validation (`ciflow evaluate`'s `training_split`): a model that fails on the fitted
+    ones does not fit its data, one that fails only on unseen ones does not generalise."""
     models = [(f"{obstacle_label(k)}{label}", f"{k}{suffix}", held_out.get(k))
               for suffix, label, held_out in (("", ", radial contractions", radial),
                                               ("-generic", ", generic INN", generic))
@@ -475,13 +477,25 @@ def held_out_and_demonstrated(report, folder, radial, generic, baseline):
     if not rows:
         return
     report.add("", "Held-out episodes beside the demonstrations' own (their contexts and "
-               "starts; the model fitted 80 % of them, the rest held out for validation):", "",
-               "| model | held-out: goal reached | collision | demonstrations' own: goal "
-               "reached | collision |", "|---|---|---|---|---|")
+               "starts), split into those the model was fitted to and those its training "
+               "held out for validation:", "",
+               "| model | held-out episodes: goal reached | collision | fitted "
+               "demonstrations: goal reached | collision | demonstrations held out of "
+               "training: goal reached | collision |", "|---|---|---|---|---|---|---|")
+
+    def cells(rates):
+        if rates is None:
+            return "n/a | n/a"
+        return (f"{percent(rates['success_rate'])} of {rates['episodes']} | "
+                f"{percent(rates.get('collision_rate'))}")
+
     for name, held_out, demonstrated in rows:
-        cells = [f"{percent(e['success_rate'])} of {e['episodes']} | "
-                 f"{percent(e.get('collision_rate'))}" for e in (held_out, demonstrated)]
-        report.add(f"| {name} | {' | '.join(cells)} |")
+        split = demonstrated.get("training_split")
+        if split is None:  # a checkpoint without its training split: both together
+            own = f"{cells(demonstrated)} (fitted and held out together) | — | —"
+        else:
+            own = f"{cells(split.get('fitted'))} | {cells(split.get('held_out'))}"
+        report.add(f"| {name} | {cells(held_out)} | {own} |")
 
 
 SEED_FILE = re.compile(r"^(?P<mode>eval|push|context)_seed(?P<seed>[0-9]+)\.json$")

@@ -87,10 +87,17 @@ def experiments(tmp_path):
     write(root / "obstacles" / "3-baseline" / "eval.json", baseline)
     # On the demonstrations' own episodes: the generic model and the control; the radial
     # model without this file gets no row.
+    # The generic model's divided into the 800 fitted and 200 held-out demonstrations; the
+    # control's from before training splits were recorded (no division).
     demonstrated = evaluation(0.6, 1000, {"mode": "none"})
     demonstrated["collision_rate"] = 0.4
-    write(root / "obstacles" / "3-generic" / "eval_demos.json", demonstrated)
     write(root / "obstacles" / "3-baseline" / "eval_demos.json", demonstrated)
+    demonstrated["training_split"] = {
+        "fitted": {"episodes": 800, "success_rate": 0.625, "collision_rate": 0.375},
+        "held_out": {"episodes": 200, "success_rate": 0.5, "collision_rate": 0.5},
+        "not_in_data": None,
+    }
+    write(root / "obstacles" / "3-generic" / "eval_demos.json", demonstrated)
     write(root / "pouring" / "eval.json", evaluation(0.85, 100, {"mode": "none"}))
     push = {
         "required_displacement": 0.05,
@@ -191,10 +198,10 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
             "0 of 100 |") in text
     assert "pot moved mid-motion: not run" in text
     # Held-out beside the demonstrations' own episodes, for the models that have both.
-    assert ("| 3 obstacles, generic INN | 70.0% of 100 | 0.0% | 60.0% of 1000 | 40.0% |"
-            in text)
+    assert ("| 3 obstacles, generic INN | 70.0% of 100 | 0.0% | 62.5% of 800 | 37.5% | "
+            "50.0% of 200 | 50.0% |") in text
     assert ("| 3 obstacles, unconstrained MLP (control) | 50.0% of 100 | 25.0% | 60.0% of 1000 | "
-            "40.0% |") in text
+            "40.0% (fitted and held out together) | — | — |") in text
     assert "| 3 obstacles, radial contractions | 96.0% of 100 |" not in text
     # The collision target: met by the radial model's 0 of 100; a rate above 1% fails.
     assert "| collisions, 3 obstacles | 0.0% of 100 episodes | ≤ 1% | **pass** |" in text

@@ -68,6 +68,63 @@ fn evaluate_writes_episodes_pushes_switches_likelihoods_and_fields() {
     rate(&report["collision_rate"]);
     assert_eq!(report["disturbance"]["mode"], "none");
 
+    // The demonstrations' own seeds (0..6) and two more: the training fitted 5 of the 6
+    // and held 1 out (the task's 20 %), which the report counts apart from seeds 6 and 7.
+    let split: Value = json(&format!("{policy}/training_split.json"));
+    let held_out_seeds: Vec<u64> = split["held_out"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["seed"].as_u64().unwrap())
+        .collect();
+    assert_eq!(split["fitted"].as_array().unwrap().len(), 5, "{split}");
+    assert_eq!(held_out_seeds.len(), 1, "{split}");
+    let own = scratch.arg("eval_demos.json");
+    let evaluate_seeds = |seed: &str, out: &str| {
+        succeed(
+            &[
+                &["evaluate", "--checkpoint", &policy, "--episodes", "8"][..],
+                &["--seed", seed, "--out", out],
+                &kwargs,
+            ]
+            .concat(),
+        )
+    };
+    let printed = String::from_utf8_lossy(&evaluate_seeds("0", &own).stdout).into_owned();
+    assert!(
+        printed.contains("held out of training: success"),
+        "{printed}"
+    );
+    let own = json(&own);
+    let parts = &own["training_split"];
+    let results = own["results"].as_array().unwrap();
+    for (part, seeds) in [
+        (
+            "fitted",
+            (0..6)
+                .filter(|s| !held_out_seeds.contains(s))
+                .collect::<Vec<u64>>(),
+        ),
+        ("held_out", held_out_seeds.clone()),
+        ("not_in_data", vec![6, 7]),
+    ] {
+        let members: Vec<&Value> = results
+            .iter()
+            .filter(|r| seeds.contains(&r["seed"].as_u64().unwrap()))
+            .collect();
+        assert_eq!(parts[part]["episodes"], members.len(), "{part}: {parts}");
+        let successes = members.iter().filter(|r| r["success"] == true).count();
+        assert_eq!(
+            rate(&parts[part]["success_rate"]),
+            successes as f64 / members.len() as f64,
+            "{part}"
+        );
+    }
+    // Seeds past the recording replay no demonstration: no division.
+    let unseen = scratch.arg("eval_unseen.json");
+    evaluate_seeds("100", &unseen);
+    assert_eq!(json(&unseen)["training_split"], Value::Null);
+
     // The expert, the reference, in the same episodes (same seeds: same contexts).
     let expert = scratch.arg("expert.json");
     succeed(

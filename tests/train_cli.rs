@@ -379,6 +379,10 @@ fn train_into_an_earlier_checkpoint_leaves_no_stale_baseline() {
     };
     retrain(&["--baseline"]);
     assert!(baseline.join("config.json").exists());
+    // The baseline's split is the flow's (same seed and fraction): one set of fitted
+    // demonstrations for the control and the model it is compared with.
+    let split = |dir: &std::path::Path| std::fs::read(dir.join("training_split.json")).unwrap();
+    assert_eq!(split(&baseline), split(&policy));
     std::fs::write(policy.join("notes.txt"), "kept").unwrap();
     retrain(&[]);
     assert!(!baseline.exists(), "the earlier run's baseline survived");

@@ -199,3 +199,52 @@ fn context_sets_default_to_none_round_trip_and_are_validated() {
         );
     }
 }
+
+/// A training split round-trips, names an episode's role only when seed, start and context
+/// all match, and a checkpoint without one (or with a malformed one) says so.
+#[test]
+fn training_split_round_trips_and_matches_only_the_recorded_start() {
+    use checkpoint::split::{EpisodeStart, SPLIT_FILE, SplitRole, TrainingSplit, read_split};
+    let dir = temp_dir("split");
+    std::fs::create_dir_all(&dir).unwrap();
+    assert_eq!(read_split(&dir).unwrap(), None);
+    let start = |seed, x: f64| EpisodeStart {
+        seed: Some(seed),
+        position: vec![x, -x],
+        context: vec![0.25, 1.5],
+    };
+    let split = TrainingSplit {
+        fitted: vec![start(0, 0.1), start(2, 0.3)],
+        held_out: vec![start(1, 0.2)],
+    };
+    checkpoint::split::write_split(&dir, &split).unwrap();
+    let read = read_split(&dir).unwrap().unwrap();
+    assert_eq!(read, split);
+
+    let context = [0.25, 1.5];
+    assert_eq!(read.role(2, &[0.3, -0.3], &context), SplitRole::Fitted);
+    assert_eq!(read.role(1, &[0.2, -0.2], &context), SplitRole::HeldOut);
+    // The seed of a demonstration in another task variant: another start, no match.
+    assert_eq!(read.role(1, &[0.2, -0.25], &context), SplitRole::NotInData);
+    assert_eq!(
+        read.role(1, &[0.2, -0.2], &[0.25, 1.0]),
+        SplitRole::NotInData
+    );
+    assert_eq!(read.role(3, &[0.3, -0.3], &context), SplitRole::NotInData);
+    // An episode recorded without a seed matches no evaluated episode.
+    let unseeded = TrainingSplit {
+        fitted: vec![EpisodeStart {
+            seed: None,
+            ..start(0, 0.1)
+        }],
+        held_out: Vec::new(),
+    };
+    assert_eq!(
+        unseeded.role(0, &[0.1, -0.1], &context),
+        SplitRole::NotInData
+    );
+
+    std::fs::write(dir.join(SPLIT_FILE), "{\"fitted\": 3}").unwrap();
+    assert!(matches!(read_split(&dir), Err(FlowError::Json { .. })));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -23,6 +23,7 @@ use std::ops::Range;
 
 use serde::{Deserialize, Serialize};
 
+use ciflow_engine::flow::checkpoint::split::TrainingSplit;
 use ciflow_envs::actor::{Actor, Model};
 use ciflow_envs::env::{Env, EnvSpec, Info, ResetOptions, SUCCESS_INFO};
 use ciflow_envs::registry;
@@ -30,6 +31,7 @@ use ciflow_envs::registry;
 use crate::push::{self, PushConfig, PushOutcome, PushSummary};
 use crate::summary::Summary;
 use crate::trace::Trace;
+use crate::training_split::SplitRates;
 use crate::{EvaluationError, EvaluationResult};
 
 /// `info` keys holding the distance to the task's goal, in order of preference: obstacle
@@ -176,11 +178,23 @@ pub struct EvaluationReport {
     pub final_distance: Option<Summary>,
     pub episode_steps: Option<Summary>,
     pub push: Option<PushSummary>,
+    /// The rates of the episodes that replay the model's demonstrations, fitted and held
+    /// out apart ([`EvaluationReport::divide_by`]); `None` when none do.
+    pub training_split: Option<SplitRates>,
     pub results: Vec<EpisodeResult>,
     /// Traces of the first [`EvaluationConfig::trajectories`] episodes.
     pub trajectories: Vec<Trace>,
     /// The first episode in full, for the disturbance figures.
     pub example: Option<Example>,
+}
+
+impl EvaluationReport {
+    /// Divides the rates by the episodes' part in the model's training `split`, when some
+    /// episodes replay its demonstrations.
+    pub fn divide_by(&mut self, split: &TrainingSplit) {
+        let rates = SplitRates::of(&self.results, split);
+        self.training_split = rates.touches_data().then_some(rates);
+    }
 }
 
 impl std::fmt::Display for EvaluationReport {
@@ -210,6 +224,9 @@ impl std::fmt::Display for EvaluationReport {
             write!(f, ", {:.0} ± {:.0} steps", s.mean, s.std)?;
         }
         writeln!(f, " ({} episodes)", self.episodes)?;
+        if let Some(split) = &self.training_split {
+            write!(f, "{split}")?;
+        }
         if let Some(push) = &self.push {
             writeln!(
                 f,
@@ -350,7 +367,7 @@ fn model_name(acting: Acting) -> &'static str {
     }
 }
 
-fn rate(flags: impl Iterator<Item = Option<bool>>) -> Option<f64> {
+pub(crate) fn rate(flags: impl Iterator<Item = Option<bool>>) -> Option<f64> {
     let flags: Vec<bool> = flags.collect::<Option<_>>()?;
     (!flags.is_empty()).then(|| flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64)
 }
@@ -600,6 +617,7 @@ pub fn summarize(
         final_distance: Summary::of(&distances),
         episode_steps: Summary::of(&steps),
         push,
+        training_split: None,
         results,
         trajectories,
         example,

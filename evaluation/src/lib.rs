@@ -13,7 +13,9 @@
 //!   [`stability_check`]: both, as `ciflow stability` runs them on a checkpoint;
 //! - [`rollout`] and [`field`]: the noise-free rollouts and the vector-field and
 //!   latent-grid figures of 2-D policies;
-//! - [`lasa`]: the LASA handwriting benchmark's reproductions and scores.
+//! - [`lasa`]: the LASA handwriting benchmark's reproductions and scores;
+//! - [`training_split`]: closed-loop rates divided into the demonstrations a model fitted
+//!   and those its training held out.
 
 pub mod closed_loop;
 pub mod error;
@@ -27,6 +29,7 @@ pub mod stability;
 pub mod stability_check;
 pub mod summary;
 pub mod trace;
+pub mod training_split;
 
 pub use closed_loop::*;
 pub use error::{EvaluationError, EvaluationResult};

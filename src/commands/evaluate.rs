@@ -6,7 +6,8 @@
 //!   (`--perturb context`): rates, distances, push displacement and recovery, traces —
 //!   of the checkpoint, or with `--expert --task T` of the task's expert, the reference;
 //!   with `--engines`, the episodes run on engines reachable on Zenoh
-//!   ([`ciflow_bridge::spread`]);
+//!   ([`ciflow_bridge::spread`]); episodes that replay the checkpoint's demonstrations
+//!   (its `training_split.json`) are also counted apart, fitted and held out;
 //! - `--nll DATASET`: the flow's log-likelihood per transition on a dataset;
 //! - `--field FILE`: for 2-D flows, the vector field, rollouts and latent-grid image.
 
@@ -14,7 +15,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use ciflow_bridge::spread;
-use ciflow_engine::flow::Policy;
+use ciflow_engine::flow::{Policy, checkpoint};
 use ciflow_envs::actor::{DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::dataset::{self, Episode};
 use ciflow_envs::registry::{self, Kwargs, TaskEntry};
@@ -331,7 +332,7 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
         }
         _ => None,
     };
-    let report = match on_engines {
+    let mut report = match on_engines {
         None => evaluate(env.as_mut(), acting, &config, |done| {
             progress.set_position(done as u64)
         })
@@ -345,6 +346,12 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
         }
     };
     progress.finish_and_clear();
+    if let Some(dir) = &args.checkpoint
+        && let Some(split) = checkpoint::split::read_split(dir)
+            .with_context(|| format!("reading the training split of {}", dir.display()))?
+    {
+        report.divide_by(&split);
+    }
     print!("{report}");
     if let Some(out) = &args.out {
         write_json(out, &report)?;

@@ -14,8 +14,11 @@ use crate::error::{TrainError, TrainResult};
 use crate::nn::mlp::Mlp;
 use crate::nn::row;
 use crate::optimise::{OptimConfig, Progress, mean_value, optimise};
-use crate::trainer::{TrainConfig, check_threads, double_var_store, save_checkpoint, split};
+use crate::trainer::{
+    TrainConfig, check_threads, double_var_store, recorded_split, save_trained, split,
+};
 use ciflow_engine::flow::checkpoint::names::NET;
+use ciflow_engine::flow::checkpoint::split::{SPLIT_FILE, TrainingSplit};
 use ciflow_engine::flow::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
 
 /// The subdirectory of a flow's checkpoint that holds the baseline trained beside it, on
@@ -76,14 +79,18 @@ pub struct TrainedBaseline {
     pub var_store: nn::VarStore,
     pub history: Vec<Progress>,
     pub best_epoch: usize,
+    /// The demonstrations fitted and those held out for validation.
+    pub split: TrainingSplit,
 }
 
 impl TrainedBaseline {
+    /// Writes `config.json`, `weights.safetensors` and `training_split.json`.
     pub fn save(&self, dir: &Path) -> TrainResult<()> {
-        save_checkpoint(
+        save_trained(
             dir,
             &CheckpointConfig::MlpBaseline(self.config.clone()),
             &self.var_store,
+            &self.split,
         )
     }
 }
@@ -101,7 +108,7 @@ pub fn remove_stale_baseline(dir: &Path) -> TrainResult<()> {
         path: baseline.clone(),
         source,
     };
-    for file in [CONFIG_FILE, WEIGHTS_FILE] {
+    for file in [CONFIG_FILE, WEIGHTS_FILE, SPLIT_FILE] {
         match std::fs::remove_file(baseline.join(file)) {
             Err(e) if e.kind() != ErrorKind::NotFound => return Err(stale(e)),
             _ => {}
@@ -165,5 +172,6 @@ pub fn train_baseline(
         var_store: vs,
         history,
         best_epoch,
+        split: recorded_split(&train_set, &validation_set),
     })
 }

@@ -1,6 +1,7 @@
 //! Demonstrations: episodes of states `[T × d]` with contexts `[T × m]` or one per
 //! episode, sampled every `dt` seconds.
 
+use ciflow_engine::flow::checkpoint::split::EpisodeStart;
 use ciflow_engine::flow::{Bounds, ContextSet, JointRange, Normalisation};
 use tch::{Kind, Tensor};
 
@@ -17,6 +18,8 @@ pub enum Contexts {
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct Episode {
+    /// The seed its recording was reset with, if known.
+    pub seed: Option<u64>,
     pub states: Vec<Vec<f64>>,
     pub contexts: Contexts,
     /// Transitions `y_t → y_{t+1}` left out of the likelihood, e.g. those an external force
@@ -29,9 +32,19 @@ impl Episode {
     /// An episode whose every transition counts.
     pub fn new(states: Vec<Vec<f64>>, contexts: Contexts) -> Self {
         Self {
+            seed: None,
             states,
             contexts,
             excluded: Vec::new(),
+        }
+    }
+
+    /// How it started: its seed, first state and first context.
+    pub fn start(&self) -> EpisodeStart {
+        EpisodeStart {
+            seed: self.seed,
+            position: self.states.first().cloned().unwrap_or_default(),
+            context: self.context(0).to_vec(),
         }
     }
 
@@ -378,6 +391,7 @@ mod tests {
     /// One episode of 1-D states `y_t = t`, so a pair's states name its indices.
     fn counting_episode(steps: usize, excluded: &[usize]) -> Episode {
         Episode {
+            seed: None,
             states: (0..=steps).map(|t| vec![t as f64]).collect(),
             contexts: Contexts::PerEpisode(vec![]),
             excluded: (0..steps).map(|t| excluded.contains(&t)).collect(),

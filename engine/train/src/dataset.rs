@@ -220,6 +220,7 @@ pub fn demonstrations(
             let pushed: Vec<bool> = (0..episode.len()).map(|t| episode.perturbed(t)).collect();
             perturbed += pushed.iter().filter(|&&p| p).count();
             Episode {
+                seed: episode.seed,
                 excluded: (0..pushed.len())
                     .map(|t| {
                         !screening.keep_perturbed

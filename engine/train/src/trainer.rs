@@ -20,6 +20,7 @@
 use std::path::Path;
 
 use ciflow_engine::flow::checkpoint::config::validate_context_sets;
+use ciflow_engine::flow::checkpoint::split::{TrainingSplit, write_split};
 use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
 use ciflow_engine::flow::{CheckpointConfig, FlowConfig};
 pub use ciflow_engine::training::{DEFAULT_STATE_NOISE, TrainConfig};
@@ -47,15 +48,19 @@ pub struct TrainedFlow {
     pub history: Vec<Progress>,
     /// The epoch whose parameters were kept (best validation NLL).
     pub best_epoch: usize,
+    /// The demonstrations fitted and those held out for validation.
+    pub split: TrainingSplit,
 }
 
 impl TrainedFlow {
-    /// Writes `config.json` and `weights.safetensors` (loadable by `Policy::load`).
+    /// Writes `config.json`, `weights.safetensors` (loadable by `Policy::load`) and
+    /// `training_split.json`.
     pub fn save(&self, dir: &Path) -> TrainResult<()> {
-        save_checkpoint(
+        save_trained(
             dir,
             &CheckpointConfig::Flow(self.config.clone()),
             &self.var_store,
+            &self.split,
         )
     }
 }
@@ -64,17 +69,30 @@ impl TrainedFlow {
 pub struct Snapshot<'a> {
     config: &'a FlowConfig,
     var_store: &'a nn::VarStore,
+    split: &'a TrainingSplit,
 }
 
 impl Snapshot<'_> {
-    /// Writes the current parameters as a checkpoint directory (loadable by `Policy::load`).
+    /// Writes the current parameters as a checkpoint directory, as [`TrainedFlow::save`].
     pub fn save(&self, dir: &Path) -> TrainResult<()> {
-        save_checkpoint(
+        save_trained(
             dir,
             &CheckpointConfig::Flow(self.config.clone()),
             self.var_store,
+            self.split,
         )
     }
+}
+
+/// A trained model's checkpoint: [`save_checkpoint`] and the demonstrations' `split`.
+pub(crate) fn save_trained(
+    dir: &Path,
+    config: &CheckpointConfig,
+    vs: &nn::VarStore,
+    split: &TrainingSplit,
+) -> TrainResult<()> {
+    save_checkpoint(dir, config, vs)?;
+    Ok(write_split(dir, split)?)
 }
 
 /// Writes a checkpoint directory from a `VarStore`.
@@ -162,7 +180,8 @@ pub fn check_checkpoint_dir(dir: &Path) -> TrainResult<()> {
 }
 
 /// Splits episodes into (training, validation) with a seeded shuffle; the validation set
-/// is empty when `fraction` is 0 (or there is a single episode).
+/// is empty when `fraction` is 0 (or there is a single episode). [`recorded_split`] says
+/// which is which in the checkpoint.
 pub(crate) fn split(
     data: &Demonstrations,
     fraction: f64,
@@ -180,6 +199,15 @@ pub(crate) fn split(
     };
     let validation = episodes.split_off(n - held_out);
     (episodes, validation)
+}
+
+/// The starts of the episodes [`split`] gave to training and to validation.
+pub(crate) fn recorded_split(fitted: &[&Episode], held_out: &[&Episode]) -> TrainingSplit {
+    let starts = |episodes: &[&Episode]| episodes.iter().map(|e| e.start()).collect();
+    TrainingSplit {
+        fitted: starts(fitted),
+        held_out: starts(held_out),
+    }
 }
 
 /// The engine configuration for `data` under `train`, which [`train_flow`] would run:
@@ -316,9 +344,11 @@ pub fn train_flow(
             -mean_value(&transitions)
         })
     };
+    let split = recorded_split(&train_set, &validation_set);
     let snapshot = Snapshot {
         config: &config,
         var_store: &vs,
+        split: &split,
     };
     let (history, best_epoch) = optimise(&vs, fit.len(), &train.optim, loss, validation, |p| {
         progress(p, &snapshot)
@@ -329,6 +359,7 @@ pub fn train_flow(
         model,
         history,
         best_epoch,
+        split,
     })
 }
 

@@ -1,8 +1,10 @@
 //! A checkpoint is a directory holding `config.json` ([`CheckpointConfig`]) and
-//! `weights.safetensors` ([`Weights`], F64 or F32, names as in the trainer's `VarStore`).
+//! `weights.safetensors` ([`Weights`], F64 or F32, names as in the trainer's `VarStore`);
+//! a trained one also `training_split.json` ([`split::TrainingSplit`]).
 
 pub mod config;
 pub mod names;
+pub mod split;
 pub mod weights;
 
 use std::path::Path;
