@@ -46,7 +46,10 @@ pub fn dtw_distance(reproduction: &[Point], demonstration: &[Point]) -> f64 {
 /// areas of the quadrilaterals `(y_t, y_{t+1}, ŷ_{t+1}, ŷ_t)` spanned by consecutive points
 /// of the demonstration and of the time-aligned reproduction,
 ///
-/// `SEA = Σ_t A(y_t, y_{t+1}, ŷ_{t+1}, ŷ_t)`, `A` by the shoelace formula.
+/// `SEA = Σ_t A(y_t, y_{t+1}, ŷ_{t+1}, ŷ_t)`,
+///
+/// `A` the area the quadrilateral encloses ([`quadrilateral_area`]: where the paths cross
+/// within a step, both lobes of the bow tie count).
 ///
 /// Compares the first `min(|ŷ|, |y|)` samples; infinite for a non-finite point.
 pub fn swept_error_area(reproduction: &[Point], demonstration: &[Point]) -> f64 {
@@ -56,8 +59,45 @@ pub fn swept_error_area(reproduction: &[Point], demonstration: &[Point]) -> f64 
     demonstration
         .windows(2)
         .zip(reproduction.windows(2))
-        .map(|(y, r)| shoelace(&[y[0], y[1], r[1], r[0]]))
+        .map(|(y, r)| quadrilateral_area([y[0], y[1], r[1], r[0]]))
         .sum()
+}
+
+/// The area enclosed by the quadrilateral `p_0 p_1 p_2 p_3`. A simple one's is the shoelace
+/// formula's; a self-intersecting one (a bow tie: opposite sides cross at `X`) encloses
+/// two triangles, whose areas add, where the shoelace formula would subtract them.
+fn quadrilateral_area(p: [Point; 4]) -> f64 {
+    if let Some(x) = crossing([p[0], p[1]], [p[2], p[3]]) {
+        triangle_area([p[0], x, p[3]]) + triangle_area([x, p[1], p[2]])
+    } else if let Some(x) = crossing([p[1], p[2]], [p[3], p[0]]) {
+        triangle_area([p[0], p[1], x]) + triangle_area([x, p[2], p[3]])
+    } else {
+        shoelace(&p)
+    }
+}
+
+/// `(b − a) × (c − a)`: twice the signed area of the triangle `a b c`.
+fn cross(a: Point, b: Point, c: Point) -> f64 {
+    (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+}
+
+fn triangle_area([a, b, c]: [Point; 3]) -> f64 {
+    0.5 * cross(a, b, c).abs()
+}
+
+/// The point where the segments `a` and `b` cross, each strictly between its ends (a
+/// touch at an end point leaves the quadrilateral simple).
+fn crossing(a: [Point; 2], b: [Point; 2]) -> Option<Point> {
+    let (a0, a1) = (cross(b[0], b[1], a[0]), cross(b[0], b[1], a[1]));
+    let (b0, b1) = (cross(a[0], a[1], b[0]), cross(a[0], a[1], b[1]));
+    if a0 * a1 >= 0.0 || b0 * b1 >= 0.0 {
+        return None;
+    }
+    let t = a0 / (a0 - a1);
+    Some([
+        a[0][0] + t * (a[1][0] - a[0][0]),
+        a[0][1] + t * (a[1][1] - a[0][1]),
+    ])
 }
 
 /// `|½ Σ_i (x_i y_{i+1} − x_{i+1} y_i)|`, the area of a simple polygon.
@@ -103,6 +143,26 @@ mod tests {
         assert!((swept_error_area(&shifted, &demo) - 20.0).abs() < 1e-12);
         assert!((dtw_distance(&shifted, &demo) - 2.0).abs() < 1e-12);
         assert!((final_point_error(&shifted, &demo) - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn paths_that_cross_within_a_step_sweep_both_lobes() {
+        // The reproduction falls from y = 1 to y = −1 across the demonstration's y = 0,
+        // crossing it halfway through the step from x = 4 to x = 5: two triangles of base
+        // 4.5 and height 1.
+        let demo = line(10, 0.0);
+        let falling: Vec<Point> = (0..10)
+            .map(|i| [i as f64, 1.0 - 2.0 * i as f64 / 9.0])
+            .collect();
+        assert!((swept_error_area(&falling, &demo) - 4.5).abs() < 1e-12);
+        // Time-aligned pairs that cross each other: the reproduction runs the step backwards.
+        let demo = [[0.0, 0.0], [1.0, 0.0]];
+        let backwards = [[1.0, 1.0], [0.0, 1.0]];
+        assert!((swept_error_area(&backwards, &demo) - 0.5).abs() < 1e-12);
+        // Touching at a sample is no crossing: the two lobes are triangles of their own steps.
+        let demo = line(3, 0.0);
+        let touching = [[0.0, 1.0], [1.0, 0.0], [2.0, 1.0]];
+        assert!((swept_error_area(&touching, &demo) - 1.0).abs() < 1e-12);
     }
 
     #[test]
