@@ -163,6 +163,82 @@ fn joints_a_chain_cannot_express_are_typed_errors() {
 }
 
 #[test]
+fn a_movable_joint_without_room_to_move_is_refused() {
+    let limited = joint("j", "revolute", "base", "a");
+    // No <limit> at all (urdf-rs reads [0, 0]), an empty range and an inverted one.
+    let without = limited.replace(
+        r#"<limit lower="-1" upper="1" effort="10" velocity="2"/>"#,
+        "",
+    );
+    let pinned = limited.replace(r#"lower="-1""#, r#"lower="1""#);
+    let inverted = limited.replace(r#"lower="-1""#, r#"lower="2""#);
+    for (case, joint_xml, range) in [
+        ("no <limit>", without, (0.0, 0.0)),
+        ("lower = upper", pinned, (1.0, 1.0)),
+        ("lower > upper", inverted, (2.0, 1.0)),
+    ] {
+        match Model::from_urdf_str(&urdf(&["a"], &joint_xml)) {
+            Err(ModelError::NoMotion {
+                joint,
+                lower,
+                upper,
+                ..
+            }) => assert_eq!((joint.as_str(), (lower, upper)), ("j", range), "{case}"),
+            other => panic!("{case}: expected NoMotion, got {other:?}"),
+        }
+    }
+    // A prismatic joint alike; a continuous joint needs no position limits at all.
+    let prismatic = joint("p", "prismatic", "base", "a").replace(r#"lower="-1""#, r#"lower="1""#);
+    assert!(matches!(
+        Model::from_urdf_str(&urdf(&["a"], &prismatic)),
+        Err(ModelError::NoMotion {
+            kind: "prismatic",
+            ..
+        })
+    ));
+    let continuous = joint("c", "continuous", "base", "a").replace(
+        r#"<limit lower="-1" upper="1" effort="10" velocity="2"/>"#,
+        "",
+    );
+    assert_eq!(
+        Model::from_urdf_str(&urdf(&["a"], &continuous))
+            .unwrap()
+            .nv(),
+        1
+    );
+    // Locked, a pinned joint holds its one position and moves nothing.
+    let held = urdf(
+        &["a", "b"],
+        &(joint("j", "revolute", "base", "a").replace(r#"lower="-1""#, r#"lower="1""#)
+            + &joint("k", "revolute", "a", "b")),
+    );
+    let lock = [LockedJoint {
+        name: "j".into(),
+        position: 1.0,
+    }];
+    assert_eq!(Model::from_urdf_str_locked(&held, &lock).unwrap().nv(), 1);
+}
+
+#[test]
+fn a_name_used_twice_is_refused() {
+    let twice = urdf(
+        &["a", "b"],
+        &(joint("j", "revolute", "base", "a") + &joint("j", "revolute", "a", "b")),
+    );
+    match Model::from_urdf_str(&twice) {
+        Err(ModelError::DuplicateName { kind, name }) => {
+            assert_eq!((kind, name.as_str()), ("joint", "j"))
+        }
+        other => panic!("expected a duplicate joint, got {other:?}"),
+    }
+    let links = urdf(&["a", "a"], &joint("j", "revolute", "base", "a"));
+    assert!(matches!(
+        Model::from_urdf_str(&links),
+        Err(ModelError::DuplicateName { kind: "link", .. })
+    ));
+}
+
+#[test]
 fn a_joint_that_moves_no_mass_is_refused() {
     // The last link has no <inertial>: its joint would make M(q) singular.
     let text = urdf(&["a"], &joint("j1", "revolute", "base", "a")).replace(

@@ -969,7 +969,13 @@ fn parse_minari_box(
     let value: Value =
         serde_json::from_str(&standard).map_err(|source| MetadataError::Json { field, source })?;
     if value["type"] != "Box" {
-        return Err(format!("only Box spaces are supported, found {}", value["type"]).into());
+        return Err(format!(
+            "its {field} is a {} space; this layout holds Box spaces only (a dataset made by \
+             another tool is read by naming the fields that hold the state: `ciflow train \
+             --state FIELD`, or `python -m ciflow.convert SOURCE OUT --state FIELD`)",
+            value["type"].as_str().unwrap_or("non-Box")
+        )
+        .into());
     }
     let bounds = |name: &str| -> std::result::Result<Vec<f64>, String> {
         value[name]

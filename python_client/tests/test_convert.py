@@ -6,6 +6,7 @@ by ``ciflow train --state ... --context``; bad fields, lengths, values and time 
 refused with messages that say where."""
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -45,13 +46,14 @@ def reach(seed: int, corrupt: bool = False) -> EpisodeBuffer:
     rng = np.random.default_rng(seed)
     x, v, goal = rng.uniform(-1, 1, 2), np.zeros(2), rng.uniform(-0.3, 0.3, 2)
     observations = {"observation": [], "achieved_goal": [], "desired_goal": []}
-    actions, rewards, distance = [], [], []
+    actions, rewards, distance, task = [], [], [], []
 
     def observe():
         observations["observation"].append(np.concatenate([x, v]))
         observations["achieved_goal"].append(x.copy())
         observations["desired_goal"].append(goal.copy())
         distance.append(float(np.linalg.norm(x - goal)))
+        task.append(np.concatenate([[STEPS * DT], goal]))  # the time limit, then the goal
 
     observe()
     for _ in range(STEPS):
@@ -68,7 +70,7 @@ def reach(seed: int, corrupt: bool = False) -> EpisodeBuffer:
         observations={k: np.array(rows) for k, rows in observations.items()},
         actions=np.array(actions), rewards=rewards,
         terminations=[False] * STEPS, truncations=[False] * (STEPS - 1) + [True],
-        infos={"distance": np.array(distance)},
+        infos={"distance": np.array(distance), "task": np.array(task)},
     )
 
 
@@ -221,6 +223,35 @@ def test_ciflow_train_fits_a_dataset_from_elsewhere(minari_root, tmp_path):
     config = json.loads((tmp_path / "from-lerobot" / "config.json").read_text())
     assert (config["state_dim"], config["context_dim"], config["dt"]) == (2, 2, 1 / 20)
 
+    # A context that is more than the state's target: which entries are the target is
+    # named, not guessed.
+    def train_with_wider_context(*extra):
+        return subprocess.run(
+            [str(BINARY), "train", "--task", "lasa", "--demos", str(source), "--state",
+             "observations/achieved_goal", "--context", "infos/task", "--dt", str(DT),
+             "--epochs", "1", *extra, "--out", str(tmp_path / "wider")],
+            capture_output=True, text=True, timeout=600,
+        )
+    guessed = train_with_wider_context()
+    assert guessed.returncode != 0
+    assert "3-D context is not the 2-D state's target" in guessed.stderr, guessed.stderr
+    assert "--goal-context-indices 0,1" in guessed.stderr
+    assert not (tmp_path / "wider" / "config.json").exists()
+    named = train_with_wider_context("--goal-context-indices", "1,2")
+    assert named.returncode == 0, named.stderr
+    config = json.loads((tmp_path / "wider" / "config.json").read_text())
+    assert (config["context_dim"], config["goal_context_indices"]) == (3, [1, 2])
+
+    # Without --state, the dataset's Dict spaces are not ciflow's layout: the fix is named.
+    unnamed = subprocess.run(
+        [str(BINARY), "train", "--task", "lasa", "--demos", str(source), "--out",
+         str(tmp_path / "unnamed")],
+        capture_output=True, text=True, timeout=600,
+    )
+    assert unnamed.returncode != 0
+    assert "is a Dict space" in unnamed.stderr and "--state FIELD" in unnamed.stderr, \
+        unnamed.stderr
+
     refused = subprocess.run(
         [str(BINARY), "train", "--task", "lasa", "--demos", str(source), "--state",
          "observations/nothing", "--dt", str(DT), "--out", str(tmp_path / "refused")],
@@ -231,6 +262,55 @@ def test_ciflow_train_fits_a_dataset_from_elsewhere(minari_root, tmp_path):
     assert "Traceback" not in refused.stderr
     assert not (tmp_path / "refused" / "config.json").exists()
 
+
+
+def test_a_damaged_lerobot_dataset_is_refused_naming_the_episode_and_frame(tmp_path):
+    """A frame without its state, a state row of another length, and an episode of one
+    frame (no step) are each refused with the field, episode and frame named."""
+    import shutil
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    def damaged(name, change):
+        root = tmp_path / name
+        shutil.copytree(LEROBOT_FIXTURE, root)
+        data = next((root / "data").glob("**/*.parquet"))
+        pq.write_table(change(pq.read_table(data)), data)
+        return root
+
+    def with_states(table, rows):
+        state = pa.array(rows, pa.list_(pa.float32()))
+        return table.set_column(table.schema.get_field_index("observation.state"),
+                                "observation.state", state)
+
+    def states(table):
+        return table.column("observation.state").to_pylist()
+
+    def without(table):
+        rows = states(table)
+        rows[30] = None  # episode 1, frame 5
+        return with_states(table, rows)
+
+    def ragged(table):
+        rows = states(table)
+        rows[60] = rows[60][:3]  # episode 2, frame 10
+        return with_states(table, rows)
+
+    def one_frame(table):
+        keep = [i for i, e in enumerate(table.column("episode_index").to_pylist())
+                if e != 1 or i == 25]
+        return table.take(keep)
+
+    for name, change, message in (
+        ("null", without, "'observation.state' has no value at episode 1, frame 5"),
+        ("ragged", ragged, "'observation.state' holds 3 value(s) at episode 2, frame 10 but 4"),
+        ("short", one_frame, "episode 1: 1 frame(s), no step"),
+    ):
+        with pytest.raises(ConversionError, match=re.escape(message)):
+            convert(damaged(name, change), tmp_path / f"{name}-out", "observation.state[0:2]",
+                    "observation.goal")
+        assert not (tmp_path / f"{name}-out").exists()
 
 
 def test_a_dataset_without_context_goes_to_lerobot_and_back(tmp_path):

@@ -23,6 +23,19 @@ pub enum ModelError {
          and inertia (a URDF link without <inertial> is massless)"
     )]
     Massless { joint: String, link: String },
+    #[error(
+        "joint `{joint}` ({kind}) has position limits [{lower}, {upper}], which leave it no \
+         motion: a revolute or prismatic joint needs a <limit> with lower < upper (a missing \
+         <limit> reads as [0, 0]); make it continuous or fixed, or lock it at a position"
+    )]
+    NoMotion {
+        joint: String,
+        kind: &'static str,
+        lower: f64,
+        upper: f64,
+    },
+    #[error("the URDF has two {kind}s named `{name}`")]
+    DuplicateName { kind: &'static str, name: String },
     #[error("the URDF is not a serial chain: {0}")]
     NotSerialChain(String),
     #[error("{what} is not finite")]

@@ -77,6 +77,10 @@ struct ChainBuilder<'a> {
 
 impl<'a> ChainBuilder<'a> {
     fn new(robot: &'a urdf_rs::Robot, locked: &'a [LockedJoint]) -> Result<Self, ModelError> {
+        // Names are how joints are locked and frames found: a second one would shadow the
+        // first.
+        unique_names("link", robot.links.iter().map(|l| l.name.as_str()))?;
+        unique_names("joint", robot.joints.iter().map(|j| j.name.as_str()))?;
         let links: HashMap<_, _> = robot.links.iter().map(|l| (l.name.as_str(), l)).collect();
         let mut children: HashMap<&str, Vec<&urdf_rs::Joint>> = HashMap::new();
         for joint in &robot.joints {
@@ -251,6 +255,18 @@ impl<'a> ChainBuilder<'a> {
             urdf_rs::JointType::Continuous => (Real::NEG_INFINITY, Real::INFINITY),
             _ => (joint.limit.lower, joint.limit.upper),
         };
+        // NaN bounds are refused with the other limits' checks, by the model.
+        if lower >= upper {
+            return Err(ModelError::NoMotion {
+                joint: joint.name.clone(),
+                kind: match joint.joint_type {
+                    urdf_rs::JointType::Prismatic => "prismatic",
+                    _ => "revolute",
+                },
+                lower,
+                upper,
+            });
+        }
         self.limits.push((
             lower,
             upper,
@@ -297,6 +313,23 @@ fn unit_axis(joint: &urdf_rs::Joint) -> Result<Vector3, ModelError> {
             joint: joint.name.clone(),
         }),
     }
+}
+
+/// Refuses a second `kind` (link or joint) of the same name.
+fn unique_names<'a>(
+    kind: &'static str,
+    names: impl Iterator<Item = &'a str>,
+) -> Result<(), ModelError> {
+    let mut seen = std::collections::HashSet::new();
+    for name in names {
+        if !seen.insert(name) {
+            return Err(ModelError::DuplicateName {
+                kind,
+                name: name.to_owned(),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// URDF writes `0` for an omitted velocity or effort limit.

@@ -222,9 +222,13 @@ def _lerobot(root: Path) -> Source:
     numeric = [name for name, feature in info.get("features", {}).items()
                if feature.get("dtype") not in ("video", "image", "string")
                and name in table.column_names]
-    columns = {name: _column(table, name) for name in numeric}
     episode_index = table.column("episode_index").to_numpy()
     frame_index = table.column("frame_index").to_numpy()
+
+    def where(row: int) -> str:
+        return f"episode {episode_index[row]}, frame {frame_index[row]}"
+
+    columns = {name: _column(table, name, where) for name in numeric}
 
     def episodes():
         for episode in np.unique(episode_index):
@@ -232,6 +236,8 @@ def _lerobot(root: Path) -> Source:
             rows = rows[np.argsort(frame_index[rows], kind="stable")]
             arrays = {name: values[rows] for name, values in columns.items()}
             steps = len(rows) - 1
+            if steps < 1:
+                raise ConversionError(f"episode {episode}: {len(rows)} frame(s), no step")
 
             def per_step(name: str) -> np.ndarray:
                 return arrays[name][:-1] if name in arrays else np.zeros((steps, 0))
@@ -267,13 +273,25 @@ def _concat(pq, files):
     return pa.concat_tables([pq.read_table(f) for f in files])
 
 
-def _column(table, name: str) -> np.ndarray:
-    """A numeric column as a 2-D float64 array (lists of numbers become rows)."""
+def _column(table, name: str, where) -> np.ndarray:
+    """A numeric column as a 2-D float64 array (lists of numbers become rows, which must
+    all be there and all be as long; `where(row)` names a row in errors)."""
     import pyarrow as pa
 
     column = table.column(name).combine_chunks()
     if pa.types.is_list(column.type) or pa.types.is_fixed_size_list(column.type):
-        width = len(column[0]) if len(column) else 0
+        missing = np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))
+        if len(missing):
+            raise ConversionError(
+                f"{name!r} has no value at {where(missing[0])} ({len(missing)} row(s) empty)")
+        lengths = column.value_lengths().to_numpy(zero_copy_only=False) \
+            if pa.types.is_list(column.type) else np.full(len(column), column.type.list_size)
+        width = int(lengths[0]) if len(lengths) else 0
+        ragged = np.flatnonzero(lengths != width)
+        if len(ragged):
+            raise ConversionError(
+                f"{name!r} holds {lengths[ragged[0]]} value(s) at {where(ragged[0])} but "
+                f"{width} at {where(0)}: every frame needs as many")
         values = column.flatten().to_numpy(zero_copy_only=False)
         return values.astype(np.float64).reshape(len(column), width)
     return column.to_numpy(zero_copy_only=False).astype(np.float64).reshape(len(column), 1)
