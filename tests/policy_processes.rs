@@ -131,6 +131,61 @@ fn served_policy_acts_like_the_in_process_actor_and_bad_checkpoints_are_refused(
     );
 }
 
+/// A checkpoint whose shapes fit no task's default (one obstacle, where the task's default
+/// has three, standing in for one trained on data from elsewhere) is refused by `--policy`
+/// with the way out named, and served by `--own-data-policy` on its own observations:
+/// `act` answers what the in-process actor computes on them, unclipped.
+#[test]
+fn a_checkpoint_on_its_own_data_is_served_without_a_task() {
+    let scratch = Scratch::new("policy-own-data");
+    let dir = scratch.join("mine");
+    write_flow(&dir, 2);
+    let refusal = refused(
+        &[
+            "serve",
+            "--listen",
+            &endpoint(27537),
+            "--policy",
+            &dir.display().to_string(),
+        ],
+        "cannot act",
+    );
+    assert!(refusal.contains("--own-data-policy"), "{refusal}");
+
+    let dir_arg = format!("mine={}", dir.display());
+    let _server = serve(27536, "policy-own-data", &["--own-data-policy", &dir_arg]);
+    let client = connect(27536);
+    let info = client.engine_info("policy-own-data").unwrap();
+    let listed = info.policies.iter().find(|p| p.name == "mine").unwrap();
+    assert_eq!(
+        (
+            listed.task.as_str(),
+            listed.observation_dim,
+            listed.action_dim
+        ),
+        (ciflow_envs::actor::OWN_DATA_TASK, 8, 2)
+    );
+    // Far from the demonstrations, where the task would clip the action to its bounds.
+    let far: Vec<f64> = OBSERVATIONS.iter().map(|o| 40.0 * o).collect();
+    let remote = client.act("policy-own-data", "mine", &far).unwrap();
+    let model = Model::load(&dir, None).unwrap();
+    let mut actor = Actor::new(&model, &model.own_data_spec(), DEFAULT_VELOCITY_GAIN).unwrap();
+    let mut local = vec![0.0; 6];
+    for (o, a) in far.chunks(8).zip(local.chunks_mut(2)) {
+        actor.act(o, a).unwrap();
+    }
+    assert_eq!(remote, local);
+    let bound = obstacle_avoidance::make(1).unwrap();
+    let high = &ciflow_envs::Env::spec(&bound).action_space.high;
+    assert!(
+        remote
+            .iter()
+            .zip(high.iter().cycle())
+            .any(|(a, h)| a.abs() > *h),
+        "unclipped: some action exceeds the task's bound {high:?}: {remote:?}"
+    );
+}
+
 /// Waits until the engine lists policy `name` with `epoch`.
 fn wait_for_epoch(client: &Client, engine: &str, name: &str, epoch: u64) {
     let deadline = Instant::now() + Duration::from_secs(10);

@@ -1,6 +1,7 @@
 //! [`CheckpointPolicy`]: a trained checkpoint (stable flow or baseline) served as a
 //! [`Policy`], acting through [`ciflow_envs::actor::Actor`] on observations `[q, q̇, c]`
-//! of the task it was trained for.
+//! of the task it was trained for, or of its own data when it was trained on data from
+//! elsewhere ([`CheckpointPolicy::on_own_data`]).
 
 use std::path::Path;
 use std::sync::Mutex;
@@ -60,10 +61,6 @@ impl CheckpointPolicy {
         tasks: &[TaskFactory],
         kwargs: &Kwargs,
     ) -> Result<Self, PolicyLoadError> {
-        let name = name.unwrap_or(model.task()).to_owned();
-        if !keys::is_plain_chunk(&name) {
-            return Err(PolicyLoadError::BadName(name));
-        }
         let factory = tasks
             .iter()
             .find(|t| t.is_named(model.task()))
@@ -84,6 +81,30 @@ impl CheckpointPolicy {
             false => kwargs.clone(),
         };
         let spec = (factory.make)(&kwargs).map_err(task_error)?.spec().clone();
+        Self::serving(name, model, spec, kwargs)
+    }
+
+    /// Serves `model` as `name` (default: the checkpoint's task name) acting on its own
+    /// data's observations, with no task environment ([`Model::own_data_spec`]): a
+    /// checkpoint trained on data from elsewhere, whose shapes fit none of the tasks.
+    /// Clients `act` with it (a session whose observations happen to have its shapes can
+    /// run it too: only the shapes are checked there).
+    pub fn on_own_data(name: Option<&str>, model: Model) -> Result<Self, PolicyLoadError> {
+        let spec = model.own_data_spec();
+        Self::serving(name, model, spec, Kwargs::new())
+    }
+
+    /// `model` served as `name` (default: its task name) in `spec`, built with `kwargs`.
+    fn serving(
+        name: Option<&str>,
+        model: Model,
+        spec: EnvSpec,
+        kwargs: Kwargs,
+    ) -> Result<Self, PolicyLoadError> {
+        let name = name.unwrap_or(model.task()).to_owned();
+        if !keys::is_plain_chunk(&name) {
+            return Err(PolicyLoadError::BadName(name));
+        }
         // Building the first actor checks the shapes; it then seeds the pool.
         let actor = Actor::new(&model, &spec, DEFAULT_VELOCITY_GAIN)?;
         Ok(Self {

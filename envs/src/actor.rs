@@ -24,7 +24,10 @@ use ciflow_engine::flow::{
 };
 
 use crate::env::EnvSpec;
-use crate::space::BoxSpace;
+use crate::space::{BoxSpace, Dtype};
+
+/// The task id of a policy acting on its own data ([`Model::own_data_spec`]).
+pub const OWN_DATA_TASK: &str = "own-data";
 
 /// Velocity-feedback gain `K_v` (1/s): the velocity error's time constant is 0.1 s, ten
 /// control periods of the slowest task.
@@ -144,6 +147,30 @@ impl Model {
         match self {
             Self::Flow(policy) => policy.config().dt,
             Self::Baseline(baseline) => baseline.config().dt,
+        }
+    }
+
+    /// What the model acts on where no task environment fits it (a checkpoint trained on
+    /// data from elsewhere, `ciflow train --state`): observations `[q, q̇, c]` of its own
+    /// dimensions and actions `q̈_des`, unbounded (no actuator to saturate), held for its
+    /// period `dt`.
+    pub fn own_data_spec(&self) -> EnvSpec {
+        let (d, c) = (self.state_dim(), self.context_dim());
+        let unbounded = |n: usize| {
+            BoxSpace::new(
+                vec![f64::NEG_INFINITY; n],
+                vec![f64::INFINITY; n],
+                Dtype::Float64,
+            )
+        };
+        EnvSpec {
+            id: OWN_DATA_TASK.to_owned(),
+            observation_space: unbounded(2 * d + c),
+            action_space: unbounded(d),
+            context_space: unbounded(c),
+            control_dt: self.dt(),
+            physics_dt: self.dt(),
+            max_episode_steps: u32::MAX,
         }
     }
 }

@@ -17,12 +17,13 @@ import pytest
 from gymnasium import spaces
 from minari.data_collector.episode_buffer import EpisodeBuffer
 
+import ciflow
 from ciflow import _native
 from ciflow.convert import ConversionError, Field, convert, to_lerobot
 
 # pytest runs with --import-mode=importlib: conftest is not on sys.path by itself.
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from conftest import BINARY  # noqa: E402
+from conftest import BINARY, free_port, start_process  # noqa: E402
 
 DT = 0.05
 STEPS = 60
@@ -241,6 +242,23 @@ def test_ciflow_train_fits_a_dataset_from_elsewhere(minari_root, tmp_path):
     assert named.returncode == 0, named.stderr
     config = json.loads((tmp_path / "wider" / "config.json").read_text())
     assert (config["context_dim"], config["goal_context_indices"]) == (3, [1, 2])
+
+    # Served on its own observations [q, q̇, c] (its shapes fit no task), it acts from
+    # Python; a batch answers row by row.
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    engine = start_process([str(BINARY), "serve", "--listen", endpoint, "--name", "own-data",
+                            "--own-data-policy", f"mine={tmp_path / 'wider'}"])
+    try:
+        policy = ciflow.Policy("mine", engine=endpoint)
+        assert (policy.task, policy.observation_dim, policy.action_dim) == ("own-data", 7, 2)
+        rows = np.array([[0.5, -0.5, 0.0, 0.0, 3.0, 0.1, -0.2],
+                         [-0.2, 0.4, 0.1, 0.0, 3.0, 0.2, 0.2]])
+        batch = policy.act(rows)
+        assert batch.shape == (2, 2) and np.isfinite(batch).all()
+        np.testing.assert_array_equal(batch[1], policy.act(rows[1]))
+    finally:
+        engine.terminate()
+        engine.wait(timeout=10)
 
     # Without --state, the dataset's Dict spaces are not ciflow's layout: the fix is named.
     unnamed = subprocess.run(

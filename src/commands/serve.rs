@@ -5,8 +5,10 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use ciflow_bridge::{
-    CheckpointPolicy, EngineServer, Kwargs, Policy, ServerOptions, default_endpoint, scheduling,
+    CheckpointPolicy, EngineServer, Kwargs, Policy, PolicyLoadError, ServerOptions,
+    default_endpoint, scheduling,
 };
+use ciflow_envs::actor::Model;
 
 use ciflow_cli::network::NetworkArgs;
 use ciflow_cli::parse::{parse_named_dir, parse_number_pair};
@@ -34,6 +36,11 @@ pub struct ServeArgs {
     /// `run`; a trainer's publications under the same name replace it without a restart.
     #[arg(long = "policy", value_name = "[NAME=]DIR", value_parser = parse_named_dir)]
     pub policies: Vec<(Option<String>, PathBuf)>,
+    /// A checkpoint trained on data from elsewhere (`ciflow train --state`) to serve on its
+    /// own observations `[q, q̇, c]`, with no task environment, `[NAME=]DIR` (repeatable):
+    /// clients evaluate it with `act` (`ciflow.Policy(NAME).act(observation)`).
+    #[arg(long = "own-data-policy", value_name = "[NAME=]DIR", value_parser = parse_named_dir)]
+    pub own_data_policies: Vec<(Option<String>, PathBuf)>,
     /// Construction argument of the policies' task, as given to `ciflow demos --kwarg`
     /// when the checkpoint's data was made (e.g. obstacles=1; repeatable). Without any,
     /// each checkpoint's own recorded arguments apply.
@@ -68,14 +75,24 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         .into_iter()
         .map(|(name, value)| (name, value.into()))
         .collect();
-    options.policies = args
-        .policies
-        .iter()
-        .map(|(name, dir)| {
-            let policy = CheckpointPolicy::load(name.as_deref(), dir, &options.tasks, &kwargs)
-                .with_context(|| format!("loading the policy --policy {}", dir.display()))?;
-            anyhow::Ok(Arc::new(policy) as Arc<dyn Policy>)
+    let in_task = args.policies.iter().map(|(name, dir)| {
+        CheckpointPolicy::load(name.as_deref(), dir, &options.tasks, &kwargs).with_context(|| {
+            format!(
+                "loading the policy --policy {} (a checkpoint trained on data from \
+                     elsewhere is served with --own-data-policy)",
+                dir.display()
+            )
         })
+    });
+    let on_own_data = args.own_data_policies.iter().map(|(name, dir)| {
+        Model::load(dir, None)
+            .map_err(PolicyLoadError::from)
+            .and_then(|model| CheckpointPolicy::on_own_data(name.as_deref(), model))
+            .with_context(|| format!("loading the policy --own-data-policy {}", dir.display()))
+    });
+    options.policies = in_task
+        .chain(on_own_data)
+        .map(|policy| anyhow::Ok(Arc::new(policy?) as Arc<dyn Policy>))
         .collect::<anyhow::Result<_>>()?;
     let policy_names: Vec<String> = options.policies.iter().map(|p| p.info().name).collect();
     let task_ids: Vec<String> = options.tasks.iter().map(|t| t.id.clone()).collect();
