@@ -76,13 +76,14 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         .map(|(name, value)| (name, value.into()))
         .collect();
     let in_task = args.policies.iter().map(|(name, dir)| {
-        CheckpointPolicy::load(name.as_deref(), dir, &options.tasks, &kwargs).with_context(|| {
-            format!(
-                "loading the policy --policy {} (a checkpoint trained on data from \
-                     elsewhere is served with --own-data-policy)",
-                dir.display()
-            )
-        })
+        let loaded = CheckpointPolicy::load(name.as_deref(), dir, &options.tasks, &kwargs);
+        let hint = match loaded {
+            Err(PolicyLoadError::Shape(_)) => {
+                " (a checkpoint trained on data from elsewhere is served with --own-data-policy)"
+            }
+            _ => "",
+        };
+        loaded.with_context(|| format!("loading the policy --policy {}{hint}", dir.display()))
     });
     let on_own_data = args.own_data_policies.iter().map(|(name, dir)| {
         Model::load(dir, None)
