@@ -3,7 +3,7 @@
 mod common;
 
 use ciflow_engine::math::DVector;
-use ciflow_engine::robot::{DynamicsError, Robot, panda};
+use ciflow_engine::robot::{DynamicsError, Robot, SerialChain, panda};
 use common::*;
 
 #[test]
@@ -57,4 +57,36 @@ fn forward_dynamics_rejects_bad_torque() {
             actual: 8
         })
     ));
+}
+
+/// A joint whose link is a point mass on its own axis (mass, no rotational inertia, nothing
+/// after it) gives a singular `M(q)`: refused, naming that joint.
+#[test]
+fn forward_dynamics_names_the_joint_that_moves_nothing() {
+    let urdf = r#"<robot name="r"><link name="base"/>
+        <link name="a"><inertial><origin xyz="0.3 0 0"/><mass value="1"/>
+            <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+        <link name="b"><inertial><origin xyz="0 0 0"/><mass value="2"/>
+            <inertia ixx="0" iyy="0" izz="0" ixy="0" ixz="0" iyz="0"/></inertial></link>
+        <joint name="j0" type="revolute"><parent link="base"/><child link="a"/>
+            <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="10" velocity="2"/></joint>
+        <joint name="j1" type="revolute"><parent link="a"/><child link="b"/>
+            <origin xyz="0.6 0 0"/><axis xyz="0 0 1"/>
+            <limit lower="-3" upper="3" effort="10" velocity="2"/></joint>
+        </robot>"#;
+    let mut robot = SerialChain::from_urdf_str(urdf).unwrap();
+    let mut qdd = DVector::zeros(2);
+    assert_eq!(
+        robot.forward_dynamics(&[0.1, 0.2], &[0.0; 2], &[0.0; 2], &mut qdd),
+        Err(DynamicsError::NotPositiveDefinite { joint: 1 })
+    );
+    // The same link with rotational inertia about the axis moves.
+    let turning = urdf.replace(
+        r#"ixx="0" iyy="0" izz="0""#,
+        r#"ixx="0" iyy="0" izz="0.02""#,
+    );
+    let mut robot = SerialChain::from_urdf_str(&turning).unwrap();
+    robot
+        .forward_dynamics(&[0.1, 0.2], &[0.0; 2], &[0.0; 2], &mut qdd)
+        .unwrap();
 }

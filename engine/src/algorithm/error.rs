@@ -33,8 +33,12 @@ pub enum DynamicsError {
     NoFrameNamed { name: String, known: Vec<String> },
     #[error("link {index} does not exist (the robot has {count} movable links)")]
     NoSuchLink { index: usize, count: usize },
-    #[error("the mass matrix is not positive definite")]
-    NotPositiveDefinite,
+    #[error(
+        "the mass matrix is not positive definite: movable joint {joint} (counted from 0 \
+         along the chain) moves no mass or inertia that the joints before it do not already \
+         (e.g. its link's mass lies on its axis with no rotational inertia)"
+    )]
+    NotPositiveDefinite { joint: usize },
 }
 
 /// Checks the length of a vector (e.g. an output buffer).

@@ -99,7 +99,7 @@ fn cholesky_in_place(matrix: &mut DMatrix) -> Result<(), DynamicsError> {
         }
         // Also rejects a NaN pivot.
         if diagonal.is_nan() || diagonal <= 0.0 {
-            return Err(DynamicsError::NotPositiveDefinite);
+            return Err(DynamicsError::NotPositiveDefinite { joint: j });
         }
         let inverse = 1.0 / diagonal.sqrt();
         a[j + j * n] = inverse;
