@@ -369,7 +369,12 @@ impl FlowConfig {
         }
         let (d, m) = (self.state_dim, self.context_dim);
         if d < 2 {
-            return Err(invalid("state_dim must be at least 2".into()));
+            // The couplings transform one part of the state conditioned on the other, and
+            // the latent turns and contracts in the plane of its first two coordinates.
+            return Err(invalid(format!(
+                "the state has {d} dimension(s); a flow needs at least 2 (its couplings \
+                 split the state in two, its latent acts in a plane)"
+            )));
         }
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(invalid("dt must be finite and > 0".into()));
