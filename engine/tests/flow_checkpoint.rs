@@ -144,6 +144,12 @@ fn bad_inputs_are_typed_errors() {
         Policy::new(&bad, random_weights(&config, 4)),
         Err(FlowError::InvalidConfig(_))
     ));
+    let mut one_dimensional = config.clone();
+    one_dimensional.state_dim = 1;
+    match one_dimensional.validate() {
+        Err(FlowError::InvalidConfig(why)) => assert!(why.contains("needs at least 2"), "{why}"),
+        other => panic!("a 1-D state: {other:?}"),
+    }
 }
 
 /// A `config.json` written before context sets existed has none; one with sets round-trips
