@@ -752,11 +752,14 @@ def stability(report, root):
                "next column the share ending within 10, 100 and 1000 times that. A rollout "
                "*stalls away* when its step stays below 1e-7 of the diagonal for 200 steps "
                "in a row farther than the tolerance from the attractor: the end point of a "
-               "spurious attractor.",
+               "spurious attractor. Converging says nothing of the way there: *left the start "
+               "box* counts the paths that went beyond the box their starts were drawn from "
+               "(where a robot's end stops would be), with the farthest reach in "
+               "demonstration boxes.",
                "", "| policy | contexts | converged | within 10× / 100× / 1000× the tolerance "
-               "| rollouts | non-finite | stalled away (spurious attractors) | negative control "
-               "flagged | through the robot loop |",
-               "|---|---|---|---|---|---|---|---|---|")
+               "| rollouts | non-finite | stalled away (spurious attractors) | left the start "
+               "box (farthest reach) | negative control flagged | through the robot loop |",
+               "|---|---|---|---|---|---|---|---|---|---|")
     names, fractions = [], {"training": [], "far": []}
     for path in runs:
         measured = load(path)
@@ -779,9 +782,11 @@ def stability(report, root):
             contexts = ("training box" if regime == "training"
                         else f"up to {s.get('context_scale', '?')}× outside")
             looser = " / ".join(percent(w["fraction"]) for w in s.get("within", [])[1:]) or "—"
+            left = ("—" if s.get("left_start_box") is None
+                    else f"{s['left_start_box']} ({s['largest_reach']:.0f}×)")
             report.add(f"| {path.stem} | {contexts} | {percent(s['fraction'])} | {looser} | "
                        f"{s['rollouts']} | {s.get('diverged_to_non_finite', 0)} | "
-                       f"{s.get('stalled_away', '—')} | "
+                       f"{s.get('stalled_away', '—')} | {left} | "
                        f"{flagged if regime == 'training' else ''} | "
                        f"{through if regime == 'training' else ''} |")
     fig, ax = plt.subplots(figsize=(max(4, 1.4 * len(names)), 3.5))

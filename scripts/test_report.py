@@ -125,7 +125,8 @@ def experiments(tmp_path):
     write(root / "stability" / "pouring-flow.json", {
         "observation_space": {"fraction": 1.0, "rollouts": 50, "diverged_to_non_finite": 0,
                               "stalled_away": 0, "within": within(1.0, 1.0, 1.0, 1.0),
-                              "context_scale": 1.0},
+                              "context_scale": 1.0, "left_start_box": 3,
+                              "largest_reach": 212.4},
         "far_contexts": {"fraction": 0.98, "rollouts": 50, "diverged_to_non_finite": 1,
                          "stalled_away": 0, "within": within(0.98, 0.98, 0.98, 0.98),
                          "context_scale": 10.0},
@@ -206,11 +207,11 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     # The collision target: met by the radial model's 0 of 100; a rate above 1% fails.
     assert "| collisions, 3 obstacles | 0.0% of 100 episodes | ≤ 1% | **pass** |" in text
     assert ("| pouring-flow | training box | 100.0% | 100.0% / 100.0% / 100.0% | 50 | 0 | 0 | "
-            "100.0% of 40 | 95.0% of 20 |") in text
+            "3 (212×) | 100.0% of 40 | 95.0% of 20 |") in text
     assert ("| pouring-flow | up to 10.0× outside | 98.0% | 98.0% / 98.0% / 98.0% | 50 | 1 | 0 "
-            "|  |  |") in text
+            "| — |  |  |") in text
     assert ("| pouring-baseline | training box | 40.0% | 50.0% / 60.0% / 70.0% | 50 | 3 | 5 | "
-            "— | not run |") in text
+            "— | — | not run |") in text
     assert "| flow | — | 100 of 100 | 42 | 6.5% of 1000 | 7 | 130 |" in text
     assert ("| joint-range | 40 N for 0.2 s on the hand at 1 s | 100 of 100 | 3 | 1.2% of 1000 | 7 |"
             in text)

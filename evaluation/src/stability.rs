@@ -19,6 +19,12 @@
 //! stalled); and the rollouts that *stalled* away from the attractor — their step
 //! `‖y_{k+1} − y_k‖` stayed below `stall_speed · diag` for `stall_steps` consecutive
 //! steps farther than the tolerance from it: end points of spurious attractors.
+//!
+//! Convergence says nothing of the way there, which a robot has to follow within its
+//! limits. Each rollout also records its *reach*: the smallest scale of the state box
+//! (about its centre) that holds its whole path, `max_k max_i |y_k,i − m_i| / h_i` with
+//! `m` the box's centre and `h` its half-widths; a path that leaves the box its start was
+//! drawn from (`reach > scale`) would run into end stops placed there.
 
 use std::ops::Range;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -109,6 +115,13 @@ pub struct StabilityReport {
     pub stalled_away: usize,
     /// The share ending within each of [`TOLERANCE_FACTORS`] times the tolerance.
     pub within: Vec<ShareWithin>,
+    /// Rollouts whose path left the box the starts were drawn from (reach > `scale`),
+    /// diverged ones included; `None` when an ending came without its reach (from an
+    /// engine of an earlier build).
+    pub left_start_box: Option<usize>,
+    /// The largest reach of a finite rollout's path, in state boxes (module docs); `None`
+    /// as above.
+    pub largest_reach: Option<f64>,
 }
 
 /// How one rollout ended: what [`rollouts`] returns per rollout and
@@ -116,19 +129,43 @@ pub struct StabilityReport {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "ending", rename_all = "snake_case")]
 pub enum Ending {
-    Converged { steps: usize },
+    Converged {
+        steps: usize,
+        /// Optional on the wire: engines of earlier builds do not send it.
+        #[serde(default)]
+        reach: Option<f64>,
+    },
     NonFinite,
-    Stalled { distance: f64 },
-    OutOfSteps { distance: f64 },
+    Stalled {
+        distance: f64,
+        #[serde(default)]
+        reach: Option<f64>,
+    },
+    OutOfSteps {
+        distance: f64,
+        #[serde(default)]
+        reach: Option<f64>,
+    },
 }
 
 impl Ending {
+    /// The rollout's reach (module docs; infinite when it left for a non-finite state),
+    /// if measured.
+    pub fn reach(self) -> Option<f64> {
+        match self {
+            Ending::NonFinite => Some(f64::INFINITY),
+            Ending::Converged { reach, .. }
+            | Ending::Stalled { reach, .. }
+            | Ending::OutOfSteps { reach, .. } => reach,
+        }
+    }
+
     /// Distance to the attractor where the rollout ended (infinite when it left).
     fn distance(self, tolerance: f64) -> f64 {
         match self {
             Ending::Converged { .. } => tolerance,
             Ending::NonFinite => f64::INFINITY,
-            Ending::Stalled { distance } | Ending::OutOfSteps { distance } => distance,
+            Ending::Stalled { distance, .. } | Ending::OutOfSteps { distance, .. } => distance,
         }
     }
 }
@@ -269,15 +306,26 @@ impl StabilityReport {
             diverged_to_non_finite: 0,
             stalled_away: 0,
             within: Vec::new(),
+            left_start_box: None,
+            largest_reach: None,
         };
+        if let Some(reaches) = endings
+            .iter()
+            .map(|e| e.reach())
+            .collect::<Option<Vec<_>>>()
+        {
+            report.left_start_box = Some(reaches.iter().filter(|&&r| r > config.scale).count());
+            let finite = reaches.iter().filter(|r| r.is_finite());
+            report.largest_reach = Some(finite.fold(0.0, |a, &r| f64::max(a, r)));
+        }
         for ending in endings {
             match *ending {
-                Ending::Converged { steps } => {
+                Ending::Converged { steps, .. } => {
                     report.converged += 1;
                     report.max_steps_to_converge = report.max_steps_to_converge.max(steps);
                 }
                 Ending::NonFinite => report.diverged_to_non_finite += 1,
-                Ending::Stalled { distance } | Ending::OutOfSteps { distance } => {
+                Ending::Stalled { distance, .. } | Ending::OutOfSteps { distance, .. } => {
                     report.stalled_away += usize::from(matches!(ending, Ending::Stalled { .. }));
                     report.worst_final_distance = report.worst_final_distance.max(distance);
                 }
@@ -310,6 +358,9 @@ struct Rollout<'a, M: MeanDynamics> {
     /// Radii in observation units: converged and stalled step.
     tolerance: f64,
     stall: f64,
+    /// The state box's centre and half-widths, which a reach is measured in.
+    centre: Vec<f64>,
+    half: Vec<f64>,
 }
 
 impl<'a, M: MeanDynamics> Rollout<'a, M> {
@@ -325,7 +376,27 @@ impl<'a, M: MeanDynamics> Rollout<'a, M> {
             context: vec![0.0; bounds.context_min.len()],
             tolerance,
             stall: config.stall_speed * diagonal,
+            centre: (bounds.state_min.iter().zip(&bounds.state_max))
+                .map(|(lo, hi)| 0.5 * (lo + hi))
+                .collect(),
+            // A flat side of the box (one value in the data) measures in units of the
+            // diagonal instead of dividing by zero.
+            half: (bounds.state_min.iter().zip(&bounds.state_max))
+                .map(|(lo, hi)| {
+                    (0.5 * (hi - lo))
+                        .max(1e-9 * diagonal)
+                        .max(f64::MIN_POSITIVE)
+                })
+                .collect(),
         }
+    }
+
+    /// The smallest scale of the state box that holds `y` (module docs).
+    fn reach_of(&self, y: &[f64]) -> f64 {
+        y.iter()
+            .zip(self.centre.iter().zip(&self.half))
+            .map(|(y, (m, h))| (y - m).abs() / h)
+            .fold(0.0, f64::max)
     }
 
     /// Rollout `trial`: its start and context, then steps until it ends.
@@ -353,6 +424,7 @@ impl<'a, M: MeanDynamics> Rollout<'a, M> {
             self.context[i] = rng.random_range(bounds.context_min[i]..=bounds.context_max[i]);
         }
         let (mut step, mut stalled) = (0, 0);
+        let mut reach = self.reach_of(self.stepper.state());
         loop {
             step += 1;
             stalled = match self.stepper.step(&self.context, &mut self.ws)? < self.stall {
@@ -363,6 +435,7 @@ impl<'a, M: MeanDynamics> Rollout<'a, M> {
             if y.iter().any(|v| !v.is_finite()) {
                 return Ok(Ending::NonFinite);
             }
+            reach = reach.max(self.reach_of(y));
             let (stalls, last) = (stalled >= config.stall_steps, step >= config.max_steps);
             if stalls || last || step % config.check_every == 0 {
                 let distance = self.model.attractor_distance(
@@ -371,14 +444,15 @@ impl<'a, M: MeanDynamics> Rollout<'a, M> {
                     &mut self.ws,
                     &mut self.scratch,
                 )?;
+                let reach = Some(reach);
                 if distance <= self.tolerance {
-                    return Ok(Ending::Converged { steps: step });
+                    return Ok(Ending::Converged { steps: step, reach });
                 }
                 if stalls {
-                    return Ok(Ending::Stalled { distance });
+                    return Ok(Ending::Stalled { distance, reach });
                 }
                 if last {
-                    return Ok(Ending::OutOfSteps { distance });
+                    return Ok(Ending::OutOfSteps { distance, reach });
                 }
             }
         }

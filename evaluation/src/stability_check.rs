@@ -354,6 +354,14 @@ impl fmt::Display for StabilityCheckReport {
                 .map(|share| format!("{:.1}% within {}x", 100.0 * share.fraction, share.factor))
                 .collect();
             writeln!(f, "  ending near the attractor: {}", shares.join(", "))?;
+            if let (Some(left), Some(reach)) = (report.left_start_box, report.largest_reach) {
+                writeln!(
+                    f,
+                    "  the way there: {left} of {} paths left the {}x box their starts were \
+                     drawn from (the farthest reached {reach:.1}x the demonstrations' box)",
+                    report.rollouts, rollouts.scale,
+                )?;
+            }
         }
         if let Some(report) = &self.negative_control {
             writeln!(

@@ -16,7 +16,9 @@ use ciflow_engine::math::distance;
 use ciflow_envs::actor::Model;
 use ciflow_evaluation::EvaluationError;
 use ciflow_evaluation::robot_loop::RobotLoopConfig;
-use ciflow_evaluation::stability::{StabilityConfig, TOLERANCE_FACTORS, measure};
+use ciflow_evaluation::stability::{
+    Ending, StabilityConfig, StabilityReport, TOLERANCE_FACTORS, measure,
+};
 use ciflow_evaluation::stability_check::{StabilityCheck, check_stability};
 use flow_common::*;
 
@@ -189,6 +191,54 @@ fn rollouts_stalled_at_a_spurious_attractor_are_counted_and_end_there() {
     for share in &report.within {
         assert_eq!(share.fraction, report.fraction, "{report:?}");
     }
+}
+
+/// `y ← 0.5 y`: every path runs straight in, inside the box its start was drawn from.
+fn halving(y: &[f64], _: &[f64], out: &mut [f64]) {
+    for (o, yi) in out.iter_mut().zip(y) {
+        *o = 0.5 * yi;
+    }
+}
+
+/// `y ← A y`, `A = [[0.5, 20], [0, 0.5]]`: both eigenvalues 0.5, so every path converges,
+/// but `A` is far from normal and first throws a path out along `x` by up to ~15 times
+/// its `y`.
+fn shear(y: &[f64], _: &[f64], out: &mut [f64]) {
+    out[0] = 0.5 * y[0] + 20.0 * y[1];
+    out[1] = 0.5 * y[1];
+}
+
+#[test]
+fn paths_that_leave_the_start_box_on_the_way_in_are_counted() {
+    let straight = measure(&Toy::new(0, halving), &check(), |_| {}).unwrap();
+    assert_eq!(straight.fraction, 1.0, "{straight:?}");
+    assert_eq!(straight.left_start_box, Some(0), "{straight:?}");
+    assert!(
+        (50.0..=100.0).contains(&straight.largest_reach.unwrap()),
+        "the farthest start of 40 in the 100x box: {straight:?}"
+    );
+    let thrown = measure(&Toy::new(0, shear), &check(), |_| {}).unwrap();
+    assert_eq!(thrown.fraction, 1.0, "stable all the same: {thrown:?}");
+    assert!(
+        thrown.left_start_box.unwrap() > thrown.rollouts / 2,
+        "{thrown:?}"
+    );
+    assert!(thrown.largest_reach.unwrap() > 500.0, "{thrown:?}");
+    // Endings from an engine that does not measure reach leave it unknown, not zero.
+    let config = check();
+    let endings: Vec<Ending> = (0..config.starts)
+        .map(|_| Ending::Converged {
+            steps: 3,
+            reach: None,
+        })
+        .collect();
+    let unknown = StabilityReport::from_endings(&Toy::new(0, shear), &config, &endings).unwrap();
+    assert_eq!(
+        (unknown.left_start_box, unknown.largest_reach),
+        (None, None)
+    );
+    let old_reply: Ending = serde_json::from_str(r#"{"ending": "converged", "steps": 3}"#).unwrap();
+    assert_eq!(old_reply.reach(), None);
 }
 
 /// `y ← 0.5 y` while the context's first coordinate lies in the box `[−1, 1]`, `y ← y`
