@@ -5,7 +5,8 @@
 //!
 //! - [`closed_loop`]: the policy (or the task's expert) acting in its task's environment —
 //!   success, collision and spill rates, final distances — under the pushes of [`push`]
-//!   and mid-motion context changes;
+//!   and mid-motion context changes, divided into the episodes that replay demonstrations
+//!   the model fitted and those its training held out;
 //! - [`likelihood`]: the log-likelihood per transition of a flow on a dataset;
 //! - [`stability`]: noise-free rollouts in observation space from starts far outside the
 //!   data, with a negative control that the check must catch; [`robot_loop`]: the same
@@ -13,9 +14,7 @@
 //!   [`stability_check`]: both, as `ciflow stability` runs them on a checkpoint;
 //! - [`rollout`] and [`field`]: the noise-free rollouts and the vector-field and
 //!   latent-grid figures of 2-D policies;
-//! - [`lasa`]: the LASA handwriting benchmark's reproductions and scores;
-//! - [`training_split`]: closed-loop rates divided into the demonstrations a model fitted
-//!   and those its training held out.
+//! - [`lasa`]: the LASA handwriting benchmark's reproductions and scores.
 
 pub mod closed_loop;
 pub mod error;
@@ -29,7 +28,6 @@ pub mod stability;
 pub mod stability_check;
 pub mod summary;
 pub mod trace;
-pub mod training_split;
 
 pub use closed_loop::*;
 pub use error::{EvaluationError, EvaluationResult};
