@@ -284,8 +284,9 @@ def _column(table, name: str, where) -> np.ndarray:
         if len(missing):
             raise ConversionError(
                 f"{name!r} has no value at {where(missing[0])} ({len(missing)} row(s) empty)")
-        lengths = column.value_lengths().to_numpy(zero_copy_only=False) \
-            if pa.types.is_list(column.type) else np.full(len(column), column.type.list_size)
+        lengths = (column.value_lengths().to_numpy(zero_copy_only=False)
+                   if pa.types.is_list(column.type)
+                   else np.full(len(column), column.type.list_size))
         width = int(lengths[0]) if len(lengths) else 0
         ragged = np.flatnonzero(lengths != width)
         if len(ragged):
