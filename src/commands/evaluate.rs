@@ -325,6 +325,12 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
     };
     config.validate()?;
     config.fits_episode(env.spec())?;
+    // Read before any episode runs: a malformed file must not cost the evaluation.
+    let split = match &args.checkpoint {
+        Some(dir) => checkpoint::split::read_split(dir)
+            .with_context(|| format!("reading the training split of {}", dir.display()))?,
+        None => None,
+    };
     let progress = progress::bar(args.episodes as u64, "evaluate", "episodes");
     let on_engines = match (acting, &args.checkpoint) {
         (Acting::Model(model), Some(dir)) => {
@@ -346,11 +352,8 @@ fn episodes(args: &EvaluateArgs, task: &TaskEntry, acting: Acting) -> anyhow::Re
         }
     };
     progress.finish_and_clear();
-    if let Some(dir) = &args.checkpoint
-        && let Some(split) = checkpoint::split::read_split(dir)
-            .with_context(|| format!("reading the training split of {}", dir.display()))?
-    {
-        report.divide_by(&split);
+    if let Some(split) = &split {
+        report.divide_by(split);
     }
     print!("{report}");
     if let Some(out) = &args.out {
