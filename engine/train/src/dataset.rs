@@ -121,6 +121,33 @@ pub struct ForeignFields {
     pub dt: Option<f64>,
 }
 
+/// Where a go-to recipe (`recipe`: its target's context indices in `task`'s own data)
+/// finds the target in a dataset made by another tool, whose context ciflow knows nothing
+/// about: the whole context when it has the state's dimension; otherwise the user has to
+/// say which entries it is (the recipe's own choice, the context's last entries, would be
+/// a guess).
+pub fn foreign_target(
+    recipe: Option<Vec<usize>>,
+    task: &str,
+    state_dim: usize,
+    context_dim: usize,
+) -> TrainResult<Option<Vec<usize>>> {
+    match recipe {
+        None => Ok(None),
+        Some(_) if context_dim == state_dim => Ok(Some((0..state_dim).collect())),
+        Some(_) => {
+            let example: Vec<String> = (0..state_dim).map(|i| i.to_string()).collect();
+            Err(TrainError::InvalidConfig(format!(
+                "the {task} recipe moves to a target read from the context, and this \
+                 dataset's {context_dim}-D context is not the {state_dim}-D state's target: \
+                 name the {state_dim} context entries that are, with --goal-context-indices \
+                 (e.g. --goal-context-indices {})",
+                example.join(",")
+            )))
+        }
+    }
+}
+
 /// Converts the dataset at `source`, made by another tool, into `out` (the layout
 /// [`read_foreign`] reads) with `python -m ciflow.convert`, which reads Minari datasets
 /// with Minari's own loader and LeRobot ones with pyarrow. Returns `out`.

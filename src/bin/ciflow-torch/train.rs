@@ -19,7 +19,7 @@ use ciflow_engine::flow::JointRange;
 use ciflow_envs::learning_curve::subset;
 use ciflow_envs::registry;
 use ciflow_train::baseline::{BASELINE_DIR, remove_stale_baseline};
-use ciflow_train::dataset::ForeignFields;
+use ciflow_train::dataset::{self, ForeignFields};
 use ciflow_train::trainer::{check_checkpoint_dir, flow_config};
 use ciflow_train::{
     BaselineTrainConfig, ContextOverrides, Progress, RecipeOverrides, Screening, train_baseline,
@@ -110,12 +110,13 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let mut config = args.model.apply(args.context.apply(recipe)?, robot)?;
     if args.foreign.state.is_some() && args.context.goal_context_indices.is_none() {
         let state_dim = data.episodes.first().map_or(0, |e| e.states[0].len());
-        config.goal_context_indices = foreign_target(
+        config.goal_context_indices = dataset::foreign_target(
             config.goal_context_indices.take(),
             task.name,
             state_dim,
             spec.context_space.dim(),
-        )?;
+        )
+        .context("reading the dataset's go-to target")?;
     }
     // The checkpoint builds the same task (and robot) the demonstrations were made in.
     config.task_kwargs = ciflow_envs::kwargs::to_json(&spec.env_kwargs);
@@ -224,31 +225,4 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         println!("baseline: checkpoint {}", dir.display());
     }
     Ok(())
-}
-
-/// Where a go-to recipe (`recipe`: its target's context indices in `task`'s own data)
-/// finds the target in a dataset made by another tool, whose context ciflow knows nothing
-/// about: the whole context when it has the state's dimension; otherwise the user has to
-/// say which entries it is (the recipe's own choice, the context's last entries, would be
-/// a guess).
-fn foreign_target(
-    recipe: Option<Vec<usize>>,
-    task: &str,
-    state_dim: usize,
-    context_dim: usize,
-) -> anyhow::Result<Option<Vec<usize>>> {
-    match recipe {
-        None => Ok(None),
-        Some(_) if context_dim == state_dim => Ok(Some((0..state_dim).collect())),
-        Some(_) => {
-            let example: Vec<String> = (0..state_dim).map(|i| i.to_string()).collect();
-            anyhow::bail!(
-                "the {task} recipe moves to a target read from the context, and this \
-                 dataset's {context_dim}-D context is not the {state_dim}-D state's target: \
-                 name the {state_dim} context entries that are, with --goal-context-indices \
-                 (e.g. --goal-context-indices {})",
-                example.join(",")
-            )
-        }
-    }
 }
