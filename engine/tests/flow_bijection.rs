@@ -56,31 +56,6 @@ fn finite_difference_jacobian(
     jacobian
 }
 
-/// Exact Jacobian of `z ↦ f(z, c)` from dual numbers, one column per seeded direction:
-/// a path independent of the log-determinant, which sums the transforms' own
-/// log-derivative formulas. (Central differences carry ~1e-7 of rounding noise, which the
-/// nearly singular Jacobians of the scaled variant amplify past the tolerance.)
-fn dual_jacobian(policy: &ciflow_engine::flow::Policy, z: &[f64], c: &[f64]) -> DMatrix<f64> {
-    let flow = policy.network();
-    let mut conditioning = flow.conditioning();
-    flow.condition(c, &mut conditioning, &mut flow.scratch())
-        .unwrap();
-    let mut scratch = flow.scratch();
-    let d = z.len();
-    let mut jacobian = DMatrix::zeros(d, d);
-    let mut y = vec![Dual::new(0.0, 0.0); d];
-    for j in 0..d {
-        let seeded: Vec<Dual<f64>> = (0..d)
-            .map(|i| Dual::new(z[i], if i == j { 1.0 } else { 0.0 }))
-            .collect();
-        flow.forward(&seeded, &conditioning, &mut scratch, &mut y);
-        for i in 0..d {
-            jacobian[(i, j)] = y[i].du;
-        }
-    }
-    jacobian
-}
-
 #[test]
 fn log_determinant_matches_the_dual_number_jacobian() {
     for (k, config) in all_variants().iter().enumerate() {

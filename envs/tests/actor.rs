@@ -210,7 +210,7 @@ fn an_actor_keeps_its_end_stop_hold_until_reset() {
         7,
         6,
         LatentKind::GoTo,
-        CouplingKind::Affine { scale_bound: 2.0 },
+        CouplingKind::AFFINE,
         4,
         vec![16, 16],
     );

@@ -239,7 +239,7 @@ pub fn write_checkpoint(tag: &str) -> PathBuf {
         2,
         4,
         LatentKind::GoTo,
-        CouplingKind::Affine { scale_bound: 2.0 },
+        CouplingKind::AFFINE,
         4,
         vec![16, 16],
     );

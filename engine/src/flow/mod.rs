@@ -74,8 +74,8 @@ pub mod sampled_control;
 
 pub use baseline::BehaviourCloning;
 pub use checkpoint::config::{
-    BaselineConfig, Bounds, CheckpointConfig, CouplingKind, FlowConfig, Goal, LatentKind,
-    Normalisation,
+    AFFINE_SCALE_BOUND, BaselineConfig, Bounds, CheckpointConfig, CouplingKind, FlowConfig, Goal,
+    LatentKind, Normalisation,
 };
 pub use checkpoint::weights::{Tensor, Weights};
 pub use end_stop_hold::EndStopHold;

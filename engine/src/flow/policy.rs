@@ -610,7 +610,11 @@ mod tests {
     #[test]
     fn act_is_the_mean_next_state_and_the_desired_velocity() {
         let couplings = [
-            CouplingKind::Affine { scale_bound: 2.0 },
+            CouplingKind::AFFINE,
+            CouplingKind::Affine {
+                scale_bound: 2.0,
+                taper_radius: Some(1.5),
+            },
             CouplingKind::Spline {
                 bins: 8,
                 tail_bound: 3.0,

@@ -5,10 +5,17 @@ use ciflow_engine::flow::{
     ContextSet, ContractionConfig, CouplingKind, FlowConfig, JointRange, LatentKind, LocalConfig,
     Policy, SetEncoderConfig, Weights,
 };
+use ciflow_engine::nn::scalar::Dual;
+use nalgebra::DMatrix;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-pub const AFFINE: CouplingKind = CouplingKind::Affine { scale_bound: 2.0 };
+pub const AFFINE: CouplingKind = CouplingKind::AFFINE;
+/// Affine couplings fading beyond a radius the tests' states straddle.
+pub const TAPERED: CouplingKind = CouplingKind::Affine {
+    scale_bound: 2.0,
+    taper_radius: Some(1.5),
+};
 pub const SPLINE: CouplingKind = CouplingKind::Spline {
     bins: 8,
     tail_bound: 3.0,
@@ -58,6 +65,17 @@ pub fn variants() -> Vec<FlowConfig> {
         }
         out.push(summary_only);
     }
+    // Tapered affine couplings (appended, as above).
+    for latent in [
+        LatentKind::GoTo,
+        LatentKind::SaturatedGoTo,
+        LatentKind::LimitCycle,
+    ] {
+        out.push(config(3, 2, latent, TAPERED));
+    }
+    let mut goal = config(2, 3, LatentKind::SaturatedGoTo, TAPERED);
+    goal.goal_context_indices = Some(vec![2, 0]);
+    out.push(goal);
     out
 }
 
@@ -185,4 +203,29 @@ pub fn narrow(coupling: CouplingKind, speed_max: f64, acceleration_max: f64) -> 
 /// `tanh`'s invertible part.
 pub fn tame_weights(config: &FlowConfig, seed: u64) -> Weights {
     Weights::random(&config.parameter_shapes(), 0.3, &mut rng(seed))
+}
+
+/// Exact Jacobian of `z ↦ f(z, c)` from dual numbers, one column per seeded direction:
+/// a path independent of the log-determinant, which sums the transforms' own
+/// log-derivative formulas. (Central differences carry ~1e-7 of rounding noise, which the
+/// nearly singular Jacobians of the scaled variant amplify past the tolerance.)
+pub fn dual_jacobian(policy: &ciflow_engine::flow::Policy, z: &[f64], c: &[f64]) -> DMatrix<f64> {
+    let flow = policy.network();
+    let mut conditioning = flow.conditioning();
+    flow.condition(c, &mut conditioning, &mut flow.scratch())
+        .unwrap();
+    let mut scratch = flow.scratch();
+    let d = z.len();
+    let mut jacobian = DMatrix::zeros(d, d);
+    let mut y = vec![Dual::new(0.0, 0.0); d];
+    for j in 0..d {
+        let seeded: Vec<Dual<f64>> = (0..d)
+            .map(|i| Dual::new(z[i], if i == j { 1.0 } else { 0.0 }))
+            .collect();
+        flow.forward(&seeded, &conditioning, &mut scratch, &mut y);
+        for i in 0..d {
+            jacobian[(i, j)] = y[i].du;
+        }
+    }
+    jacobian
 }

@@ -65,7 +65,7 @@ fn main() {
     );
     let dir = std::env::temp_dir().join(format!("ciflow-bench-{}", std::process::id()));
     for (name, coupling) in [
-        ("affine", CouplingKind::Affine { scale_bound: 2.0 }),
+        ("affine", CouplingKind::AFFINE),
         (
             "spline",
             CouplingKind::Spline {

@@ -7,8 +7,8 @@
 //! unordered sets, the radial contractions about obstacle centres).
 
 use ciflow_engine::flow::{
-    ContextSet, ContractionConfig, CouplingKind, JointRange, LatentKind, LocalConfig,
-    SetEncoderConfig,
+    AFFINE_SCALE_BOUND, ContextSet, ContractionConfig, CouplingKind, JointRange, LatentKind,
+    LocalConfig, SetEncoderConfig,
 };
 
 use crate::{Keep, OptimConfig, TrainConfig};
@@ -27,6 +27,12 @@ pub enum OverrideError {
          --coupling spline)"
     )]
     SplineSettingsOnAffine,
+    #[error(
+        "--taper-radius fades an affine coupling, and this one is a spline (add --coupling affine)"
+    )]
+    TaperOnSpline,
+    #[error("--taper-radius {0}: a radius is finite and > 0 (0 turns the taper off)")]
+    TaperRadius(f64),
     #[error("--contraction-layers: task `{task}` has no centres to contract about")]
     NoCentres { task: String },
     #[error("--joint-range: task `{task}` drives no robot whose limits it could respect")]
@@ -105,6 +111,11 @@ pub struct RecipeOverrides {
     /// outside) [default: the task's spline's, else 4].
     #[cfg_attr(feature = "clap", arg(long))]
     pub tail_bound: Option<f64>,
+    /// Radius `R` beyond which each affine coupling fades to the identity (normalised
+    /// units; README "LASA" has why); 0 turns it off [default: the task's: 8 for lasa,
+    /// else off].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub taper_radius: Option<f64>,
     /// Number of (mixing, coupling) blocks [default: the task's: 10 for lasa, pouring and
     /// reach, else 6].
     #[cfg_attr(feature = "clap", arg(long))]
@@ -188,11 +199,33 @@ impl RecipeOverrides {
             tail_bound: self.tail_bound.unwrap_or(tail_bound),
         };
         let spline_settings = self.spline_bins.is_some() || self.tail_bound.is_some();
+        let (scale_bound, recipe_taper) = match recipe.coupling {
+            CouplingKind::Affine {
+                scale_bound,
+                taper_radius,
+            } => (scale_bound, taper_radius),
+            CouplingKind::Spline { .. } => (AFFINE_SCALE_BOUND, None),
+        };
+        let taper_radius = match self.taper_radius {
+            Some(0.0) => None,
+            Some(radius) if radius.is_finite() && radius > 0.0 => Some(radius),
+            Some(radius) => return Err(OverrideError::TaperRadius(radius)),
+            None => recipe_taper,
+        };
         let coupling = match (self.coupling, recipe.coupling) {
+            (Some(CouplingChoice::Spline), _) | (None, CouplingKind::Spline { .. })
+                if self.taper_radius.is_some() =>
+            {
+                return Err(OverrideError::TaperOnSpline);
+            }
             (Some(CouplingChoice::Spline), _) | (None, CouplingKind::Spline { .. }) => spline,
             _ if spline_settings => return Err(OverrideError::SplineSettingsOnAffine),
-            (Some(CouplingChoice::Affine), _) => CouplingKind::AFFINE,
-            (None, affine) => affine,
+            (Some(CouplingChoice::Affine), _) | (None, CouplingKind::Affine { .. }) => {
+                CouplingKind::Affine {
+                    scale_bound,
+                    taper_radius,
+                }
+            }
         };
         if let Some(width) = self
             .hidden
@@ -406,6 +439,64 @@ mod tests {
                 .coupling,
             CouplingKind::Spline { bins: 12, .. }
         ));
+    }
+
+    #[test]
+    fn taper_radius_sets_the_affine_taper_and_zero_removes_it() {
+        let tapered = |radius: f64| CouplingKind::Affine {
+            scale_bound: 2.0,
+            taper_radius: Some(radius),
+        };
+        let taper = |radius: f64| RecipeOverrides {
+            taper_radius: Some(radius),
+            ..RecipeOverrides::default()
+        };
+        let affine = || recipe(CouplingKind::AFFINE);
+        assert_eq!(
+            taper(6.0).apply(affine(), None).unwrap().coupling,
+            tapered(6.0)
+        );
+        assert_eq!(
+            taper(0.0)
+                .apply(recipe(tapered(6.0)), None)
+                .unwrap()
+                .coupling,
+            CouplingKind::AFFINE
+        );
+        // Unset, the recipe's taper stays, also when the coupling is named.
+        let named = RecipeOverrides {
+            coupling: Some(CouplingChoice::Affine),
+            ..RecipeOverrides::default()
+        };
+        assert_eq!(
+            named.apply(recipe(tapered(6.0)), None).unwrap().coupling,
+            tapered(6.0)
+        );
+        for radius in [-1.0, f64::NAN, f64::INFINITY] {
+            assert!(matches!(
+                taper(radius).apply(affine(), None),
+                Err(OverrideError::TaperRadius(_))
+            ));
+        }
+        let spline = CouplingKind::Spline {
+            bins: 8,
+            tail_bound: 3.0,
+        };
+        assert!(matches!(
+            taper(6.0).apply(recipe(spline.clone()), None),
+            Err(OverrideError::TaperOnSpline)
+        ));
+        let switched = RecipeOverrides {
+            coupling: Some(CouplingChoice::Affine),
+            ..taper(6.0)
+        };
+        assert_eq!(
+            switched
+                .apply(recipe(spline.clone()), None)
+                .unwrap()
+                .coupling,
+            tapered(6.0)
+        );
     }
 
     #[test]

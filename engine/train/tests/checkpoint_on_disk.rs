@@ -16,7 +16,7 @@ fn the_checkpoint_on_disk_is_the_one_kept_and_the_last_reported() {
     let data = Spiral::default().demonstrations(4, 30, 1.5, (0.0, 1.5), 2);
     for keep in [Keep::BestValidation, Keep::Last] {
         let config = TrainConfig {
-            coupling: CouplingKind::Affine { scale_bound: 2.0 },
+            coupling: CouplingKind::AFFINE,
             layers: 2,
             hidden: vec![16],
             // A step this large makes the later epochs worse than the first, so that with

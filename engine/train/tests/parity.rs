@@ -32,7 +32,11 @@ fn seeded<T>(seed: i64, draw: impl FnOnce() -> T) -> T {
 fn configs() -> Vec<FlowConfig> {
     let mut out = Vec::new();
     for coupling in [
-        CouplingKind::Affine { scale_bound: 2.0 },
+        CouplingKind::AFFINE,
+        CouplingKind::Affine {
+            scale_bound: 2.0,
+            taper_radius: Some(1.5),
+        },
         CouplingKind::Spline {
             bins: 6,
             tail_bound: 2.5,

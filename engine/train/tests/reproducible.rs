@@ -28,7 +28,7 @@ fn max_difference(a: &[(String, Vec<f64>)], b: &[(String, Vec<f64>)]) -> f64 {
 #[test]
 fn training_is_reproducible_from_its_seed() {
     let mut config = TrainConfig {
-        coupling: CouplingKind::Affine { scale_bound: 2.0 },
+        coupling: CouplingKind::AFFINE,
         layers: 2,
         hidden: vec![16],
         optim: OptimConfig {

@@ -16,7 +16,7 @@ pub fn obstacle_flow_checkpoint(seed: u64) -> (FlowConfig, Weights) {
         2,
         4,
         LatentKind::GoTo,
-        CouplingKind::Affine { scale_bound: 2.0 },
+        CouplingKind::AFFINE,
         4,
         vec![16, 16],
     );

@@ -28,7 +28,7 @@ struct Variant {
 
 /// The recipe, then one change at a time (each the setting the recipe replaced, or a
 /// lead worth measuring).
-const VARIANTS: [Variant; 11] = [
+const VARIANTS: [Variant; 12] = [
     Variant {
         label: "recipe",
         change: "the default settings",
@@ -66,6 +66,15 @@ const VARIANTS: [Variant; 11] = [
         label: "min rate 1",
         change: "guaranteed latent rate 1 /s (the other go-to tasks')",
         apply: |c| c.min_rate = 1.0,
+    },
+    Variant {
+        label: "no taper",
+        change: "affine couplings that do not fade beyond the taper radius",
+        apply: |c| {
+            if let CouplingKind::Affine { taper_radius, .. } = &mut c.coupling {
+                *taper_radius = None;
+            }
+        },
     },
     Variant {
         label: "spline",

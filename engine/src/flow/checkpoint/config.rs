@@ -26,20 +26,33 @@ use crate::nn::mlp::mlp_parameter_shapes;
 pub const SPLINE_MIN_BIN: f64 = 1e-3;
 pub const SPLINE_MIN_DERIVATIVE: f64 = 1e-3;
 
+/// The bound `B` of [`CouplingKind::AFFINE`]'s log-scales.
+pub const AFFINE_SCALE_BOUND: f64 = 2.0;
+
 /// The element-wise transform of a coupling layer.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum CouplingKind {
     /// `y = x·e^s + t` with `s = B·tanh(ŝ/B)`, so `|log-scale| < B` everywhere.
-    Affine { scale_bound: f64 },
+    Affine {
+        scale_bound: f64,
+        /// `R`: the conditioner's outputs fade with the kept coordinates' distance from
+        /// the origin, so the layer tends to the identity beyond `R` (normalised units;
+        /// [`crate::flow::layers::taper`]). Checkpoints without the key do not fade.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        taper_radius: Option<f64>,
+    },
     /// Monotone rational-quadratic spline on `[-B, B]` with `bins` bins, identity outside.
     Spline { bins: usize, tail_bound: f64 },
 }
 
 impl CouplingKind {
     /// The affine coupling the recipes and `--coupling affine` use: log-scales bounded
-    /// by 2 (a factor of e² per layer at most).
-    pub const AFFINE: Self = Self::Affine { scale_bound: 2.0 };
+    /// by 2 (a factor of e² per layer at most), no taper.
+    pub const AFFINE: Self = Self::Affine {
+        scale_bound: AFFINE_SCALE_BOUND,
+        taper_radius: None,
+    };
 
     /// Conditioner outputs per transformed dimension.
     pub fn params_per_dim(&self) -> usize {
@@ -386,10 +399,16 @@ impl FlowConfig {
             return Err(invalid("layers and hidden widths must be >= 1".into()));
         }
         match self.coupling {
-            CouplingKind::Affine { scale_bound }
+            CouplingKind::Affine { scale_bound, .. }
                 if !(scale_bound.is_finite() && scale_bound > 0.0) =>
             {
                 return Err(invalid("affine scale_bound must be finite and > 0".into()));
+            }
+            CouplingKind::Affine {
+                taper_radius: Some(radius),
+                ..
+            } if !(radius.is_finite() && radius > 0.0) => {
+                return Err(invalid("affine taper_radius must be finite and > 0".into()));
             }
             CouplingKind::Spline { bins, tail_bound }
                 if bins < 2

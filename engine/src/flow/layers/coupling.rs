@@ -8,6 +8,10 @@
 //!
 //! Even layers keep the first `⌊d/2⌋` dimensions, odd layers the last ones, so every
 //! dimension is transformed even when the mixing layers stay close to the identity.
+//!
+//! An affine coupling with a taper radius scales `θ` by `w(x_kept)`
+//! ([`crate::flow::layers::taper`]); the records keep the conditioner's own outputs `θ̂`,
+//! and each tangent applies `w` in its own dual numbers.
 
 use std::ops::Range;
 
@@ -19,6 +23,7 @@ use crate::flow::layers::conditioner::{
     Conditioner, ConditionerScratch, ConditionerTangentScratch,
 };
 use crate::flow::layers::spline::SplineTransform;
+use crate::flow::layers::taper::Taper;
 #[cfg(target_arch = "x86_64")]
 use crate::math::simd::has_avx2_fma;
 use crate::nn::scalar::{Dual, Scalar};
@@ -32,7 +37,9 @@ pub enum Transform {
 impl Transform {
     pub fn new(kind: &CouplingKind) -> Self {
         match *kind {
-            CouplingKind::Affine { scale_bound } => Self::Affine(AffineTransform::new(scale_bound)),
+            CouplingKind::Affine { scale_bound, .. } => {
+                Self::Affine(AffineTransform::new(scale_bound))
+            }
             CouplingKind::Spline { bins, tail_bound } => {
                 Self::Spline(SplineTransform::new(bins, tail_bound))
             }
@@ -115,6 +122,7 @@ enum Primal<'a> {
 pub struct Coupling {
     transform: Transform,
     conditioner: Conditioner,
+    taper: Option<Taper>,
     kept: Range<usize>,
     transformed: Range<usize>,
 }
@@ -147,8 +155,10 @@ impl<S: Scalar> CouplingScratch<S> {
 pub struct CouplingRecord {
     /// Hidden activations of the conditioner, every component.
     activations: Vec<f64>,
-    /// `θ`, component after component.
+    /// `θ̂`, the conditioner's outputs before the taper, component after component.
     params: Vec<f64>,
+    /// The kept coordinates (primal component), from which the taper is taken.
+    kept: Vec<f64>,
     /// The transformed coordinates on the input side of the forward transform `h`
     /// (primal component).
     input: Vec<f64>,
@@ -161,6 +171,7 @@ impl CouplingRecord {
         Self {
             activations: vec![0.0; lanes * coupling.conditioner.record_len()],
             params: vec![0.0; lanes * coupling.conditioner.output_dim()],
+            kept: vec![0.0; coupling.kept.len()],
             input: vec![0.0; coupling.transformed.len()],
             primal: vec![0.0; coupling.primal_len()],
         }
@@ -180,6 +191,8 @@ pub struct TangentScratch {
     dual_params: Vec<Dual<f64>>,
     /// The transformed coordinates in dual numbers, and the primal pass's primal values.
     dual_state: Vec<Dual<f64>>,
+    /// The kept coordinates in dual numbers, for the taper.
+    dual_kept: Vec<Dual<f64>>,
     primal: Vec<f64>,
     /// The kept coordinates' second-order tangent `(dx, dẋ)`.
     kept_second: [Vec<f64>; 2],
@@ -199,6 +212,7 @@ impl TangentScratch {
             params_tangent: vec![0.0; outputs],
             dual_params: vec![zero; outputs],
             dual_state: vec![zero; coupling.transformed.len()],
+            dual_kept: vec![zero; coupling.kept.len()],
             primal: vec![0.0; coupling.primal_len()],
             kept_second: std::array::from_fn(|_| vec![0.0; coupling.kept.len()]),
             nested_params: vec![nested_zero; outputs],
@@ -222,8 +236,16 @@ impl Coupling {
         } else {
             (d - kept_dim..d, 0..d - kept_dim)
         };
+        let taper = match config.coupling {
+            CouplingKind::Affine {
+                taper_radius: Some(radius),
+                ..
+            } => Some(Taper::new(radius)),
+            _ => None,
+        };
         Ok(Self {
             transform: Transform::new(&config.coupling),
+            taper,
             conditioner: Conditioner::from_weights(
                 weights,
                 prefix,
@@ -329,6 +351,20 @@ impl Coupling {
     ) -> S {
         let want_log_det = record.is_none();
         self.condition(x, context_bias, scratch, record.as_deref_mut());
+        if let Some(record) = record.as_deref_mut() {
+            let planes = record.params.chunks_exact_mut(scratch.params.len());
+            for (l, plane) in planes.enumerate() {
+                for (r, p) in plane.iter_mut().zip(&scratch.params) {
+                    *r = p.lane(l);
+                }
+            }
+            for (r, xi) in record.kept.iter_mut().zip(&x[self.kept.clone()]) {
+                *r = xi.value();
+            }
+        }
+        if let Some(taper) = &self.taper {
+            taper.apply(&x[self.kept.clone()], &mut scratch.params);
+        }
         let xs = &mut x[self.transformed.clone()];
         let record_input = |record: &mut CouplingRecord, xs: &[S]| {
             for (r, xi) in record.input.iter_mut().zip(xs) {
@@ -353,12 +389,6 @@ impl Coupling {
             }
             self.transform
                 .record_primal(&scratch.primal, inverse, &mut record.primal);
-            let planes = record.params.chunks_exact_mut(scratch.params.len());
-            for (l, plane) in planes.enumerate() {
-                for (r, p) in plane.iter_mut().zip(&scratch.params) {
-                    *r = p.lane(l);
-                }
-            }
         }
         log_det
     }
@@ -473,6 +503,9 @@ impl Coupling {
         for (t, ((p, p_dot), (dp, dp_dot))) in scratch.nested_params.iter_mut().zip(nested) {
             *t = Dual::new(Dual::new(*p, *p_dot), Dual::new(*dp, *dp_dot));
         }
+        if let Some(taper) = &self.taper {
+            taper.apply(&x[self.kept.clone()], &mut scratch.nested_params);
+        }
         self.transform.apply_all::<_, FUSED>(
             &mut x[self.transformed.clone()],
             &scratch.nested_params,
@@ -547,6 +580,16 @@ impl Coupling {
             .zip(&scratch.params_tangent)
         {
             *d = Dual::new(*p, *dp);
+        }
+        if let Some(taper) = &self.taper {
+            let kept = &mut scratch.dual_kept;
+            for ((k, xi), dxi) in kept.iter_mut().zip(&record.kept).zip(dx_kept) {
+                *k = Dual::new(*xi, *dxi);
+            }
+            taper.apply(kept, &mut scratch.dual_params);
+            if let Some((x, _)) = &primal {
+                taper.apply(&x[self.kept.clone()], &mut scratch.params);
+            }
         }
         let dx = &mut dx[self.transformed.clone()];
         for ((d, xi), dxi) in scratch.dual_state.iter_mut().zip(&record.input).zip(&*dx) {

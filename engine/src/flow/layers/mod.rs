@@ -3,7 +3,8 @@
 //! [`coupling`] blocks whose parameters come from [`conditioner`] networks, the LU
 //! [`mixing`] between blocks, the [`radial`] contractions about context points, the
 //! permutation-invariant [`context_set`] encoders that feed the conditioners, and the
-//! [`joint_range`] that keeps a robot's policy inside its limits.
+//! [`joint_range`] that keeps a robot's policy inside its limits. An affine coupling's
+//! parameters may [`taper`] off far from the data.
 
 pub mod affine;
 pub mod conditioner;
@@ -13,3 +14,4 @@ pub mod joint_range;
 pub mod mixing;
 pub mod radial;
 pub mod spline;
+pub mod taper;

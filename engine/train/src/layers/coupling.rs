@@ -8,6 +8,7 @@ use tch::{Kind, Tensor};
 
 use super::affine::affine;
 use super::spline::rational_quadratic_spline;
+use super::taper::taper;
 use crate::nn::mlp::Mlp;
 use ciflow_engine::flow::checkpoint::names::{CONDITIONER, LOCAL};
 
@@ -103,7 +104,16 @@ impl Coupling {
             .forward(&input)
             .reshape([rows, self.transformed.1, -1]);
         let (y_t, log_det) = match self.kind {
-            CouplingKind::Affine { scale_bound } => affine(&x_t, &params, scale_bound, inverse),
+            CouplingKind::Affine {
+                scale_bound,
+                taper_radius,
+            } => {
+                let params = match taper_radius {
+                    Some(radius) => params * taper(&x_kept, radius).reshape([rows, 1, 1]),
+                    None => params,
+                };
+                affine(&x_t, &params, scale_bound, inverse)
+            }
             CouplingKind::Spline { bins, tail_bound } => {
                 let p = params.size()[2];
                 let (y, ld) = rational_quadratic_spline(

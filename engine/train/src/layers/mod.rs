@@ -6,3 +6,4 @@ pub mod joint_range;
 pub mod mixing;
 pub mod radial;
 pub mod spline;
+pub mod taper;
