@@ -92,8 +92,13 @@ fn bench(c: &mut Criterion) {
     let y = [0.1, -0.3, 0.2, -1.5, 0.05, 1.2, 0.4];
     let context = [0.5, 0.2, 0.3, 0.0, 0.1, -0.2];
     let affine = CouplingKind::AFFINE;
+    let tapered = CouplingKind::Affine {
+        scale_bound: 2.0,
+        taper_radius: Some(8.0),
+    };
     for (name, coupling, hidden, joint_range) in [
         ("affine", affine.clone(), POURING_HIDDEN, false),
+        ("affine-tapered", tapered, POURING_HIDDEN, false),
         ("affine-joint-range", affine.clone(), POURING_HIDDEN, true),
         ("affine-64", affine, DEFAULT_HIDDEN, false),
         ("spline", SPLINE, DEFAULT_HIDDEN, false),

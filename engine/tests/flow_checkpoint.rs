@@ -4,8 +4,8 @@ mod flow_common;
 
 use ciflow_engine::flow::checkpoint::{self, WEIGHTS_FILE};
 use ciflow_engine::flow::{
-    BaselineConfig, CheckpointConfig, ContextSet, FlowError, Goal, LatentKind, LocalConfig, Policy,
-    SetEncoderConfig, Tensor, Weights,
+    BaselineConfig, CheckpointConfig, ContextSet, CouplingKind, FlowError, Goal, LatentKind,
+    LocalConfig, Policy, SetEncoderConfig, Tensor, Weights,
 };
 use flow_common::*;
 
@@ -202,6 +202,35 @@ fn context_sets_default_to_none_round_trip_and_are_validated() {
         assert!(
             matches!(config.validate(), Err(FlowError::InvalidConfig(_))),
             "{config:?}"
+        );
+    }
+}
+
+/// An untapered affine coupling is written as before the taper existed (so older engines
+/// read it) and such a `config.json` reads back untapered; a taper round-trips, and a
+/// radius that is not finite and > 0 is a typed error.
+#[test]
+fn taper_radius_defaults_to_none_round_trips_and_is_validated() {
+    let untapered = config(2, 1, LatentKind::GoTo, AFFINE);
+    let text = serde_json::to_string(&CheckpointConfig::Flow(untapered.clone())).unwrap();
+    assert!(!text.contains("taper_radius"), "{text}");
+    let back: CheckpointConfig = serde_json::from_str(&text).unwrap();
+    assert_eq!(back, CheckpointConfig::Flow(untapered));
+
+    let tapered = config(2, 1, LatentKind::GoTo, TAPERED);
+    let text = serde_json::to_string(&CheckpointConfig::Flow(tapered.clone())).unwrap();
+    let back: CheckpointConfig = serde_json::from_str(&text).unwrap();
+    assert_eq!(back, CheckpointConfig::Flow(tapered.clone()));
+    assert!(tapered.validate().is_ok());
+    for radius in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        let mut bad = tapered.clone();
+        bad.coupling = CouplingKind::Affine {
+            scale_bound: 2.0,
+            taper_radius: Some(radius),
+        };
+        assert!(
+            matches!(bad.validate(), Err(FlowError::InvalidConfig(_))),
+            "{radius}"
         );
     }
 }
