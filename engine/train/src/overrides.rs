@@ -112,8 +112,8 @@ pub struct RecipeOverrides {
     #[cfg_attr(feature = "clap", arg(long))]
     pub tail_bound: Option<f64>,
     /// Radius `R` beyond which each affine coupling fades to the identity (normalised
-    /// units; README "LASA" has why); 0 turns it off [default: the task's: 8 for lasa,
-    /// else off].
+    /// units; README "LASA" has why); 0 turns it off [default: the task's: 8 for lasa and
+    /// pouring, else off].
     #[cfg_attr(feature = "clap", arg(long))]
     pub taper_radius: Option<f64>,
     /// Number of (mixing, coupling) blocks [default: the task's: 10 for lasa, pouring and
