@@ -214,7 +214,7 @@ impl RecipeOverrides {
         };
         let coupling = match (self.coupling, recipe.coupling) {
             (Some(CouplingChoice::Spline), _) | (None, CouplingKind::Spline { .. })
-                if self.taper_radius.is_some() =>
+                if self.taper_radius.is_some_and(|radius| radius != 0.0) =>
             {
                 return Err(OverrideError::TaperOnSpline);
             }
@@ -486,6 +486,14 @@ mod tests {
             taper(6.0).apply(recipe(spline.clone()), None),
             Err(OverrideError::TaperOnSpline)
         ));
+        // "Off" is no contradiction.
+        assert_eq!(
+            taper(0.0)
+                .apply(recipe(spline.clone()), None)
+                .unwrap()
+                .coupling,
+            spline
+        );
         let switched = RecipeOverrides {
             coupling: Some(CouplingChoice::Affine),
             ..taper(6.0)
