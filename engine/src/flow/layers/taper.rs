@@ -9,9 +9,10 @@
 //! a fixed scaling and shift there, and ten of them compose to a far-field map of large
 //! condition number. A latent path that turns about its attractor (the saturated go-to's
 //! skew, a linear latent's non-normal part) then swings out by that condition number
-//! before it comes in: LASA's affine flows sent paths from 100× outside the demonstrations
-//! to 500–14 000× (README "LASA"). Tapered, every coupling whose kept coordinates are far out is
-//! close to the identity, so far from the data `f` tends to its linear mixings alone.
+//! before it comes in: LASA's affine flows sent paths from 100× outside the
+//! demonstrations to 500–14 000× (README "LASA"). Tapered, every coupling whose kept
+//! coordinates are far out is close to the identity, so far from the data `f` tends to
+//! its linear mixings alone.
 //!
 //! `w` depends only on the kept coordinates, which the coupling does not change, so the
 //! inverse reads the same `w` and the layer stays a bijection with
