@@ -216,7 +216,7 @@ pub fn reach(task: &'static str, _context_dim: usize) -> Result<TrainConfig, Con
 
 #[cfg(test)]
 mod tests {
-    use ciflow_engine::flow::CouplingKind;
+    use ciflow_engine::flow::{AFFINE_SCALE_BOUND, CouplingKind};
     use ciflow_engine::training::Keep;
 
     use super::ContextWithoutTarget;
@@ -235,7 +235,11 @@ mod tests {
             .unwrap()
             .training_recipe(6)
             .unwrap();
-        assert_eq!(pouring.coupling, CouplingKind::AFFINE);
+        let tapered = CouplingKind::Affine {
+            scale_bound: AFFINE_SCALE_BOUND,
+            taper_radius: Some(super::TAPER_RADIUS),
+        };
+        assert_eq!(pouring.coupling, tapered);
         assert_eq!(
             (
                 pouring.layers,
@@ -264,6 +268,7 @@ mod tests {
         );
         let lasa = registry::entry("lasa").unwrap().training_recipe(2).unwrap();
         assert_eq!((lasa.optim.epochs, lasa.horizon), (30, 40));
+        assert_eq!(lasa.coupling, tapered);
     }
 
     #[test]
