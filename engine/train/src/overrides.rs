@@ -213,12 +213,12 @@ impl RecipeOverrides {
             None => recipe_taper,
         };
         let coupling = match (self.coupling, recipe.coupling) {
-            (Some(CouplingChoice::Spline), _) | (None, CouplingKind::Spline { .. })
-                if self.taper_radius.is_some_and(|radius| radius != 0.0) =>
-            {
-                return Err(OverrideError::TaperOnSpline);
+            (Some(CouplingChoice::Spline), _) | (None, CouplingKind::Spline { .. }) => {
+                if self.taper_radius.is_some_and(|radius| radius != 0.0) {
+                    return Err(OverrideError::TaperOnSpline);
+                }
+                spline
             }
-            (Some(CouplingChoice::Spline), _) | (None, CouplingKind::Spline { .. }) => spline,
             _ if spline_settings => return Err(OverrideError::SplineSettingsOnAffine),
             (Some(CouplingChoice::Affine), _) | (None, CouplingKind::Affine { .. }) => {
                 CouplingKind::Affine {

@@ -157,7 +157,8 @@ pub struct CouplingRecord {
     activations: Vec<f64>,
     /// `θ̂`, the conditioner's outputs before the taper, component after component.
     params: Vec<f64>,
-    /// The kept coordinates (primal component), from which the taper is taken.
+    /// The kept coordinates (primal component), from which the taper is taken; filled
+    /// only when the coupling has one.
     kept: Vec<f64>,
     /// The transformed coordinates on the input side of the forward transform `h`
     /// (primal component).
@@ -358,8 +359,10 @@ impl Coupling {
                     *r = p.lane(l);
                 }
             }
-            for (r, xi) in record.kept.iter_mut().zip(&x[self.kept.clone()]) {
-                *r = xi.value();
+            if self.taper.is_some() {
+                for (r, xi) in record.kept.iter_mut().zip(&x[self.kept.clone()]) {
+                    *r = xi.value();
+                }
             }
         }
         if let Some(taper) = &self.taper {
