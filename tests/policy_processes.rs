@@ -19,12 +19,14 @@ use ciflow_bridge::zenoh::Wait;
 use ciflow_bridge::{
     CheckpointPublisher, CheckpointSigner, Client, NetworkOptions, RemoteEnv, Role,
 };
-use ciflow_engine::flow::CheckpointConfig;
 use ciflow_engine::flow::checkpoint::{self, CONFIG_FILE, WEIGHTS_FILE};
+use ciflow_engine::flow::{CheckpointConfig, CouplingKind, FlowConfig, LatentKind, Weights};
 use ciflow_envs::ResetOptions;
 use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::tasks::obstacle_avoidance;
 use common::{Scratch, ciflow, code, connect, endpoint, line_with, refused, serve, spawn_ciflow};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 
 const OBSTACLE: &str = "ciflow/Obstacle-v0";
 
@@ -131,6 +133,18 @@ fn served_policy_acts_like_the_in_process_actor_and_bad_checkpoints_are_refused(
     );
 }
 
+/// Actions of the checkpoint in `dir` on its own data's observations (8-D, as an
+/// obstacle flow with one obstacle has them), computed in this process.
+fn own_data_actions(dir: &Path, observations: &[f64]) -> Vec<f64> {
+    let model = Model::load(dir, None).unwrap();
+    let mut actor = Actor::new(&model, &model.own_data_spec(), DEFAULT_VELOCITY_GAIN).unwrap();
+    let mut actions = vec![0.0; observations.len() / 8 * 2];
+    for (o, a) in observations.chunks(8).zip(actions.chunks_mut(2)) {
+        actor.act(o, a).unwrap();
+    }
+    actions
+}
+
 /// A checkpoint whose shapes fit no task's default (one obstacle, where the task's default
 /// has three, standing in for one trained on data from elsewhere) is refused by `--policy`
 /// with the way out named, and served by `--own-data-policy` on its own observations:
@@ -168,13 +182,7 @@ fn a_checkpoint_on_its_own_data_is_served_without_a_task() {
     // Far from the demonstrations, where the task would clip the action to its bounds.
     let far: Vec<f64> = OBSERVATIONS.iter().map(|o| 40.0 * o).collect();
     let remote = client.act("policy-own-data", "mine", &far).unwrap();
-    let model = Model::load(&dir, None).unwrap();
-    let mut actor = Actor::new(&model, &model.own_data_spec(), DEFAULT_VELOCITY_GAIN).unwrap();
-    let mut local = vec![0.0; 6];
-    for (o, a) in far.chunks(8).zip(local.chunks_mut(2)) {
-        actor.act(o, a).unwrap();
-    }
-    assert_eq!(remote, local);
+    assert_eq!(remote, own_data_actions(&dir, &far));
     let bound = obstacle_avoidance::make(1).unwrap();
     let high = &ciflow_envs::Env::spec(&bound).action_space.high;
     assert!(
@@ -183,6 +191,79 @@ fn a_checkpoint_on_its_own_data_is_served_without_a_task() {
             .zip(high.iter().cycle())
             .any(|(a, h)| a.abs() > *h),
         "unclipped: some action exceeds the task's bound {high:?}: {remote:?}"
+    );
+}
+
+/// A policy served on its own data takes the next checkpoint trained on that data, which
+/// fits no task (a publication `--policy` would refuse), and acts with it on its own
+/// observations, unclipped; a checkpoint on data of other shapes is refused and said so.
+#[test]
+fn a_policy_on_its_own_data_is_replaced_by_the_next_checkpoint_on_that_data() {
+    let scratch = Scratch::new("policy-own-hot");
+    let (a, b, wider) = (scratch.join("a"), scratch.join("b"), scratch.join("wider"));
+    write_flow(&a, 2);
+    write_flow(&b, 3);
+    // A 3-D state: 10 observations and 3 actions where the served policy has 8 and 2.
+    let config = FlowConfig::new(
+        "obstacle-avoidance",
+        3,
+        4,
+        LatentKind::GoTo,
+        CouplingKind::AFFINE,
+        4,
+        vec![16, 16],
+    );
+    let weights = Weights::random(
+        &config.parameter_shapes(),
+        0.1,
+        &mut ChaCha8Rng::seed_from_u64(4),
+    );
+    checkpoint::write(&wider, &CheckpointConfig::Flow(config), &weights).unwrap();
+
+    let engine = "policy-own-hot";
+    let a_arg = format!("mine={}", a.display());
+    let (mut server, lines) = spawn_ciflow(&[
+        "serve",
+        "--listen",
+        &endpoint(27538),
+        "--name",
+        engine,
+        "--own-data-policy",
+        &a_arg,
+    ]);
+    line_with(&lines, "ready", Duration::from_secs(20));
+    let client = connect(27538);
+    let far: Vec<f64> = OBSERVATIONS.iter().map(|o| 40.0 * o).collect();
+    let (actions_a, actions_b) = (own_data_actions(&a, &far), own_data_actions(&b, &far));
+    assert_ne!(actions_a, actions_b);
+    assert_eq!(client.act(engine, "mine", &far).unwrap(), actions_a);
+
+    let publisher = CheckpointPublisher::open(
+        &NetworkOptions::endpoint(Role::Client, &endpoint(27538)),
+        "mine",
+    )
+    .unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    publisher.publish(&b, 5, -1.5).unwrap();
+    wait_for_epoch(&client, engine, "mine", 5);
+    assert_eq!(client.act(engine, "mine", &far).unwrap(), actions_b);
+    let listed = client.engine_info(engine).unwrap().policies;
+    assert_eq!(
+        (listed[0].task.as_str(), listed[0].observation_dim),
+        (ciflow_envs::actor::OWN_DATA_TASK, 8)
+    );
+
+    // Other shapes are refused; the publication after them is taken.
+    publisher.publish(&wider, 6, -1.0).unwrap();
+    publisher.publish(&a, 7, -2.0).unwrap();
+    wait_for_epoch(&client, engine, "mine", 7);
+    assert_eq!(client.act(engine, "mine", &far).unwrap(), actions_a);
+    let _ = server.0.kill();
+    let _ = server.0.wait();
+    let log = server.stderr();
+    assert!(
+        log.contains("acts on 8 observations with 2 actions, the checkpoint on 10 with 3"),
+        "{log}"
     );
 }
 

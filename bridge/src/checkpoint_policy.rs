@@ -142,6 +142,38 @@ impl CheckpointPolicy {
         tasks: &[TaskFactory],
         kwargs: &Kwargs,
     ) -> Result<Self, PolicyLoadError> {
+        let model = Self::published_model(key_name, message, tasks)?;
+        let kwargs = if message.kwargs.is_empty() {
+            kwargs
+        } else {
+            &message.kwargs
+        };
+        let policy = Self::new(Some(&message.name), model, tasks, kwargs)?;
+        Ok(policy.published_at(message))
+    }
+
+    /// A checkpoint received as a publication, served on its own data's observations
+    /// ([`on_own_data`](Self::on_own_data)): the next checkpoint of a policy trained on
+    /// data from elsewhere. Name and task are checked as by
+    /// [`from_message`](Self::from_message); the message's task arguments have no task
+    /// to apply to and are ignored.
+    pub fn from_message_on_own_data(
+        key_name: &str,
+        message: &CheckpointMsg,
+        tasks: &[TaskFactory],
+    ) -> Result<Self, PolicyLoadError> {
+        let model = Self::published_model(key_name, message, tasks)?;
+        let policy = Self::on_own_data(Some(&message.name), model)?;
+        Ok(policy.published_at(message))
+    }
+
+    /// The model a publication carries, once its name agrees with the key it came on and
+    /// its task with its configuration.
+    fn published_model(
+        key_name: &str,
+        message: &CheckpointMsg,
+        tasks: &[TaskFactory],
+    ) -> Result<Model, PolicyLoadError> {
         if message.name != key_name {
             return Err(PolicyLoadError::NameMismatch {
                 key: key_name.to_owned(),
@@ -163,15 +195,14 @@ impl CheckpointPolicy {
                 found: model.task().to_owned(),
             });
         }
-        let kwargs = if message.kwargs.is_empty() {
-            kwargs
-        } else {
-            &message.kwargs
-        };
-        let mut policy = Self::new(Some(&message.name), model, tasks, kwargs)?;
-        policy.info.epoch = Some(message.epoch);
-        policy.info.validation_nll = Some(message.validation_nll);
-        Ok(policy)
+        Ok(model)
+    }
+
+    /// This policy with the training figures `message` came with.
+    fn published_at(mut self, message: &CheckpointMsg) -> Self {
+        self.info.epoch = Some(message.epoch);
+        self.info.validation_nll = Some(message.validation_nll);
+        self
     }
 
     pub fn model(&self) -> &Model {

@@ -9,7 +9,7 @@ use ciflow_bridge::protocol::{ByteBuf, CheckpointMsg, PROTOCOL_VERSION};
 use ciflow_bridge::{CheckpointPolicy, Kwargs, Policy, PolicyLoadError, TaskFactory};
 use ciflow_engine::flow::FlowError;
 use ciflow_engine::flow::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
-use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
+use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model, OWN_DATA_TASK};
 use ciflow_envs::tasks::obstacle_avoidance;
 use common::{one_obstacle, write_checkpoint};
 
@@ -129,6 +129,21 @@ fn publications_that_do_not_fit_are_refused() {
     assert!(
         CheckpointPolicy::from_message("avoid", &default_task, &tasks, &one_obstacle()).is_ok()
     );
+    // On its own data it needs no task, with the same checks of name and task.
+    let own = CheckpointPolicy::from_message_on_own_data("avoid", &default_task, &tasks).unwrap();
+    let info = own.info();
+    assert_eq!(
+        (info.task.as_str(), info.observation_dim, info.epoch),
+        (OWN_DATA_TASK, 8, Some(3))
+    );
+    assert!(matches!(
+        CheckpointPolicy::from_message_on_own_data("other", &default_task, &tasks),
+        Err(PolicyLoadError::NameMismatch { .. })
+    ));
+    assert!(matches!(
+        CheckpointPolicy::from_message_on_own_data("avoid", &claims_pouring, &tasks),
+        Err(PolicyLoadError::TaskMismatch { .. })
+    ));
     let truncated = CheckpointMsg {
         weights: ByteBuf::from(message.weights[..100].to_vec()),
         ..message.clone()

@@ -1,6 +1,9 @@
 //! Hot-loading: a checkpoint published on `ciflow/v2/policies/<policy>/checkpoint`
 //! replaces the policy served under that name, if it fits a task this engine serves,
-//! keeps the policy's task and, on an engine that trusts keys, is signed by one of them.
+//! keeps the policy's task and its observation and action shapes and, on an engine that
+//! trusts keys, is signed by one of them. A policy served on its own data
+//! (`--own-data-policy`) is replaced by the next checkpoint trained on that data, served
+//! the same way.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -13,6 +16,7 @@ use crate::protocol::keys;
 use crate::protocol::{CheckpointMsg, ErrorReply, PolicyInfo, decode_request};
 use crate::signing::{SignatureRefused, TrustedKeys};
 use crate::task_factory::TaskFactory;
+use ciflow_envs::actor::OWN_DATA_TASK;
 
 /// How often one kind of refusal on one key is reported at most.
 pub const REPORT_INTERVAL: Duration = Duration::from_secs(60);
@@ -34,6 +38,16 @@ pub enum HotLoadError {
         serving: String,
         published: String,
     },
+    #[error(
+        "policy `{name}` acts on {} observations with {} actions, the checkpoint on {} with {}",
+        serving.0, serving.1, published.0, published.1
+    )]
+    ShapeChanged {
+        name: String,
+        /// Observation and action dimensions.
+        serving: (u32, u32),
+        published: (u32, u32),
+    },
 }
 
 impl HotLoadError {
@@ -45,6 +59,7 @@ impl HotLoadError {
             HotLoadError::Signature(_) => "signature",
             HotLoadError::Load(_) => "load",
             HotLoadError::TaskChanged { .. } => "task",
+            HotLoadError::ShapeChanged { .. } => "shape",
         }
     }
 }
@@ -65,20 +80,38 @@ pub fn hot_load(
         trusted.verify(&message).map_err(HotLoadError::Signature)?;
     }
     let current = policies.get(name);
-    let kwargs = current
+    let on_own_data = current
         .as_ref()
-        .map(|p| p.task_kwargs())
-        .unwrap_or_default();
-    let policy = CheckpointPolicy::from_message(name, &message, factories, &kwargs)?;
+        .is_some_and(|p| p.info().task == OWN_DATA_TASK);
+    let policy = if on_own_data {
+        CheckpointPolicy::from_message_on_own_data(name, &message, factories)?
+    } else {
+        let kwargs = current
+            .as_ref()
+            .map(|p| p.task_kwargs())
+            .unwrap_or_default();
+        CheckpointPolicy::from_message(name, &message, factories, &kwargs)?
+    };
     let info = policy.info();
-    if let Some(current) = current
-        && current.info().task != info.task
-    {
-        return Err(HotLoadError::TaskChanged {
-            name: name.to_owned(),
-            serving: current.info().task,
-            published: info.task,
-        });
+    if let Some(current) = current {
+        let serving = current.info();
+        if serving.task != info.task {
+            return Err(HotLoadError::TaskChanged {
+                name: name.to_owned(),
+                serving: serving.task,
+                published: info.task,
+            });
+        }
+        // Callers act with the served shapes: new task arguments (more obstacles) or
+        // other data must come under a new name.
+        let shape = |p: &PolicyInfo| (p.observation_dim, p.action_dim);
+        if shape(&serving) != shape(&info) {
+            return Err(HotLoadError::ShapeChanged {
+                name: name.to_owned(),
+                serving: shape(&serving),
+                published: shape(&info),
+            });
+        }
     }
     policies.insert(Arc::new(policy));
     Ok(info)

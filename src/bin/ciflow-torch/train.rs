@@ -69,7 +69,8 @@ pub struct TrainArgs {
     /// Publish each better checkpoint as policy NAME on ciflow/v2/policies/NAME/checkpoint
     /// (through the Zenoh flags above): engines hot-load it and serve it under NAME without
     /// a restart. Nobody listening is not an error; an engine started later loads the
-    /// final checkpoint with `ciflow serve --policy NAME=<out>`.
+    /// final checkpoint with `ciflow serve --policy NAME=<out>` (`--own-data-policy` for
+    /// data from elsewhere, whose running policy it replaces as well).
     #[arg(long, value_name = "NAME")]
     pub publish: Option<String>,
     /// Construction argument of the task the demonstrations were recorded with (e.g.
