@@ -160,7 +160,8 @@ impl NetworkOptions {
     ///
     /// Without a file: multicast scouting off; an engine is a peer listening on
     /// [`DEFAULT_ENDPOINT`] (or `listen`), a client is a Zenoh client connecting to
-    /// [`DEFAULT_ENDPOINT`] (or `connect`). With a file, only the explicit overrides apply.
+    /// [`DEFAULT_ENDPOINT`] (or `connect`) that sends through the socket and reads what
+    /// others send through shared memory. With a file, only the explicit overrides apply.
     pub fn to_zenoh_config(&self, role: Role) -> Result<Config, BridgeError> {
         let mut config = match &self.config_file {
             Some(path) => Config::from_file(path).map_err(|source| BridgeError::ConfigFile {
@@ -190,6 +191,9 @@ impl NetworkOptions {
     }
 }
 
+/// Whether Zenoh sends messages of 3 KiB or more through a shared-memory pool of its own.
+const SEND_THROUGH_POOL: &str = "transport/shared_memory/transport_optimization/enabled";
+
 fn default_config(role: Role) -> Result<Config, BridgeError> {
     let mut config = Config::default();
     insert(&mut config, "scouting/multicast/enabled", "false")?;
@@ -209,6 +213,11 @@ fn default_config(role: Role) -> Result<Config, BridgeError> {
         Role::Client => {
             insert(&mut config, "mode", &json_string(Mode::Client.as_str()))?;
             insert(&mut config, "connect/endpoints", &endpoint)?;
+            // A client reads the engine's pool but sends through the socket: Zenoh never
+            // unmaps a segment it has read from, so a long-running engine would keep
+            // every client's 16 MiB pool in tmpfs for good, and on a 64 MiB `/dev/shm`
+            // (Docker's default) the fourth client could not open a session.
+            insert(&mut config, SEND_THROUGH_POOL, "false")?;
         }
     }
     Ok(config)

@@ -1,6 +1,6 @@
-//! On one host, an engine and a client hand large payloads (a batch's actions, its
-//! reply) to each other through Zenoh's shared memory instead of copying them through
-//! the socket: the reply's bytes arrive in a `/dev/shm` segment mapped into the client.
+//! On one host, an engine hands large payloads (a batch's reply, an echo) to a client
+//! through Zenoh's shared memory instead of copying them through the socket: the reply's
+//! bytes arrive in a `/dev/shm` segment mapped into the client.
 //! A client whose configuration turns shared memory off gets them over the network — the
 //! negative control of the same check. A `step_batch` reply is written into shared memory
 //! by the engine itself, not copied there by Zenoh: it arrives there even from an engine
