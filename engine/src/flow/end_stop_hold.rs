@@ -14,9 +14,11 @@
 //! velocity points at that limit. From then on the policy runs a reference in its latent
 //! space from `z_r = f⁻¹(q, c)`,
 //!
-//! `z_r ← z_r + Δt s(y_r, v_r) ż(z_r)`, `y_r = f(z_r, c)`, `v_r = s J_f(z_r) ż(z_r)`,
+//! `z_r ← φ(z_r, Δt s(y_r, v_r))`, `y_r = f(z_r, c)`, `v_r = s J_f(z_r) ż(z_r)`,
 //!
-//! the time-scaled noise-free motion (`s` the speed scaling of the joint range), and reads
+//! the time-scaled noise-free motion (`φ(z, t)` the latent's exact flow over `t`, `s` the
+//! speed scaling of the joint range; an Euler step `z_r + Δt s ż` would contract only
+//! while the latent's rates stay below `2 / (Δt s)`), and reads
 //! the field at `(y_r, v_r)` instead of the measurement. The velocity loop tracks
 //! `s(q, w) w`, `w = v_r + (K_v/4)(y_r − q)`: a pull back onto the reference wherever the
 //! barrier lets the robot go, slowed by the same time scaling at the measured `q` into

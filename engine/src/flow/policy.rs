@@ -410,9 +410,12 @@ impl Policy {
         }
         let s = range.speed_scale(&hold.position, &hold.velocity);
         hold.velocity.iter_mut().for_each(|v| *v *= s);
-        for (z, v) in hold.latent.iter_mut().zip(&ws.latent_velocity) {
-            *z += hold.period * s * v;
-        }
+        // The latent's exact flow over the time-scaled period: it contracts for every
+        // weight, where an Euler step `z + Δt s ż` does only while the latent's rates stay
+        // below `2 / (Δt s)`. (It computes its matrix exponentials anew, only while held.)
+        self.latent
+            .mean_after(&hold.latent, hold.period * s, &mut ws.z_next);
+        hold.latent.copy_from_slice(&ws.z_next);
     }
 
     fn check_acceleration_arguments(
@@ -604,6 +607,50 @@ mod tests {
 
     use super::*;
     use crate::flow::{CouplingKind, LatentKind};
+
+    /// An engaged hold's reference moves by the latent's exact flow, so it converges to the
+    /// attractor however fast the latent contracts: at 300 /s an Euler step of one 10 ms
+    /// period (factor `1 − 3`) would overshoot the attractor at every period and swing
+    /// about it, held at the speed limit.
+    #[test]
+    fn an_engaged_reference_converges_however_fast_the_latent_contracts() {
+        let mut config = FlowConfig::new(
+            "hold",
+            3,
+            2,
+            LatentKind::GoTo,
+            CouplingKind::AFFINE,
+            4,
+            vec![8, 8],
+        );
+        config.min_rate = 300.0;
+        let range = JointRange {
+            position_min: vec![-1.0; 3],
+            position_max: vec![1.0; 3],
+            speed_max: vec![1e3; 3],
+            acceleration_max: vec![1e4; 3],
+        };
+        config.joint_range = Some(range.clone());
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let weights = Weights::random(&config.parameter_shapes(), 0.3, &mut rng);
+        let policy = Policy::new(&config, weights).unwrap();
+        let mut ws = policy.workspace();
+        policy
+            .flow
+            .condition(&[0.3, -0.2], &mut ws.conditioning, &mut ws.scratch)
+            .unwrap();
+        let mut hold = EndStopHold::new(3, 0.01).unwrap();
+        hold.engaged = true;
+        hold.latent.copy_from_slice(&[0.5, -0.3, 0.2]);
+        let size = |z: &[f64]| z.iter().map(|v| v * v).sum::<f64>().sqrt();
+        for period in 0..20 {
+            let before = size(&hold.latent);
+            policy.step_reference(&range, &mut hold, &mut ws);
+            let after = size(&hold.latent);
+            assert!(after < before, "period {period}: {before} -> {after}");
+        }
+        assert!(size(&hold.latent) < 1e-12, "{:?}", hold.latent);
+    }
 
     /// `act` shares one forward sweep between the mean step and the velocity; it must give
     /// what `mean_next` and `velocity` give separately.
