@@ -11,14 +11,18 @@
 //! the motion where the field is too stiff for the period ([`Policy::acceleration_held`],
 //! `ciflow_engine::flow::sampled_control`). The action is then clipped to the task's action
 //! space, as a real robot saturates its commands; far from the demonstrations, where the
-//! flow may ask for more, this is the saturated loop that `ciflow_evaluation::robot_loop` measures. The behaviour-cloning baseline has no Jacobian; it
-//! tracks its finite-difference velocity `v = (ŷ_{k+1} − q) / dt` with the same gain.
+//! flow may ask for more, this is the saturated loop that `ciflow_evaluation::robot_loop`
+//! measures. The behaviour-cloning baseline acts through the same law and guard on its
+//! finite-difference velocity `v = (ŷ_{k+1} − q) / dt`, the derivative along `q̇` taken by
+//! a central difference (it has no dual pass), so that the two models differ only in
+//! their fields.
 
 use std::path::Path;
 use std::sync::Arc;
 
 use ciflow_engine::flow::baseline::BaselineWorkspace;
 use ciflow_engine::flow::checkpoint;
+use ciflow_engine::flow::sampled_control::limit_overshoot;
 use ciflow_engine::flow::{
     BehaviourCloning, CheckpointConfig, EndStopHold, FlowError, Policy, PolicyWorkspace, Weights,
 };
@@ -190,8 +194,21 @@ enum Controller {
         workspace: BaselineWorkspace,
         /// `ŷ_{k+1}`, the baseline's predicted next position.
         next: Vec<f64>,
+        /// `q ± h q̇` and the predictions there, for the derivative of `v` along `q̇`.
+        shifted: Vec<f64>,
+        ahead: Vec<f64>,
+        behind: Vec<f64>,
+        /// The control period `Δt` of the overshoot guard.
+        period: f64,
     },
 }
+
+/// The time `h` (s) along `q̇` of the baseline's central difference
+/// `(∂v/∂q) q̇ ≈ (v(q + h q̇) − v(q − h q̇)) / 2h`: its truncation error (`h²`, 1e-8 of the
+/// field's third derivative) and its rounding error (machine epsilon over `h`, 1e-12)
+/// both stay far below the flow's dual-number derivative's differences from a tracked
+/// path.
+const FEED_FORWARD_STEP: f64 = 1e-4;
 
 impl Controller {
     fn new(model: &Model, control_period: f64) -> Result<Self, ActorError> {
@@ -201,11 +218,18 @@ impl Controller {
                 hold: EndStopHold::new(policy.config().state_dim, control_period)?,
                 policy: Arc::clone(policy),
             },
-            Model::Baseline(baseline) => Self::Baseline {
-                workspace: baseline.workspace(),
-                next: vec![0.0; baseline.config().state_dim],
-                baseline: Arc::clone(baseline),
-            },
+            Model::Baseline(baseline) => {
+                let d = baseline.config().state_dim;
+                Self::Baseline {
+                    workspace: baseline.workspace(),
+                    next: vec![0.0; d],
+                    shifted: vec![0.0; d],
+                    ahead: vec![0.0; d],
+                    behind: vec![0.0; d],
+                    period: control_period,
+                    baseline: Arc::clone(baseline),
+                }
+            }
         })
     }
 }
@@ -297,13 +321,31 @@ impl Actor {
                 baseline,
                 workspace,
                 next,
+                shifted,
+                ahead,
+                behind,
+                period,
             } => {
+                // The flow's law `q̈ = (∂v/∂q) q̇ + K_v (v − q̇)` and its overshoot guard, so
+                // that the two models are compared through the same controller. The
+                // baseline's `v(q) = (ŷ(q) − q) / dt` has no dual pass: its derivative
+                // along `q̇` is a central difference, in which `v(q ± h q̇)` differ by
+                // `(ŷ(q + h q̇) − ŷ(q − h q̇) − 2h q̇) / dt`.
                 baseline.mean_next(q, context, workspace, next)?;
+                let h = FEED_FORWARD_STEP;
+                for (sign, prediction) in [(1.0, &mut *ahead), (-1.0, &mut *behind)] {
+                    for ((s, q), qd) in shifted.iter_mut().zip(q).zip(qd) {
+                        *s = q + sign * h * qd;
+                    }
+                    baseline.mean_next(shifted, context, workspace, prediction)?;
+                }
                 let dt = baseline.config().dt;
                 for i in 0..d {
                     self.velocity[i] = (next[i] - q[i]) / dt;
-                    action[i] = gain * (self.velocity[i] - qd[i]);
+                    let feed_forward = ((ahead[i] - behind[i]) / (2.0 * h) - qd[i]) / dt;
+                    action[i] = feed_forward + gain * (self.velocity[i] - qd[i]);
                 }
+                limit_overshoot(qd, &self.velocity, gain, *period, action);
             }
         }
         let BoxSpace { low, high, .. } = &self.action_space;

@@ -1,10 +1,11 @@
 //! A checkpoint acting in an environment: the actor's action is the flow's desired
-//! acceleration for `[q, q̇, c]` (the baseline's finite-difference tracking) clipped to
+//! acceleration for `[q, q̇, c]` (the baseline's, through the same law) clipped to
 //! the action space, shapes are checked, and the saturated closed loop reaches the
 //! attractor, the target in the context.
 
 mod common;
 
+use ciflow_engine::flow::sampled_control::limit_overshoot;
 use ciflow_engine::flow::{
     BaselineConfig, BehaviourCloning, CouplingKind, FlowConfig, Goal, JointRange, LatentKind,
     Policy, Weights,
@@ -52,10 +53,12 @@ fn action_is_the_clipped_flow_acceleration() {
     assert_eq!(actor.desired_velocity(), &velocity);
 }
 
-/// The baseline has no Jacobian: its action tracks the finite-difference velocity
-/// `(ŷ_{k+1} − q) / dt` of its own prediction with the gain `K_v`.
+/// The baseline acts through the flow's law, `q̈ = (∂v/∂q) q̇ + K_v (v − q̇)` on its
+/// finite-difference velocity `v = (ŷ_{k+1} − q) / dt`, with the same overshoot guard.
+/// The actor takes `(∂v/∂q) q̇` as a central difference along `q̇`; here the whole
+/// Jacobian is built column by column and multiplied out.
 #[test]
-fn baseline_action_tracks_its_finite_difference_velocity() {
+fn baseline_acts_through_the_flows_law_on_its_finite_difference_velocity() {
     let (flow, _) = obstacle_flow_checkpoint(5);
     let config = BaselineConfig {
         task: flow.task,
@@ -69,32 +72,63 @@ fn baseline_action_tracks_its_finite_difference_velocity() {
         normalisation: flow.normalisation,
         bounds: flow.bounds,
     };
+    // Weights large enough that the field bends: the feed-forward term matters.
     let weights = Weights::random(
         &config.parameter_shapes(),
-        0.1,
+        1.0,
         &mut ChaCha8Rng::seed_from_u64(5),
     );
     let baseline = BehaviourCloning::new(&config, weights).unwrap();
     let model = Model::from(baseline.clone());
     let env = obstacle_avoidance::make(1).unwrap();
     let mut actor = Actor::new(&model, env.spec(), DEFAULT_VELOCITY_GAIN).unwrap();
-    let observation = [-0.8, 0.3, 0.1, -0.2, 0.0, 0.1, 0.7, -0.2];
+    let (q, context) = ([-0.8, 0.3], [0.0, 0.1, 0.7, -0.2]);
+    let mut ws = baseline.workspace();
+    let mut velocity_at = |q: &[f64]| {
+        let mut next = [0.0; 2];
+        baseline.mean_next(q, &context, &mut ws, &mut next).unwrap();
+        [0, 1].map(|i| (next[i] - q[i]) / config.dt)
+    };
+    let velocity = velocity_at(&q);
+    // Moving nearly as the field asks: the feed-forward term is most of the command.
+    let qd = [velocity[0] + 0.002, velocity[1] - 0.004];
+    let observation: Vec<f64> = [&q[..], &qd, &context].concat();
     let mut action = [0.0; 2];
     actor.act(&observation, &mut action).unwrap();
-
-    let (q, qd, context) = (&observation[..2], &observation[2..4], &observation[4..]);
-    let mut next = [0.0; 2];
-    baseline
-        .mean_next(q, context, &mut baseline.workspace(), &mut next)
-        .unwrap();
+    assert_eq!(actor.desired_velocity(), &velocity);
+    let step = 1e-6;
+    let mut feed_forward = [0.0; 2];
+    for j in 0..2 {
+        let (mut plus, mut minus) = ([q[0], q[1]], [q[0], q[1]]);
+        plus[j] += step;
+        minus[j] -= step;
+        let (v_plus, v_minus) = (velocity_at(&plus), velocity_at(&minus));
+        for i in 0..2 {
+            feed_forward[i] += (v_plus[i] - v_minus[i]) / (2.0 * step) * qd[j];
+        }
+    }
+    let mut expected =
+        [0, 1].map(|i| feed_forward[i] + DEFAULT_VELOCITY_GAIN * (velocity[i] - qd[i]));
+    limit_overshoot(
+        &qd,
+        &velocity,
+        DEFAULT_VELOCITY_GAIN,
+        env.spec().control_dt,
+        &mut expected,
+    );
     let bound = &env.spec().action_space;
     for i in 0..2 {
-        let velocity = (next[i] - q[i]) / config.dt;
-        assert_eq!(actor.desired_velocity()[i], velocity);
-        let expected = DEFAULT_VELOCITY_GAIN * (velocity - qd[i]);
-        assert_eq!(action[i], expected.clamp(bound.low[i], bound.high[i]));
+        let expected = expected[i].clamp(bound.low[i], bound.high[i]);
+        assert!(
+            (action[i] - expected).abs() <= 1e-6 * (1.0 + expected.abs()),
+            "{action:?} against {expected}"
+        );
     }
-    assert!(action.iter().any(|a| a.abs() > 1e-6), "{action:?}");
+    let size = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    assert!(
+        size(&feed_forward) > 0.5 * size(&action),
+        "the feed-forward term is too small to be told apart: {feed_forward:?} in {action:?}"
+    );
 }
 
 #[test]
