@@ -94,7 +94,7 @@ const VARIANTS: [Variant; 12] = [
     },
     Variant {
         label: "early stopping",
-        change: "20% held out, keep the best validation likelihood",
+        change: "a fifth held out (1 of 7), keep the best validation likelihood",
         apply: |c| {
             c.validation_fraction = 0.2;
             c.optim.keep = Keep::BestValidation;
