@@ -204,10 +204,9 @@ enum Controller {
 }
 
 /// The time `h` (s) along `q̇` of the baseline's central difference
-/// `(∂v/∂q) q̇ ≈ (v(q + h q̇) − v(q − h q̇)) / 2h`: its truncation error (`h²`, 1e-8 of the
-/// field's third derivative) and its rounding error (machine epsilon over `h`, 1e-12)
-/// both stay far below the flow's dual-number derivative's differences from a tracked
-/// path.
+/// `(∂v/∂q) q̇ ≈ (v(q + h q̇) − v(q − h q̇)) / 2h`: its truncation error (`h²` = 1e-8
+/// times the field's third derivative along `q̇`) and its rounding error (machine epsilon
+/// over `h`, about 1e-12 relative) are both negligible beside the command.
 const FEED_FORWARD_STEP: f64 = 1e-4;
 
 impl Controller {
