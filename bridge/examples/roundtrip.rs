@@ -4,8 +4,9 @@
 //! 2. single-environment `step` round trip of a 2-D task through [`RemoteEnv::step`];
 //! 3. raw round trips of large payloads, and the batched stepping throughput
 //!    (env-steps/s) of `step_batch` for several batch sizes, each from a client on the
-//!    engine's host that takes the payloads through Zenoh's shared memory and from one
-//!    whose configuration turns it off (the network path), as ratios to two references
+//!    engine's host configured as every client is by default (its requests through the
+//!    socket, the engine's replies through Zenoh's shared memory) and from one whose
+//!    configuration turns shared memory off (the network path), as ratios to two references
 //!    measured in the same round: one environment alone on one thread, times the cores
 //!    (what the engine cannot beat), and the same environments stepped as a batch in
 //!    this process on every core, in lockstep (what serving adds to the stepping itself;
@@ -139,7 +140,10 @@ fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     );
 
     let network_only = network_only_client(&endpoint)?;
-    let clients = [("shared memory", &client), ("network", &network_only)];
+    let clients = [
+        ("replies by shared memory", &client),
+        ("network", &network_only),
+    ];
     large_payload_round_trips(&clients, &engine)?;
     for task in BATCHED_TASKS {
         batched_rates(&clients, &engine, task)?;
