@@ -20,8 +20,8 @@
 use std::hint::black_box;
 
 use ciflow_engine::flow::{
-    ContextSet, ContractionConfig, CouplingKind, FlowConfig, JointRange, LatentKind, Policy,
-    SetEncoderConfig, Weights,
+    AFFINE_SCALE_BOUND, ContextSet, ContractionConfig, CouplingKind, FlowConfig, JointRange,
+    LatentKind, Policy, SetEncoderConfig, Weights,
 };
 use ciflow_engine::robot::panda_limits;
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -92,8 +92,9 @@ fn bench(c: &mut Criterion) {
     let y = [0.1, -0.3, 0.2, -1.5, 0.05, 1.2, 0.4];
     let context = [0.5, 0.2, 0.3, 0.0, 0.1, -0.2];
     let affine = CouplingKind::AFFINE;
+    // The pouring recipe's couplings (`envs/src/recipes.rs`).
     let tapered = CouplingKind::Affine {
-        scale_bound: 2.0,
+        scale_bound: AFFINE_SCALE_BOUND,
         taper_radius: Some(8.0),
     };
     for (name, coupling, hidden, joint_range) in [

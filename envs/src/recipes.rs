@@ -55,6 +55,14 @@ const LASA_MIN_RATE: f64 = 0.2;
 /// flow at 8: 19 of 200 far paths left the 100× box (142×) against 157 (1454×), its
 /// held-out figures 100% as before (README "LASA").
 const TAPER_RADIUS: f64 = 8.0;
+/// Affine couplings tapered off beyond [`TAPER_RADIUS`]: the LASA and pouring recipes'.
+fn tapered_affine() -> CouplingKind {
+    CouplingKind::Affine {
+        scale_bound: AFFINE_SCALE_BOUND,
+        taper_radius: Some(TAPER_RADIUS),
+    }
+}
+
 /// Pouring's guaranteed latent rate (1/s). A pushed policy returns to its path about as
 /// fast as its latent contracts across the path, and the likelihood leaves that rate at
 /// this floor: the trained `F` of `A = −(F Fᵀ + ε I) + Ω` goes to zero (at 1 /s, back on
@@ -140,10 +148,7 @@ pub fn lasa(task: &'static str, context_dim: usize) -> Result<TrainConfig, Conte
     Ok(TrainConfig {
         latent: LatentKind::SaturatedGoTo,
         min_rate: LASA_MIN_RATE,
-        coupling: CouplingKind::Affine {
-            scale_bound: AFFINE_SCALE_BOUND,
-            taper_radius: Some(TAPER_RADIUS),
-        },
+        coupling: tapered_affine(),
         layers: 10,
         hidden: vec![32, 32],
         horizon: 40,
@@ -195,10 +200,7 @@ pub fn pouring(
     let arm = arm(task);
     Ok(TrainConfig {
         min_rate: POURING_MIN_RATE,
-        coupling: CouplingKind::Affine {
-            scale_bound: AFFINE_SCALE_BOUND,
-            taper_radius: Some(TAPER_RADIUS),
-        },
+        coupling: tapered_affine(),
         hidden: POURING_HIDDEN.to_vec(),
         optim: OptimConfig {
             epochs: POURING_EPOCHS,
