@@ -80,21 +80,16 @@ pub fn hot_load(
         trusted.verify(&message).map_err(HotLoadError::Signature)?;
     }
     let current = policies.get(name);
-    let on_own_data = current
-        .as_ref()
-        .is_some_and(|p| p.info().task == OWN_DATA_TASK);
+    let serving = current.as_ref().map(|p| p.info());
+    let on_own_data = serving.as_ref().is_some_and(|s| s.task == OWN_DATA_TASK);
     let policy = if on_own_data {
         CheckpointPolicy::from_message_on_own_data(name, &message, factories)?
     } else {
-        let kwargs = current
-            .as_ref()
-            .map(|p| p.task_kwargs())
-            .unwrap_or_default();
+        let kwargs = current.map(|p| p.task_kwargs()).unwrap_or_default();
         CheckpointPolicy::from_message(name, &message, factories, &kwargs)?
     };
     let info = policy.info();
-    if let Some(current) = current {
-        let serving = current.info();
+    if let Some(serving) = serving {
         if serving.task != info.task {
             return Err(HotLoadError::TaskChanged {
                 name: name.to_owned(),
