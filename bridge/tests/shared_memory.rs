@@ -11,7 +11,6 @@
 
 mod common;
 
-use std::ops::Range;
 use std::time::Duration;
 
 use ciflow_bridge::protocol::{
@@ -26,20 +25,6 @@ use zenoh::bytes::ZBytes;
 /// Larger than Zenoh's threshold for moving a message into shared memory (3 KiB) and
 /// than one network batch (64 KiB), as a batch of 4096 environments' replies is.
 const PAYLOAD_BYTES: usize = 256 * 1024;
-
-/// Address ranges of this process's mappings of Zenoh's shared-memory segments.
-fn shared_memory_mappings() -> Vec<Range<usize>> {
-    let maps = std::fs::read_to_string("/proc/self/maps").expect("/proc/self/maps");
-    maps.lines()
-        .filter(|line| line.contains("/dev/shm/") && line.ends_with(".zenoh"))
-        .map(|line| {
-            let range = line.split_whitespace().next().expect("address range");
-            let (start, end) = range.split_once('-').expect("start-end");
-            let address = |hex: &str| usize::from_str_radix(hex, 16).expect("hex address");
-            address(start)..address(end)
-        })
-        .collect()
-}
 
 /// Whether every byte of the engine's echo of a large ping lies in shared memory.
 fn echo_arrives_in_shared_memory(client: &zenoh::Session, engine: &str) -> bool {
@@ -62,7 +47,9 @@ fn in_shared_memory(payload: &ZBytes) -> bool {
     payload.slices().all(|slice| {
         let start = slice.as_ptr() as usize;
         let end = start + slice.len();
-        mappings.iter().any(|m| m.start <= start && end <= m.end)
+        mappings
+            .iter()
+            .any(|(m, _)| m.start <= start && end <= m.end)
     })
 }
 

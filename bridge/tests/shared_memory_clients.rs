@@ -24,17 +24,10 @@ const BATCH: u32 = 4096;
 /// Zenoh shared-memory segments of a pool's size or more mapped here (each session that
 /// reads a segment maps it once more: counted once).
 fn pools_mapped() -> usize {
-    let maps = std::fs::read_to_string("/proc/self/maps").expect("/proc/self/maps");
-    let pools: BTreeSet<&str> = maps
-        .lines()
-        .filter_map(|line| {
-            let fields: Vec<&str> = line.split_whitespace().collect();
-            let (start, end) = fields.first()?.split_once('-')?;
-            let address = |hex: &str| usize::from_str_radix(hex, 16).ok();
-            let path = fields.last()?;
-            let pool = address(end)? - address(start)? >= POOL_BYTES;
-            (pool && path.starts_with("/dev/shm/") && path.ends_with(".zenoh")).then_some(*path)
-        })
+    let pools: BTreeSet<String> = shared_memory_mappings()
+        .into_iter()
+        .filter(|(range, _)| range.len() >= POOL_BYTES)
+        .map(|(_, path)| path)
         .collect();
     pools.len()
 }

@@ -258,3 +258,21 @@ pub fn write_checkpoint(tag: &str) -> PathBuf {
 pub fn one_obstacle() -> ciflow_bridge::Kwargs {
     BTreeMap::from([("obstacles".to_owned(), 1.0.into())])
 }
+
+/// This process's mappings of Zenoh's shared-memory segments: each mapping's address
+/// range and its segment's file (a segment read by several sessions is mapped once per
+/// session).
+#[cfg(target_os = "linux")]
+pub fn shared_memory_mappings() -> Vec<(std::ops::Range<usize>, String)> {
+    let maps = std::fs::read_to_string("/proc/self/maps").expect("/proc/self/maps");
+    maps.lines()
+        .filter(|line| line.contains("/dev/shm/") && line.ends_with(".zenoh"))
+        .map(|line| {
+            let range = line.split_whitespace().next().expect("address range");
+            let path = line.split_whitespace().last().expect("segment file");
+            let (start, end) = range.split_once('-').expect("start-end");
+            let address = |hex: &str| usize::from_str_radix(hex, 16).expect("hex address");
+            (address(start)..address(end), path.to_owned())
+        })
+        .collect()
+}
