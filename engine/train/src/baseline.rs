@@ -14,9 +14,7 @@ use crate::error::{TrainError, TrainResult};
 use crate::nn::mlp::Mlp;
 use crate::nn::row;
 use crate::optimise::{OptimConfig, Progress, mean_value, optimise};
-use crate::trainer::{
-    TrainConfig, check_threads, double_var_store, recorded_split, save_trained, split,
-};
+use crate::trainer::{TrainConfig, check_threads, double_var_store, save_trained};
 use ciflow_engine::flow::checkpoint::names::NET;
 use ciflow_engine::flow::checkpoint::split::{SPLIT_FILE, TrainingSplit};
 use ciflow_engine::flow::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
@@ -127,6 +125,7 @@ pub fn train_baseline(
 ) -> TrainResult<TrainedBaseline> {
     check_threads(train.threads)?;
     let (d, m) = data.validate()?;
+    let split = data.split(train.validation_fraction, train.optim.seed);
     let config = BaselineConfig {
         task: train.task.clone(),
         state_dim: d,
@@ -134,8 +133,8 @@ pub fn train_baseline(
         dt: data.dt,
         hidden: train.hidden.clone(),
         goal: train.goal.clone(),
-        normalisation: data.normalisation(&[], None),
-        bounds: data.bounds(),
+        normalisation: split.normalisation(&[], None),
+        bounds: split.bounds(),
     };
     config.validate()?;
     tch::set_num_threads(train.threads);
@@ -145,7 +144,6 @@ pub fn train_baseline(
     let norm = &config.normalisation;
     let (state_mean, state_std) = (row(&norm.state_mean), row(&norm.state_std));
     let (context_mean, context_std) = (row(&norm.context_mean), row(&norm.context_std));
-    let (train_set, validation_set) = split(data, train.validation_fraction, train.optim.seed);
     let prepare = |t: &Transitions| {
         let pairs = t.one_step();
         let prev = (pairs.prev - &state_mean) / &state_std;
@@ -154,9 +152,9 @@ pub fn train_baseline(
         let velocity = (next - &prev) / data.dt;
         (Tensor::cat(&[&prev, &context], 1), velocity)
     };
-    let (inputs, targets) = prepare(&Transitions::new(&train_set, d, m));
+    let (inputs, targets) = prepare(&Transitions::new(&split.fitted, d, m));
     let check =
-        (!validation_set.is_empty()).then(|| prepare(&Transitions::new(&validation_set, d, m)));
+        (!split.held_out.is_empty()).then(|| prepare(&Transitions::new(&split.held_out, d, m)));
     let mse = |x: &Tensor, y: &Tensor| (net.forward(x) - y).square().mean(Kind::Double);
     let loss = |batch: &Tensor| {
         mse(
@@ -172,6 +170,6 @@ pub fn train_baseline(
         var_store: vs,
         history,
         best_epoch,
-        split: recorded_split(&train_set, &validation_set),
+        split: split.recorded(),
     })
 }

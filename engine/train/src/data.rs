@@ -1,7 +1,7 @@
 //! Demonstrations: episodes of states `[T × d]` with contexts `[T × m]` or one per
 //! episode, sampled every `dt` seconds.
 
-use ciflow_engine::flow::checkpoint::split::EpisodeStart;
+use ciflow_engine::flow::checkpoint::split::{EpisodeStart, TrainingSplit};
 use ciflow_engine::flow::{Bounds, ContextSet, JointRange, Normalisation};
 use tch::{Kind, Tensor};
 
@@ -152,13 +152,53 @@ impl Demonstrations {
         Ok((d, m))
     }
 
+    /// The episodes fitted and those held out for validation: a seeded shuffle, then the
+    /// last `round(fraction · n)` (at least 1, at most `n − 1`) held out; none when
+    /// `fraction` is 0 or there is a single episode.
+    pub fn split(&self, fraction: f64, seed: u64) -> Split<'_> {
+        use rand::SeedableRng;
+        use rand::seq::SliceRandom;
+        let mut fitted: Vec<&Episode> = self.episodes.iter().collect();
+        fitted.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5eed));
+        let n = fitted.len();
+        let held_out = if n >= 2 && fraction > 0.0 {
+            ((fraction * n as f64).round() as usize).clamp(1, n - 1)
+        } else {
+            0
+        };
+        let held_out = fitted.split_off(n - held_out);
+        Split { fitted, held_out }
+    }
+}
+
+/// The episodes a model is fitted to and those held out to validate it
+/// ([`Demonstrations::split`]). What a model keeps of its data besides its weights (the
+/// normalisation, the bounds, the latent's starting rates) comes from `fitted` alone, so
+/// that the held-out episodes are new to it in every respect: its early stopping and any
+/// score on them take that for granted.
+#[derive(Clone, Debug)]
+pub struct Split<'a> {
+    pub fitted: Vec<&'a Episode>,
+    pub held_out: Vec<&'a Episode>,
+}
+
+impl Split<'_> {
+    /// How each part's episodes started, as the checkpoint records them.
+    pub fn recorded(&self) -> TrainingSplit {
+        let starts = |episodes: &[&Episode]| episodes.iter().map(|e| e.start()).collect();
+        TrainingSplit {
+            fitted: starts(&self.fitted),
+            held_out: starts(&self.held_out),
+        }
+    }
+
     fn rows(&self) -> impl Iterator<Item = (&[f64], &[f64])> + Clone {
-        self.episodes
+        self.fitted
             .iter()
             .flat_map(|e| (0..e.states.len()).map(move |t| (e.states[t].as_slice(), e.context(t))))
     }
 
-    /// Per-coordinate mean and standard deviation of all states (as the network sees them:
+    /// Per-coordinate mean and standard deviation of the fitted episodes' states (as the network sees them:
     /// through `R⁻¹` under a joint range) and contexts; the slots of each of `sets` share
     /// the statistics of all their elements (so the normalisation does not depend on the
     /// elements' order).
@@ -185,7 +225,7 @@ impl Demonstrations {
         }
     }
 
-    /// The bounding box of all states and contexts.
+    /// The bounding box of the fitted episodes' states and contexts.
     pub fn bounds(&self) -> Bounds {
         let (state_min, state_max) = extent(self.rows().map(|(y, _)| y));
         let (context_min, context_max) = extent(self.rows().map(|(_, c)| c));

@@ -26,7 +26,7 @@ use ciflow_engine::flow::{CheckpointConfig, FlowConfig};
 pub use ciflow_engine::training::{DEFAULT_STATE_NOISE, TrainConfig};
 use tch::{Device, Kind, Tensor, nn};
 
-use crate::data::{Demonstrations, Episode, Transitions};
+use crate::data::{Demonstrations, Episode, Split, Transitions};
 use crate::error::{TrainError, TrainResult};
 use crate::latent::LatentInit;
 use crate::optimise::{Progress, mean_value, optimise};
@@ -179,40 +179,22 @@ pub fn check_checkpoint_dir(dir: &Path) -> TrainResult<()> {
     }
 }
 
-/// Splits episodes into (training, validation) with a seeded shuffle; the validation set
-/// is empty when `fraction` is 0 (or there is a single episode). [`recorded_split`] says
-/// which is which in the checkpoint.
-pub(crate) fn split(
-    data: &Demonstrations,
-    fraction: f64,
-    seed: u64,
-) -> (Vec<&Episode>, Vec<&Episode>) {
-    use rand::SeedableRng;
-    use rand::seq::SliceRandom;
-    let mut episodes: Vec<&Episode> = data.episodes.iter().collect();
-    episodes.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5eed));
-    let n = episodes.len();
-    let held_out = if n >= 2 && fraction > 0.0 {
-        ((fraction * n as f64).round() as usize).clamp(1, n - 1)
-    } else {
-        0
-    };
-    let validation = episodes.split_off(n - held_out);
-    (episodes, validation)
-}
-
-/// The starts of the episodes [`split`] gave to training and to validation.
-pub(crate) fn recorded_split(fitted: &[&Episode], held_out: &[&Episode]) -> TrainingSplit {
-    let starts = |episodes: &[&Episode]| episodes.iter().map(|e| e.start()).collect();
-    TrainingSplit {
-        fitted: starts(fitted),
-        held_out: starts(held_out),
-    }
-}
-
 /// The engine configuration for `data` under `train`, which [`train_flow`] would run:
 /// settings it cannot run are refused here ([`check_config`] and the engine's checks).
 pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<FlowConfig> {
+    fitted_config(
+        data,
+        &data.split(train.validation_fraction, train.optim.seed),
+        train,
+    )
+}
+
+/// [`flow_config`], its statistics taken from the episodes `split` fits.
+fn fitted_config(
+    data: &Demonstrations,
+    split: &Split,
+    train: &TrainConfig,
+) -> TrainResult<FlowConfig> {
     check_config(train)?;
     let (d, m) = data.validate()?;
     // The statistics are pooled over the context sets and read through the joint range:
@@ -238,18 +220,18 @@ pub fn flow_config(data: &Demonstrations, train: &TrainConfig) -> TrainResult<Fl
         set_encoder: (!train.context_sets.is_empty()).then(|| train.set_encoder.clone()),
         contractions: train.contractions,
         joint_range: train.joint_range.clone(),
-        normalisation: data.normalisation(&train.context_sets, train.joint_range.as_ref()),
-        bounds: data.bounds(),
+        normalisation: split.normalisation(&train.context_sets, train.joint_range.as_ref()),
+        bounds: split.bounds(),
     };
     config.validate()?;
     Ok(config)
 }
 
-/// The demonstrations' RMS step per normalised coordinate and starting values of the
+/// The fitted demonstrations' RMS step per normalised coordinate and starting values of the
 /// latent noise, speed and turning rate: the mean angular velocity of the first two
 /// normalised coordinates about the cycle's centre (the data's mean) or, for go-to
 /// motions, about where each demonstration ends.
-fn latent_init(data: &Demonstrations, config: &FlowConfig) -> (f64, LatentInit) {
+fn latent_init(fitted: &[&Episode], config: &FlowConfig) -> (f64, LatentInit) {
     let norm = &config.normalisation;
     let unbounded = |y: &[f64], i: usize| match &config.joint_range {
         Some(range) => range.unbounded(i, y[i]),
@@ -258,7 +240,7 @@ fn latent_init(data: &Demonstrations, config: &FlowConfig) -> (f64, LatentInit) 
     let normalised =
         |y: &[f64], i: usize| (unbounded(y, i) - norm.state_mean[i]) / norm.state_std[i];
     let (mut squares, mut angle, mut n) = (0.0, 0.0, 0.0);
-    for e in &data.episodes {
+    for e in fitted {
         let end = e.states.last().expect("validated episodes are not empty");
         let centre: [f64; 2] = match config.latent.is_go_to() {
             true => [normalised(end, 0), normalised(end, 1)],
@@ -295,17 +277,17 @@ pub fn train_flow(
     train: &TrainConfig,
     mut progress: impl FnMut(&Progress, &Snapshot),
 ) -> TrainResult<TrainedFlow> {
-    let config = flow_config(data, train)?;
+    let split = data.split(train.validation_fraction, train.optim.seed);
+    let config = fitted_config(data, &split, train)?;
     tch::set_num_threads(train.threads);
     tch::manual_seed(train.optim.seed as i64);
     let vs = double_var_store();
-    let (rms_step, init) = latent_init(data, &config);
+    let (rms_step, init) = latent_init(&split.fitted, &config);
     let model = FlowModel::new(&vs.root(), &config, init);
-    let (train_set, validation_set) = split(data, train.validation_fraction, train.optim.seed);
     let (d, m) = (config.state_dim, config.context_dim);
-    let fit = Transitions::new(&train_set, d, m);
+    let fit = Transitions::new(&split.fitted, d, m);
     let check =
-        (!validation_set.is_empty()).then(|| Transitions::new(&validation_set, d, m).one_step());
+        (!split.held_out.is_empty()).then(|| Transitions::new(&split.held_out, d, m).one_step());
     let initial_weight = fit.episodes() as f64 / fit.len() as f64;
     let initial_rows = fit.episodes().min(INITIAL_ROWS_PER_BATCH) as i64;
     let jitter_std = model.state_std() * (train.state_noise * rms_step);
@@ -344,7 +326,7 @@ pub fn train_flow(
             -mean_value(&transitions)
         })
     };
-    let split = recorded_split(&train_set, &validation_set);
+    let split = split.recorded();
     let snapshot = Snapshot {
         config: &config,
         var_store: &vs,

@@ -24,7 +24,7 @@ fn the_checkpoint_on_disk_is_the_one_kept_and_the_last_reported() {
             optim: OptimConfig {
                 epochs: 6,
                 batch_size: 16,
-                learning_rate: 1.0,
+                learning_rate: 2.0,
                 keep,
                 ..OptimConfig::default()
             },
