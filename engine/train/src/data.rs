@@ -158,31 +158,56 @@ impl Demonstrations {
     pub fn split(&self, fraction: f64, seed: u64) -> Split<'_> {
         use rand::SeedableRng;
         use rand::seq::SliceRandom;
-        let mut fitted: Vec<&Episode> = self.episodes.iter().collect();
-        fitted.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5eed));
-        let n = fitted.len();
+        let n = self.episodes.len();
+        let mut order: Vec<usize> = (0..n).collect();
+        order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5eed));
         let held_out = if n >= 2 && fraction > 0.0 {
             ((fraction * n as f64).round() as usize).clamp(1, n - 1)
         } else {
             0
         };
-        let held_out = fitted.split_off(n - held_out);
-        Split { fitted, held_out }
+        let (fitted, held_out) = order.split_at(n - held_out);
+        let mut fitted_flags = vec![true; n];
+        for &i in held_out {
+            fitted_flags[i] = false;
+        }
+        let episodes = |indices: &[usize]| indices.iter().map(|&i| &self.episodes[i]).collect();
+        Split {
+            fitted: episodes(fitted),
+            held_out: episodes(held_out),
+            data: &self.episodes,
+            fitted_flags,
+        }
     }
 }
 
 /// The episodes a model is fitted to and those held out to validate it
 /// ([`Demonstrations::split`]). What a model keeps of its data besides its weights (the
-/// normalisation, the bounds, the latent's starting rates) comes from `fitted` alone, so
-/// that the held-out episodes are new to it in every respect: its early stopping and any
-/// score on them take that for granted.
+/// normalisation, the bounds, the latent's starting rates) comes from the fitted episodes
+/// alone, so that the held-out ones are new to it in every respect: its early stopping and
+/// any score on them take that for granted.
 #[derive(Clone, Debug)]
 pub struct Split<'a> {
+    /// In the shuffled order training takes them.
     pub fitted: Vec<&'a Episode>,
     pub held_out: Vec<&'a Episode>,
+    data: &'a [Episode],
+    /// Per episode of `data`: whether it is fitted.
+    fitted_flags: Vec<bool>,
 }
 
-impl Split<'_> {
+impl<'a> Split<'a> {
+    /// The fitted episodes in the data's order, in which their statistics are summed: so
+    /// that the statistics do not depend on the shuffle, and a split that holds nothing out
+    /// gives those of the whole data bit for bit.
+    pub fn fitted_in_data_order(&self) -> impl Iterator<Item = &'a Episode> + Clone + '_ {
+        self.data
+            .iter()
+            .zip(&self.fitted_flags)
+            .filter(|(_, fitted)| **fitted)
+            .map(|(episode, _)| episode)
+    }
+
     /// How each part's episodes started, as the checkpoint records them.
     pub fn recorded(&self) -> TrainingSplit {
         let starts = |episodes: &[&Episode]| episodes.iter().map(|e| e.start()).collect();
@@ -193,8 +218,7 @@ impl Split<'_> {
     }
 
     fn rows(&self) -> impl Iterator<Item = (&[f64], &[f64])> + Clone {
-        self.fitted
-            .iter()
+        self.fitted_in_data_order()
             .flat_map(|e| (0..e.states.len()).map(move |t| (e.states[t].as_slice(), e.context(t))))
     }
 

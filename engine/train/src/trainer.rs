@@ -26,7 +26,7 @@ use ciflow_engine::flow::{CheckpointConfig, FlowConfig};
 pub use ciflow_engine::training::{DEFAULT_STATE_NOISE, TrainConfig};
 use tch::{Device, Kind, Tensor, nn};
 
-use crate::data::{Demonstrations, Episode, Split, Transitions};
+use crate::data::{Demonstrations, Split, Transitions};
 use crate::error::{TrainError, TrainResult};
 use crate::latent::LatentInit;
 use crate::optimise::{Progress, mean_value, optimise};
@@ -231,7 +231,7 @@ fn fitted_config(
 /// latent noise, speed and turning rate: the mean angular velocity of the first two
 /// normalised coordinates about the cycle's centre (the data's mean) or, for go-to
 /// motions, about where each demonstration ends.
-fn latent_init(fitted: &[&Episode], config: &FlowConfig) -> (f64, LatentInit) {
+fn latent_init(split: &Split, config: &FlowConfig) -> (f64, LatentInit) {
     let norm = &config.normalisation;
     let unbounded = |y: &[f64], i: usize| match &config.joint_range {
         Some(range) => range.unbounded(i, y[i]),
@@ -240,7 +240,7 @@ fn latent_init(fitted: &[&Episode], config: &FlowConfig) -> (f64, LatentInit) {
     let normalised =
         |y: &[f64], i: usize| (unbounded(y, i) - norm.state_mean[i]) / norm.state_std[i];
     let (mut squares, mut angle, mut n) = (0.0, 0.0, 0.0);
-    for e in fitted {
+    for e in split.fitted_in_data_order() {
         let end = e.states.last().expect("validated episodes are not empty");
         let centre: [f64; 2] = match config.latent.is_go_to() {
             true => [normalised(end, 0), normalised(end, 1)],
@@ -282,7 +282,7 @@ pub fn train_flow(
     tch::set_num_threads(train.threads);
     tch::manual_seed(train.optim.seed as i64);
     let vs = double_var_store();
-    let (rms_step, init) = latent_init(&split.fitted, &config);
+    let (rms_step, init) = latent_init(&split, &config);
     let model = FlowModel::new(&vs.root(), &config, init);
     let (d, m) = (config.state_dim, config.context_dim);
     let fit = Transitions::new(&split.fitted, d, m);
@@ -381,7 +381,7 @@ pub fn train_flow_into(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::Contexts;
+    use crate::data::{Contexts, Episode};
     use ciflow_engine::flow::{ContextSet, LatentKind};
 
     fn config() -> TrainConfig {
