@@ -376,9 +376,16 @@ fn train_into_an_earlier_checkpoint_leaves_no_stale_baseline() {
             "{}",
             String::from_utf8_lossy(&output.stderr)
         );
+        String::from_utf8_lossy(&output.stdout).into_owned()
     };
-    retrain(&["--baseline"]);
+    let stdout = retrain(&["--baseline"]);
     assert!(baseline.join("config.json").exists());
+    // The limit cycle's recipe holds nothing out: the kept epoch's score is its fit.
+    assert!(
+        stdout.contains("baseline: epoch 1 kept, velocity MSE ")
+            && stdout.contains(" on the fitted episodes (normalised), checkpoint "),
+        "{stdout}"
+    );
     // The baseline's split is the flow's (same seed and fraction): one set of fitted
     // demonstrations for the control and the model it is compared with.
     let split = |dir: &std::path::Path| std::fs::read(dir.join("training_split.json")).unwrap();

@@ -223,7 +223,17 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         baseline
             .save(&dir)
             .with_context(|| format!("writing {}", dir.display()))?;
-        println!("baseline: checkpoint {}", dir.display());
+        // Without held-out episodes the training loss stands in for the validation score.
+        let scored_on = match baseline.split.held_out.is_empty() {
+            true => "the fitted episodes",
+            false => "the held-out episodes",
+        };
+        println!(
+            "baseline: epoch {} kept, velocity MSE {:.4} on {scored_on} (normalised), checkpoint {}",
+            baseline.best_epoch,
+            baseline.history[baseline.best_epoch - 1].validation,
+            dir.display()
+        );
     }
     Ok(())
 }
