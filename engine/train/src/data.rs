@@ -222,10 +222,10 @@ impl<'a> Split<'a> {
             .flat_map(|e| (0..e.states.len()).map(move |t| (e.states[t].as_slice(), e.context(t))))
     }
 
-    /// Per-coordinate mean and standard deviation of the fitted episodes' states (as the network sees them:
-    /// through `R⁻¹` under a joint range) and contexts; the slots of each of `sets` share
-    /// the statistics of all their elements (so the normalisation does not depend on the
-    /// elements' order).
+    /// Per-coordinate mean and standard deviation of the fitted episodes' states (as the
+    /// network sees them: through `R⁻¹` under a joint range) and contexts; the slots of
+    /// each of `sets` share the statistics of all their elements (so the normalisation does
+    /// not depend on the elements' order).
     pub fn normalisation(&self, sets: &[ContextSet], range: Option<&JointRange>) -> Normalisation {
         let (state_mean, state_std) = match range {
             Some(range) => {
