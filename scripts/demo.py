@@ -55,6 +55,9 @@ OBSTACLE_DEMOS = 1000
 POURING_DEMOS = 440
 POURING_TEST_DEMOS = 40
 POURING_FRACTIONS = (0.1, 0.3, 1.0)
+# The learning curve's model that trains the unconstrained MLP beside it (fraction, seed):
+# the demo's pouring policy's data and training seed.
+POURING_CONTROL = (1.0, 0)
 EVALUATION_EPISODES = 100
 # Obstacle episodes take milliseconds each, and a collision rate near the 1 % target needs
 # more than 100 of them to be told from 0 or 2 %.
@@ -334,16 +337,23 @@ def plan(out: pathlib.Path) -> list[Job]:
     # held-out score comes from the separate test recording. The curve's three full-data
     # models (training seeds 0, 1, 2) are also run closed loop: the policy's figures over
     # training seeds.
+    def curve_policy(fraction, seed):
+        return policies / "pouring-curve" / f"{fraction}_seed{seed}"
+
     for fraction in POURING_FRACTIONS:
         # The whole dataset at 1.0: every demonstration that did not fail (the trainer
         # drops the others, so a count of all of them would be more than it has).
         count = [] if fraction == 1.0 else [round(fraction * POURING_DEMOS)]
         for seed in SEEDS:
-            policy = policies / "pouring-curve" / f"{fraction}_seed{seed}"
+            policy = curve_policy(fraction, seed)
             nll = exp / "pouring" / "nll"
+            # The full-data model of seed 0 (the demo's policy again) trains the
+            # unconstrained MLP beside it, with its budget and widths: the control.
+            control = ["--baseline"] if (fraction, seed) == POURING_CONTROL else []
             jobs.append(Job(f"pouring-{fraction}-seed{seed}", [
                 [CIFLOW, "train", "--task", "pouring", "--demos", pouring_data,
-                 *(["--subset", *count] if count else []), "--seed", seed, "--out", policy],
+                 *(["--subset", *count] if count else []), "--seed", seed, "--out", policy,
+                 *control],
                 evaluate(policy, "--nll", pouring_data,
                          *(["--nll-subset", *count] if count else []),
                          "--seed", seed, "--out", nll / f"{fraction}_seed{seed}_train.json"),
@@ -355,6 +365,14 @@ def plan(out: pathlib.Path) -> list[Job]:
                 jobs.append(Job(f"pouring-seed{seed}-closed-loop", [evaluate(
                     policy, *held_out, *extra, "--out", seeds / f"{mode}_seed{seed}.json")
                     for mode, extra in pouring_modes], after=[f"pouring-1.0-seed{seed}"]))
+    # The unconstrained control on the policy's held-out episodes, pushes and pot moves,
+    # and through the stability check the flows pass.
+    control, trained = (curve_policy(*POURING_CONTROL) / "baseline",
+                        "pouring-{}-seed{}".format(*POURING_CONTROL))
+    jobs.append(Job("pouring-baseline", [evaluate(
+        control, *held_out, *extra, "--out", exp / "pouring" / f"baseline-{mode}.json")
+        for mode, extra in pouring_modes], after=[trained]))
+    jobs.append(stability("pouring-baseline", control, trained))
     # Obstacle avoidance with 1, 2 and 3 obstacles, each by the default model and by the
     # generic one (+ the unconstrained baseline for 3).
     obstacle_record_seed = 0

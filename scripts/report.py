@@ -501,6 +501,40 @@ def held_out_and_demonstrated(report, folder, radial, generic, baseline):
 SEED_FILE = re.compile(r"^(?P<mode>eval|push|context)_seed(?P<seed>[0-9]+)\.json$")
 
 
+# The pouring figures of one actor, from its runs of the held-out episodes by mode:
+# (column, mode, value of that mode's results).
+POURING_COLUMNS = (("success", "eval", lambda r: r["success_rate"]),
+                   ("under pushes", "push", lambda r: r["success_rate"]),
+                   (f"back ≤ {RECOVERY_DEADLINE:g} s", "push",
+                    lambda r: r["push"]["recovered_within_deadline_fraction"]),
+                   ("pot moved", "context", lambda r: r["success_rate"]))
+POURING_MODES = ("eval", "push", "context")
+
+
+def pouring_beside_control(report, folder, policy, expert):
+    """The demo's policy, the unconstrained MLP trained beside the same recipe (the same
+    data, training seed, budget and widths; `--baseline`) and the expert, on the same
+    held-out episodes, pushes and pot moves: what stability costs in accuracy."""
+    control = {mode: load(folder / f"baseline-{mode}.json") for mode in POURING_MODES}
+    if not any(control.values()):
+        report.not_run("the unconstrained MLP on the same episodes",
+                       folder / "baseline-eval.json")
+        return
+    report.add("The same held-out episodes, pushes and pot moves, each actor (the MLP fitted "
+               "to the same demonstrations with the flow's training seed, budget and widths, "
+               "and acting through the same controller law):", "",
+               "| actor | " + " | ".join(c[0] for c in POURING_COLUMNS) + " | spilled |",
+               "|---" * (len(POURING_COLUMNS) + 2) + "|")
+    for name, runs in (("stable flow (the demo's policy)", policy),
+                       ("unconstrained MLP (control)", control), ("expert", expert)):
+        cells = ["not run" if runs.get(mode) is None else percent(value(runs[mode]))
+                 for _, mode, value in POURING_COLUMNS]
+        spill = (runs.get("eval") or {}).get("spill_rate")
+        cells.append("—" if spill is None else percent(spill))
+        report.add(f"| {name} | " + " | ".join(cells) + " |")
+    report.add("")
+
+
 def pouring_seeds(report, folder):
     """The closed-loop figures of the models trained on every demonstration with other
     training seeds (the learning curve's full-data models): how much of a figure is the
@@ -513,19 +547,14 @@ def pouring_seeds(report, folder):
     if not runs:
         report.not_run("pouring over training seeds", folder)
         return
-    columns = (("success", "eval", lambda r: r["success_rate"]),
-               ("under pushes", "push", lambda r: r["success_rate"]),
-               (f"back ≤ {RECOVERY_DEADLINE:g} s", "push",
-                lambda r: r["push"]["recovered_within_deadline_fraction"]),
-               ("pot moved", "context", lambda r: r["success_rate"]))
     report.add("The same figures for the models that fit every demonstration with training "
                "seeds 0, 1 and 2 (the learning curve's full-data models):", "",
-               "| training seed | " + " | ".join(c[0] for c in columns) + " |",
-               "|---" * (len(columns) + 1) + "|")
-    values = {name: [] for name, _, _ in columns}
+               "| training seed | " + " | ".join(c[0] for c in POURING_COLUMNS) + " |",
+               "|---" * (len(POURING_COLUMNS) + 1) + "|")
+    values = {name: [] for name, _, _ in POURING_COLUMNS}
     for seed, modes in sorted(runs.items()):
         cells = []
-        for name, mode, value in columns:
+        for name, mode, value in POURING_COLUMNS:
             result = modes.get(mode)
             if result is None:
                 cells.append("not run")
@@ -544,10 +573,10 @@ def pouring(report, root):
     learning_curve(report, folder / "nll", "fraction of the recorded demonstrations",
                    "fraction of the demonstrations", "pouring_nll.png",
                    "Pouring: log-likelihood per transition")
-    free, push, context = (load(folder / f"{n}.json") for n in ("eval", "push", "context"))
+    free, push, context = (load(folder / f"{n}.json") for n in POURING_MODES)
     # The demonstrator through the same episodes, disturbances and measures: what
     # imitating it can be expected to reach.
-    expert = {n: load(folder / f"expert-{n}.json") for n in ("eval", "push", "context")}
+    expert = {n: load(folder / f"expert-{n}.json") for n in POURING_MODES}
 
     def with_expert(mode, measured, value):
         reference = expert[mode] and value(expert[mode])
@@ -590,6 +619,8 @@ def pouring(report, root):
     report.add("")
     if free is not None and free.get("spill_rate") is not None:
         report.add(f"Spill rate without perturbation: {percent(free['spill_rate'])}.", "")
+    pouring_beside_control(report, folder, dict(zip(POURING_MODES, (free, push, context))),
+                           expert)
     pouring_seeds(report, folder / "seeds")
     if push is None:
         report.not_run("push traces", folder / "push.json")

@@ -75,6 +75,20 @@ def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
         written = [str(arg) for command in reach[f"reach-{arm}"].commands for arg in command]
         assert str(tmp_path / "experiments" / "reach" / f"{arm}.json") in written
         assert str(tmp_path / "experiments" / "reach" / f"{arm}-expert.json") in written
+    # The pouring control: the MLP trained beside one full-data model, evaluated from
+    # that model's directory into the files the report's pouring section reads.
+    fraction, seed = demo.POURING_CONTROL
+    trained = next(job for job in jobs if job.name == f"pouring-{fraction}-seed{seed}")
+    assert "--baseline" in trained.commands[0]
+    policy = str(trained.commands[0][trained.commands[0].index("--out") + 1])
+    control = next(job for job in jobs if job.name == "pouring-baseline")
+    assert control.after == [trained.name]
+    for command, mode in zip(control.commands, report.POURING_MODES):
+        assert str(command[command.index("--checkpoint") + 1]) == f"{policy}/baseline"
+        assert str(command[-1]) == str(tmp_path / "experiments" / "pouring" / f"baseline-{mode}.json")
+    check = next(job for job in jobs if job.name == "stability-pouring-baseline")
+    assert str(check.commands[0][check.commands[0].index("--checkpoint") + 1]) == f"{policy}/baseline"
+    assert check.stdout == tmp_path / "experiments" / "stability" / "pouring-baseline.json"
     # Each obstacle model is evaluated where the report's obstacle section reads it.
     obstacle_files = {"obstacles-3-baseline": "3-baseline/eval.json",
                       "obstacles-1-generic": "1-generic/eval.json",

@@ -120,6 +120,13 @@ def experiments(tmp_path):
     write(root / "pouring" / "expert-push.json",
           evaluation(1.0, 10, {"mode": "push", "start": 0.05, "duration": 0.05},
                      push={**push, "recovered_within_deadline_fraction": 1.0}))
+    # The unconstrained MLP's runs of the same episodes; it has no pot-moved run.
+    control = evaluation(0.3, 100, {"mode": "none"})
+    control["spill_rate"] = 0.25
+    write(root / "pouring" / "baseline-eval.json", control)
+    write(root / "pouring" / "baseline-push.json",
+          evaluation(0.2, 10, {"mode": "push", "start": 0.05, "duration": 0.05},
+                     push={**push, "recovered_within_deadline_fraction": 0.1}))
     def within(*fractions):
         return [{"factor": f, "fraction": x} for f, x in zip((1, 10, 100, 1000), fractions)]
     write(root / "stability" / "pouring-flow.json", {
@@ -187,6 +194,11 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert ("| success under pushes (10 episodes) | 80.0% (expert 100.0%) | ≥ 90% | **FAIL** |"
             in text)
     assert "90.0% (expert 100.0%) | ≥ 90% of pushes | **pass** |" in text
+    # The policy, the MLP and the expert on the same episodes, each from its own files.
+    assert ("| stable flow (the demo's policy) | 85.0% | 80.0% | 90.0% | not run |"
+            in text)
+    assert "| unconstrained MLP (control) | 30.0% | 20.0% | 10.0% | not run | 25.0% |" in text
+    assert "| expert | not run | 100.0% | 100.0% | not run | — |" in text
     assert "| 0 | 90.0% | 90.0% | 80.0% | 100.0% |" in text
     assert "| 1 | 70.0% | 70.0% | 60.0% | not run |" in text
     assert ("| mean (range) | 80.0% (70.0%–90.0%) | 80.0% (70.0%–90.0%) | 70.0% (60.0%–80.0%) | "
