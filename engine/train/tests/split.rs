@@ -136,16 +136,12 @@ fn fitted<'a>(data: &'a Demonstrations, split: &TrainingSplit) -> Vec<&'a Episod
     );
     assert!(fitted.is_disjoint(&held_out));
     let all: Vec<&Episode> = data.episodes.iter().collect();
-    let (with_held_out, without) = (
-        expected_statistics(&all),
-        expected_statistics(
-            &data
-                .episodes
-                .iter()
-                .filter(|e| fitted.contains(&e.seed.unwrap()))
-                .collect::<Vec<_>>(),
-        ),
-    );
+    let fitted: Vec<&Episode> = data
+        .episodes
+        .iter()
+        .filter(|e| fitted.contains(&e.seed.unwrap()))
+        .collect();
+    let (with_held_out, without) = (expected_statistics(&all), expected_statistics(&fitted));
     for (a, b) in [
         (&with_held_out.0.state_mean, &without.0.state_mean),
         (&with_held_out.0.context_std, &without.0.context_std),
@@ -156,10 +152,7 @@ fn fitted<'a>(data: &'a Demonstrations, split: &TrainingSplit) -> Vec<&'a Episod
             "the held-out episodes must move the statistics for this test to tell: {held_out:?}"
         );
     }
-    data.episodes
-        .iter()
-        .filter(|e| fitted.contains(&e.seed.unwrap()))
-        .collect()
+    fitted
 }
 
 /// The RMS step per coordinate, normalised: the latent noise the trainer starts from.
