@@ -13,7 +13,10 @@
 //! reaching the target; pouring keeps `is_success = 1` while it pours; the limit cycle
 //! reports it while on the outline); *collision* / *spill* when any step reports
 //! `collision = 1` / `spill = 1`; the *final distance* is the last value of the task's
-//! distance key ([`DISTANCE_KEYS`]).
+//! distance key ([`DISTANCE_KEYS`]). The last step alone cannot tell a cyclic motion that
+//! stays on its cycle from one that stopped on it, so every episode also reports how it
+//! moves over its second half ([`SecondHalf`]): the mean of the distance key and the
+//! mean speed `‖q̇‖`.
 //!
 //! Disturbances ([`Disturbance`]) are the pushes of [`push`] and the mid-motion context
 //! changes of [`Disturbance::Context`].
@@ -146,11 +149,44 @@ pub struct EpisodeResult {
     pub spill: Option<bool>,
     /// Last value of the task's distance key, if it has one.
     pub final_distance: Option<f64>,
+    /// How the episode moved over its second half (absent from reports written before
+    /// it was measured).
+    #[serde(default)]
+    pub second_half: Option<SecondHalf>,
     pub steps: usize,
     pub terminated: bool,
     /// The context after a [`Disturbance::Context`] change.
     pub switched_context: Option<Vec<f64>>,
     pub push: Option<PushOutcome>,
+}
+
+/// Means over the second half of an episode's states (from state `⌊n/2⌋` of the `n`
+/// recorded, the reset's included).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SecondHalf {
+    /// Mean of the task's distance key, if it has one (the limit cycle: the mean distance
+    /// to the outline, m).
+    pub distance: Option<f64>,
+    /// Mean speed `‖q̇‖` (m/s or rad/s): about the expert's along a cycle, zero for a
+    /// motion that stopped.
+    pub speed: f64,
+}
+
+impl SecondHalf {
+    /// From the trace of an episode and its distance key's value at each recorded state
+    /// (empty when the task has none).
+    fn of(trace: &Trace, distances: &[f64]) -> Self {
+        let start = trace.qd.len() / 2;
+        let half = (trace.qd.len() - start) as f64;
+        let speed = trace.qd[start..]
+            .iter()
+            .map(|qd| qd.iter().map(|v| v * v).sum::<f64>().sqrt())
+            .sum::<f64>()
+            / half;
+        let distance = (distances.len() == trace.qd.len())
+            .then(|| distances[start..].iter().sum::<f64>() / half);
+        Self { distance, speed }
+    }
 }
 
 /// An example episode for figures: the disturbed run and, for pushes, its undisturbed
@@ -178,6 +214,10 @@ pub struct EvaluationReport {
     /// Which `info` key [`final_distance`](Self::final_distance) summarises.
     pub distance_key: Option<String>,
     pub final_distance: Option<Summary>,
+    /// Over the episodes, the mean distance ([`SecondHalf::distance`]) and the mean speed
+    /// ([`SecondHalf::speed`]) of each episode's second half.
+    pub second_half_distance: Option<Summary>,
+    pub second_half_speed: Option<Summary>,
     pub episode_steps: Option<Summary>,
     pub push: Option<PushSummary>,
     /// The rates of the episodes that replay the model's demonstrations, fitted and held
@@ -226,6 +266,17 @@ impl std::fmt::Display for EvaluationReport {
             write!(f, ", {:.0} ± {:.0} steps", s.mean, s.std)?;
         }
         writeln!(f, " ({} episodes)", self.episodes)?;
+        if let Some(speed) = &self.second_half_speed {
+            write!(
+                f,
+                "second half of the episodes: speed {:.3} (min {:.3})",
+                speed.mean, speed.min
+            )?;
+            if let (Some(key), Some(d)) = (&self.distance_key, &self.second_half_distance) {
+                write!(f, ", {key} {:.4} (max {:.4})", d.mean, d.max)?;
+            }
+            writeln!(f)?;
+        }
         if let Some(split) = &self.training_split {
             write!(f, "{split}")?;
         }
@@ -265,6 +316,10 @@ enum Schedule {
 #[derive(Clone, Debug)]
 struct Run {
     trace: Trace,
+    /// The task's distance key ([`DISTANCE_KEYS`]), if its reset reports one, and its value
+    /// at each state of `trace`.
+    distance_key: Option<&'static str>,
+    distances: Vec<f64>,
     last_info: Info,
     collision: bool,
     spill: bool,
@@ -288,6 +343,14 @@ fn run_episode(
     }
     let mut trace = Trace::default();
     trace.record(&observation, state_dim, &info);
+    let distance_key = DISTANCE_KEYS.into_iter().find(|k| info.contains_key(k));
+    let mut distances = Vec::new();
+    let mut record_distance = |info: &Info| {
+        if let Some(value) = distance_key.and_then(|k| info.get(k)) {
+            distances.push(*value);
+        }
+    };
+    record_distance(&info);
     let flag = |info: &Info, key: &str| info.get(key).is_some_and(|&v| v == 1.0);
     let (mut collision, mut spill) = (flag(&info, "collision"), flag(&info, "spill"));
     let mut switched_context = None;
@@ -314,6 +377,7 @@ fn run_episode(
         observation = step.observation;
         info = step.info;
         trace.record(&observation, state_dim, &info);
+        record_distance(&info);
         collision |= flag(&info, "collision");
         spill |= flag(&info, "spill");
         if step.terminated || step.truncated {
@@ -322,6 +386,8 @@ fn run_episode(
     };
     Ok(Run {
         trace,
+        distance_key,
+        distances,
         last_info: info,
         collision,
         spill,
@@ -522,8 +588,8 @@ pub fn run_episodes(
                 (run, Some(reference.trace), Some(outcome))
             }
         };
-        let key = DISTANCE_KEYS.iter().find(|k| run.last_info.contains_key(k));
-        batch.distance_key = batch.distance_key.or(key.map(|k| k.to_string()));
+        let key = run.distance_key;
+        batch.distance_key = batch.distance_key.or(key.map(str::to_owned));
         let has = |key: &str| run.last_info.contains_key(key);
         batch.results.push(EpisodeResult {
             seed,
@@ -533,6 +599,7 @@ pub fn run_episodes(
             collision: has("collision").then_some(run.collision),
             spill: has("spill").then_some(run.spill),
             final_distance: key.and_then(|k| run.last_info.get(k).copied()),
+            second_half: Some(SecondHalf::of(&run.trace, &run.distances)),
             steps: run.trace.command.len(),
             terminated: run.terminated,
             switched_context: run.switched_context.clone(),
@@ -594,6 +661,12 @@ pub fn summarize(
     }
     let n = results.len() as f64;
     let distances: Vec<f64> = results.iter().filter_map(|r| r.final_distance).collect();
+    let second_halves: Vec<&SecondHalf> = results
+        .iter()
+        .filter_map(|r| r.second_half.as_ref())
+        .collect();
+    let second_half_distances: Vec<f64> = second_halves.iter().filter_map(|h| h.distance).collect();
+    let second_half_speeds: Vec<f64> = second_halves.iter().map(|h| h.speed).collect();
     let steps: Vec<f64> = results.iter().map(|r| r.steps as f64).collect();
     let push = match &config.disturbance {
         Disturbance::Push(push) => {
@@ -617,6 +690,8 @@ pub fn summarize(
         spill_rate: rate(results.iter().map(|r| r.spill)),
         distance_key,
         final_distance: Summary::of(&distances),
+        second_half_distance: Summary::of(&second_half_distances),
+        second_half_speed: Summary::of(&second_half_speeds),
         episode_steps: Summary::of(&steps),
         push,
         training_split: None,
@@ -714,5 +789,49 @@ impl std::fmt::Display for SplitRates {
             writeln!(f, " ({} episodes)", rates.episodes)?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A trace of unit-circle positions at `angles`, moving at `speed` tangentially.
+    fn circle(angles: &[f64], speed: f64) -> Trace {
+        let mut trace = Trace::default();
+        for &a in angles {
+            trace.q.push(vec![a.cos(), a.sin()]);
+            trace.qd.push(vec![-speed * a.sin(), speed * a.cos()]);
+        }
+        trace
+    }
+
+    /// A motion that stops on its cycle ends as close to it as one that keeps circulating:
+    /// the last distance cannot tell them apart, the second half's speed does.
+    #[test]
+    fn the_second_half_tells_a_stopped_cycle_from_a_circulating_one() {
+        let angles: Vec<f64> = (0..10).map(|k| 0.1 * k as f64).collect();
+        let on_the_cycle = vec![0.0; angles.len()];
+        let circulating = SecondHalf::of(&circle(&angles, 0.8), &on_the_cycle);
+        let mut stopped = circle(&angles, 0.8);
+        stopped.qd[7..]
+            .iter_mut()
+            .for_each(|qd| *qd = vec![0.0, 0.0]);
+        let stopped = SecondHalf::of(&stopped, &on_the_cycle);
+        assert_eq!(circulating.distance, Some(0.0));
+        assert_eq!(stopped.distance, Some(0.0));
+        assert!((circulating.speed - 0.8).abs() < 1e-12);
+        // States 5..10: two of five still moving.
+        assert!(
+            (stopped.speed - 0.8 * 2.0 / 5.0).abs() < 1e-12,
+            "{stopped:?}"
+        );
+        // The distance's mean covers the same states; without one per state there is none.
+        let distances: Vec<f64> = (0..10).map(f64::from).collect();
+        assert_eq!(
+            SecondHalf::of(&circle(&angles, 0.8), &distances).distance,
+            Some(7.0)
+        );
+        assert_eq!(SecondHalf::of(&circle(&angles, 0.8), &[]).distance, None);
     }
 }

@@ -1,8 +1,9 @@
 //! Closed-loop evaluation: the episodes `evaluate` reports are those a hand-written loop
 //! of the actor produces, pushes displace the state by the requested distance through
 //! the real dynamics, context switches hold, the log-likelihood is the per-transition
-//! mean of `Policy::log_transition` with the earlier step's context, and the field data
-//! are the policy's velocity, rollouts and latent grid.
+//! mean of `Policy::log_transition` with the earlier step's context, the field data
+//! are the policy's velocity, rollouts and latent grid, and an episode's second half is
+//! the mean speed and distance of its replayed states.
 
 // The envs tests' obstacle-avoidance flow, shared rather than copied.
 #[path = "../../envs/tests/common/mod.rs"]
@@ -11,6 +12,8 @@ mod common;
 use ciflow_engine::sim::{Perturbation, PerturbationKind};
 use ciflow_envs::actor::{Actor, DEFAULT_VELOCITY_GAIN, Model};
 use ciflow_envs::dataset::Episode;
+use ciflow_envs::expert::limit_cycle::SPEED;
+use ciflow_envs::tasks::limit_cycle;
 use ciflow_envs::tasks::obstacle_avoidance::{self, SUCCESS_DISTANCE};
 use ciflow_envs::{Env, ResetOptions};
 use ciflow_evaluation::field::{FieldConfig, field};
@@ -133,6 +136,57 @@ fn episodes_and_rates_are_those_of_the_closed_loop() {
     );
     let example = report.example.as_ref().unwrap();
     assert_eq!(&example.trace, &report.trajectories[0]);
+}
+
+/// The second half of a limit-cycle episode (the expert's) is the mean speed `‖q̇‖` and
+/// outline distance of the states a hand-written loop steps through from state `⌊n/2⌋`
+/// on: the expert circulates at its speed, on the outline.
+#[test]
+fn the_second_half_is_the_mean_of_the_replayed_states() {
+    let mut env = limit_cycle::make().unwrap();
+    let report = evaluate(
+        &mut env,
+        Acting::Expert,
+        &config(3, Disturbance::None),
+        |_| {},
+    )
+    .unwrap();
+    for (i, result) in report.results.iter().enumerate() {
+        let (mut observation, info) = env
+            .reset(Some(40 + i as u64), &ResetOptions::default())
+            .unwrap();
+        let mut speeds = vec![observation[2].hypot(observation[3])];
+        let mut distances = vec![info["outline_error"]];
+        loop {
+            let step = env.step(&env.expert_action().unwrap()).unwrap();
+            observation = step.observation;
+            speeds.push(observation[2].hypot(observation[3]));
+            distances.push(step.info["outline_error"]);
+            if step.truncated {
+                break;
+            }
+        }
+        let half = speeds.len() / 2;
+        let mean = |values: &[f64]| values.iter().sum::<f64>() / values.len() as f64;
+        let second_half = result.second_half.as_ref().unwrap();
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs().max(1.0);
+        assert!(
+            close(second_half.speed, mean(&speeds[half..])),
+            "{second_half:?}"
+        );
+        assert!(close(
+            second_half.distance.unwrap(),
+            mean(&distances[half..])
+        ));
+        assert!(
+            (second_half.speed - SPEED).abs() < 0.02 * SPEED,
+            "{second_half:?}"
+        );
+        assert!(second_half.distance.unwrap() < 0.1 * limit_cycle::SUCCESS_DISTANCE);
+    }
+    let speeds = report.second_half_speed.as_ref().unwrap();
+    assert_eq!(speeds.count, 3);
+    assert!(report.second_half_distance.as_ref().unwrap().max < limit_cycle::SUCCESS_DISTANCE);
 }
 
 /// The expert, the reference of every experiment, runs through the same loop and
