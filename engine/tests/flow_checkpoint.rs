@@ -83,6 +83,7 @@ fn wrong_task_model_or_shapes_are_typed_errors() {
     // A baseline checkpoint is not a flow.
     let baseline = BaselineConfig {
         task: "test".into(),
+        task_kwargs: Default::default(),
         state_dim: 3,
         context_dim: 2,
         dt: 0.1,

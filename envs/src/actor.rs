@@ -123,13 +123,13 @@ impl Model {
         }
     }
 
-    /// The task's construction arguments recorded in the checkpoint (none for the
-    /// baseline and for checkpoints trained on the task's defaults).
+    /// The task's construction arguments recorded in the checkpoint (none for checkpoints
+    /// trained on the task's defaults).
     pub fn task_kwargs(&self) -> Result<crate::registry::Kwargs, crate::env::EnvError> {
-        match self {
-            Self::Flow(policy) => crate::kwargs::from_json(&policy.config().task_kwargs),
-            Self::Baseline(_) => Ok(crate::registry::Kwargs::new()),
-        }
+        crate::kwargs::from_json(match self {
+            Self::Flow(policy) => &policy.config().task_kwargs,
+            Self::Baseline(baseline) => &baseline.config().task_kwargs,
+        })
     }
 
     pub fn state_dim(&self) -> usize {

@@ -62,6 +62,7 @@ fn baseline_acts_through_the_flows_law_on_its_finite_difference_velocity() {
     let (flow, _) = obstacle_flow_checkpoint(5);
     let config = BaselineConfig {
         task: flow.task,
+        task_kwargs: Default::default(),
         state_dim: 2,
         context_dim: 4,
         dt: flow.dt,

@@ -77,6 +77,7 @@ fn random_baseline() -> BehaviourCloning {
     let (d, m) = (2, 2);
     let config = BaselineConfig {
         task: "test".into(),
+        task_kwargs: Default::default(),
         state_dim: d,
         context_dim: m,
         dt: 0.05,

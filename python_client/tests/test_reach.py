@@ -1,8 +1,10 @@
 """Bring your own robot, end to end on an arm that is not the Panda: demonstrations of
 ``ciflow/Reach-v0`` on a UR5e (its URDF from the test assets), a policy trained on them,
 served by ``ciflow serve``, and stepped from Python through ``gymnasium.make`` with the
-same URDF; over 50 new goals the policy ends within 1 cm of the goal in at least 90 %."""
+same URDF; over 50 new goals the policy ends within 1 cm of the goal in at least 90 %.
+The unconstrained MLP trained beside it acts on the same arm."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -26,14 +28,16 @@ SUCCESS_RADIUS = 0.01
 
 @pytest.fixture(scope="module")
 def reach_engine(tmp_path_factory):
-    """(endpoint, name) of `ciflow serve` with a UR5e reach policy `reach`."""
+    """(endpoint, name, checkpoint) of `ciflow serve` with a UR5e reach policy `reach`, and
+    the policy's checkpoint (the MLP trained beside it in `baseline/`)."""
     if not BINARY.exists():
         pytest.skip(f"{BINARY} not built (cargo build --release)")
     scratch = tmp_path_factory.mktemp("reach")
     kwargs = [arg for key, value in ARGUMENTS.items() for arg in ("--kwarg", f"{key}={value}")]
     ciflow_cli("demos", "--task", "reach", *kwargs, "--episodes", DEMONSTRATIONS,
                "--out", scratch / "demos")
-    ciflow_cli("train", "--task", "reach", "--demos", scratch / "demos", "--out", scratch / "ur5e")
+    ciflow_cli("train", "--task", "reach", "--demos", scratch / "demos", "--out", scratch / "ur5e",
+               "--baseline")
     endpoint, name = f"tcp/127.0.0.1:{free_port()}", "pytest-reach"
     # The checkpoint recorded the URDF: the engine builds the UR5e task without --policy-kwarg.
     process = subprocess.Popen(
@@ -42,13 +46,13 @@ def reach_engine(tmp_path_factory):
         stdout=subprocess.PIPE, text=True,
     )
     assert "ready" in process.stdout.readline()
-    yield endpoint, name
+    yield endpoint, name, scratch / "ur5e"
     process.terminate()
     process.wait(timeout=10)
 
 
 def test_a_policy_learned_on_a_ur5e_reaches_new_goals_from_python(reach_engine):
-    endpoint, _ = reach_engine
+    endpoint, *_ = reach_engine
     policy = ciflow.Policy("reach", engine=endpoint)
     assert (policy.task, policy.observation_dim, policy.action_dim) == ("ciflow/Reach-v0", 15, 6)
     env = gym.make("ciflow/Reach-v0", engine=endpoint, **ARGUMENTS)
@@ -72,7 +76,7 @@ def test_a_policy_learned_on_a_ur5e_reaches_new_goals_from_python(reach_engine):
 
 def test_the_panda_default_is_another_task_than_the_ur5e(reach_engine):
     # The environment's identity holds the arm: the same id without a URDF is the Panda's.
-    endpoint, _ = reach_engine
+    endpoint, *_ = reach_engine
     panda = gym.make("ciflow/Reach-v0", engine=endpoint)
     ur5e = gym.make("ciflow/Reach-v0", engine=endpoint, **ARGUMENTS)
     assert panda.action_space.shape == (7,) and ur5e.action_space.shape == (6,)
@@ -80,3 +84,14 @@ def test_the_panda_default_is_another_task_than_the_ur5e(reach_engine):
         gym.make("ciflow/Reach-v0", engine=endpoint, urdf="/nonexistent/arm.urdf")
     panda.close()
     ur5e.close()
+
+
+def test_the_mlp_trained_beside_it_acts_on_the_same_arm(reach_engine):
+    # The baseline's checkpoint records the URDF too: evaluated, it builds the UR5e's task.
+    *_, checkpoint = reach_engine
+    out = checkpoint.parent / "baseline-eval.json"
+    ciflow_cli("evaluate", "--checkpoint", checkpoint / "baseline", "--episodes", 2, "--seed",
+               100_000, "--out", out)
+    report = json.loads(out.read_text())
+    assert report["model"] == "baseline"
+    assert [len(result["start"]) for result in report["results"]] == [6, 6]

@@ -2,6 +2,7 @@
 //! `ỹ_{k+1} = ỹ_k + dt · MLP(ỹ_k, c̃)` by least squares on the normalised finite
 //! differences — the negative control of the stability check.
 
+use std::collections::BTreeMap;
 use std::io::ErrorKind;
 use std::path::Path;
 
@@ -26,6 +27,9 @@ pub const BASELINE_DIR: &str = "baseline";
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct BaselineTrainConfig {
     pub task: String,
+    /// Recorded in the checkpoint ([`BaselineConfig::task_kwargs`]).
+    #[serde(default)]
+    pub task_kwargs: BTreeMap<String, serde_json::Value>,
     pub hidden: Vec<usize>,
     /// Where the demonstrations go (used only to score convergence).
     pub goal: Goal,
@@ -40,6 +44,7 @@ impl BaselineTrainConfig {
     pub fn new(task: &str, goal: Goal) -> Self {
         Self {
             task: task.to_owned(),
+            task_kwargs: BTreeMap::new(),
             hidden: vec![64, 64],
             goal,
             validation_fraction: 0.2,
@@ -62,6 +67,7 @@ impl BaselineTrainConfig {
         };
         Self {
             task: flow.task.clone(),
+            task_kwargs: flow.task_kwargs.clone(),
             hidden: flow.hidden.clone(),
             goal,
             validation_fraction: flow.validation_fraction,
@@ -128,6 +134,7 @@ pub fn train_baseline(
     let split = data.split(train.validation_fraction, train.optim.seed);
     let config = BaselineConfig {
         task: train.task.clone(),
+        task_kwargs: train.task_kwargs.clone(),
         state_dim: d,
         context_dim: m,
         dt: data.dt,

@@ -120,14 +120,14 @@ fn flow_learns_a_known_stable_system_and_stays_stable_while_bc_does_not() {
     let baseline = train_baseline(
         &data,
         &BaselineTrainConfig {
-            task: "spiral".into(),
             hidden: vec![32, 32],
-            goal: Goal::State {
-                value: vec![0.0, 0.0],
-            },
-            validation_fraction: 0.2,
-            threads: 1,
             optim: config.optim.clone(),
+            ..BaselineTrainConfig::new(
+                "spiral",
+                Goal::State {
+                    value: vec![0.0, 0.0],
+                },
+            )
         },
         |_| {},
     )

@@ -509,6 +509,10 @@ pub fn validate_context_sets(sets: &[ContextSet], m: usize) -> FlowResult<()> {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BaselineConfig {
     pub task: String,
+    /// The task's construction arguments, as [`FlowConfig::task_kwargs`]: the arm a reach
+    /// baseline acts on. Checkpoints without the key were trained on the task's defaults.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub task_kwargs: BTreeMap<String, serde_json::Value>,
     pub state_dim: usize,
     pub context_dim: usize,
     pub dt: f64,
