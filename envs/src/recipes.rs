@@ -40,9 +40,9 @@ const GO_TO_MIN_RATE: f64 = 1.0;
 /// a multiple of `K` both stay put whatever the count (the stretch below `e^{2.8}` with 5
 /// per obstacle; 8 layers had stretched it up to 33× about one obstacle). With 3
 /// obstacles (1000 demonstrations, 2 epochs), over 1000 new contexts and training seeds
-/// 0 / 1 / 2: 8 layers collided in 1.1 / 1.4 / 0.7%, 15 in 0.1 / 0.2 / 0.4%, 16 in
-/// 0.1 / 0.5 / 0.4% (all where an obstacle sits on the straight start-target line); one
-/// obstacle with 5 layers 0 / 0 / 0.1% as with 8 (README, "Obstacle avoidance").
+/// 0 / 1 / 2: 8 layers collided in 1.0 / 1.5 / 1.4%, 15 in 0.4 / 0.2 / 0.1%, 16 in
+/// 0.5 / 0.5 / 0.5% (all where an obstacle sits on the straight start-target line); one
+/// obstacle with 5 layers 0.1 / 0 / 0%, with 8 none (README, "Obstacle avoidance").
 const OBSTACLE_CONTRACTION_LAYERS_PER_OBSTACLE: usize = 5;
 const OBSTACLE_CONTRACTION_EXPONENT: u32 = 2;
 /// LASA's guaranteed latent rate (1/s): its strokes last 2–6 s.
