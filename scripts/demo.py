@@ -70,6 +70,9 @@ TEST_SEED = 100_000
 # flow needs to recover from the evaluation's pushes within 2 s (README "Pouring").
 POURING_DEMO_OPTIONS = ["--option", "push_force=40"]
 LIMIT_CYCLE_MODEL = ["--epochs", "40"]
+# Closed-loop episodes of the limit-cycle models on each context set (the contexts are
+# scheduled in turn, so each of the ten training phases is run ten times).
+LIMIT_CYCLE_EVALUATION_EPISODES = 100
 # The limit-cycle families: (name, training and held-out context sets of the task's
 # `context_set` option, the field figure's contexts).
 LIMIT_CYCLE_FAMILIES = (("limit-cycle", 0, 1, "0;0.5;1"),
@@ -318,17 +321,20 @@ def plan(out: pathlib.Path) -> list[Job]:
                 "--robot-loop", "--robot-traces", "4", *extra]], after=[after],
                 stdout=exp / "robot_loop" / f"{name}{suffix}.json"))
     # Bring your own robot (README): the reach task on two arms that are not the Panda,
-    # given by URDF; recorded through gymnasium.make, trained, and evaluated on new goals
-    # beside their expert.
+    # given by URDF; recorded through gymnasium.make, trained with the unconstrained MLP
+    # beside it, and both evaluated on new goals beside their expert.
     for arm, arguments in REACH_ARMS.items():
         kwargs = [arg for key, value in arguments.items() for arg in ("--kwarg", f"{key}={value}")]
+        policy = policies / f"reach-{arm}"
         jobs.append(Job(f"reach-{arm}", [
             [PYTHON, "-m", "ciflow.record", "--task", "reach", *kwargs, "--episodes",
              REACH_DEMOS, "--seed", 0, "--out", data / f"reach-{arm}", "--no-publish",
              "--overwrite", "--quiet"],
             [CIFLOW, "train", "--task", "reach", "--demos", data / f"reach-{arm}", "--out",
-             policies / f"reach-{arm}"],
-            evaluate(policies / f"reach-{arm}", *held_out, "--out", exp / "reach" / f"{arm}.json"),
+             policy, "--baseline"],
+            evaluate(policy, *held_out, "--out", exp / "reach" / f"{arm}.json"),
+            evaluate(policy / "baseline", *held_out, "--out",
+                     exp / "reach" / f"{arm}-baseline.json"),
             [CIFLOW, "evaluate", "--expert", "--task", "reach", *kwargs, *held_out, "--out",
              exp / "reach" / f"{arm}-expert.json"]]))
     # The pouring policy and the learning curve's models are the task's recipe (`ciflow
@@ -434,18 +440,34 @@ def plan(out: pathlib.Path) -> list[Job]:
                         "--option", f"context_set={train_set}"),
                  record(f"record-{family}-heldout", "limit-cycle", 10, TEST_SEED, lc_test,
                         "--option", f"context_set={test_set}")]
+        best_n = max(LIMIT_CYCLE_TRAJECTORIES)
         for n in LIMIT_CYCLE_TRAJECTORIES:
             for seed in SEEDS:
                 policy, nll = policies / family / f"{n}_seed{seed}", results / "nll"
+                # The model run closed loop trains the unconstrained MLP beside it.
+                control = ["--baseline"] if (n, seed) == (best_n, 0) else []
                 jobs.append(Job(f"{family}-{n}-seed{seed}", [
                     [CIFLOW, "train", "--task", "limit-cycle", "--demos", lc_train, "--subset",
-                     n, "--seed", seed, "--out", policy, *LIMIT_CYCLE_MODEL],
+                     n, "--seed", seed, "--out", policy, *LIMIT_CYCLE_MODEL, *control],
                     evaluate(policy, "--nll", lc_train, "--nll-subset", n, "--seed", seed,
                              "--out", nll / f"{n}_seed{seed}_train.json"),
                     evaluate(policy, "--nll", lc_test, "--out", nll / f"{n}_seed{seed}_test.json"),
                 ], after=[f"record-{family}", f"record-{family}-heldout"]))
-        best = policies / family / f"{max(LIMIT_CYCLE_TRAJECTORIES)}_seed0"
-        best_job = f"{family}-{max(LIMIT_CYCLE_TRAJECTORIES)}-seed0"
+        best = policies / family / f"{best_n}_seed0"
+        best_job = f"{family}-{best_n}-seed0"
+        # Closed loop on the training and the held-out contexts: the flow, the MLP beside
+        # it and the expert, from the same starts (README "The experiments").
+        closed_loop = results / "closed_loop"
+        closed_loop.mkdir(parents=True, exist_ok=True)
+        actors = (("flow", ["--checkpoint", best]),
+                  ("baseline", ["--checkpoint", best / "baseline"]),
+                  ("expert", ["--expert", "--task", "limit-cycle"]))
+        jobs.append(Job(f"{family}-closed-loop", [
+            [CIFLOW, "evaluate", *actor, "--option", f"context_set={contexts}", "--episodes",
+             LIMIT_CYCLE_EVALUATION_EPISODES, "--seed", TEST_SEED,
+             "--out", closed_loop / f"{name}-{contexts_name}.json"]
+            for contexts_name, contexts in (("training", train_set), ("held_out", test_set))
+            for name, actor in actors], after=[best_job]))
         jobs.append(Job(f"{family}-field", [evaluate(
             best, "--field", results / "field.json", "--field-contexts", field_contexts,
             "--field-demos", lc_train)], after=[best_job]))

@@ -309,6 +309,7 @@ def limit_cycle(report, root):
             plot_field(report, field, f"limit_cycle{suffix}_field.png",
                        f"{title}: learned field, rollouts (blue), demonstrations (dotted), "
                        "true outline (dashed)")
+        limit_cycle_closed_loop(report, folder / "closed_loop", held_out)
         report.add(f"Learning curve: the n-trajectory model fits n distinct {what} spread evenly "
                    f"over {fitted}; none is held out of the fit and the last epoch is kept, so "
                    "*train* is the log-likelihood of exactly the demonstrations fitted and *test* "
@@ -316,6 +317,46 @@ def limit_cycle(report, root):
         learning_curve(report, folder / "nll", "training trajectories", "training trajectories",
                        f"limit_cycle{suffix}_nll.png",
                        f"{title.split(' (')[0]}: log-likelihood per transition")
+
+
+# The actors of the limit-cycle closed-loop runs and the context sets they run on, as
+# `scripts/demo.py` names their files (`<actor>-<contexts>.json`).
+LIMIT_CYCLE_ACTORS = (("flow", "stable flow (10 trajectories, seed 0)"),
+                      ("baseline", "unconstrained MLP (control)"), ("expert", "expert"))
+LIMIT_CYCLE_CONTEXTS = (("training", "training contexts"), ("held_out", "held-out contexts"))
+
+
+def limit_cycle_closed_loop(report, folder, held_out):
+    """The flow, the MLP trained beside it and the expert, closed loop from the same new
+    starts: on the outline at the end (success), and over each episode's second half the
+    mean distance to the outline and the mean speed, which tells a motion that keeps
+    circulating from one that stopped on the outline."""
+    runs = {(actor, contexts): load(folder / f"{actor}-{contexts}.json")
+            for actor, _ in LIMIT_CYCLE_ACTORS for contexts, _ in LIMIT_CYCLE_CONTEXTS}
+    if not any(runs.values()):
+        report.not_run("the closed-loop runs beside the unconstrained MLP",
+                       folder / "flow-held_out.json")
+        return
+    report.add(f"Closed loop from new starts (held-out contexts {held_out}); success: within "
+               "3 cm of the outline at the end of the 10 s episode; over the last 5 s: the mean "
+               "distance to the outline and the mean speed (the expert circulates at 0.8 m/s), "
+               "with the slowest episode's:", "",
+               "| actor | contexts | episodes | success | distance to the outline, last 5 s: "
+               "mean (worst episode) | speed, last 5 s: mean (slowest episode) |",
+               "|---|---|---|---|---|---|")
+    for actor, actor_name in LIMIT_CYCLE_ACTORS:
+        for contexts, contexts_name in LIMIT_CYCLE_CONTEXTS:
+            run = runs[(actor, contexts)]
+            if run is None:
+                report.add(f"| {actor_name} | {contexts_name} | not run | | | |")
+                continue
+            distance, speed = run.get("second_half_distance"), run.get("second_half_speed")
+            distance = ("—" if distance is None else
+                        f"{100 * distance['mean']:.2f} cm ({100 * distance['max']:.2f} cm)")
+            speed = "—" if speed is None else f"{speed['mean']:.2f} m/s ({speed['min']:.2f} m/s)"
+            report.add(f"| {actor_name} | {contexts_name} | {run['episodes']} | "
+                       f"{percent(run['success_rate'])} | {distance} | {speed} |")
+    report.add("")
 
 
 def straight_line_clearance(start, context):
@@ -741,27 +782,36 @@ REACH_ARMS = (("ur5e", "UR5e"), ("iiwa14", "KUKA LBR iiwa 14"))
 def reach(report, root):
     report.add("## Bring your own robot: reaching on arms that are not the Panda", "")
     folder = root / "reach"
-    runs = [(label, load(folder / f"{arm}.json"), load(folder / f"{arm}-expert.json"))
+    runs = [(label, *(load(folder / f"{arm}{suffix}.json") for suffix in ("", "-baseline",
+                                                                          "-expert")))
             for arm, label in REACH_ARMS]
-    if not any(policy for _, policy, _ in runs):
+    if not any(policy for _, policy, _, _ in runs):
         report.not_run("reach", folder)
         return
     report.add("`ciflow/Reach-v0` with each arm given by its URDF (`engine/tests/assets`): "
                "the policy trained on 500 expert demonstrations, on new goals (held-out "
-               "seeds), beside the expert on the same goals. Target of issue 17: the tool "
-               "ends within 1 cm of the goal in ≥ 90 %.", "",
-               "| arm | policy within 1 cm | target | final distance, mean (max) | expert |",
-               "|---|---|---|---|---|")
-    for label, policy, expert in runs:
+               "seeds), beside the unconstrained MLP trained with it (the same demonstrations "
+               "and seed; `--baseline`) and the expert on the same goals. Target of issue 17: "
+               "the tool ends within 1 cm of the goal in ≥ 90 %.", "",
+               "| arm | policy within 1 cm | target | final distance, mean (max) | "
+               "MLP (control) within 1 cm, final distance mean (max) | expert |",
+               "|---|---|---|---|---|---|")
+
+    def distance(run):
+        shown = run.get("final_distance") or {}
+        return (f"{1000 * shown['mean']:.1f} mm ({1000 * shown['max']:.1f} mm)"
+                if shown else "n/a")
+
+    for label, policy, control, expert in runs:
         if policy is None:
-            report.add(f"| {label} | not run | ≥ 90% | | |")
+            report.add(f"| {label} | not run | ≥ 90% | | | |")
             continue
-        distance = policy.get("final_distance") or {}
-        shown = (f"{1000 * distance['mean']:.1f} mm ({1000 * distance['max']:.1f} mm)"
-                 if distance else "n/a")
+        control = (f"{percent(control['success_rate'])}, {distance(control)}" if control
+                   else "not run")
         expert_rate = percent(expert["success_rate"]) if expert else "not run"
         report.add(f"| {label} | {percent(policy['success_rate'])} ({policy['episodes']} goals) "
-                   f"| ≥ 90%: {verdict(policy['success_rate'] >= 0.9)} | {shown} | {expert_rate} |")
+                   f"| ≥ 90%: {verdict(policy['success_rate'] >= 0.9)} | {distance(policy)} "
+                   f"| {control} | {expert_rate} |")
 
 
 def stability(report, root):

@@ -75,6 +75,13 @@ def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
         written = [str(arg) for command in reach[f"reach-{arm}"].commands for arg in command]
         assert str(tmp_path / "experiments" / "reach" / f"{arm}.json") in written
         assert str(tmp_path / "experiments" / "reach" / f"{arm}-expert.json") in written
+        # The MLP trained beside the policy, evaluated from the policy's directory.
+        train = next(c for c in reach[f"reach-{arm}"].commands if "train" in map(str, c))
+        assert "--baseline" in train
+        policy = str(train[train.index("--out") + 1])
+        control = next(c for c in reach[f"reach-{arm}"].commands
+                       if str(c[-1]).endswith(f"{arm}-baseline.json"))
+        assert str(control[control.index("--checkpoint") + 1]) == f"{policy}/baseline"
     # The pouring control: the MLP trained beside one full-data model, evaluated from
     # that model's directory into the files the report's pouring section reads.
     fraction, seed = demo.POURING_CONTROL
@@ -89,6 +96,23 @@ def test_the_plan_covers_every_experiment_the_report_reads(tmp_path):
     check = next(job for job in jobs if job.name == "stability-pouring-baseline")
     assert str(check.commands[0][check.commands[0].index("--checkpoint") + 1]) == f"{policy}/baseline"
     assert check.stdout == tmp_path / "experiments" / "stability" / "pouring-baseline.json"
+    # The limit cycles' closed-loop runs: the MLP trained beside the model the runs
+    # evaluate, every actor on both context sets, into the files the report reads.
+    for family in ("limit-cycle", "limit-cycle-curled"):
+        n = max(demo.LIMIT_CYCLE_TRAJECTORIES)
+        trained = next(job for job in jobs if job.name == f"{family}-{n}-seed0")
+        assert "--baseline" in trained.commands[0]
+        policy = str(trained.commands[0][trained.commands[0].index("--out") + 1])
+        runs = next(job for job in jobs if job.name == f"{family}-closed-loop")
+        assert runs.after == [trained.name]
+        folder = tmp_path / "experiments" / family.replace("-", "_") / "closed_loop"
+        written = {str(command[-1]): command for command in runs.commands}
+        for actor, _ in report.LIMIT_CYCLE_ACTORS:
+            for contexts, _ in report.LIMIT_CYCLE_CONTEXTS:
+                command = written[str(folder / f"{actor}-{contexts}.json")]
+                if actor != "expert":
+                    checkpoint = str(command[command.index("--checkpoint") + 1])
+                    assert checkpoint == (policy if actor == "flow" else f"{policy}/baseline")
     # Each obstacle model is evaluated where the report's obstacle section reads it.
     obstacle_files = {"obstacles-3-baseline": "3-baseline/eval.json",
                       "obstacles-1-generic": "1-generic/eval.json",

@@ -72,6 +72,17 @@ def experiments(tmp_path):
     for seed, value in enumerate((1.0, 2.0, 3.0)):
         write(root / "limit_cycle" / "nll" / f"5_seed{seed}_train.json", {"per_transition": value})
         write(root / "limit_cycle" / "nll" / f"5_seed{seed}_test.json", {"per_transition": value - 1})
+    # Closed loop: the flow and the MLP on both context sets, the expert on the held-out
+    # ones only (its other file missing: a "not run" row).
+    for actor, contexts, success, distance, speed in (
+            ("flow", "training", 0.98, 0.0136, 0.80), ("flow", "held_out", 0.95, 0.0154, 0.79),
+            ("baseline", "training", 0.35, 0.0477, 0.55),
+            ("baseline", "held_out", 0.47, 0.0414, 0.50),
+            ("expert", "held_out", 1.0, 0.0005, 0.80)):
+        run = evaluation(success, 100, {"mode": "none"})
+        run["second_half_distance"] = {"mean": distance, "max": 2 * distance}
+        run["second_half_speed"] = {"mean": speed, "min": speed / 10}
+        write(root / "limit_cycle" / "closed_loop" / f"{actor}-{contexts}.json", run)
     # The curled family: its curve only, and no field (a "not run" line).
     for seed, value in enumerate((4.0, 5.0, 6.0)):
         for split, offset in (("train", 0), ("test", 2)):
@@ -160,6 +171,10 @@ def experiments(tmp_path):
                                "max": 0.021}
     write(root / "reach" / "ur5e.json", reach)
     write(root / "reach" / "ur5e-expert.json", evaluation(1.0, 50, {"mode": "none"}))
+    control = evaluation(0.4, 50, {"mode": "none"})
+    control["final_distance"] = {"count": 50, "mean": 0.03, "std": 0.01, "min": 0.002,
+                                 "max": 0.09}
+    write(root / "reach" / "ur5e-baseline.json", control)
     samples = [{"time": 0.01 * k, "state": [0.1 * k] * 7, "command": [1.0] * 7,
                 "reward": -0.5 + 0.005 * k, "running": True, "episode_done": k == 99}
                for k in range(100)]
@@ -178,6 +193,13 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert "| 5 | 2.000 ± 0.816 | 1.000 ± 0.816 | 3 |" in text
     assert "| 10 | 5.000 ± 0.816 | 3.000 ± 0.816 | 3 |" in text
     assert "curled contexts: vector fields and rollouts: not run" in text
+    # The limit cycle closed loop: each actor and context set from its own file.
+    assert ("| stable flow (10 trajectories, seed 0) | held-out contexts | 100 | 95.0% | "
+            "1.54 cm (3.08 cm) | 0.79 m/s (0.08 m/s) |") in text
+    assert ("| unconstrained MLP (control) | training contexts | 100 | 35.0% | 4.77 cm (9.54 cm) | "
+            "0.55 m/s (0.06 m/s) |") in text
+    assert "| expert | training contexts | not run | | | |" in text
+    assert "the closed-loop runs beside the unconstrained MLP: not run" in text
     assert "| goal reached, 3 obstacles | 96.0% (collisions 0.0%) | ≥ 95% | **pass** |" in text
     assert ("| goal reached, 3 obstacles, generic INN | 70.0% (collisions 0.0%) | ≥ 95% | "
             "**FAIL** |") in text
@@ -227,9 +249,9 @@ def test_report_states_targets_tables_and_missing_experiments(experiments, tmp_p
     assert "| flow | — | 100 of 100 | 42 | 6.5% of 1000 | 7 | 130 |" in text
     assert ("| joint-range | 40 N for 0.2 s on the hand at 1 s | 100 of 100 | 3 | 1.2% of 1000 | 7 |"
             in text)
-    assert ("| UR5e | 96.0% (50 goals) | ≥ 90%: **pass** | 4.0 mm (21.0 mm) | 100.0% |"
-            in text)
-    assert "| KUKA LBR iiwa 14 | not run | ≥ 90% | | |" in text
+    assert ("| UR5e | 96.0% (50 goals) | ≥ 90%: **pass** | 4.0 mm (21.0 mm) | "
+            "40.0%, 30.0 mm (90.0 mm) | 100.0% |" in text)
+    assert "| KUKA LBR iiwa 14 | not run | ≥ 90% | | | |" in text
     assert ("session ran 0.99 simulated s (100 telemetry samples) and ended with the spout "
             "0.5 cm from the pour point") in text
     figures = tmp_path / "out" / "figures"
