@@ -316,8 +316,8 @@ enum Schedule {
 #[derive(Clone, Debug)]
 struct Run {
     trace: Trace,
-    /// The task's distance key ([`DISTANCE_KEYS`]), if its reset reports one, and its value
-    /// at each state of `trace`.
+    /// The task's distance key ([`DISTANCE_KEYS`]), the first that a step reports, and its
+    /// value at each state of `trace` that reports it.
     distance_key: Option<&'static str>,
     distances: Vec<f64>,
     last_info: Info,
@@ -343,9 +343,10 @@ fn run_episode(
     }
     let mut trace = Trace::default();
     trace.record(&observation, state_dim, &info);
-    let distance_key = DISTANCE_KEYS.into_iter().find(|k| info.contains_key(k));
-    let mut distances = Vec::new();
+    let (mut distance_key, mut distances) = (None, Vec::new());
     let mut record_distance = |info: &Info| {
+        distance_key =
+            distance_key.or_else(|| DISTANCE_KEYS.into_iter().find(|k| info.contains_key(k)));
         if let Some(value) = distance_key.and_then(|k| info.get(k)) {
             distances.push(*value);
         }
