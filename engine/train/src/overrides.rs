@@ -133,12 +133,12 @@ pub struct RecipeOverrides {
     /// Gaussian jitter added to training states, as a fraction of the demonstrations' RMS
     /// step; gives deterministic (expert) demonstrations a bounded likelihood; 0 trains
     /// on the states as recorded (exact maximum likelihood) [default: the task's: 0 for
-    /// lasa, else 0.1].
+    /// lasa and the limit cycle, else 0.1].
     #[cfg_attr(feature = "clap", arg(long))]
     pub state_noise: Option<f64>,
     /// Longest modelled transition: each training pair spans k ~ U{1..K} steps, scored
     /// with the exact k-step density (1: one-step transitions) [default: the task's: 40
-    /// for lasa, else 1].
+    /// for lasa and the limit cycle, else 1].
     #[cfg_attr(feature = "clap", arg(long))]
     pub horizon: Option<usize>,
     /// Share of the training pairs whose span runs to the end of their demonstration
