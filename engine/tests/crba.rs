@@ -22,13 +22,34 @@ fn mass_matrix_is_symmetric_positive_definite() {
     }
 }
 
+/// A chain in joint frames whose every joint sits off its parent's axis in x and y (the
+/// Panda, UR5e and iiwa place their second joint on the first one's axis).
+const OFFSET_CHAIN_URDF: &str = r#"<robot name="offsets"><link name="base"/>
+    <link name="a"><inertial><origin xyz="0.1 -0.05 0.2"/><mass value="3"/>
+        <inertia ixx="0.05" iyy="0.04" izz="0.03" ixy="0.001" ixz="-0.002" iyz="0.003"/></inertial></link>
+    <link name="b"><inertial><origin xyz="-0.2 0.1 0.05"/><mass value="2"/>
+        <inertia ixx="0.02" iyy="0.03" izz="0.01" ixy="-0.001" ixz="0.001" iyz="0.002"/></inertial></link>
+    <link name="c"><inertial><origin xyz="0.05 0.15 -0.1"/><mass value="1"/>
+        <inertia ixx="0.01" iyy="0.02" izz="0.015" ixy="0.0005" ixz="0" iyz="-0.001"/></inertial></link>
+    <joint name="j0" type="revolute"><parent link="base"/><child link="a"/>
+        <origin xyz="0.1 0.2 0.3"/><axis xyz="0 0 1"/>
+        <limit lower="-3" upper="3" effort="10" velocity="2"/></joint>
+    <joint name="j1" type="revolute"><parent link="a"/><child link="b"/>
+        <origin xyz="0.3 -0.2 0.1" rpy="1.5707963267948966 0 0"/><axis xyz="0 0 1"/>
+        <limit lower="-3" upper="3" effort="10" velocity="2"/></joint>
+    <joint name="j2" type="revolute"><parent link="b"/><child link="c"/>
+        <origin xyz="-0.25 0.15 0.05" rpy="0 -1.5707963267948966 0"/><axis xyz="0 0 1"/>
+        <limit lower="-3" upper="3" effort="10" velocity="2"/></joint>
+    </robot>"#;
+
 /// Both forms of the CRBA against the RNEA: the Panda's joints turn about their z axes
-/// and its placements are axis-aligned (joint frames); the Panda with a prismatic finger
-/// is not (world coordinates).
+/// and its placements are axis-aligned (joint frames), as do the offset chain's; the Panda
+/// with a prismatic finger is not (world coordinates).
 #[test]
 fn mass_matrix_columns_are_rnea_of_unit_accelerations() {
     let finger = SerialChain::from_urdf_file(PANDA_GRIPPER_URDF, &panda_finger_options()).unwrap();
-    for (mut robot, in_joint_frames) in [(panda(), true), (finger, false)] {
+    let offsets = SerialChain::from_urdf_str(OFFSET_CHAIN_URDF).unwrap();
+    for (mut robot, in_joint_frames) in [(panda(), true), (offsets, true), (finger, false)] {
         assert_eq!(
             robot.model().axis_aligned_placements().is_some(),
             in_joint_frames

@@ -91,11 +91,19 @@ fn crba_in_joint_frames(
     // `Fᵢ` with `i > j` moves from frame `j + 1` into frame `j` and gives `Mⱼᵢ`. Those moves
     // are independent of each other, so the CPU overlaps them; column by column, each
     // would wait for the one before.
-    for j in (0..n.saturating_sub(1)).rev() {
+    for j in (1..n.saturating_sub(1)).rev() {
         let joint = data.li_m_i[j + 1];
         for (i, force) in data.f.iter_mut().enumerate().skip(j + 1) {
             *force = joint.act_force(force);
             m[j + i * n] = force.angular.z;
+        }
+    }
+    // Across the first joint the forces go no further: only `M₀ᵢ`, the moment's z
+    // component in frame 0, is read.
+    if n > 1 {
+        let joint = data.li_m_i[1];
+        for (i, force) in data.f.iter().enumerate().skip(1) {
+            m[i * n] = joint.act_force_moment_z(force);
         }
     }
     data.m.fill_lower_triangle_with_upper_triangle();

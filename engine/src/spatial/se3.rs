@@ -90,6 +90,18 @@ impl Se3 {
         )
     }
 
+    /// The z component of [`act_force`](Self::act_force)'s moment alone,
+    /// `(R n + p × R f)_z = R₂ · n + p_x (R f)_y − p_y (R f)_x` with `R₂` the last row of
+    /// `R`: 11 multiplications instead of the whole force's 24 (the CRBA's last crossing).
+    pub fn act_force_moment_z(&self, f: &Force) -> Real {
+        let r = &self.rotation;
+        let (p, lin) = (&self.translation, &f.linear);
+        let rotated_x = r[(0, 0)] * lin.x + r[(0, 1)] * lin.y + r[(0, 2)] * lin.z;
+        let rotated_y = r[(1, 0)] * lin.x + r[(1, 1)] * lin.y + r[(1, 2)] * lin.z;
+        let n = &f.angular;
+        r[(2, 0)] * n.x + r[(2, 1)] * n.y + r[(2, 2)] * n.z + p.x * rotated_y - p.y * rotated_x
+    }
+
     /// `ᵇf = (Rᵀ f, Rᵀ (n − p × f))`.
     pub fn act_inv_force(&self, f: &Force) -> Force {
         Force::new(
@@ -136,5 +148,35 @@ impl Mul for Se3 {
             self.rotation * rhs.rotation,
             self.rotation * rhs.translation + self.translation,
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::*;
+
+    fn vector(rng: &mut ChaCha8Rng) -> Vector3 {
+        Vector3::from_fn(|_, _| rng.random_range(-1.0..=1.0))
+    }
+
+    /// The moment's z component alone against the whole force moved.
+    #[test]
+    fn a_moment_z_is_that_of_the_moved_force() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for _ in 0..100 {
+            let angle = rng.random_range(-3.0..=3.0);
+            let axis = vector(&mut rng).normalize();
+            let transform = Se3::new(Se3::rotation_about(&axis, angle), vector(&mut rng));
+            let force = Force::new(vector(&mut rng), vector(&mut rng));
+            let expected = transform.act_force(&force).angular.z;
+            let actual = transform.act_force_moment_z(&force);
+            assert!(
+                (actual - expected).abs() < 1e-14 * (1.0 + expected.abs()),
+                "{actual} vs {expected}"
+            );
+        }
     }
 }
