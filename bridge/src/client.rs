@@ -32,11 +32,12 @@ use crate::error::{BridgeError, check_name};
 use crate::limits::{Limits, Usage};
 use crate::protocol::keys::{self, SessionOp};
 use crate::protocol::{
-    AckReply, ActRequest, ActionReply, BatchResetReply, BatchSeeds, BatchStepReply,
-    BatchStepRequest, DescribeReply, DescribeRequest, EvaluateReply, EvaluateRequest, F64s,
-    FrameHeader, LimitsReply, LimitsRequest, MakeReply, MakeRequest, PROTOCOL_VERSION, PolicyInfo,
-    RenderReply, RenderRequest, ResetReply, ResetRequest, StabilityReply, StabilityRequest,
-    StepReply, StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply, encode,
+    AckReply, ActRequest, ActionReply, BatchResetReply, BatchSeeds, BatchStepReplyView,
+    BatchStepRequest, DescribeReply, DescribeRequest, EvaluateReply, EvaluateRequest, F64Slice,
+    F64s, FrameHeader, LimitsReply, LimitsRequest, MakeReply, MakeRequest, PROTOCOL_VERSION,
+    PolicyInfo, RenderReply, RenderRequest, ResetReply, ResetRequest, StabilityReply,
+    StabilityRequest, StepReply, StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply,
+    encode, write_le_bytes,
 };
 use crate::query::{Pending, decode_ok, query, retry_unanswered, send_query};
 
@@ -389,6 +390,115 @@ pub struct BatchStep {
     pub info: InfoColumns,
 }
 
+impl BatchStep {
+    /// The results of `envs` environments with `observation_dim` observations each, as
+    /// `step` writes them (in their wire form) and returns the info columns.
+    pub(crate) fn written(
+        envs: usize,
+        observation_dim: usize,
+        step: impl FnOnce(BatchStepOut<'_>) -> Result<InfoColumns, BridgeError>,
+    ) -> Result<Self, BridgeError> {
+        let mut observations = vec![0.0; envs * observation_dim];
+        let mut rewards = vec![0.0; envs];
+        let (mut terminated, mut truncated) = (vec![0; envs], vec![0; envs]);
+        let info = write_le_bytes(&mut observations, |observations| {
+            write_le_bytes(&mut rewards, |rewards| {
+                step(BatchStepOut {
+                    observations,
+                    rewards,
+                    terminated: &mut terminated,
+                    truncated: &mut truncated,
+                })
+            })
+        })?;
+        let flags = |bytes: Vec<u8>| bytes.into_iter().map(|b| b != 0).collect();
+        Ok(Self {
+            observations,
+            rewards,
+            terminated: flags(terminated),
+            truncated: flags(truncated),
+            info,
+        })
+    }
+}
+
+/// Where a batch step's results go, in their wire form: little-endian `f64` bytes
+/// (`observations` row-major `num_envs × obs_dim`, `rewards` one per environment) and one
+/// byte per flag, 0 or 1. Python's arrays read such memory in place, so a reply is copied
+/// once, from the payload to them ([`crate::vector::step_batches_into`]).
+#[derive(Debug)]
+pub struct BatchStepOut<'a> {
+    pub observations: &'a mut [u8],
+    pub rewards: &'a mut [u8],
+    pub terminated: &'a mut [u8],
+    pub truncated: &'a mut [u8],
+}
+
+impl BatchStepOut<'_> {
+    /// The environments `envs` of the batch, `observation_dim` observations each.
+    pub(crate) fn rows(&mut self, envs: Range<usize>, observation_dim: usize) -> BatchStepOut<'_> {
+        let (start, end) = (envs.start, envs.end);
+        BatchStepOut {
+            observations: &mut self.observations
+                [8 * start * observation_dim..8 * end * observation_dim],
+            rewards: &mut self.rewards[8 * start..8 * end],
+            terminated: &mut self.terminated[start..end],
+            truncated: &mut self.truncated[start..end],
+        }
+    }
+
+    /// Environments the buffers hold, if their lengths agree for `observation_dim`.
+    pub(crate) fn envs(&self, observation_dim: usize) -> Option<usize> {
+        let envs = self.terminated.len();
+        (self.truncated.len() == envs
+            && self.rewards.len() == 8 * envs
+            && self.observations.len() == 8 * envs * observation_dim)
+            .then_some(envs)
+    }
+
+    /// Copies `reply` in; its columns must fill the buffers exactly.
+    fn copy_from(
+        &mut self,
+        reply: &BatchStepReplyView,
+    ) -> Result<InfoColumns, rmp_serde::decode::Error> {
+        let columns = [
+            (
+                "observations",
+                reply.observations.0,
+                &mut *self.observations,
+            ),
+            ("rewards", reply.rewards.0, &mut *self.rewards),
+            ("terminated", &reply.terminated[..], &mut *self.terminated),
+            ("truncated", &reply.truncated[..], &mut *self.truncated),
+        ];
+        for (name, from, to) in columns {
+            if from.len() != to.len() {
+                return Err(serde::de::Error::custom(format!(
+                    "{} bytes of {name} where the batch takes {}",
+                    from.len(),
+                    to.len()
+                )));
+            }
+            to.copy_from_slice(from);
+        }
+        let envs = self.terminated.len();
+        reply
+            .info
+            .iter()
+            .map(|(key, values)| {
+                if values.len() != envs {
+                    return Err(serde::de::Error::custom(format!(
+                        "{} values of info `{key}` for {envs} environments",
+                        values.len()
+                    )));
+                }
+                let values = F64s::from_le_bytes(values.0).expect("whole values");
+                Ok(((*key).to_owned(), values))
+            })
+            .collect()
+    }
+}
+
 /// A session on an engine, owned by the [`Client`] that made it. Closed on drop.
 pub struct RemoteEnv {
     /// The session's engine, id, token, Zenoh session and timeout: its controls hold them.
@@ -548,16 +658,19 @@ impl RemoteEnv {
 
     /// Steps every environment with row-major `actions` (`num_envs × action_dim`).
     pub fn step_batch(&self, actions: &[f64]) -> Result<BatchStep, BridgeError> {
-        Self::step_reply(self.send_step_batch(actions)?)
+        let observation_dim = self.spec.observation_space.dim();
+        BatchStep::written(self.num_envs as usize, observation_dim, |mut out| {
+            Self::step_reply_into(self.send_step_batch(actions)?, &mut out)
+        })
     }
 
-    /// Sends [`step_batch`](Self::step_batch)'s request; [`step_reply`](Self::step_reply)
-    /// takes its reply.
+    /// Sends [`step_batch`](Self::step_batch)'s request;
+    /// [`step_reply_into`](Self::step_reply_into) takes its reply.
     pub(crate) fn send_step_batch(&self, actions: &[f64]) -> Result<Pending<'_>, BridgeError> {
         let request = BatchStepRequest {
             v: PROTOCOL_VERSION,
             token: self.control.token_field(),
-            actions: F64s(actions.to_vec()),
+            actions: F64Slice(actions),
         };
         if self.num_envs == 1 {
             self.send(SessionOp::StepBatch, &request)
@@ -566,15 +679,13 @@ impl RemoteEnv {
         }
     }
 
-    pub(crate) fn step_reply(pending: Pending<'_>) -> Result<BatchStep, BridgeError> {
-        let reply: BatchStepReply = pending.reply()?;
-        Ok(BatchStep {
-            observations: reply.observations.0,
-            rewards: reply.rewards.0,
-            terminated: reply.terminated.iter().map(|&b| b != 0).collect(),
-            truncated: reply.truncated.iter().map(|&b| b != 0).collect(),
-            info: unwrap_columns(reply.info),
-        })
+    /// Copies the reply to a [`send_step_batch`](Self::send_step_batch) into `out`, which
+    /// holds this session's environments; returns the info columns.
+    pub(crate) fn step_reply_into(
+        pending: Pending<'_>,
+        out: &mut BatchStepOut<'_>,
+    ) -> Result<InfoColumns, BridgeError> {
+        pending.reply_with(|payload| out.copy_from(&decode_reply(payload)?))
     }
 
     /// The expert's action for environment `index`.
@@ -687,4 +798,73 @@ fn receive_frame(
 
 fn unwrap_columns(columns: BTreeMap<String, F64s>) -> InfoColumns {
     columns.into_iter().map(|(k, v)| (k, v.0)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use serde_bytes::ByteBuf;
+
+    use super::*;
+    use crate::protocol::BatchStepReply;
+
+    /// A reply of two environments with two observations each.
+    fn reply() -> Vec<u8> {
+        encode(&BatchStepReply {
+            v: PROTOCOL_VERSION,
+            observations: F64s(vec![1.0, -2.0, f64::from_bits(0x7ff8_dead_beef_0001), -0.0]),
+            rewards: F64s(vec![0.5, 1e-300]),
+            terminated: ByteBuf::from(vec![1, 0]),
+            truncated: ByteBuf::from(vec![0, 1]),
+            info: [("distance".to_owned(), F64s(vec![3.0, f64::NAN]))].into(),
+        })
+    }
+
+    /// Copies `payload` into buffers for `envs` environments of two observations; the
+    /// copy's error as its message.
+    fn copied(payload: &[u8], envs: usize) -> Result<BatchStep, String> {
+        let mut refused = None;
+        let step = BatchStep::written(envs, 2, |mut out| {
+            out.copy_from(&decode_reply(payload).expect("a reply"))
+                .map_err(|error| {
+                    refused = Some(error.to_string());
+                    BridgeError::InvalidArgument("refused".into())
+                })
+        });
+        step.map_err(|_| refused.expect("the copy's error"))
+    }
+
+    #[test]
+    fn a_reply_read_in_place_holds_what_the_owned_decoding_does() {
+        let payload = reply();
+        let owned: BatchStepReply = decode_reply(&payload).unwrap();
+        let step = copied(&payload, 2).expect("a reply of the batch's size");
+        let bits = |v: &[f64]| v.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&step.observations), bits(&owned.observations.0));
+        assert_eq!(bits(&step.rewards), bits(&owned.rewards.0));
+        assert_eq!(step.terminated, [true, false]);
+        assert_eq!(step.truncated, [false, true]);
+        assert_eq!(
+            bits(&step.info["distance"]),
+            bits(&owned.info["distance"].0)
+        );
+    }
+
+    #[test]
+    fn a_reply_of_another_size_than_the_batch_is_an_error() {
+        let payload = reply();
+        for envs in [1, 3] {
+            let error = copied(&payload, envs).unwrap_err();
+            assert!(
+                error.contains("bytes of observations where the batch takes"),
+                "{envs}: {error}"
+            );
+        }
+        let mut short_info: BatchStepReply = decode_reply(&payload).unwrap();
+        short_info.info.insert("time".into(), F64s(vec![1.0]));
+        let error = copied(&encode(&short_info), 2).unwrap_err();
+        assert!(
+            error.contains("1 values of info `time` for 2 environments"),
+            "{error}"
+        );
+    }
 }

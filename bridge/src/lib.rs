@@ -43,7 +43,7 @@ pub mod vector;
 pub use access::AccessPolicy;
 pub use checkpoint_policy::{CheckpointPolicy, PolicyLoadError};
 pub use ciflow_envs::registry::Kwargs;
-pub use client::{BatchStep, Client, EngineInfo, RemoteEnv, StepResult};
+pub use client::{BatchStep, BatchStepOut, Client, EngineInfo, RemoteEnv, StepResult};
 pub use config::{
     DEFAULT_ENDPOINT, DEFAULT_ENDPOINT_VARIABLE, Mode, NetworkOptions, Role, default_endpoint,
 };

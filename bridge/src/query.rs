@@ -117,6 +117,15 @@ impl<'a> Pending<'a> {
     /// The query's one reply, the query sent again while it reached no engine
     /// ([`retry_unrouted`]).
     pub(crate) fn reply<R: DeserializeOwned>(self) -> Result<R, BridgeError> {
+        self.reply_with(|payload| decode_reply(payload))
+    }
+
+    /// The query's one reply as `decode` reads its payload (in place, say), the query sent
+    /// again as [`reply`](Self::reply) does.
+    pub(crate) fn reply_with<R>(
+        self,
+        mut decode: impl FnMut(&[u8]) -> Result<R, rmp_serde::decode::Error>,
+    ) -> Result<R, BridgeError> {
         let mut first = Some((self.replies, self.sent));
         retry_unrouted(self.timeout, || {
             let (replies, sent) = match first.take() {
@@ -126,7 +135,7 @@ impl<'a> Pending<'a> {
                     ((self.send)(self.payload.clone())?, sent)
                 }
             };
-            first_reply(&self.key, &replies, sent)
+            first_reply(&self.key, &replies, sent, &mut decode)
         })
     }
 }
@@ -176,13 +185,14 @@ pub(crate) fn retry_unanswered<T>(
 /// The first reply of a query sent at `sent`. Zenoh ends a query with no reply at all when
 /// no queryable matches it, and with its own error reply `Timeout` when one matched but
 /// did not answer in time (the engine's errors are always encoded [`ErrorReply`]s).
-fn first_reply<R: DeserializeOwned>(
+fn first_reply<R>(
     key: &str,
     replies: &FifoChannelHandler<Reply>,
     sent: Instant,
+    decode: impl FnOnce(&[u8]) -> Result<R, rmp_serde::decode::Error>,
 ) -> Result<R, BridgeError> {
     match replies.recv() {
-        Ok(reply) => decode_ok(key, &reply, sent),
+        Ok(reply) => decode_ok_with(key, &reply, sent, decode),
         Err(_) => Err(BridgeError::NoEngine {
             key: key.to_owned(),
         }),
@@ -203,6 +213,16 @@ pub(crate) fn decode_ok<R: DeserializeOwned>(
     reply: &Reply,
     sent: Instant,
 ) -> Result<R, BridgeError> {
+    decode_ok_with(key, reply, sent, |payload| decode_reply(payload))
+}
+
+/// [`decode_ok`] with the payload read by `decode`.
+fn decode_ok_with<R>(
+    key: &str,
+    reply: &Reply,
+    sent: Instant,
+    decode: impl FnOnce(&[u8]) -> Result<R, rmp_serde::decode::Error>,
+) -> Result<R, BridgeError> {
     if is_zenoh_timeout(reply) {
         return Err(BridgeError::NoReply {
             key: key.to_owned(),
@@ -211,7 +231,7 @@ pub(crate) fn decode_ok<R: DeserializeOwned>(
     }
     match reply.result() {
         Ok(sample) => {
-            decode_reply(&sample.payload().to_bytes()).map_err(|source| BridgeError::BadReply {
+            decode(&sample.payload().to_bytes()).map_err(|source| BridgeError::BadReply {
                 key: key.to_owned(),
                 source,
             })

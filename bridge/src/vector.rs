@@ -9,7 +9,7 @@ use std::collections::BTreeSet;
 
 use ciflow_envs::ResetOptions;
 
-use crate::client::{BatchStep, InfoColumns, RemoteEnv};
+use crate::client::{BatchStep, BatchStepOut, InfoColumns, RemoteEnv};
 use crate::error::BridgeError;
 use crate::protocol::BatchSeeds;
 use crate::query::Pending;
@@ -60,6 +60,20 @@ pub fn reset_batches(
 /// Steps every environment of `sessions` with row-major `actions` (`Σ num_envs ×
 /// action_dim`), next-step autoreset as [`RemoteEnv::step_batch`]; the replies merged.
 pub fn step_batches(sessions: &[&RemoteEnv], actions: &[f64]) -> Result<BatchStep, BridgeError> {
+    let shape = shape_of(sessions)?;
+    BatchStep::written(shape.envs, shape.observation_dim, |out| {
+        step_batches_into(sessions, actions, out)
+    })
+}
+
+/// [`step_batches`] with the merged observations, rewards and flags written into `out`
+/// (sized for every environment of `sessions`), each reply copied there once from its
+/// payload; returns the merged info columns.
+pub fn step_batches_into(
+    sessions: &[&RemoteEnv],
+    actions: &[f64],
+    mut out: BatchStepOut<'_>,
+) -> Result<InfoColumns, BridgeError> {
     let Shape {
         envs,
         action_dim,
@@ -71,38 +85,31 @@ pub fn step_batches(sessions: &[&RemoteEnv], actions: &[f64]) -> Result<BatchSte
             actions.len()
         )));
     }
+    if out.envs(observation_dim) != Some(envs) {
+        return Err(BridgeError::InvalidArgument(format!(
+            "result buffers of {} observation, {} reward, {} and {} flag bytes for {envs} \
+             environments of {observation_dim} observations",
+            out.observations.len(),
+            out.rewards.len(),
+            out.terminated.len(),
+            out.truncated.len()
+        )));
+    }
     let mut rest = actions;
     let replies = in_flight(sessions, |session| {
         let (share, after) = rest.split_at(session.num_envs() as usize * action_dim);
         rest = after;
         session.send_step_batch(share)
     })?;
-    let mut steps = sessions
-        .iter()
-        .zip(replies)
-        .map(|(session, pending)| RemoteEnv::step_reply(pending).map_err(in_engine(session)))
-        .collect::<Result<Vec<_>, _>>()?;
-    if steps.len() == 1 {
-        // One session's reply is the batch's as it came: nothing to copy.
-        return Ok(steps.remove(0));
-    }
-    let mut merged = BatchStep {
-        observations: Vec::with_capacity(envs * observation_dim),
-        rewards: Vec::with_capacity(envs),
-        terminated: Vec::with_capacity(envs),
-        truncated: Vec::with_capacity(envs),
-        info: InfoColumns::new(),
-    };
     let mut infos = Vec::with_capacity(sessions.len());
-    for step in steps {
-        merged.observations.extend(step.observations);
-        merged.rewards.extend(step.rewards);
-        merged.terminated.extend(step.terminated);
-        merged.truncated.extend(step.truncated);
-        infos.push(step.info);
+    let mut first = 0;
+    for (session, pending) in sessions.iter().zip(replies) {
+        let rows = first..first + session.num_envs() as usize;
+        first = rows.end;
+        let mut share = out.rows(rows, observation_dim);
+        infos.push(RemoteEnv::step_reply_into(pending, &mut share).map_err(in_engine(session))?);
     }
-    merged.info = merge_columns(sessions, infos);
-    Ok(merged)
+    Ok(merge_columns(sessions, infos))
 }
 
 /// A batch's size and spaces.

@@ -7,10 +7,10 @@
 
 mod common;
 
-use ciflow_bridge::vector::{reset_batches, step_batches};
+use ciflow_bridge::vector::{reset_batches, step_batches, step_batches_into};
 use ciflow_bridge::{
-    AccessPolicy, BatchSeeds, BatchStep, BridgeError, Client, EngineServer, NetworkOptions,
-    RemoteEnv, Role, Router, ServerOptions,
+    AccessPolicy, BatchSeeds, BatchStep, BatchStepOut, BridgeError, Client, EngineServer,
+    NetworkOptions, RemoteEnv, Role, Router, ServerOptions,
 };
 use ciflow_envs::ResetOptions;
 use common::*;
@@ -161,6 +161,24 @@ fn a_batch_over_two_engines_equals_one_session_on_one_engine() {
     assert!(
         matches!(wrong_length, BridgeError::InvalidArgument(_)),
         "{wrong_length}"
+    );
+    let (mut observations, mut rewards, mut flags) = ([0; 8 * 5 * 2], [0; 8 * 5], [0; 5]);
+    let short = step_batches_into(
+        &spread,
+        &[0.0; 5],
+        BatchStepOut {
+            observations: &mut observations,
+            rewards: &mut rewards,
+            terminated: &mut flags,
+            truncated: &mut [0; 4],
+        },
+    )
+    .unwrap_err();
+    assert!(
+        short
+            .to_string()
+            .contains("4 flag bytes for 5 environments"),
+        "{short}"
     );
     let none = step_batches(&[], &[]).unwrap_err();
     assert!(matches!(none, BridgeError::InvalidArgument(_)), "{none}");

@@ -60,27 +60,15 @@ pub fn floats_to_bytes<'py>(py: Python<'py>, values: &[f64]) -> Bound<'py, PyByt
 
 /// `values` as little-endian `f64` bytes in a new `bytearray`, for arrays handed to the
 /// caller: `np.frombuffer` reads a `bytearray` in place and writable, where `bytes` would
-/// need a second copy to be writable. The batched calls return their results this way, so
-/// a batch's values are copied once out of the decoded reply, not twice.
+/// need a second copy to be writable. A batch reset and the info columns come back this
+/// way; a batch step's other results are written into their `bytearray`s from the reply
+/// itself (`step_batches`).
 pub fn floats_to_bytearray<'py>(
     py: Python<'py>,
     values: &[f64],
 ) -> PyResult<Bound<'py, PyByteArray>> {
     PyByteArray::new_with(py, size_of_val(values), |bytes| {
         bytes.copy_from_slice(&F64s::le_bytes(values));
-        Ok(())
-    })
-}
-
-/// Flags as one byte each (`0` or `1`, numpy's `bool`) in a new `bytearray`.
-pub fn flags_to_bytearray<'py>(
-    py: Python<'py>,
-    flags: &[bool],
-) -> PyResult<Bound<'py, PyByteArray>> {
-    PyByteArray::new_with(py, flags.len(), |bytes| {
-        for (byte, &flag) in bytes.iter_mut().zip(flags) {
-            *byte = u8::from(flag);
-        }
         Ok(())
     })
 }

@@ -12,17 +12,16 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use ciflow_bridge::{
-    ANY_ENGINE, BatchSeeds, Client, EngineServer, EpisodePublisher, Mode, NetworkOptions,
-    RemoteEnv, ServerOptions, SessionControl, TelemetryStream, spread, vector,
+    ANY_ENGINE, BatchSeeds, BatchStepOut, Client, EngineServer, EpisodePublisher, Mode,
+    NetworkOptions, RemoteEnv, ServerOptions, SessionControl, TelemetryStream, spread, vector,
 };
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyByteArray, PyBytes, PyDict};
 
 use crate::convert::{
-    PyKwarg, columns_to_dict, flags_to_bytearray, floats_from_bytes, floats_to_bytearray,
-    floats_to_bytes, kwargs_from_py, kwargs_to_dict, perturbation_from_dict,
-    reset_options_from_dict, spec_to_dict,
+    PyKwarg, columns_to_dict, floats_from_bytes, floats_to_bytearray, floats_to_bytes,
+    kwargs_from_py, kwargs_to_dict, perturbation_from_dict, reset_options_from_dict, spec_to_dict,
 };
 use crate::datasets::{PyDatasetSpec, PyDatasetWriter, PyEpisode, PyEpisodePublisher};
 use crate::errors::{CiflowError, EngineUnreachable, to_py};
@@ -377,15 +376,37 @@ fn step_batches<'py>(
 )> {
     let actions = floats_from_bytes("actions", actions)?;
     let envs: Vec<&RemoteEnv> = sessions.iter().map(|s| &s.env).collect();
-    let step = py
-        .detach(|| vector::step_batches(&envs, &actions))
+    // Sized from the sessions: `step_batches_into` refuses sessions of different spaces
+    // before it looks at them.
+    let count: usize = envs.iter().map(|env| env.num_envs() as usize).sum();
+    let observation_dim = envs
+        .first()
+        .map_or(0, |env| env.spec().observation_space.dim());
+    let zeroed = |len| PyByteArray::new_with(py, len, |_| Ok(()));
+    let observations = zeroed(8 * count * observation_dim)?;
+    let rewards = zeroed(8 * count)?;
+    let terminated = zeroed(count)?;
+    let truncated = zeroed(count)?;
+    // SAFETY: the byte arrays were made just above and nothing else refers to them until
+    // they are returned, so no Python code can resize or read them while the GIL is
+    // released.
+    let out = unsafe {
+        BatchStepOut {
+            observations: observations.as_bytes_mut(),
+            rewards: rewards.as_bytes_mut(),
+            terminated: terminated.as_bytes_mut(),
+            truncated: truncated.as_bytes_mut(),
+        }
+    };
+    let info = py
+        .detach(|| vector::step_batches_into(&envs, &actions, out))
         .map_err(to_py)?;
     Ok((
-        floats_to_bytearray(py, &step.observations)?,
-        floats_to_bytearray(py, &step.rewards)?,
-        flags_to_bytearray(py, &step.terminated)?,
-        flags_to_bytearray(py, &step.truncated)?,
-        columns_to_dict(py, &step.info)?,
+        observations,
+        rewards,
+        terminated,
+        truncated,
+        columns_to_dict(py, &info)?,
     ))
 }
 

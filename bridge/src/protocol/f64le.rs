@@ -78,8 +78,82 @@ impl From<Vec<f64>> for F64s {
 
 impl Serialize for F64s {
     fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serializer.serialize_bytes(&Self::le_bytes(&self.0))
+        F64Slice(&self.0).serialize(serializer)
     }
+}
+
+/// Values encoded as [`F64s`] are, from memory the caller keeps: a client sends a batch's
+/// actions without copying them into a vector first.
+#[derive(Clone, Copy, Debug)]
+pub struct F64Slice<'a>(pub &'a [f64]);
+
+impl Serialize for F64Slice<'_> {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_bytes(&F64s::le_bytes(self.0))
+    }
+}
+
+/// An [`F64s`] read in place: its little-endian bytes, borrowed from the message. A client
+/// copies a batch reply's columns once, from the payload straight to where it keeps them.
+/// Only the `bin` form, the one engines send.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct F64Bin<'a>(pub &'a [u8]);
+
+impl F64Bin<'_> {
+    /// How many values the bytes hold.
+    pub fn len(&self) -> usize {
+        self.0.len() / 8
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+}
+
+impl<'de: 'a, 'a> Deserialize<'de> for F64Bin<'a> {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        deserializer.deserialize_bytes(F64BinVisitor)
+    }
+}
+
+struct F64BinVisitor;
+
+impl<'de> Visitor<'de> for F64BinVisitor {
+    type Value = F64Bin<'de>;
+
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("a bin of little-endian f64 (length a multiple of 8)")
+    }
+
+    fn visit_borrowed_bytes<E: de::Error>(self, bytes: &'de [u8]) -> Result<F64Bin<'de>, E> {
+        if bytes.len().is_multiple_of(8) {
+            Ok(F64Bin(bytes))
+        } else {
+            Err(E::custom(format!(
+                "f64 byte string of {} bytes is not a multiple of 8",
+                bytes.len()
+            )))
+        }
+    }
+}
+
+/// Runs `write` on the memory of `values` as bytes, where it writes little-endian `f64`s,
+/// and leaves `values` holding them: their own bytes on a little-endian CPU, byte-swapped
+/// after `write` elsewhere. Every bit pattern is an `f64`, so whatever `write` leaves is
+/// a value.
+pub fn write_le_bytes<R>(values: &mut [f64], write: impl FnOnce(&mut [u8]) -> R) -> R {
+    // SAFETY: the bytes are exactly the slice's `8 len`, borrowed mutably for the call
+    // only; `u8` has no alignment requirement and any byte pattern is a valid `f64`.
+    let bytes = unsafe {
+        std::slice::from_raw_parts_mut(values.as_mut_ptr().cast::<u8>(), size_of_val(values))
+    };
+    let result = write(bytes);
+    if cfg!(target_endian = "big") {
+        for value in values.iter_mut() {
+            *value = f64::from_bits(value.to_bits().swap_bytes());
+        }
+    }
+    result
 }
 
 impl<'de> Deserialize<'de> for F64s {
@@ -179,6 +253,28 @@ mod tests {
         assert_eq!(&*F64s::le_bytes(&values), &expected[..]);
         let bin = rmp_serde::to_vec(&F64s(values.to_vec())).unwrap();
         assert_eq!(&bin[2..], &expected[..], "after the bin 8 header");
+    }
+
+    /// What a [`F64Slice`] encodes reads back, in place, as the same values: its bytes
+    /// borrowed by [`F64Bin`], written into `f64` memory by [`write_le_bytes`].
+    #[test]
+    fn a_slice_encodes_as_f64s_and_reads_back_in_place() {
+        let values = [1.5, -0.0, f64::from_bits(0x7ff8_dead_beef_0001), -3e-310];
+        let encoded = rmp_serde::to_vec(&F64Slice(&values)).unwrap();
+        assert_eq!(encoded, rmp_serde::to_vec(&F64s(values.to_vec())).unwrap());
+        let bin: F64Bin = rmp_serde::from_slice(&encoded).unwrap();
+        assert_eq!(bin.len(), values.len());
+        let mut read = [7.0; 4];
+        write_le_bytes(&mut read, |bytes| bytes.copy_from_slice(bin.0));
+        let bits = |v: &[f64]| v.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&read), bits(&values));
+        let ragged = rmp_serde::to_vec(&serde_bytes::Bytes::new(&[0u8; 7])).unwrap();
+        assert!(rmp_serde::from_slice::<F64Bin>(&ragged).is_err());
+        let array = rmp_serde::to_vec(&values).unwrap();
+        assert!(
+            rmp_serde::from_slice::<F64Bin>(&array).is_err(),
+            "the array form"
+        );
     }
 
     #[test]

@@ -12,8 +12,8 @@ use ciflow_evaluation::{EpisodeBatch, EvaluationConfig};
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
 
-use super::F64s;
 use super::wire::{bin_only, reset_options};
+use super::{F64Bin, F64s};
 use crate::limits::{Limits, Usage};
 
 /// The fields every request may carry: its version, and how long the caller will wait.
@@ -254,13 +254,14 @@ pub struct BatchResetReply {
     pub info: BTreeMap<String, F64s>,
 }
 
-/// `…/step_batch`: actions row-major `num_envs × action_dim`.
+/// `…/step_batch`: actions row-major `num_envs × action_dim`. Clients send them from
+/// their own memory ([`F64Slice`](super::F64Slice)); the engine decodes [`F64s`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct BatchStepRequest {
+pub struct BatchStepRequest<A = F64s> {
     pub v: u16,
     #[serde(deserialize_with = "bin_only")]
     pub token: ByteBuf,
-    pub actions: F64s,
+    pub actions: A,
 }
 
 /// Reply to `…/step_batch`, with Gymnasium's next-step autoreset: an environment whose
@@ -277,6 +278,24 @@ pub struct BatchStepReply {
     pub truncated: ByteBuf,
     /// Info columns, as in [`BatchResetReply::info`].
     pub info: BTreeMap<String, F64s>,
+}
+
+/// A [`BatchStepReply`] read in place, its columns borrowed from the payload: a client
+/// copies them once, straight to where it keeps the batch
+/// ([`crate::vector::step_batches_into`]).
+#[derive(Debug, Deserialize)]
+pub struct BatchStepReplyView<'a> {
+    pub v: u16,
+    #[serde(borrow)]
+    pub observations: F64Bin<'a>,
+    #[serde(borrow)]
+    pub rewards: F64Bin<'a>,
+    #[serde(borrow)]
+    pub terminated: &'a serde_bytes::Bytes,
+    #[serde(borrow)]
+    pub truncated: &'a serde_bytes::Bytes,
+    #[serde(borrow)]
+    pub info: BTreeMap<&'a str, F64Bin<'a>>,
 }
 
 /// `…/expert` (`{v, token, index}`) and `…/close` (`{v, token}`).

@@ -16,13 +16,13 @@ pub use batch_step::{BatchStepRows, BatchStepWriter, InfoBlock, MessageBuffer};
 pub use checkpoint::{CheckpointMsg, CheckpointSignature, RunRequest};
 pub use episodes::{EpisodeError, EpisodeMsg, decode_episode};
 pub use error::{ErrorCode, ErrorReply};
-pub use f64le::F64s;
+pub use f64le::{F64Bin, F64Slice, F64s, write_le_bytes};
 pub use messages::*;
 pub use serde_bytes::ByteBuf;
 pub use wire::{MAX_REQUEST_BYTES, PROTOCOL_VERSION, TOKEN_BYTES};
 
-use serde::Serialize;
 use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
 
 /// Encodes a message as a MessagePack map with named fields.
 pub fn encode<T: Serialize>(message: &T) -> Vec<u8> {
@@ -88,7 +88,9 @@ pub fn requested_deadline(payload: &[u8]) -> Option<u32> {
 }
 
 /// Decodes a reply payload (client side).
-pub fn decode_reply<T: DeserializeOwned>(payload: &[u8]) -> Result<T, rmp_serde::decode::Error> {
+pub fn decode_reply<'a, T: Deserialize<'a>>(
+    payload: &'a [u8],
+) -> Result<T, rmp_serde::decode::Error> {
     rmp_serde::from_slice(payload)
 }
 
