@@ -44,6 +44,7 @@ use crate::flow::checkpoint::names::{
 };
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::error::{FlowError, FlowResult};
+use crate::math::MatrixExp;
 use crate::nn::scalar::Scalar;
 
 const LN_2PI: f64 = 1.837_877_066_409_345_5;
@@ -123,6 +124,15 @@ pub fn settle(u: f64, tau: f64) -> f64 {
     }
 }
 
+/// `e^{A t}` and `e^{Ω t}` of [`LatentDynamics::mean_after`], with their workspaces.
+#[derive(Clone, Debug)]
+pub struct LatentFlowScratch {
+    linear: MatrixExp,
+    turning: MatrixExp,
+    transition: DMatrix<f64>,
+    turn: DMatrix<f64>,
+}
+
 #[derive(Clone, Debug)]
 pub struct LatentDynamics {
     kind: LatentKind,
@@ -186,6 +196,9 @@ impl LatentDynamics {
             }
             _ => DMatrix::zeros(0, 0),
         };
+        // The one-step matrices, made once per model with nalgebra's `exp`: every recorded
+        // rollout was computed with them. `MatrixExp` (`mean_after`) agrees to about 1e-14
+        // and exists for the steps a control loop takes without allocating.
         let turn = match rotation.is_empty() {
             true => DMatrix::zeros(0, 0),
             false => (&rotation * config.dt).exp(),
@@ -309,24 +322,47 @@ impl LatentDynamics {
         );
     }
 
-    /// The exact noise-free `k`-step map `out = μ^k(z)`.
+    /// The exact noise-free `k`-step map `out = μ^k(z)`. Allocates its
+    /// [`flow_scratch`](Self::flow_scratch) past one step.
     pub fn mean_steps(&self, z: &[f64], steps: usize, out: &mut [f64]) {
         match steps {
             1 => self.mean_step(z, out),
-            _ => self.mean_after(z, steps as f64 * self.dt, out),
+            _ => self.mean_after(z, steps as f64 * self.dt, &mut self.flow_scratch(), out),
+        }
+    }
+
+    /// Buffers of [`mean_after`](Self::mean_after) for these dynamics.
+    pub fn flow_scratch(&self) -> LatentFlowScratch {
+        let (r, d) = (self.rate_matrix.nrows(), self.rotation.nrows());
+        LatentFlowScratch {
+            linear: MatrixExp::new(r),
+            turning: MatrixExp::new(d),
+            transition: DMatrix::zeros(r, r),
+            turn: DMatrix::zeros(d, d),
         }
     }
 
     /// The exact noise-free flow over `seconds` (any duration, not only whole steps):
-    /// `μ^k = ` this at `k dt`. Allocates the matrix exponentials it needs.
-    pub fn mean_after(&self, z: &[f64], seconds: f64, out: &mut [f64]) {
+    /// `μ^k = ` this at `k dt`. Takes its matrix exponentials in `scratch`
+    /// ([`flow_scratch`](Self::flow_scratch)), without allocating: a policy under an
+    /// end-stop hold steps its latent state this way every control period.
+    pub fn mean_after(
+        &self,
+        z: &[f64],
+        seconds: f64,
+        scratch: &mut LatentFlowScratch,
+        out: &mut [f64],
+    ) {
         let seconds = self.direction * seconds;
-        let exp = |generator: &DMatrix<f64>| match generator.is_empty() {
-            true => DMatrix::zeros(0, 0),
-            false => (generator * seconds).exp(),
-        };
-        let (transition, turn) = (exp(&self.rate_matrix), exp(&self.rotation));
-        self.flow(z, seconds, &transition, &turn, out);
+        let LatentFlowScratch {
+            linear,
+            turning,
+            transition,
+            turn,
+        } = scratch;
+        linear.exp_into(&self.rate_matrix, seconds, transition);
+        turning.exp_into(&self.rotation, seconds, turn);
+        self.flow(z, seconds, transition, turn, out);
     }
 
     /// The flow over `t`, given `exp(A t)` and `exp(Ω t)`.

@@ -14,7 +14,7 @@ use crate::flow::checkpoint::config::{CheckpointConfig, FlowConfig};
 use crate::flow::checkpoint::weights::Weights;
 use crate::flow::end_stop_hold::EndStopHold;
 use crate::flow::error::{FlowError, FlowResult, check_input};
-use crate::flow::latent::LatentDynamics;
+use crate::flow::latent::{LatentDynamics, LatentFlowScratch};
 use crate::flow::layers::coupling::{CouplingScratch, TangentScratch};
 use crate::flow::layers::joint_range::JointRange;
 use crate::flow::network::{ConditionalFlow, Conditioning, FlowTape};
@@ -42,6 +42,8 @@ pub struct PolicyWorkspace {
     tangent: TangentScratch,
     z: Vec<f64>,
     z_next: Vec<f64>,
+    /// The matrix exponentials of an engaged hold's latent step.
+    latent_flow: LatentFlowScratch,
     /// `z_k` of a transition while `z` holds `z_{k-1}`.
     z_later: Vec<f64>,
     mean: Vec<f64>,
@@ -111,6 +113,7 @@ impl Policy {
             tangent: self.flow.tangent_scratch(),
             z: vec![0.0; d],
             z_next: vec![0.0; d],
+            latent_flow: self.latent.flow_scratch(),
             z_later: vec![0.0; d],
             mean: vec![0.0; d],
             origin: vec![0.0; d],
@@ -412,9 +415,13 @@ impl Policy {
         hold.velocity.iter_mut().for_each(|v| *v *= s);
         // The latent's exact flow over the time-scaled period: it contracts for every
         // weight, where an Euler step `z + Δt s ż` does only while the latent's rates stay
-        // below `2 / (Δt s)`. (It computes its matrix exponentials anew, only while held.)
-        self.latent
-            .mean_after(&hold.latent, hold.period * s, &mut ws.z_next);
+        // below `2 / (Δt s)`.
+        self.latent.mean_after(
+            &hold.latent,
+            hold.period * s,
+            &mut ws.latent_flow,
+            &mut ws.z_next,
+        );
         hold.latent.copy_from_slice(&ws.z_next);
     }
 

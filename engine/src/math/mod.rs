@@ -27,6 +27,8 @@ pub fn skew(x: &Vector3) -> Matrix3 {
     Matrix3::new(0.0, -x.z, x.y, x.z, 0.0, -x.x, -x.y, x.x, 0.0)
 }
 
+mod matrix_exp;
 pub(crate) mod simd;
 mod sin_cos;
+pub use matrix_exp::MatrixExp;
 pub use sin_cos::{sin_cos, sin_cos_slice};
