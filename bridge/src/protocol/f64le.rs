@@ -82,8 +82,8 @@ impl Serialize for F64s {
     }
 }
 
-/// Values encoded as [`F64s`] are, from memory the caller keeps: a client sends a batch's
-/// actions without copying them into a vector first.
+/// Values encoded exactly as [`F64s`] encodes them, read from memory the caller keeps: a
+/// client sends a batch's actions without copying them into a vector first.
 #[derive(Clone, Copy, Debug)]
 pub struct F64Slice<'a>(pub &'a [f64]);
 
