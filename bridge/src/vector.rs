@@ -23,7 +23,7 @@ pub fn reset_batches(
     seeds: impl Into<BatchSeeds>,
     options: Option<ResetOptions>,
 ) -> Result<(Vec<f64>, InfoColumns), BridgeError> {
-    let shape = shape_of(sessions)?;
+    let shape = batch_shape(sessions)?;
     let seeds = seeds.into();
     if let Some(count) = seeds.count().filter(|&count| count != shape.envs) {
         return Err(BridgeError::InvalidArgument(format!(
@@ -60,7 +60,7 @@ pub fn reset_batches(
 /// Steps every environment of `sessions` with row-major `actions` (`Σ num_envs ×
 /// action_dim`), next-step autoreset as [`RemoteEnv::step_batch`]; the replies merged.
 pub fn step_batches(sessions: &[&RemoteEnv], actions: &[f64]) -> Result<BatchStep, BridgeError> {
-    let shape = shape_of(sessions)?;
+    let shape = batch_shape(sessions)?;
     BatchStep::written(shape.envs, shape.observation_dim, |out| {
         step_batches_into(sessions, actions, out)
     })
@@ -74,11 +74,11 @@ pub fn step_batches_into(
     actions: &[f64],
     mut out: BatchStepOut<'_>,
 ) -> Result<InfoColumns, BridgeError> {
-    let Shape {
+    let BatchShape {
         envs,
         action_dim,
         observation_dim,
-    } = shape_of(sessions)?;
+    } = batch_shape(sessions)?;
     if actions.len() != envs * action_dim {
         return Err(BridgeError::InvalidArgument(format!(
             "{} action values for {envs} environments of {action_dim} each",
@@ -113,15 +113,17 @@ pub fn step_batches_into(
 }
 
 /// A batch's size and spaces.
-struct Shape {
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BatchShape {
     /// Environments of all the sessions.
-    envs: usize,
-    action_dim: usize,
-    observation_dim: usize,
+    pub envs: usize,
+    pub action_dim: usize,
+    pub observation_dim: usize,
 }
 
-/// The shape of the batch of `sessions`: at least one session, all of the same spaces.
-fn shape_of(sessions: &[&RemoteEnv]) -> Result<Shape, BridgeError> {
+/// The shape of the batch of `sessions`: at least one session, all of the same spaces
+/// (what [`step_batches_into`]'s buffers are sized by).
+pub fn batch_shape(sessions: &[&RemoteEnv]) -> Result<BatchShape, BridgeError> {
     let Some(first) = sessions.first() else {
         return Err(BridgeError::InvalidArgument(
             "a vector environment needs at least one session".into(),
@@ -142,7 +144,7 @@ fn shape_of(sessions: &[&RemoteEnv]) -> Result<Shape, BridgeError> {
         )));
     }
     let (action_dim, observation_dim) = spaces(first);
-    Ok(Shape {
+    Ok(BatchShape {
         envs: sessions.iter().map(|s| s.num_envs() as usize).sum(),
         action_dim,
         observation_dim,

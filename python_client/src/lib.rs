@@ -376,12 +376,11 @@ fn step_batches<'py>(
 )> {
     let actions = floats_from_bytes("actions", actions)?;
     let envs: Vec<&RemoteEnv> = sessions.iter().map(|s| &s.env).collect();
-    // Sized from the sessions: `step_batches_into` refuses sessions of different spaces
-    // before it looks at them.
-    let count: usize = envs.iter().map(|env| env.num_envs() as usize).sum();
-    let observation_dim = envs
-        .first()
-        .map_or(0, |env| env.spec().observation_space.dim());
+    let vector::BatchShape {
+        envs: count,
+        observation_dim,
+        ..
+    } = vector::batch_shape(&envs).map_err(to_py)?;
     let zeroed = |len| PyByteArray::new_with(py, len, |_| Ok(()));
     let observations = zeroed(8 * count * observation_dim)?;
     let rewards = zeroed(8 * count)?;

@@ -108,7 +108,7 @@ impl MatrixExp {
         combine(sum, [(c[12], &*b6), (c[10], &*b4), (c[8], &*b2)], 0.0);
         combine(v, [(c[6], &*b6), (c[4], &*b4), (c[2], &*b2)], c[0]);
         v.gemm(1.0, b6, sum, 1.0);
-        // (V − U) X = V + U, solved in `sum` (then `b`) with `out` as the right-hand sides.
+        // (V − U) X = V + U: `sum` holds V − U and `out` the right-hand sides, then X.
         sum.copy_from(v);
         *sum -= &*u;
         out.copy_from(v);
