@@ -7,8 +7,8 @@
 
 use std::collections::BTreeMap;
 use std::ops::Range;
-use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use ciflow_envs::registry::Kwargs;
@@ -33,11 +33,11 @@ use crate::limits::{Limits, Usage};
 use crate::protocol::keys::{self, SessionOp};
 use crate::protocol::{
     AckReply, ActRequest, ActionReply, BatchResetReply, BatchSeeds, BatchStepReplyView,
-    BatchStepRequest, DescribeReply, DescribeRequest, EvaluateReply, EvaluateRequest, F64Slice,
-    F64s, FrameHeader, LimitsReply, LimitsRequest, MakeReply, MakeRequest, PROTOCOL_VERSION,
-    PolicyInfo, RenderReply, RenderRequest, ResetReply, ResetRequest, StabilityReply,
-    StabilityRequest, StepReply, StepRequest, TaskInfo, TasksReply, TasksRequest, decode_reply,
-    encode, write_le_bytes,
+    BatchStepRequest, ContextUpdateView, DescribeReply, DescribeRequest, EvaluateReply,
+    EvaluateRequest, F64Slice, F64s, FrameHeader, LimitsReply, LimitsRequest, MakeReply,
+    MakeRequest, PROTOCOL_VERSION, PolicyInfo, RenderReply, RenderRequest, ResetReply,
+    ResetRequest, StabilityReply, StabilityRequest, StepReply, StepRequest, TaskInfo, TasksReply,
+    TasksRequest, decode_reply, encode, write_le_bytes,
 };
 use crate::query::{Pending, decode_ok, query, retry_unanswered, send_query};
 
@@ -456,22 +456,31 @@ impl BatchStepOut<'_> {
             .then_some(envs)
     }
 
-    /// Copies `reply` in; its columns must fill the buffers exactly.
+    /// Copies `reply` in; its columns must fill the buffers exactly. With `contexts`
+    /// (row-major, `context_dim` values per environment) the reply's observations leave
+    /// the contexts out, and each row is completed from them.
     fn copy_from(
         &mut self,
         reply: &BatchStepReplyView,
+        contexts: Option<(&[f64], usize)>,
     ) -> Result<InfoColumns, rmp_serde::decode::Error> {
-        let columns = [
-            (
+        if let Some((contexts, context_dim)) = contexts {
+            self.copy_observations(reply.observations.0, contexts, context_dim)?;
+        }
+        let observations = match contexts {
+            Some(_) => None,
+            None => Some((
                 "observations",
                 reply.observations.0,
                 &mut *self.observations,
-            ),
+            )),
+        };
+        let columns = [
             ("rewards", reply.rewards.0, &mut *self.rewards),
             ("terminated", &reply.terminated[..], &mut *self.terminated),
             ("truncated", &reply.truncated[..], &mut *self.truncated),
         ];
-        for (name, from, to) in columns {
+        for (name, from, to) in observations.into_iter().chain(columns) {
             if from.len() != to.len() {
                 return Err(serde::de::Error::custom(format!(
                     "{} bytes of {name} where the batch takes {}",
@@ -497,6 +506,38 @@ impl BatchStepOut<'_> {
             })
             .collect()
     }
+
+    /// Writes each row as its state from `states` (the observations without their
+    /// contexts, as little-endian bytes) followed by its context from `contexts`.
+    fn copy_observations(
+        &mut self,
+        states: &[u8],
+        contexts: &[f64],
+        context_dim: usize,
+    ) -> Result<(), rmp_serde::decode::Error> {
+        let envs = self.terminated.len();
+        let observation_dim = self.observations.len() / (8 * envs).max(1);
+        let state_dim = observation_dim.saturating_sub(context_dim);
+        if states.len() != 8 * envs * state_dim || contexts.len() != envs * context_dim {
+            return Err(serde::de::Error::custom(format!(
+                "{} bytes of states for {envs} environments of {state_dim} state values",
+                states.len()
+            )));
+        }
+        let rows = self.observations.chunks_exact_mut(8 * observation_dim);
+        let states = states.chunks_exact(8 * state_dim.max(1));
+        for ((row, state), context) in rows
+            .zip(states)
+            .zip(contexts.chunks_exact(context_dim.max(1)))
+        {
+            let (state_bytes, context_bytes) = row.split_at_mut(8 * state_dim);
+            state_bytes.copy_from_slice(state);
+            for (bytes, value) in context_bytes.chunks_exact_mut(8).zip(context) {
+                bytes.copy_from_slice(&value.to_le_bytes());
+            }
+        }
+        Ok(())
+    }
 }
 
 /// A session on an engine, owned by the [`Client`] that made it. Closed on drop.
@@ -508,6 +549,66 @@ pub struct RemoteEnv {
     stepper: Querier<'static>,
     frames: Mutex<Option<Subscriber<FifoChannelHandler<Sample>>>>,
     closed: AtomicBool,
+    /// The environments' contexts as the engine last reported them: a `step_batch` reply
+    /// carries only those that changed since, not one per observation.
+    contexts: Mutex<KnownContexts>,
+}
+
+/// A client's copy of a batch's contexts, current as of the engine's reply `epoch` (0:
+/// none held yet).
+#[derive(Debug)]
+struct KnownContexts {
+    epoch: u64,
+    /// Row-major `num_envs × context_dim`.
+    values: Vec<f64>,
+}
+
+impl KnownContexts {
+    /// Applies `update` to this copy of `envs` contexts of `context_dim` values each;
+    /// leaves the copy as it was if the update does not fit it.
+    fn apply(
+        &mut self,
+        update: &ContextUpdateView,
+        envs: usize,
+        context_dim: usize,
+    ) -> Result<(), rmp_serde::decode::Error> {
+        let fail = |what: String| Err(serde::de::Error::custom(what));
+        if update.values.len() != update.envs.len() * context_dim {
+            return fail(format!(
+                "{} context values for {} environments of {context_dim}",
+                update.values.len(),
+                update.envs.len()
+            ));
+        }
+        if update.envs.iter().any(|&i| i as usize >= envs) {
+            return fail(format!(
+                "a context for an environment past the batch's {envs}"
+            ));
+        }
+        if self.epoch == 0 && update.envs.len() != envs {
+            return fail(format!(
+                "{} of {envs} contexts in the batch's first update",
+                update.envs.len()
+            ));
+        }
+        if update.epoch <= self.epoch {
+            return fail(format!(
+                "context epoch {} after {}",
+                update.epoch, self.epoch
+            ));
+        }
+        let values = F64s::from_le_bytes(update.values.0).expect("whole values");
+        for (&i, context) in update
+            .envs
+            .iter()
+            .zip(values.chunks_exact(context_dim.max(1)))
+        {
+            let i = i as usize;
+            self.values[i * context_dim..(i + 1) * context_dim].copy_from_slice(context);
+        }
+        self.epoch = update.epoch;
+        Ok(())
+    }
 }
 
 impl RemoteEnv {
@@ -529,6 +630,10 @@ impl RemoteEnv {
             .wait()
             .map_err(BridgeError::zenoh("declaring the session's step querier"))?;
         let control = SessionControl::new(zsession, address, &reply.token, timeout)?;
+        let contexts = KnownContexts {
+            epoch: 0,
+            values: vec![0.0; reply.num_envs as usize * reply.spec.context_space.dim()],
+        };
         Ok(Self {
             control,
             spec: reply.spec,
@@ -536,6 +641,7 @@ impl RemoteEnv {
             stepper,
             frames: Mutex::new(None),
             closed: AtomicBool::new(false),
+            contexts: Mutex::new(contexts),
         })
     }
 
@@ -660,17 +766,19 @@ impl RemoteEnv {
     pub fn step_batch(&self, actions: &[f64]) -> Result<BatchStep, BridgeError> {
         let observation_dim = self.spec.observation_space.dim();
         BatchStep::written(self.num_envs as usize, observation_dim, |mut out| {
-            Self::step_reply_into(self.send_step_batch(actions)?, &mut out)
+            self.step_reply_into(self.send_step_batch(actions)?, &mut out)
         })
     }
 
     /// Sends [`step_batch`](Self::step_batch)'s request;
-    /// [`step_reply_into`](Self::step_reply_into) takes its reply.
+    /// [`step_reply_into`](Self::step_reply_into) takes its reply. The request asks for
+    /// the contexts this client does not hold yet, not for one per observation.
     pub(crate) fn send_step_batch(&self, actions: &[f64]) -> Result<Pending<'_>, BridgeError> {
         let request = BatchStepRequest {
             v: PROTOCOL_VERSION,
             token: self.control.token_field(),
             actions: F64Slice(actions),
+            known_contexts: Some(self.known_contexts().epoch),
         };
         if self.num_envs == 1 {
             self.send(SessionOp::StepBatch, &request)
@@ -682,10 +790,25 @@ impl RemoteEnv {
     /// Copies the reply to a [`send_step_batch`](Self::send_step_batch) into `out`, which
     /// holds this session's environments; returns the info columns.
     pub(crate) fn step_reply_into(
+        &self,
         pending: Pending<'_>,
         out: &mut BatchStepOut<'_>,
     ) -> Result<InfoColumns, BridgeError> {
-        pending.reply_with(|payload| out.copy_from(&decode_reply(payload)?))
+        pending.reply_with(|payload| {
+            let reply: BatchStepReplyView = decode_reply(payload)?;
+            let Some(update) = &reply.contexts else {
+                // An engine older than context updates sends whole observations.
+                return out.copy_from(&reply, None);
+            };
+            let mut known = self.known_contexts();
+            let context_dim = self.spec.context_space.dim();
+            known.apply(update, self.num_envs as usize, context_dim)?;
+            out.copy_from(&reply, Some((&known.values, context_dim)))
+        })
+    }
+
+    fn known_contexts(&self) -> MutexGuard<'_, KnownContexts> {
+        self.contexts.lock().unwrap_or_else(|p| p.into_inner())
     }
 
     /// The expert's action for environment `index`.
@@ -805,7 +928,7 @@ mod tests {
     use serde_bytes::ByteBuf;
 
     use super::*;
-    use crate::protocol::BatchStepReply;
+    use crate::protocol::{BatchStepReply, ContextUpdate};
 
     /// A reply of two environments with two observations each.
     fn reply() -> Vec<u8> {
@@ -816,6 +939,7 @@ mod tests {
             terminated: ByteBuf::from(vec![1, 0]),
             truncated: ByteBuf::from(vec![0, 1]),
             info: [("distance".to_owned(), F64s(vec![3.0, f64::NAN]))].into(),
+            contexts: None,
         })
     }
 
@@ -824,7 +948,7 @@ mod tests {
     fn copied(payload: &[u8], envs: usize) -> Result<BatchStep, String> {
         let mut refused = None;
         let step = BatchStep::written(envs, 2, |mut out| {
-            out.copy_from(&decode_reply(payload).expect("a reply"))
+            out.copy_from(&decode_reply(payload).expect("a reply"), None)
                 .map_err(|error| {
                     refused = Some(error.to_string());
                     BridgeError::InvalidArgument("refused".into())
@@ -866,5 +990,74 @@ mod tests {
             error.contains("1 values of info `time` for 2 environments"),
             "{error}"
         );
+    }
+
+    /// `update` applied to `known` (two environments, one context value each) as its
+    /// encoded form, the error as its message.
+    fn apply(known: &mut KnownContexts, update: &ContextUpdate) -> Result<(), String> {
+        let bytes = encode(update);
+        let view: ContextUpdateView = rmp_serde::from_slice(&bytes).unwrap();
+        known.apply(&view, 2, 1).map_err(|e| e.to_string())
+    }
+
+    fn update(epoch: u64, envs: Vec<u32>, values: Vec<f64>) -> ContextUpdate {
+        ContextUpdate {
+            epoch,
+            envs,
+            values: F64s(values),
+        }
+    }
+
+    #[test]
+    fn context_updates_that_do_not_fit_the_copy_are_refused_and_leave_it_as_it_was() {
+        let mut known = KnownContexts {
+            epoch: 0,
+            values: vec![0.0; 2],
+        };
+        for (bad, why) in [
+            (
+                update(1, vec![0], vec![1.0]),
+                "1 of 2 contexts in the batch's first update",
+            ),
+            (
+                update(1, vec![0, 1], vec![1.0]),
+                "1 context values for 2 environments",
+            ),
+            (update(1, vec![0, 2], vec![1.0, 2.0]), "past the batch's 2"),
+        ] {
+            let error = apply(&mut known, &bad).unwrap_err();
+            assert!(error.contains(why), "{error}");
+            assert_eq!((known.epoch, &known.values[..]), (0, &[0.0, 0.0][..]));
+        }
+        apply(&mut known, &update(3, vec![0, 1], vec![1.0, 2.0])).unwrap();
+        apply(&mut known, &update(4, vec![1], vec![-2.0])).unwrap();
+        assert_eq!((known.epoch, &known.values[..]), (4, &[1.0, -2.0][..]));
+        let error = apply(&mut known, &update(4, vec![], vec![])).unwrap_err();
+        assert!(error.contains("context epoch 4 after 4"), "{error}");
+    }
+
+    #[test]
+    fn rows_are_rebuilt_from_states_and_the_known_contexts() {
+        let states = BatchStepReply {
+            observations: F64s(vec![1.0, 2.0, 3.0, 4.0]),
+            contexts: Some(update(1, vec![], vec![])),
+            ..decode_reply(&reply()).unwrap()
+        };
+        let payload = encode(&states);
+        let step = BatchStep::written(2, 3, |mut out| {
+            let view = decode_reply(&payload).expect("a reply");
+            out.copy_from(&view, Some((&[-1.0, -2.0], 1)))
+                .map_err(|e| BridgeError::InvalidArgument(e.to_string()))
+        })
+        .unwrap();
+        assert_eq!(step.observations, [1.0, 2.0, -1.0, 3.0, 4.0, -2.0]);
+        // States of another width than the observations less the contexts.
+        let error = BatchStep::written(2, 4, |mut out| {
+            let view = decode_reply(&payload).expect("a reply");
+            out.copy_from(&view, Some((&[-1.0, -2.0], 1)))
+                .map_err(|e| BridgeError::InvalidArgument(e.to_string()))
+        })
+        .unwrap_err();
+        assert!(error.to_string().contains("bytes of states"), "{error}");
     }
 }

@@ -107,7 +107,11 @@ pub fn step_batches_into(
         let rows = first..first + session.num_envs() as usize;
         first = rows.end;
         let mut share = out.rows(rows, observation_dim);
-        infos.push(RemoteEnv::step_reply_into(pending, &mut share).map_err(in_engine(session))?);
+        infos.push(
+            session
+                .step_reply_into(pending, &mut share)
+                .map_err(in_engine(session))?,
+        );
     }
     Ok(merge_columns(sessions, infos))
 }

@@ -13,12 +13,9 @@ mod common;
 
 use std::time::Duration;
 
-use ciflow_bridge::protocol::{
-    BatchStepReply, BatchStepRequest, F64s, PROTOCOL_VERSION, encode, keys,
-};
+use ciflow_bridge::protocol::{BatchStepReply, keys};
 use ciflow_bridge::{EngineServer, NetworkOptions, RemoteEnv, Role, ServerOptions};
 use common::*;
-use serde_bytes::ByteBuf;
 use zenoh::Wait;
 use zenoh::bytes::ZBytes;
 
@@ -94,17 +91,7 @@ fn step_batch_by_hand(
     client: &zenoh::Session,
     actions: &[f64],
 ) -> (Vec<u8>, bool) {
-    let key = keys::session(
-        env.engine(),
-        keys::ANONYMOUS,
-        env.session_id(),
-        "step_batch",
-    );
-    let request = encode(&BatchStepRequest {
-        v: PROTOCOL_VERSION,
-        token: ByteBuf::from(env.token()),
-        actions: F64s(actions.to_vec()),
-    });
+    let (key, request) = step_batch_request(env, actions, None);
     let replies = client
         .get(key)
         .payload(request)

@@ -24,6 +24,11 @@
 //! map(6) "v" uint | "observations" bin(8 n d) | "rewards" bin(8 n)
 //!        | "terminated" bin(n) | "truncated" bin(n) | "info" map(..)
 //! ```
+//!
+//! A reply with a context update ([`BatchStepWriter::with_contexts_in`]) is a `map(7)`
+//! whose rows leave the contexts out (`d` is then the state's length) and which ends with
+//! `"contexts"` and the [`ContextUpdate`](super::ContextUpdate), appended after the info
+//! columns.
 
 use std::io;
 use std::mem::{MaybeUninit, take};
@@ -125,9 +130,13 @@ struct Layout {
 }
 
 impl Layout {
-    fn new(num_envs: usize, observation_dim: usize) -> Self {
+    /// `contexts`: the message ends with a `contexts` field after its info columns.
+    fn new(num_envs: usize, observation_dim: usize, contexts: bool) -> Self {
         let mut head = Vec::new();
-        write(rmp::encode::write_map_len(&mut head, 6));
+        write(rmp::encode::write_map_len(
+            &mut head,
+            6 + u32::from(contexts),
+        ));
         write(rmp::encode::write_str(&mut head, "v"));
         write(rmp::encode::write_uint(
             &mut head,
@@ -192,6 +201,9 @@ pub struct BatchStepWriter<B: MessageBuffer = Vec<u8>> {
     truncated: Range<usize>,
     /// Rows written through the blocks of the last [`rows`](Self::rows).
     rows_written: AtomicUsize,
+    /// Whether the message ends with a `contexts` field
+    /// ([`finish_with_contexts`](Self::finish_with_contexts)).
+    contexts: bool,
 }
 
 /// Rows of a [`BatchStepWriter`]: all of them, or a block of them handed to one task,
@@ -229,7 +241,31 @@ impl<B: MessageBuffer> BatchStepWriter<B> {
         observation_dim: usize,
         info_bytes: usize,
     ) -> Self {
-        let layout = Layout::new(num_envs, observation_dim);
+        Self::start(allocate, num_envs, observation_dim, info_bytes, false)
+    }
+
+    /// As [`new_in`](Self::new_in), for a reply that leaves the contexts out of its
+    /// observations (`state_dim` values per row) and ends with the
+    /// [`ContextUpdate`](super::ContextUpdate) that
+    /// [`finish_with_contexts`](Self::finish_with_contexts) appends; `info_bytes` also
+    /// covers that update.
+    pub fn with_contexts_in(
+        allocate: impl FnOnce(usize) -> B,
+        num_envs: usize,
+        state_dim: usize,
+        info_bytes: usize,
+    ) -> Self {
+        Self::start(allocate, num_envs, state_dim, info_bytes, true)
+    }
+
+    fn start(
+        allocate: impl FnOnce(usize) -> B,
+        num_envs: usize,
+        observation_dim: usize,
+        info_bytes: usize,
+        contexts: bool,
+    ) -> Self {
+        let layout = Layout::new(num_envs, observation_dim, contexts);
         let end = layout.end();
         let mut buffer = allocate(end + info_bytes);
         assert!(buffer.is_empty(), "a reply is written into an empty buffer");
@@ -251,6 +287,7 @@ impl<B: MessageBuffer> BatchStepWriter<B> {
             terminated: layout.terminated,
             truncated: layout.truncated,
             rows_written: AtomicUsize::new(0),
+            contexts,
         }
     }
 
@@ -294,11 +331,40 @@ impl<B: MessageBuffer> BatchStepWriter<B> {
     ///
     /// # Panics
     /// If the last [`rows`](Self::rows) did not write every row, or a key's blocks do not
-    /// hold `num_envs` values: the caller sized the reply for its own batch.
+    /// hold `num_envs` values: the caller sized the reply for its own batch. If the writer
+    /// was made [`with_contexts_in`](Self::with_contexts_in).
     pub fn finish<'a, I: IntoIterator<Item = InfoBlock<'a>>>(
         mut self,
         info: impl ExactSizeIterator<Item = (&'a str, I)>,
     ) -> B {
+        assert!(!self.contexts, "this reply ends with its contexts");
+        self.append_info(info);
+        self.buffer
+    }
+
+    /// [`finish`](Self::finish) for a writer made
+    /// [`with_contexts_in`](Self::with_contexts_in): the info columns, then `contexts`.
+    ///
+    /// # Panics
+    /// As `finish`, and if the writer was made without contexts.
+    pub fn finish_with_contexts<'a, I: IntoIterator<Item = InfoBlock<'a>>>(
+        mut self,
+        info: impl ExactSizeIterator<Item = (&'a str, I)>,
+        contexts: &super::ContextUpdate,
+    ) -> B {
+        assert!(self.contexts, "this reply has no room for contexts");
+        self.append_info(info);
+        let buffer = &mut self.buffer;
+        write(rmp::encode::write_str(&mut Appender(buffer), "contexts"));
+        rmp_serde::encode::write_named(&mut Appender(buffer), contexts)
+            .expect("a context update encodes");
+        self.buffer
+    }
+
+    fn append_info<'a, I: IntoIterator<Item = InfoBlock<'a>>>(
+        &mut self,
+        info: impl ExactSizeIterator<Item = (&'a str, I)>,
+    ) {
         let num_envs = self.terminated.len();
         assert_eq!(
             *self.rows_written.get_mut(),
@@ -338,7 +404,6 @@ impl<B: MessageBuffer> BatchStepWriter<B> {
                 "info `{key}` holds a value for each of {num_envs} environments"
             );
         }
-        self.buffer
     }
 }
 
@@ -478,14 +543,17 @@ mod tests {
     use serde_bytes::ByteBuf;
 
     use super::*;
-    use crate::protocol::{BatchStepReply, encode};
+    use crate::protocol::{BatchStepReply, ContextUpdate, encode};
 
     /// Rows set block by block, in any order, and info columns given block by block give
     /// the serializer's bytes for the same reply: with bins of every header size (8-, 16-
-    /// and 32-bit lengths), no info, NaN info values and whole blocks without a key.
+    /// and 32-bit lengths), no info, NaN info values and whole blocks without a key; with
+    /// and without a context update at the end.
     #[test]
     fn rows_written_in_place_encode_as_the_serializer_does() {
-        for (n, d, keys) in [(3, 2, 2), (5_000, 2, 1), (1, 0, 0), (0, 3, 0), (700, 7, 3)] {
+        let cases = [(3, 2, 2), (5_000, 2, 1), (1, 0, 0), (0, 3, 0), (700, 7, 3)];
+        for ((n, d, keys), with_contexts) in cases.into_iter().flat_map(|c| [(c, false), (c, true)])
+        {
             let value = |i: usize, j: usize| (i * 31 + j) as f64 * 0.25 - 3.0;
             let observations: Vec<f64> = (0..n * d).map(|k| value(k / d.max(1), k)).collect();
             let rewards: Vec<f64> = (0..n).map(|i| -(i as f64) / 7.0).collect();
@@ -501,7 +569,20 @@ mod tests {
                 })
                 .collect();
 
-            let mut writer = BatchStepWriter::new(n, d, 0);
+            // Every third environment's context, two values each.
+            let contexts = with_contexts.then(|| {
+                let envs: Vec<u32> = (0..n as u32).step_by(3).collect();
+                let values = envs.iter().flat_map(|&i| [f64::from(i), -0.5]).collect();
+                ContextUpdate {
+                    epoch: 7 + n as u64,
+                    envs,
+                    values: F64s(values),
+                }
+            });
+            let mut writer = match contexts {
+                Some(_) => BatchStepWriter::with_contexts_in(Vec::with_capacity, n, d, 0),
+                None => BatchStepWriter::new(n, d, 0),
+            };
             // Blocks of 64 rows in reverse order: where a row lands cannot depend on
             // which task writes first.
             let mut blocks = writer.rows().blocks(64);
@@ -518,7 +599,7 @@ mod tests {
             }
             drop(blocks);
             // Info in blocks of 100 values, a block of NaN given as missing.
-            let in_place = writer.finish(info.iter().map(|(key, values)| {
+            let info_blocks = info.iter().map(|(key, values)| {
                 let blocks = values.0.chunks(100).map(|block| {
                     if block.iter().all(|v| v.is_nan()) {
                         InfoBlock::Missing(block.len())
@@ -527,7 +608,11 @@ mod tests {
                     }
                 });
                 (key.as_str(), blocks)
-            }));
+            });
+            let in_place = match &contexts {
+                Some(update) => writer.finish_with_contexts(info_blocks, update),
+                None => writer.finish(info_blocks),
+            };
 
             let serialized = encode(&BatchStepReply {
                 v: PROTOCOL_VERSION,
@@ -536,8 +621,12 @@ mod tests {
                 terminated: ByteBuf::from(terminated),
                 truncated: ByteBuf::from(truncated),
                 info,
+                contexts,
             });
-            assert!(in_place == serialized, "n = {n}, d = {d}, {keys} info keys");
+            assert!(
+                in_place == serialized,
+                "n = {n}, d = {d}, {keys} info keys, contexts {with_contexts}"
+            );
         }
     }
 

@@ -262,6 +262,11 @@ pub struct BatchStepRequest<A = F64s> {
     #[serde(deserialize_with = "bin_only")]
     pub token: ByteBuf,
     pub actions: A,
+    /// With it, the reply leaves the contexts out of its observations and sends in
+    /// [`BatchStepReply::contexts`] only those that changed after this epoch: the epoch of
+    /// the last reply whose contexts the client holds (0: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub known_contexts: Option<u64>,
 }
 
 /// Reply to `…/step_batch`, with Gymnasium's next-step autoreset: an environment whose
@@ -278,6 +283,32 @@ pub struct BatchStepReply {
     pub truncated: ByteBuf,
     /// Info columns, as in [`BatchResetReply::info`].
     pub info: BTreeMap<String, F64s>,
+    /// Present when the request gave [`BatchStepRequest::known_contexts`]: the
+    /// observations are then `num_envs × (obs_dim - context_dim)`, each without its
+    /// context, and these are the contexts the client does not hold yet.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contexts: Option<ContextUpdate>,
+}
+
+/// The contexts of a batch that changed after the epoch a client gave, by a reset, an
+/// autoreset, a `context` request or the task itself: the client's copy of every context
+/// is current once it applies them and takes `epoch` as the one it holds.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ContextUpdate {
+    pub epoch: u64,
+    /// The environments whose context changed, in increasing order.
+    pub envs: Vec<u32>,
+    /// Their contexts, row-major `envs.len() × context_dim`.
+    pub values: F64s,
+}
+
+/// A [`ContextUpdate`] read in place.
+#[derive(Debug, Deserialize)]
+pub struct ContextUpdateView<'a> {
+    pub epoch: u64,
+    pub envs: Vec<u32>,
+    #[serde(borrow)]
+    pub values: F64Bin<'a>,
 }
 
 /// A [`BatchStepReply`] read in place, its columns borrowed from the payload: a client
@@ -296,6 +327,8 @@ pub struct BatchStepReplyView<'a> {
     pub truncated: &'a serde_bytes::Bytes,
     #[serde(borrow)]
     pub info: BTreeMap<&'a str, F64Bin<'a>>,
+    #[serde(borrow, default)]
+    pub contexts: Option<ContextUpdateView<'a>>,
 }
 
 /// `…/expert` (`{v, token, index}`) and `…/close` (`{v, token}`).

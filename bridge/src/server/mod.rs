@@ -18,6 +18,7 @@ mod driver;
 mod hot_load;
 mod policy_table;
 mod reply_memory;
+mod reported_contexts;
 mod session;
 mod slot;
 mod telemetry;
@@ -751,7 +752,11 @@ impl Shared {
                 let request: BatchStepRequest = decode_request(payload)?;
                 session.authorize(&request.token)?;
                 session.ensure_idle(op.as_str())?;
-                return session.step_batch(&request.actions.0, &self.reply_memory);
+                return session.step_batch(
+                    &request.actions.0,
+                    request.known_contexts,
+                    &self.reply_memory,
+                );
             }
             SessionOp::Run => {
                 let request: RunRequest = decode_request(payload)?;

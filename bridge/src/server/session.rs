@@ -14,6 +14,7 @@ use serde_bytes::ByteBuf;
 use zenoh::bytes::ZBytes;
 
 use super::reply_memory::ReplyMemory;
+use super::reported_contexts::ReportedContexts;
 use super::slot::{EnvSlot, check_vector};
 use super::telemetry::TelemetryPublisher;
 use crate::error::full_message;
@@ -52,6 +53,8 @@ pub(crate) struct Session {
     /// included): the most they took so far, at least the estimate the last batch reset's
     /// keys give before the first step.
     info_bytes: usize,
+    /// The contexts `step_batch` replies have reported, for clients that keep a copy.
+    reported_contexts: ReportedContexts,
 }
 
 /// One of the engine's `max_runs` places for a running policy, held by the session while
@@ -119,6 +122,7 @@ impl Session {
         telemetry: TelemetryPublisher,
     ) -> Self {
         let spec = envs[0].env.spec().clone();
+        let reported_contexts = ReportedContexts::new(envs.len(), spec.context_space.dim());
         Self {
             id,
             owner,
@@ -132,6 +136,7 @@ impl Session {
             run: None,
             runs: 0,
             info_bytes: 0,
+            reported_contexts,
         }
     }
 
@@ -379,35 +384,52 @@ impl Session {
     }
 
     /// Steps every environment (next-step autoreset) and encodes the reply in `memory`.
+    /// For a client that holds the contexts of reply `known_contexts`, the rows leave
+    /// their contexts out and the reply ends with those that changed since.
     pub fn step_batch(
         &mut self,
         actions: &[f64],
+        known_contexts: Option<u64>,
         memory: &ReplyMemory,
     ) -> Result<ZBytes, ErrorReply> {
         let n = self.envs.len();
         let (action_dim, observation_dim) = (self.spec.action_space.dim(), self.observation_dim());
         check_vector("actions", actions, n * action_dim)?;
+        let state_dim = observation_dim - self.spec.context_space.dim();
         let options = &self.reset_options;
         // Room for the info columns, so that appending them does not move the rows.
-        let mut reply = BatchStepWriter::new_in(
-            |len| memory.buffer(len),
-            n,
-            observation_dim,
-            self.info_bytes,
-        );
+        let allocate = |len| memory.buffer(len);
+        let (mut reply, reported) = match known_contexts {
+            Some(known) => (
+                BatchStepWriter::with_contexts_in(allocate, n, state_dim, self.info_bytes),
+                self.reported_contexts.start(known, BATCH_CHUNK)?,
+            ),
+            None => (
+                BatchStepWriter::new_in(allocate, n, observation_dim, self.info_bytes),
+                Vec::new(),
+            ),
+        };
+        let row_dim = if known_contexts.is_some() {
+            state_dim
+        } else {
+            observation_dim
+        };
         let info_offset = reply.info_offset();
         // Each rayon task steps a chunk and writes its rows into the reply: no
         // per-environment work is left to this thread.
+        let mut reported = reported.into_iter();
         let chunks: Vec<_> = self
             .envs
             .chunks_mut(BATCH_CHUNK)
             .zip(actions.chunks((BATCH_CHUNK * action_dim).max(1)))
             .zip(reply.rows().blocks(BATCH_CHUNK))
+            .map(|chunk| (chunk, reported.next()))
             .collect();
+        drop(reported);
         let chunks: Vec<Result<InfoColumns, ErrorReply>> = chunks
             .into_par_iter()
             .enumerate()
-            .map(|(chunk, ((slots, actions), mut rows))| {
+            .map(|(chunk, (((slots, actions), mut rows), mut reported))| {
                 let mut infos = InfoColumns::new(slots.len());
                 // One info for the chunk, refilled by every environment in turn.
                 let mut info = Info::new();
@@ -418,12 +440,11 @@ impl Session {
                     let index = chunk * BATCH_CHUNK + i;
                     match slot.step_autoreset(action, options.of(index), &mut info) {
                         Ok(step) => {
-                            rows.push(
-                                &slot.observation,
-                                step.reward,
-                                step.terminated,
-                                step.truncated,
-                            );
+                            let (row, context) = slot.observation.split_at(row_dim);
+                            rows.push(row, step.reward, step.terminated, step.truncated);
+                            if let Some(reported) = &mut reported {
+                                reported.note(i, context);
+                            }
                             infos.set(i, &info);
                         }
                         Err(e) => {
@@ -438,7 +459,11 @@ impl Session {
             .collect();
         let parts = chunks.into_iter().collect::<Result<Vec<_>, _>>()?;
         self.telemetry.offer(&self.id, &self.envs[0]);
-        let reply = reply.finish(InfoColumns::merged(&parts));
+        let info = InfoColumns::merged(&parts);
+        let reply = match known_contexts {
+            Some(known) => reply.finish_with_contexts(info, &self.reported_contexts.finish(known)),
+            None => reply.finish(info),
+        };
         self.info_bytes = self.info_bytes.max(reply.len() - info_offset);
         Ok(reply.into())
     }

@@ -10,9 +10,12 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use ciflow_bridge::protocol::{ErrorCode, ErrorReply};
+use ciflow_bridge::protocol::{
+    BatchStepRequest, ErrorCode, ErrorReply, F64s, PROTOCOL_VERSION, encode, keys,
+};
 use ciflow_bridge::{
-    BridgeError, Client, EngineServer, NetworkOptions, Role, ServerOptions, TaskFactory, query_all,
+    BridgeError, Client, EngineServer, NetworkOptions, RemoteEnv, Role, ServerOptions, TaskFactory,
+    query_all,
 };
 use ciflow_engine::flow::checkpoint;
 use ciflow_engine::flow::{CheckpointConfig, CouplingKind, FlowConfig, LatentKind, Weights};
@@ -230,6 +233,28 @@ pub fn raw_query(
     let mut replies = query_all(session, key, payload, Duration::from_secs(15)).unwrap();
     assert_eq!(replies.len(), 1, "exactly one reply to {key}");
     replies.pop().unwrap()
+}
+
+/// The key and payload of a `step_batch` request for `env`'s environments, to send by
+/// hand.
+pub fn step_batch_request(
+    env: &RemoteEnv,
+    actions: &[f64],
+    known_contexts: Option<u64>,
+) -> (String, Vec<u8>) {
+    let key = keys::session(
+        env.engine(),
+        keys::ANONYMOUS,
+        env.session_id(),
+        "step_batch",
+    );
+    let request = encode(&BatchStepRequest {
+        v: PROTOCOL_VERSION,
+        token: serde_bytes::ByteBuf::from(env.token()),
+        actions: F64s(actions.to_vec()),
+        known_contexts,
+    });
+    (key, request)
 }
 
 /// A random one-obstacle go-to flow checkpoint in a fresh directory.
