@@ -3,8 +3,8 @@
 //!
 //! A context is part of every observation, yet it changes only at a reset, an autoreset,
 //! a `context` request or by the task itself: of the 12 values of a 3-obstacle
-//! observation, 8 are its context, and re-sending them at every step was two thirds of a
-//! 4 096-environment reply. Each step compares every environment's context with the one
+//! observation, 8 are its context, and re-sending them at every step was nearly half of a
+//! 4 096-environment reply (0.54 MiB, 0.29 without them). Each step compares every environment's context with the one
 //! last reported (a comparison catches a change whatever made it) and stamps a change
 //! with the epoch of the reply that first reports it. The client names the epoch of the
 //! last reply it applied, so the reply sends every context changed after it: a reply that
