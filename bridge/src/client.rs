@@ -457,12 +457,12 @@ impl BatchStepOut<'_> {
     }
 
     /// Copies `reply` in; its columns must fill the buffers exactly. With `contexts`
-    /// (row-major, `context_dim` values per environment) the reply's observations leave
-    /// the contexts out, and each row is completed from them.
+    /// (little-endian `f64` bytes, row-major, `context_dim` values per environment) the
+    /// reply's observations leave the contexts out, and each row is completed from them.
     fn copy_from(
         &mut self,
         reply: &BatchStepReplyView,
-        contexts: Option<(&[f64], usize)>,
+        contexts: Option<(&[u8], usize)>,
     ) -> Result<InfoColumns, rmp_serde::decode::Error> {
         if let Some((contexts, context_dim)) = contexts {
             self.copy_observations(reply.observations.0, contexts, context_dim)?;
@@ -508,17 +508,17 @@ impl BatchStepOut<'_> {
     }
 
     /// Writes each row as its state from `states` (the observations without their
-    /// contexts, as little-endian bytes) followed by its context from `contexts`.
+    /// contexts) followed by its context from `contexts`, both little-endian bytes.
     fn copy_observations(
         &mut self,
         states: &[u8],
-        contexts: &[f64],
+        contexts: &[u8],
         context_dim: usize,
     ) -> Result<(), rmp_serde::decode::Error> {
         let envs = self.terminated.len();
         let observation_dim = self.observations.len() / (8 * envs).max(1);
         let state_dim = observation_dim.saturating_sub(context_dim);
-        if states.len() != 8 * envs * state_dim || contexts.len() != envs * context_dim {
+        if states.len() != 8 * envs * state_dim || contexts.len() != 8 * envs * context_dim {
             return Err(serde::de::Error::custom(format!(
                 "{} bytes of states for {envs} environments of {state_dim} state values",
                 states.len()
@@ -528,13 +528,11 @@ impl BatchStepOut<'_> {
         let states = states.chunks_exact(8 * state_dim.max(1));
         for ((row, state), context) in rows
             .zip(states)
-            .zip(contexts.chunks_exact(context_dim.max(1)))
+            .zip(contexts.chunks_exact(8 * context_dim.max(1)))
         {
             let (state_bytes, context_bytes) = row.split_at_mut(8 * state_dim);
             state_bytes.copy_from_slice(state);
-            for (bytes, value) in context_bytes.chunks_exact_mut(8).zip(context) {
-                bytes.copy_from_slice(&value.to_le_bytes());
-            }
+            context_bytes.copy_from_slice(context);
         }
         Ok(())
     }
@@ -559,8 +557,9 @@ pub struct RemoteEnv {
 #[derive(Debug)]
 struct KnownContexts {
     epoch: u64,
-    /// Row-major `num_envs × context_dim`.
-    values: Vec<f64>,
+    /// Row-major `num_envs × context_dim`, in their wire form (little-endian `f64` bytes):
+    /// an update is copied in and each row's context copied out as it is.
+    bytes: Vec<u8>,
 }
 
 impl KnownContexts {
@@ -597,14 +596,14 @@ impl KnownContexts {
                 update.epoch, self.epoch
             ));
         }
-        let values = F64s::from_le_bytes(update.values.0).expect("whole values");
+        let width = 8 * context_dim;
         for (&i, context) in update
             .envs
             .iter()
-            .zip(values.chunks_exact(context_dim.max(1)))
+            .zip(update.values.0.chunks_exact(width.max(1)))
         {
             let i = i as usize;
-            self.values[i * context_dim..(i + 1) * context_dim].copy_from_slice(context);
+            self.bytes[i * width..(i + 1) * width].copy_from_slice(context);
         }
         self.epoch = update.epoch;
         Ok(())
@@ -632,7 +631,7 @@ impl RemoteEnv {
         let control = SessionControl::new(zsession, address, &reply.token, timeout)?;
         let contexts = KnownContexts {
             epoch: 0,
-            values: vec![0.0; reply.num_envs as usize * reply.spec.context_space.dim()],
+            bytes: vec![0; 8 * reply.num_envs as usize * reply.spec.context_space.dim()],
         };
         Ok(Self {
             control,
@@ -803,7 +802,7 @@ impl RemoteEnv {
             let mut known = self.known_contexts();
             let context_dim = self.spec.context_space.dim();
             known.apply(update, self.num_envs as usize, context_dim)?;
-            out.copy_from(&reply, Some((&known.values, context_dim)))
+            out.copy_from(&reply, Some((&known.bytes, context_dim)))
         })
     }
 
@@ -1012,8 +1011,9 @@ mod tests {
     fn context_updates_that_do_not_fit_the_copy_are_refused_and_leave_it_as_it_was() {
         let mut known = KnownContexts {
             epoch: 0,
-            values: vec![0.0; 2],
+            bytes: vec![0; 16],
         };
+        let values = |known: &KnownContexts| F64s::from_le_bytes(&known.bytes).unwrap();
         for (bad, why) in [
             (
                 update(1, vec![0], vec![1.0]),
@@ -1027,11 +1027,11 @@ mod tests {
         ] {
             let error = apply(&mut known, &bad).unwrap_err();
             assert!(error.contains(why), "{error}");
-            assert_eq!((known.epoch, &known.values[..]), (0, &[0.0, 0.0][..]));
+            assert_eq!((known.epoch, values(&known)), (0, vec![0.0, 0.0]));
         }
         apply(&mut known, &update(3, vec![0, 1], vec![1.0, 2.0])).unwrap();
         apply(&mut known, &update(4, vec![1], vec![-2.0])).unwrap();
-        assert_eq!((known.epoch, &known.values[..]), (4, &[1.0, -2.0][..]));
+        assert_eq!((known.epoch, values(&known)), (4, vec![1.0, -2.0]));
         let error = apply(&mut known, &update(4, vec![], vec![])).unwrap_err();
         assert!(error.contains("context epoch 4 after 4"), "{error}");
     }
@@ -1046,7 +1046,7 @@ mod tests {
         let payload = encode(&states);
         let step = BatchStep::written(2, 3, |mut out| {
             let view = decode_reply(&payload).expect("a reply");
-            out.copy_from(&view, Some((&[-1.0, -2.0], 1)))
+            out.copy_from(&view, Some((&F64s::le_bytes(&[-1.0, -2.0]), 1)))
                 .map_err(|e| BridgeError::InvalidArgument(e.to_string()))
         })
         .unwrap();
@@ -1054,7 +1054,7 @@ mod tests {
         // States of another width than the observations less the contexts.
         let error = BatchStep::written(2, 4, |mut out| {
             let view = decode_reply(&payload).expect("a reply");
-            out.copy_from(&view, Some((&[-1.0, -2.0], 1)))
+            out.copy_from(&view, Some((&F64s::le_bytes(&[-1.0, -2.0]), 1)))
                 .map_err(|e| BridgeError::InvalidArgument(e.to_string()))
         })
         .unwrap_err();

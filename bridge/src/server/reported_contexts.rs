@@ -65,6 +65,7 @@ impl ReportedContexts {
         Ok(self
             .values
             .chunks_mut((rows * context_dim).max(1))
+            // A task without context has no values to split: its blocks hold none.
             .chain(std::iter::repeat_with(|| &mut [][..]))
             .zip(self.changed_at.chunks_mut(rows))
             .map(|(values, changed_at)| ReportedBlock {
