@@ -80,18 +80,43 @@ fn large_payloads_between_engine_and_client_on_one_host_travel_in_shared_memory(
     }
 }
 
+/// An engine on `port` with the fixture tasks, whose Zenoh moves queries and puts into
+/// shared memory but no reply, from a pool of `pool_bytes` (Zenoh's default: 16 MiB).
+fn start_engine_without_reply_copies(port: u16, pool_bytes: usize) -> EngineServer {
+    let config = std::env::temp_dir().join(format!("ciflow-test-{port}-no-reply-shm.json5"));
+    let optimization = format!(r#"{{ pool_size: {pool_bytes}, messages: ["put", "query"] }}"#);
+    std::fs::write(
+        &config,
+        format!(
+            "{{ transport: {{ shared_memory: {{ transport_optimization: {optimization} }} }} }}"
+        ),
+    )
+    .unwrap();
+    let mut network = NetworkOptions::endpoint(Role::Engine, &endpoint(port));
+    network.config_file = Some(config.clone());
+    let mut options = ServerOptions::default();
+    options.tasks.push(fixture_task());
+    options.tasks.push(long_keyed_fixture_task());
+    options.name = Some(format!("test-{port}"));
+    let engine = EngineServer::open(&network, options).expect("engine starts");
+    std::fs::remove_file(&config).unwrap();
+    engine
+}
+
 /// Environments of the batch: its reply (`2 · 8` bytes of observation, 8 of reward and 2
 /// of flags each, 104 KiB) is well past Zenoh's threshold for shared memory.
 const BATCH: u32 = 4096;
 
 /// The bytes of the engine's `step_batch` reply to `actions`, sent by hand so that its
-/// payload can be looked at, with whether they arrived in shared memory.
+/// payload can be looked at, with whether they arrived in shared memory; for a client that
+/// holds the contexts of reply `known_contexts`, if given.
 fn step_batch_by_hand(
     env: &RemoteEnv,
     client: &zenoh::Session,
     actions: &[f64],
+    known_contexts: Option<u64>,
 ) -> (Vec<u8>, bool) {
-    let (key, request) = step_batch_request(env, actions, None);
+    let (key, request) = step_batch_request(env, actions, known_contexts);
     let replies = client
         .get(key)
         .payload(request)
@@ -106,21 +131,7 @@ fn step_batch_by_hand(
 #[test]
 fn the_engine_writes_batch_replies_into_shared_memory_itself() {
     let port = 27404;
-    // Zenoh on the engine's side moves queries and puts into shared memory, not replies.
-    let config = std::env::temp_dir().join(format!("ciflow-test-{port}-no-reply-shm.json5"));
-    std::fs::write(
-        &config,
-        r#"{ transport: { shared_memory: { transport_optimization: { messages: ["put", "query"] } } } }"#,
-    )
-    .unwrap();
-    let mut network = NetworkOptions::endpoint(Role::Engine, &endpoint(port));
-    network.config_file = Some(config.clone());
-    let mut options = ServerOptions::default();
-    options.tasks.push(fixture_task());
-    options.tasks.push(long_keyed_fixture_task());
-    options.name = Some(format!("test-{port}"));
-    let engine = EngineServer::open(&network, options).expect("engine starts");
-    std::fs::remove_file(&config).unwrap();
+    let engine = start_engine_without_reply_copies(port, 16 << 20);
 
     let client_options = NetworkOptions::endpoint(Role::Client, &endpoint(port));
     let client = zenoh::open(client_options.to_zenoh_config(Role::Client).unwrap())
@@ -154,8 +165,8 @@ fn the_engine_writes_batch_replies_into_shared_memory_itself() {
         let actions: Vec<f64> = (0..BATCH)
             .map(|i| f64::from(i % 13) * 0.01 * f64::from(step))
             .collect();
-        let (reply, shared) = step_batch_by_hand(&env, &client, &actions);
-        let (twin_reply, twin_shared) = step_batch_by_hand(&twin, &network_only, &actions);
+        let (reply, shared) = step_batch_by_hand(&env, &client, &actions, None);
+        let (twin_reply, twin_shared) = step_batch_by_hand(&twin, &network_only, &actions, None);
         assert!(
             !twin_shared,
             "a client with shared memory off got the reply in shared memory"
@@ -184,7 +195,7 @@ fn the_engine_writes_batch_replies_into_shared_memory_itself() {
     for (task, first_in_place) in [(FIXTURE_ID, 1), (LONG_KEYED_FIXTURE_ID, 2)] {
         let env = make(&by_shared_memory, task);
         for step in 1..=3 {
-            let (reply, shared) = step_batch_by_hand(&env, &client, &actions);
+            let (reply, shared) = step_batch_by_hand(&env, &client, &actions, None);
             let decoded: BatchStepReply = rmp_serde::from_slice(&reply).expect("a reply");
             assert_eq!(decoded.info.len(), 1, "{task}: one info column");
             if step >= first_in_place {
@@ -201,4 +212,67 @@ fn the_engine_writes_batch_replies_into_shared_memory_itself() {
             "Zenoh moved a reply into shared memory though its configuration says not to"
         );
     }
+}
+
+/// Whether each of 12 consecutive `step_batch` replies to a client that keeps the
+/// contexts arrived in shared memory, with how many contexts it updated: a batch of
+/// `BATCH` fixture environments (episodes of 5 steps, all ending at once) served by an
+/// engine whose pool holds `pool_bytes`, counted from the first reply that arrives there
+/// (before it, the pool is being set up).
+fn replies_in_shared_memory(port: u16, pool_bytes: usize) -> Vec<(bool, usize)> {
+    let engine = start_engine_without_reply_copies(port, pool_bytes);
+    let options = NetworkOptions::endpoint(Role::Client, &endpoint(port));
+    let session = zenoh::open(options.to_zenoh_config(Role::Client).unwrap())
+        .wait()
+        .unwrap();
+    let client = ciflow_bridge::Client::with_session(session.clone()).unwrap();
+    let env = client
+        .make(engine.name(), FIXTURE_ID, BATCH, &Default::default())
+        .expect("a batch session");
+    env.reset_batch(Some(3), None).expect("reset");
+    let actions = vec![0.1; BATCH as usize];
+    let mut known = 0;
+    let mut replies = Vec::new();
+    for _ in 0..200 {
+        let (reply, shared) = step_batch_by_hand(&env, &session, &actions, Some(known));
+        let decoded: BatchStepReply = rmp_serde::from_slice(&reply).expect("a step_batch reply");
+        let update = decoded.contexts.expect("a context update");
+        known = update.epoch;
+        if shared || !replies.is_empty() {
+            replies.push((shared, update.envs.len()));
+        }
+        if replies.len() == 12 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    replies
+}
+
+/// A reply reserves room for the contexts it will update, not for all of them: from a
+/// pool too small for a reply with every context (157 KiB) and large enough for one with
+/// none (104 KiB), only the replies at which every environment autoresets are on the
+/// heap; from a pool that holds both, none is: the autoresets were counted before the
+/// step, and the smaller buffers released before were reclaimed to make room for a larger
+/// one.
+#[test]
+fn batch_replies_reserve_room_for_the_contexts_they_update() {
+    let batch = BATCH as usize;
+    let small = replies_in_shared_memory(27407, 128 << 10);
+    assert_eq!(small.len(), 12, "no reply arrived in shared memory");
+    for (step, &(shared, updated)) in small.iter().enumerate() {
+        assert!(
+            updated == 0 || updated == batch,
+            "step {step}: {updated} updated"
+        );
+        assert_eq!(shared, updated == 0, "step {step}: {updated} updated");
+    }
+    assert!(small.iter().any(|&(_, updated)| updated == batch));
+
+    let large = replies_in_shared_memory(27408, 256 << 10);
+    assert_eq!(large.len(), 12, "no reply arrived in shared memory");
+    for (step, &(shared, updated)) in large.iter().enumerate() {
+        assert!(shared, "step {step}: {updated} updated, on the heap");
+    }
+    assert!(large.iter().any(|&(_, updated)| updated == batch));
 }

@@ -35,7 +35,7 @@ use std::mem::{MaybeUninit, take};
 use std::ops::Range;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use super::{F64s, PROTOCOL_VERSION};
+use super::{ContextUpdate, F64s, PROTOCOL_VERSION};
 
 /// Memory a message is encoded into: a `Vec<u8>`, or a buffer of fixed size (the engine's
 /// replies in Zenoh's shared memory) that moves what it holds to the heap when asked for
@@ -247,15 +247,15 @@ impl<B: MessageBuffer> BatchStepWriter<B> {
     /// As [`new_in`](Self::new_in), for a reply that leaves the contexts out of its
     /// observations (`state_dim` values per row) and ends with the
     /// [`ContextUpdate`](super::ContextUpdate) that
-    /// [`finish_with_contexts`](Self::finish_with_contexts) appends; `info_bytes` also
-    /// covers that update.
+    /// [`finish_with_contexts`](Self::finish_with_contexts) appends; `tail_bytes` is room
+    /// for the info columns and that update together ([`context_update_len`]).
     pub fn with_contexts_in(
         allocate: impl FnOnce(usize) -> B,
         num_envs: usize,
         state_dim: usize,
-        info_bytes: usize,
+        tail_bytes: usize,
     ) -> Self {
-        Self::start(allocate, num_envs, state_dim, info_bytes, true)
+        Self::start(allocate, num_envs, state_dim, tail_bytes, true)
     }
 
     fn start(
@@ -350,14 +350,11 @@ impl<B: MessageBuffer> BatchStepWriter<B> {
     pub fn finish_with_contexts<'a, I: IntoIterator<Item = InfoBlock<'a>>>(
         mut self,
         info: impl ExactSizeIterator<Item = (&'a str, I)>,
-        contexts: &super::ContextUpdate,
+        contexts: &ContextUpdate,
     ) -> B {
         assert!(self.contexts, "this reply has no room for contexts");
         self.append_info(info);
-        let buffer = &mut self.buffer;
-        write(rmp::encode::write_str(&mut Appender(buffer), "contexts"));
-        rmp_serde::encode::write_named(&mut Appender(buffer), contexts)
-            .expect("a context update encodes");
+        write_context_update(&mut Appender(&mut self.buffer), contexts);
         self.buffer
     }
 
@@ -404,6 +401,43 @@ impl<B: MessageBuffer> BatchStepWriter<B> {
                 "info `{key}` holds a value for each of {num_envs} environments"
             );
         }
+    }
+}
+
+/// The bytes [`BatchStepWriter::finish_with_contexts`] appends for `contexts` after the
+/// info columns.
+pub fn context_update_len(contexts: &ContextUpdate) -> usize {
+    let mut counter = ByteCounter(0);
+    write_context_update(&mut counter, contexts);
+    counter.0
+}
+
+/// The most bytes [`BatchStepWriter::finish_with_contexts`] appends for an update of
+/// `envs` environments with `context_dim` values each: MessagePack's longest forms of the
+/// key, the epoch, every index and the headers (47 bytes), and the values.
+pub fn context_update_max_len(envs: usize, context_dim: usize) -> usize {
+    // "contexts" 9, map(3) 1, "epoch" 6 + u64 9, "envs" 5 + array32 5, "values" 7 + bin32 5.
+    const FIXED: usize = 47;
+    // A u32 index: up to 5 bytes.
+    FIXED + envs * (5 + 8 * context_dim)
+}
+
+fn write_context_update(writer: &mut impl io::Write, contexts: &ContextUpdate) {
+    write(rmp::encode::write_str(writer, "contexts"));
+    rmp_serde::encode::write_named(writer, contexts).expect("a context update encodes");
+}
+
+/// An [`io::Write`] that only counts the bytes.
+struct ByteCounter(usize);
+
+impl io::Write for ByteCounter {
+    fn write(&mut self, bytes: &[u8]) -> io::Result<usize> {
+        self.0 += bytes.len();
+        Ok(bytes.len())
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        Ok(())
     }
 }
 
@@ -627,6 +661,37 @@ mod tests {
                 in_place == serialized,
                 "n = {n}, d = {d}, {keys} info keys, contexts {with_contexts}"
             );
+        }
+    }
+
+    /// The bytes counted for an update are those the writer appends for it, never more
+    /// than the bound, which MessagePack's longest forms reach (an epoch of 9 bytes,
+    /// indices of 5, and 32-bit array and bin lengths).
+    #[test]
+    fn a_context_update_takes_the_bytes_counted_and_at_most_the_bound() {
+        let cases = [
+            (0..0, 2, 1),
+            (0..3, 2, 5),
+            (100_000..100_300, 8, 1 << 40),
+            (70_000..70_000 + 65_536, 1, u64::MAX),
+        ];
+        for (i, (envs, context_dim, epoch)) in cases.into_iter().enumerate() {
+            let envs: Vec<u32> = envs.collect();
+            let update = ContextUpdate {
+                epoch,
+                values: F64s(vec![0.5; envs.len() * context_dim]),
+                envs,
+            };
+            let without = BatchStepWriter::new(0, 1, 0).finish(no_info());
+            let with = BatchStepWriter::with_contexts_in(Vec::with_capacity, 0, 1, 0)
+                .finish_with_contexts(no_info(), &update);
+            let appended = with.len() - without.len();
+            assert_eq!(context_update_len(&update), appended, "case {i}");
+            let bound = context_update_max_len(update.envs.len(), context_dim);
+            assert!(appended <= bound, "case {i}: {appended} > {bound}");
+            if i == 3 {
+                assert_eq!(appended, bound, "the longest forms");
+            }
         }
     }
 

@@ -12,7 +12,10 @@ pub mod keys;
 pub mod messages;
 pub mod wire;
 
-pub use batch_step::{BatchStepRows, BatchStepWriter, InfoBlock, MessageBuffer};
+pub use batch_step::{
+    BatchStepRows, BatchStepWriter, InfoBlock, MessageBuffer, context_update_len,
+    context_update_max_len,
+};
 pub use checkpoint::{CheckpointMsg, CheckpointSignature, RunRequest};
 pub use episodes::{EpisodeError, EpisodeMsg, decode_episode};
 pub use error::{ErrorCode, ErrorReply};

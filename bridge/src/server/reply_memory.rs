@@ -18,7 +18,7 @@ use std::num::NonZeroUsize;
 
 use zenoh::Wait;
 use zenoh::bytes::ZBytes;
-use zenoh::shm::{GarbageCollect, OwnedShmBuf, ZShmMut};
+use zenoh::shm::{JustAlloc, OwnedShmBuf, ZShmMut};
 
 use crate::protocol::MessageBuffer;
 
@@ -43,12 +43,20 @@ impl ReplyMemory {
     pub fn buffer(&self, capacity: usize) -> ReplyBuffer {
         if capacity >= SHARED_FROM_BYTES
             && let Some(provider) = self.zsession.get_shm_provider().into_option()
-            && let Ok(memory) = provider
-                .alloc(capacity)
-                .with_policy::<GarbageCollect>()
-                .wait()
         {
-            return ReplyBuffer::Shared { memory, len: 0 };
+            let alloc = || provider.alloc(capacity).with_policy::<JustAlloc>().wait();
+            // Buffers the clients have released are reclaimed only when the pool is full.
+            // Zenoh's `GarbageCollect` policy then tries again only if one of them alone
+            // is as large as the new buffer, though its allocator merges them: a reply
+            // larger than the ones before it (at a step where every environment
+            // autoresets, say) would go to the heap with the pool all but empty.
+            let memory = alloc().or_else(|_| {
+                provider.garbage_collect();
+                alloc()
+            });
+            if let Ok(memory) = memory {
+                return ReplyBuffer::Shared { memory, len: 0 };
+            }
         }
         ReplyBuffer::Heap(Vec::with_capacity(capacity))
     }

@@ -9,10 +9,23 @@
 //! with the epoch of the reply that first reports it. The client names the epoch of the
 //! last reply it applied, so the reply sends every context changed after it: a reply that
 //! never arrived is made up by the next one.
+//!
+//! A reply is written into a buffer sized before the step, so [`room`](ReportedContexts::room)
+//! says how many contexts the update will hold, from what the engine knows before
+//! stepping: those stamped in replies the client did not apply, those that requests
+//! changed (a batch reset, a `context` request) and those of the environments that
+//! autoreset at this step. Room for every context at every step took 0.28 MiB per 4 096
+//! obstacle environments of Zenoh's 16 MiB shared-memory pool for nothing once the first
+//! step had sent them. A change it cannot foresee (a task that changes its own context)
+//! outgrows the room, and the reply moves to the heap: one copy, correct all the same.
 
 use std::ops::Range;
 
-use crate::protocol::{ContextUpdate, ErrorCode, ErrorReply, F64s};
+use crate::protocol::{ContextUpdate, ErrorCode, ErrorReply, F64s, context_update_max_len};
+
+/// Replies a client may have missed for [`ReportedContexts::room`] to count what it
+/// missed; past them, it makes room for every context.
+const RECENT_REPLIES: usize = 16;
 
 pub(crate) struct ReportedContexts {
     context_dim: usize,
@@ -25,6 +38,11 @@ pub(crate) struct ReportedContexts {
     changed_at: Vec<u64>,
     /// The epoch of the last reply (0: none yet).
     epoch: u64,
+    /// How many contexts each of the last replies stamped, by epoch modulo their count.
+    stamped: [usize; RECENT_REPLIES],
+    /// How many contexts requests changed since the last reply (an estimate from above:
+    /// one environment's context set twice counts twice).
+    requested: usize,
 }
 
 /// The reported contexts of a block of environments, for the task that steps them.
@@ -43,7 +61,36 @@ impl ReportedContexts {
             values: vec![f64::NAN; num_envs * context_dim],
             changed_at: vec![1; num_envs],
             epoch: 0,
+            stamped: [0; RECENT_REPLIES],
+            requested: 0,
         }
+    }
+
+    /// A request changed (or may have changed) the contexts of `envs` environments.
+    pub fn requested(&mut self, envs: usize) {
+        self.requested = self.requested.saturating_add(envs);
+    }
+
+    /// Bytes to reserve for the next update, its key included, to a client that holds
+    /// epoch `known` when `autoresets` environments autoreset at this step: room for the
+    /// contexts stamped after `known`, those [requested](Self::requested) and those of
+    /// the autoresets; for every one if the client holds none or missed more replies than
+    /// are counted.
+    pub fn room(&self, known: u64, autoresets: usize) -> usize {
+        let num_envs = self.changed_at.len();
+        let missed = self.epoch.saturating_sub(known);
+        let envs = if known == 0 || missed > RECENT_REPLIES as u64 {
+            num_envs
+        } else {
+            let stamped: usize = (known + 1..=self.epoch)
+                .map(|epoch| self.stamped[epoch as usize % RECENT_REPLIES])
+                .sum();
+            stamped
+                .saturating_add(self.requested)
+                .saturating_add(autoresets)
+                .min(num_envs)
+        };
+        context_update_max_len(envs, self.context_dim)
     }
 
     /// Starts the reply to a client that holds the contexts of epoch `known`: blocks of
@@ -86,7 +133,9 @@ impl ReportedContexts {
             envs: Vec::new(),
             values: F64s(Vec::new()),
         };
+        let mut stamped = 0;
         for (i, &changed_at) in self.changed_at.iter().enumerate() {
+            stamped += usize::from(changed_at == self.epoch);
             if changed_at > known {
                 update
                     .envs
@@ -94,6 +143,8 @@ impl ReportedContexts {
                 update.values.0.extend_from_slice(&self.values[self.row(i)]);
             }
         }
+        self.stamped[self.epoch as usize % RECENT_REPLIES] = stamped;
+        self.requested = 0;
         update
     }
 
@@ -121,6 +172,7 @@ impl ReportedBlock<'_> {
 #[cfg(test)]
 mod tests {
     use super::ReportedContexts;
+    use crate::protocol::context_update_max_len;
 
     /// Steps `contexts` (one row per environment) through a reply to a client holding
     /// epoch `known`, in blocks of 2.
@@ -171,6 +223,51 @@ mod tests {
         // A client that lost its copy asks for every context again.
         let (_, envs, _) = reply(&mut reported, 0, &contexts);
         assert_eq!(envs, [0, 1, 2]);
+    }
+
+    /// Room for the contexts stamped in replies the client missed, those requests
+    /// changed and those of the autoresets: for every one to a client that holds none
+    /// or missed more than 16 replies.
+    #[test]
+    fn room_is_for_the_contexts_the_engine_knows_will_be_sent() {
+        let n = 40;
+        let room = |envs| context_update_max_len(envs, 2);
+        let mut reported = ReportedContexts::new(n, 2);
+        let mut contexts = vec![[0.0, 0.0]; n];
+        // A reply to a client that applied `known`, the first `changed` contexts changed.
+        let mut step = |reported: &mut ReportedContexts, known: u64, changed: usize| {
+            contexts[..changed].iter_mut().for_each(|c| c[0] += 1.0);
+            reply(reported, known, &contexts);
+        };
+        assert_eq!(reported.room(0, 0), room(n));
+        step(&mut reported, 0, 0);
+        assert_eq!(
+            reported.room(1, 0),
+            room(0),
+            "nothing stamped after epoch 1"
+        );
+        assert_eq!(reported.room(1, 3), room(3), "3 autoresets");
+        assert_eq!(reported.room(0, 0), room(n), "a client that holds none");
+        step(&mut reported, 1, 3);
+        step(&mut reported, 1, 5);
+        assert_eq!(reported.room(3, 0), room(0));
+        assert_eq!(reported.room(2, 0), room(5), "the reply of epoch 3 missed");
+        assert_eq!(
+            reported.room(1, 2),
+            room(3 + 5 + 2),
+            "two missed, 2 autoresets"
+        );
+        assert_eq!(reported.room(1, 38), room(n), "at most every one");
+        reported.requested(4);
+        reported.requested(1);
+        assert_eq!(reported.room(3, 1), room(6), "5 requested");
+        step(&mut reported, 3, 0);
+        assert_eq!(reported.room(4, 0), room(0), "requests count once");
+        for known in 4..20 {
+            step(&mut reported, known, 0);
+        }
+        assert_eq!(reported.room(4, 0), room(0), "16 replies missed, counted");
+        assert_eq!(reported.room(3, 0), room(n), "17 missed");
     }
 
     #[test]

@@ -23,7 +23,7 @@ use crate::protocol::{
     AckReply, ActionReply, BatchResetReply, BatchSeeds, BatchStepWriter, ContextCheckReply,
     ContextRequest, DescribeReply, ErrorCode, ErrorReply, F64s, FrameHeader, InfoBlock,
     MessageBuffer, PROTOCOL_VERSION, PerturbRequest, PerturbationKindMsg, ResetReply, ResetRequest,
-    RunRequest, StepReply, TOKEN_BYTES, encode,
+    RunRequest, StepReply, TOKEN_BYTES, context_update_len, encode,
 };
 
 /// Environments per rayon task in `step_batch`: below this, threads cost more than they
@@ -51,10 +51,14 @@ pub(crate) struct Session {
     runs: u64,
     /// Room for the info columns of a `step_batch` reply (their keys and headers
     /// included): the most they took so far, at least the estimate the last batch reset's
-    /// keys give before the first step.
+    /// keys give before the first step. A context update has room of its own
+    /// ([`ReportedContexts::room`]).
     info_bytes: usize,
     /// The contexts `step_batch` replies have reported, for clients that keep a copy.
     reported_contexts: ReportedContexts,
+    /// Environments whose episode ended at the last `step_batch`: they autoreset at the
+    /// next.
+    autoresets: usize,
 }
 
 /// One of the engine's `max_runs` places for a running policy, held by the session while
@@ -137,6 +141,7 @@ impl Session {
             runs: 0,
             info_bytes: 0,
             reported_contexts,
+            autoresets: 0,
         }
     }
 
@@ -376,6 +381,8 @@ impl Session {
         // for those columns, with a key of up to 64 bytes each, lets the first step's
         // reply be written in place too.
         self.info_bytes = self.info_bytes.max(info.columns.len() * (8 * n + 64));
+        self.reported_contexts.requested(n);
+        self.autoresets = 0;
         Ok(encode(&BatchResetReply {
             v: PROTOCOL_VERSION,
             observations: F64s(observations),
@@ -401,7 +408,12 @@ impl Session {
         let allocate = |len| memory.buffer(len);
         let (mut reply, reported) = match known_contexts {
             Some(known) => (
-                BatchStepWriter::with_contexts_in(allocate, n, state_dim, self.info_bytes),
+                BatchStepWriter::with_contexts_in(
+                    allocate,
+                    n,
+                    state_dim,
+                    self.info_bytes + self.reported_contexts.room(known, self.autoresets),
+                ),
                 self.reported_contexts.start(known, BATCH_CHUNK)?,
             ),
             None => (
@@ -426,11 +438,12 @@ impl Session {
             .map(|chunk| (chunk, reported.next()))
             .collect();
         drop(reported);
-        let chunks: Vec<Result<InfoColumns, ErrorReply>> = chunks
+        let chunks: Vec<Result<(InfoColumns, usize), ErrorReply>> = chunks
             .into_par_iter()
             .enumerate()
             .map(|(chunk, (((slots, actions), mut rows), mut reported))| {
                 let mut infos = InfoColumns::new(slots.len());
+                let mut episodes_ended = 0;
                 // One info for the chunk, refilled by every environment in turn.
                 let mut info = Info::new();
                 // The others still step when one fails, as they would one by one.
@@ -442,6 +455,7 @@ impl Session {
                         Ok(step) => {
                             let (row, context) = slot.observation.split_at(row_dim);
                             rows.push(row, step.reward, step.terminated, step.truncated);
+                            episodes_ended += usize::from(step.terminated || step.truncated);
                             if let Some(reported) = &mut reported {
                                 reported.note(i, context);
                             }
@@ -454,17 +468,26 @@ impl Session {
                         }
                     }
                 }
-                failure.map_or(Ok(infos), Err)
+                failure.map_or(Ok((infos, episodes_ended)), Err)
             })
             .collect();
-        let parts = chunks.into_iter().collect::<Result<Vec<_>, _>>()?;
+        let (parts, episodes_ended): (Vec<_>, Vec<_>) = chunks
+            .into_iter()
+            .collect::<Result<Vec<_>, _>>()?
+            .into_iter()
+            .unzip();
+        self.autoresets = episodes_ended.iter().sum();
         self.telemetry.offer(&self.id, &self.envs[0]);
         let info = InfoColumns::merged(&parts);
-        let reply = match known_contexts {
-            Some(known) => reply.finish_with_contexts(info, &self.reported_contexts.finish(known)),
-            None => reply.finish(info),
+        let (reply, update_len) = match known_contexts {
+            Some(known) => {
+                let update = self.reported_contexts.finish(known);
+                let update_len = context_update_len(&update);
+                (reply.finish_with_contexts(info, &update), update_len)
+            }
+            None => (reply.finish(info), 0),
         };
-        self.info_bytes = self.info_bytes.max(reply.len() - info_offset);
+        self.info_bytes = self.info_bytes.max(reply.len() - info_offset - update_len);
         Ok(reply.into())
     }
 
@@ -485,9 +508,11 @@ impl Session {
         if slot.observation.len() >= context_dim {
             slot.observation[split..].copy_from_slice(&request.context.0);
         }
+        let time = slot.time();
+        self.reported_contexts.requested(1);
         Ok(encode(&AckReply {
             v: PROTOCOL_VERSION,
-            time: slot.time(),
+            time,
         }))
     }
 
