@@ -20,14 +20,12 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::env::{
     Env, EnvError, EnvSpec, Info, Outcome, PERTURBED_INFO, Phase, ResetOptions, StepOutcome,
-    observation_of, write_observation,
 };
 use crate::scene::{self, Body, Scene};
-use crate::seeding::EpisodeRng;
 use crate::shading::{self, Camera, Picture};
+use crate::simulated::SimulatedEpisode;
 use crate::space::{BoxSpace, Dtype};
 use crate::tasks::arm_start;
-use crate::trail::Trail;
 
 /// Physics and control periods of every arm task, s.
 const PHYSICS_DT: f64 = 0.001;
@@ -85,13 +83,8 @@ pub trait ArmTask: Send + 'static {
 pub struct ArmEnv<T: ArmTask> {
     task: T,
     spec: Arc<EnvSpec>,
-    simulator: Simulator,
-    rng: EpisodeRng,
-    context: Vec<f64>,
-    phase: Phase,
-    steps: u32,
-    /// The traced point's positions this episode, drawn by `render`.
-    trail: Trail<Vector3>,
+    /// The arm's episode; its trail holds the traced point's positions.
+    episode: SimulatedEpisode<Vector3>,
 }
 
 impl<T: ArmTask> ArmEnv<T> {
@@ -138,12 +131,7 @@ impl<T: ArmTask> ArmEnv<T> {
         Ok(Self {
             task,
             spec,
-            simulator,
-            rng: EpisodeRng::default(),
-            context: Vec::new(),
-            phase: Phase::NeedsReset,
-            steps: 0,
-            trail: Trail::default(),
+            episode: SimulatedEpisode::new(simulator),
         })
     }
 
@@ -152,16 +140,13 @@ impl<T: ArmTask> ArmEnv<T> {
     }
 
     pub fn robot(&self) -> &dyn Robot {
-        self.simulator.robot()
+        self.episode.simulator.robot()
     }
 
     /// The task's pose of the arm now.
     pub fn pose(&self) -> Result<T::Pose, EnvError> {
-        self.task.pose(self.robot(), self.simulator.q().as_slice())
-    }
-
-    fn observation(&self) -> Vec<f64> {
-        observation_of(&self.simulator, &self.context)
+        self.task
+            .pose(self.robot(), self.episode.simulator.q().as_slice())
     }
 
     /// Reward and termination at `pose`; `info` replaced by the task's values,
@@ -169,16 +154,17 @@ impl<T: ArmTask> ArmEnv<T> {
     fn outcome(&self, pose: &T::Pose, info: &mut Info) -> Outcome {
         info.clear();
         let outcome = self.task.evaluate(pose, info);
-        let perturbed = f64::from(u8::from(self.simulator.perturbed()));
+        let simulator = &self.episode.simulator;
+        let perturbed = f64::from(u8::from(simulator.perturbed()));
         info.insert(PERTURBED_INFO.into(), perturbed);
-        info.insert("time".into(), self.simulator.time());
+        info.insert("time".into(), simulator.time());
         outcome
     }
 
     fn apply_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
         self.spec.context_space.check("context", context)?;
         self.task.set_context(context);
-        self.context = context.to_vec();
+        self.episode.context = context.to_vec();
         Ok(())
     }
 
@@ -188,12 +174,13 @@ impl<T: ArmTask> ArmEnv<T> {
     /// first reset).
     pub fn picture(&self, width: u32, height: u32) -> Result<Picture, EnvError> {
         let mut scene = Scene::default();
-        if self.phase != Phase::NeedsReset {
-            scene = self.scene(&self.observation())?;
-            if !self.trail.points().is_empty() {
+        if self.episode.phase != Phase::NeedsReset {
+            scene = self.scene(&self.episode.observation())?;
+            let trail = self.episode.trail();
+            if !trail.is_empty() {
                 scene
                     .bodies
-                    .push(scene::trail(self.task.setup().trail, self.trail.points()));
+                    .push(scene::trail(self.task.setup().trail, trail));
             }
         }
         shading::render(&scene, &self.task.camera(), width, height)
@@ -211,11 +198,11 @@ impl<T: ArmTask> Env for ArmEnv<T> {
         options: &ResetOptions,
     ) -> Result<(Vec<f64>, Info), EnvError> {
         // A failed reset leaves no episode to step: the task may be half reconfigured.
-        self.phase = Phase::NeedsReset;
+        self.episode.phase = Phase::NeedsReset;
         self.task.configure(&options.extra)?;
         let push_force = arm_start::push_force(&options.extra)?;
-        let robot = self.simulator.robot();
-        let rng = self.rng.reseed(seed);
+        let robot = self.episode.simulator.robot();
+        let rng = self.episode.rng.reseed(seed);
         let context = match &options.context {
             Some(context) => context.clone(),
             None => self.task.sample_context(robot, rng)?,
@@ -230,24 +217,21 @@ impl<T: ArmTask> Env for ArmEnv<T> {
             None => vec![0.0; joints],
         };
         // Drawn after the start, so a pushed episode starts where the unpushed one does.
-        let push = arm_start::demo_push(self.rng.reseed(None), push_force, joints - 1);
+        let push = arm_start::demo_push(self.episode.rng.reseed(None), push_force, joints - 1);
         self.apply_context(&context)?;
-        self.simulator
-            .reset(&q0, &qd0)
-            .map_err(EnvError::Simulation)?;
+        let simulator = &mut self.episode.simulator;
+        simulator.reset(&q0, &qd0).map_err(EnvError::Simulation)?;
         if let Some(push) = push {
-            self.simulator
+            simulator
                 .perturb(push)
                 .map_err(EnvError::InvalidPerturbation)?;
         }
-        self.phase = Phase::Running;
-        self.steps = 0;
         let pose = self.pose()?;
-        self.trail
+        self.episode
             .start(T::traced_point(&pose), self.spec.max_episode_steps);
         let mut info = Info::new();
         self.outcome(&pose, &mut info);
-        Ok((self.observation(), info))
+        Ok((self.episode.observation(), info))
     }
 
     fn step_into(
@@ -256,43 +240,39 @@ impl<T: ArmTask> Env for ArmEnv<T> {
         observation: &mut [f64],
         info: &mut Info,
     ) -> Result<StepOutcome, EnvError> {
-        self.phase.running()?;
-        self.spec.action_space.check("action", action)?;
-        self.spec.check_observation_buffer(observation)?;
-        self.simulator.step(action).map_err(EnvError::Simulation)?;
-        self.steps += 1;
+        self.episode.advance(&self.spec, action, observation)?;
         let pose = self.pose()?;
-        self.trail.push(T::traced_point(&pose));
         let outcome = self.outcome(&pose, info);
-        write_observation(&self.simulator, &self.context, observation);
-        Ok(self
-            .phase
-            .finish_step(outcome, self.steps, self.spec.max_episode_steps))
+        let max_episode_steps = self.spec.max_episode_steps;
+        Ok(self.episode.finish_step(
+            T::traced_point(&pose),
+            outcome,
+            max_episode_steps,
+            observation,
+        ))
     }
 
     fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
-        self.phase.started()?;
+        self.episode.phase.started()?;
+        let simulator = &self.episode.simulator;
         let qdd = self
             .task
             .expert_acceleration(
                 self.robot(),
-                self.simulator.q().as_slice(),
-                self.simulator.qd().as_slice(),
+                simulator.q().as_slice(),
+                simulator.qd().as_slice(),
             )
             .map_err(|e| EnvError::Simulation(e.into()))?;
         Ok(self.spec.action_space.clip(qdd.as_slice()))
     }
 
     fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
-        self.phase.started()?;
+        self.episode.phase.started()?;
         self.apply_context(context)
     }
 
     fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError> {
-        self.phase.started()?;
-        self.simulator
-            .perturb(perturbation)
-            .map_err(EnvError::InvalidPerturbation)
+        self.episode.perturb(perturbation)
     }
 
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
@@ -300,7 +280,7 @@ impl<T: ArmTask> Env for ArmEnv<T> {
     }
 
     fn record_trail(&mut self, recording: bool) {
-        self.trail.record(recording);
+        self.episode.record_trail(recording);
     }
 
     fn scene(&self, observation: &[f64]) -> Result<Scene, EnvError> {

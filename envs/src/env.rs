@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 use std::ops::Range;
 use std::sync::{Arc, Mutex, PoisonError, Weak};
 
-use ciflow_engine::sim::{Perturbation, Simulator};
+use ciflow_engine::sim::Perturbation;
 use serde::{Deserialize, Serialize};
 
 use crate::scene::Scene;
@@ -216,23 +216,6 @@ impl Phase {
             truncated,
         }
     }
-}
-
-/// The observation `[q, q̇, c]` of a simulated robot's state and the context, the layout
-/// of every task ([`EnvSpec::position_dim`]).
-pub fn observation_of(simulator: &Simulator, context: &[f64]) -> Vec<f64> {
-    let mut observation = vec![0.0; simulator.q().len() + simulator.qd().len() + context.len()];
-    write_observation(simulator, context, &mut observation);
-    observation
-}
-
-/// [`observation_of`] written into `buffer`, which has its length.
-pub fn write_observation(simulator: &Simulator, context: &[f64], buffer: &mut [f64]) {
-    let (q, rest) = buffer.split_at_mut(simulator.q().len());
-    let (qd, c) = rest.split_at_mut(simulator.qd().len());
-    q.copy_from_slice(simulator.q().as_slice());
-    qd.copy_from_slice(simulator.qd().as_slice());
-    c.copy_from_slice(context);
 }
 
 /// What a task tells about one state: Gymnasium's reward and termination. Its info goes

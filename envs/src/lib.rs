@@ -28,6 +28,7 @@ pub mod rollout;
 pub mod scene;
 pub mod seeding;
 pub mod shading;
+mod simulated;
 pub mod space;
 pub mod tasks;
 pub mod trail;

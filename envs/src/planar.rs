@@ -14,16 +14,12 @@ use ciflow_engine::sim::{Perturbation, SimConfig, Simulator};
 use nalgebra::Vector2;
 use rand_chacha::ChaCha8Rng;
 
-use crate::env::{
-    Env, EnvError, EnvSpec, Info, Outcome, Phase, ResetOptions, StepOutcome, observation_of,
-    write_observation,
-};
+use crate::env::{Env, EnvError, EnvSpec, Info, Outcome, Phase, ResetOptions, StepOutcome};
 use crate::expert::tracking::{VelocityField, tracking_acceleration};
 use crate::raster::{BLACK, BLUE, Canvas, View};
 use crate::scene::{Body, Scene, Shape, planar};
-use crate::seeding::EpisodeRng;
+use crate::simulated::SimulatedEpisode;
 use crate::space::{BoxSpace, Dtype};
-use crate::trail::Trail;
 
 /// Mass of the point, kg.
 pub const MASS: f64 = 1.0;
@@ -80,13 +76,8 @@ pub trait PlanarTask: Send + 'static {
 pub struct PlanarEnv<T: PlanarTask> {
     task: T,
     spec: Arc<EnvSpec>,
-    simulator: Simulator,
-    rng: EpisodeRng,
-    context: Vec<f64>,
-    phase: Phase,
-    steps: u32,
-    /// Positions visited this episode, drawn by `render`.
-    trail: Trail<Vector2<f64>>,
+    /// The point mass's episode; its trail holds the positions visited.
+    episode: SimulatedEpisode<Vector2<f64>>,
 }
 
 impl<T: PlanarTask> PlanarEnv<T> {
@@ -120,12 +111,7 @@ impl<T: PlanarTask> PlanarEnv<T> {
         Ok(Self {
             task,
             spec,
-            simulator,
-            rng: EpisodeRng::default(),
-            context: Vec::new(),
-            phase: Phase::NeedsReset,
-            steps: 0,
-            trail: Trail::default(),
+            episode: SimulatedEpisode::new(simulator),
         })
     }
 
@@ -135,7 +121,8 @@ impl<T: PlanarTask> PlanarEnv<T> {
 
     /// Position `x` and velocity `ẋ` now.
     pub fn state(&self) -> (Vector2<f64>, Vector2<f64>) {
-        let (q, qd) = (self.simulator.q(), self.simulator.qd());
+        let simulator = &self.episode.simulator;
+        let (q, qd) = (simulator.q(), simulator.qd());
         (Vector2::new(q[0], q[1]), Vector2::new(qd[0], qd[1]))
     }
 
@@ -144,16 +131,12 @@ impl<T: PlanarTask> PlanarEnv<T> {
         0.012 * (self.task.setup().workspace.max - self.task.setup().workspace.min).norm()
     }
 
-    fn observation(&self) -> Vec<f64> {
-        observation_of(&self.simulator, &self.context)
-    }
-
     /// Reward and termination now; `info` replaced by the task's values and `time`.
     fn outcome(&self, info: &mut Info) -> Outcome {
         let (x, xd) = self.state();
         info.clear();
         let outcome = self.task.evaluate(&x, &xd, info);
-        info.insert("time".into(), self.simulator.time());
+        info.insert("time".into(), self.episode.simulator.time());
         outcome
     }
 }
@@ -181,9 +164,9 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         options: &ResetOptions,
     ) -> Result<(Vec<f64>, Info), EnvError> {
         // A failed reset leaves no episode to step: the task may be half reconfigured.
-        self.phase = Phase::NeedsReset;
+        self.episode.phase = Phase::NeedsReset;
         self.task.configure(&options.extra)?;
-        let rng = self.rng.reseed(seed);
+        let rng = self.episode.rng.reseed(seed);
         let context = match &options.context {
             Some(context) => context.clone(),
             None => self.task.sample_context(seed, rng),
@@ -196,22 +179,21 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
                 self.task.check_start(&x0)?;
                 x0
             }
-            None => self.task.sample_start(self.rng.reseed(None)),
+            None => self.task.sample_start(self.episode.rng.reseed(None)),
         };
         let xd0 = match &options.initial_velocity {
             Some(xd0) => vector2("initial_velocity", xd0)?,
             None => Vector2::zeros(),
         };
-        self.simulator
+        self.episode
+            .simulator
             .reset(x0.as_slice(), xd0.as_slice())
             .map_err(EnvError::Simulation)?;
-        self.context = context;
-        self.phase = Phase::Running;
-        self.steps = 0;
-        self.trail.start(x0, self.spec.max_episode_steps);
+        self.episode.context = context;
+        self.episode.start(x0, self.spec.max_episode_steps);
         let mut info = Info::new();
         self.outcome(&mut info);
-        Ok((self.observation(), info))
+        Ok((self.episode.observation(), info))
     }
 
     fn step_into(
@@ -220,21 +202,17 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
         observation: &mut [f64],
         info: &mut Info,
     ) -> Result<StepOutcome, EnvError> {
-        self.phase.running()?;
-        self.spec.action_space.check("action", action)?;
-        self.spec.check_observation_buffer(observation)?;
-        self.simulator.step(action).map_err(EnvError::Simulation)?;
-        self.steps += 1;
-        self.trail.push(self.state().0);
+        self.episode.advance(&self.spec, action, observation)?;
         let outcome = self.outcome(info);
-        write_observation(&self.simulator, &self.context, observation);
+        let max_episode_steps = self.spec.max_episode_steps;
+        let point = self.state().0;
         Ok(self
-            .phase
-            .finish_step(outcome, self.steps, self.spec.max_episode_steps))
+            .episode
+            .finish_step(point, outcome, max_episode_steps, observation))
     }
 
     fn expert_action(&self) -> Result<Vec<f64>, EnvError> {
-        self.phase.started()?;
+        self.episode.phase.started()?;
         let (x, xd) = self.state();
         let a = tracking_acceleration(self.task.field(), &x, &xd, self.task.velocity_gain());
         Ok(self.spec.action_space.clip(a.as_slice()))
@@ -246,32 +224,29 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
     }
 
     fn set_context(&mut self, context: &[f64]) -> Result<(), EnvError> {
-        self.phase.started()?;
+        self.episode.phase.started()?;
         self.check_context(context)?;
         self.task.set_context(context);
-        self.context = context.to_vec();
+        self.episode.context = context.to_vec();
         Ok(())
     }
 
     fn perturb(&mut self, perturbation: Perturbation) -> Result<(), EnvError> {
-        self.phase.started()?;
-        self.simulator
-            .perturb(perturbation)
-            .map_err(EnvError::InvalidPerturbation)
+        self.episode.perturb(perturbation)
     }
 
     fn render(&self, width: u32, height: u32) -> Result<Vec<u8>, EnvError> {
         let mut canvas = Canvas::new(width, height, self.task.setup().workspace)?;
-        if self.phase != Phase::NeedsReset {
+        if self.episode.phase != Phase::NeedsReset {
             self.task.draw(&mut canvas);
-            canvas.polyline(self.trail.points(), false, BLUE, 2.0);
+            canvas.polyline(self.episode.trail(), false, BLUE, 2.0);
             canvas.disc(&self.state().0, self.point_radius(), BLACK);
         }
         Ok(canvas.into_pixels())
     }
 
     fn record_trail(&mut self, recording: bool) {
-        self.trail.record(recording);
+        self.episode.record_trail(recording);
     }
 
     /// The point mass as a ball on the plane `z = 0`, and the task's context bodies.
