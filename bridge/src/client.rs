@@ -464,11 +464,11 @@ impl BatchStepOut<'_> {
         reply: &BatchStepReplyView,
         contexts: Option<(&[u8], usize)>,
     ) -> Result<InfoColumns, rmp_serde::decode::Error> {
-        if let Some((contexts, context_dim)) = contexts {
-            self.copy_observations(reply.observations.0, contexts, context_dim)?;
-        }
         let observations = match contexts {
-            Some(_) => None,
+            Some((contexts, context_dim)) => {
+                self.copy_observations(reply.observations.0, contexts, context_dim)?;
+                None
+            }
             None => Some((
                 "observations",
                 reply.observations.0,

@@ -258,20 +258,22 @@ impl<B: MessageBuffer> BatchStepWriter<B> {
         Self::start(allocate, num_envs, state_dim, tail_bytes, true)
     }
 
+    /// `tail_bytes`: room reserved past the rows, for what `finish` or
+    /// `finish_with_contexts` appends.
     fn start(
         allocate: impl FnOnce(usize) -> B,
         num_envs: usize,
         observation_dim: usize,
-        info_bytes: usize,
+        tail_bytes: usize,
         contexts: bool,
     ) -> Self {
         let layout = Layout::new(num_envs, observation_dim, contexts);
         let end = layout.end();
-        let mut buffer = allocate(end + info_bytes);
+        let mut buffer = allocate(end + tail_bytes);
         assert!(buffer.is_empty(), "a reply is written into an empty buffer");
         buffer.extend_from_slice(&layout.head);
         let len = buffer.len();
-        buffer.reserve(end - len + info_bytes);
+        buffer.reserve(end - len + tail_bytes);
         // SAFETY: only the headers' bytes are written, at places below `end`, inside the
         // room just reserved.
         let spare = unsafe { buffer.spare_capacity_mut() };

@@ -406,7 +406,7 @@ impl Session {
         let options = &self.reset_options;
         // Room for the info columns, so that appending them does not move the rows.
         let allocate = |len| memory.buffer(len);
-        let (mut reply, reported) = match known_contexts {
+        let (mut reply, reported, row_dim) = match known_contexts {
             Some(known) => (
                 BatchStepWriter::with_contexts_in(
                     allocate,
@@ -415,16 +415,13 @@ impl Session {
                     self.info_bytes + self.reported_contexts.room(known, self.autoresets),
                 ),
                 self.reported_contexts.start(known, BATCH_CHUNK)?,
+                state_dim,
             ),
             None => (
                 BatchStepWriter::new_in(allocate, n, observation_dim, self.info_bytes),
                 Vec::new(),
+                observation_dim,
             ),
-        };
-        let row_dim = if known_contexts.is_some() {
-            state_dim
-        } else {
-            observation_dim
         };
         let info_offset = reply.info_offset();
         // Each rayon task steps a chunk and writes its rows into the reply: no
