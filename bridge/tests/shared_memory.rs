@@ -218,8 +218,14 @@ fn the_engine_writes_batch_replies_into_shared_memory_itself() {
 /// contexts arrived in shared memory, with how many contexts it updated: a batch of
 /// `BATCH` fixture environments (episodes of 5 steps, all ending at once) served by an
 /// engine whose pool holds `pool_bytes`, counted from the first reply that arrives there
-/// (before it, the pool is being set up).
-fn replies_in_shared_memory(port: u16, pool_bytes: usize) -> Vec<(bool, usize)> {
+/// (before it, the pool is being set up). With `whole_at_autoresets`, the client asks for
+/// whole observations at each step that autoresets (the one after episodes end): the
+/// contexts it changed are reported by a whole reply, and again by the next update.
+fn replies_in_shared_memory(
+    port: u16,
+    pool_bytes: usize,
+    whole_at_autoresets: bool,
+) -> Vec<(bool, usize)> {
     let engine = start_engine_without_reply_copies(port, pool_bytes);
     let options = NetworkOptions::endpoint(Role::Client, &endpoint(port));
     let session = zenoh::open(options.to_zenoh_config(Role::Client).unwrap())
@@ -233,9 +239,18 @@ fn replies_in_shared_memory(port: u16, pool_bytes: usize) -> Vec<(bool, usize)> 
     let actions = vec![0.1; BATCH as usize];
     let mut known = 0;
     let mut replies = Vec::new();
+    let mut episodes_ended = false;
     for _ in 0..200 {
+        if whole_at_autoresets && episodes_ended {
+            step_batch_by_hand(&env, &session, &actions, None);
+        }
         let (reply, shared) = step_batch_by_hand(&env, &session, &actions, Some(known));
         let decoded: BatchStepReply = rmp_serde::from_slice(&reply).expect("a step_batch reply");
+        episodes_ended = decoded
+            .terminated
+            .iter()
+            .chain(&decoded.truncated)
+            .any(|&e| e != 0);
         let update = decoded.contexts.expect("a context update");
         known = update.epoch;
         if shared || !replies.is_empty() {
@@ -258,7 +273,7 @@ fn replies_in_shared_memory(port: u16, pool_bytes: usize) -> Vec<(bool, usize)> 
 #[test]
 fn batch_replies_reserve_room_for_the_contexts_they_update() {
     let batch = BATCH as usize;
-    let small = replies_in_shared_memory(27407, 128 << 10);
+    let small = replies_in_shared_memory(27407, 128 << 10, false);
     assert_eq!(small.len(), 12, "no reply arrived in shared memory");
     for (step, &(shared, updated)) in small.iter().enumerate() {
         assert!(
@@ -269,10 +284,19 @@ fn batch_replies_reserve_room_for_the_contexts_they_update() {
     }
     assert!(small.iter().any(|&(_, updated)| updated == batch));
 
-    let large = replies_in_shared_memory(27408, 256 << 10);
+    let large = replies_in_shared_memory(27408, 256 << 10, false);
     assert_eq!(large.len(), 12, "no reply arrived in shared memory");
     for (step, &(shared, updated)) in large.iter().enumerate() {
         assert!(shared, "step {step}: {updated} updated, on the heap");
     }
     assert!(large.iter().any(|&(_, updated)| updated == batch));
+
+    // The contexts that autoresets changed at a step whose reply was whole are counted
+    // too: the update that reports them next has its room.
+    let mixed = replies_in_shared_memory(27409, 256 << 10, true);
+    assert_eq!(mixed.len(), 12, "no reply arrived in shared memory");
+    for (step, &(shared, updated)) in mixed.iter().enumerate() {
+        assert!(shared, "update {step}: {updated} updated, on the heap");
+    }
+    assert!(mixed.iter().any(|&(_, updated)| updated == batch));
 }

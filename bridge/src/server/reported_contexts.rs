@@ -13,8 +13,9 @@
 //! A reply is written into a buffer sized before the step, so [`room`](ReportedContexts::room)
 //! says how many contexts the update will hold, from what the engine knows before
 //! stepping: those stamped in replies the client did not apply, those that requests
-//! changed (a batch reset, a `context` request) and those of the environments that
-//! autoreset at this step. Room for every context at every step took 0.28 MiB per 4 096
+//! changed (a batch reset, a `context` request, a step whose reply was whole and so
+//! reported no update for its autoresets) and those of the environments that autoreset at
+//! this step. Room for every context at every step took 0.28 MiB per 4 096
 //! obstacle environments of Zenoh's 16 MiB shared-memory pool for nothing once the first
 //! step had sent them. A change it cannot foresee (a task that changes its own context)
 //! outgrows the room, and the reply moves to the heap: one copy, correct all the same.

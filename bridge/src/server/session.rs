@@ -417,11 +417,16 @@ impl Session {
                 self.reported_contexts.start(known, BATCH_CHUNK)?,
                 state_dim,
             ),
-            None => (
-                BatchStepWriter::new_in(allocate, n, observation_dim, self.info_bytes),
-                Vec::new(),
-                observation_dim,
-            ),
+            None => {
+                // The autoresets change contexts that no update reports at this step: the
+                // next update must have room for them.
+                self.reported_contexts.requested(self.autoresets);
+                (
+                    BatchStepWriter::new_in(allocate, n, observation_dim, self.info_bytes),
+                    Vec::new(),
+                    observation_dim,
+                )
+            }
         };
         let info_offset = reply.info_offset();
         // Each rayon task steps a chunk and writes its rows into the reply: no
