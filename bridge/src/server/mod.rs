@@ -53,7 +53,7 @@ use self::session::{RunPermit, Session};
 use self::slot::EnvSlot;
 use self::telemetry::TelemetryWatch;
 use self::usage::{ClientTable, Reservation};
-use self::workers::Workers;
+use self::workers::{Workers, WorkersEnded};
 use crate::config::{NetworkOptions, Role};
 use crate::error::{BridgeError, check_name, full_message};
 use crate::limits::{Deadline, Limits};
@@ -117,7 +117,9 @@ impl Default for ServerOptions {
 /// every session.
 pub struct EngineServer {
     shared: Arc<Shared>,
-    _queryable: Queryable<()>,
+    /// `None` once withdrawn, as the engine is dropped.
+    queryable: Option<Queryable<()>>,
+    workers_ended: WorkersEnded,
     _clients: Subscriber<()>,
     _checkpoints: Subscriber<()>,
     _token: LivelinessToken,
@@ -290,7 +292,7 @@ impl EngineServer {
                 ))?
         };
 
-        let workers = {
+        let (workers, workers_ended) = {
             let shared = Arc::clone(&shared);
             let name = shared.name.clone();
             Workers::spawn(&name, move |(query, received): (Query, Instant)| {
@@ -331,7 +333,8 @@ impl EngineServer {
             ))?;
         Ok(Self {
             shared,
-            _queryable: queryable,
+            queryable: Some(queryable),
+            workers_ended,
             _clients: clients,
             _checkpoints: checkpoints,
             _token: token,
@@ -378,9 +381,21 @@ fn runs_inline(route: Option<Route<'_>>, query: &Query) -> bool {
     }
 }
 
+/// How long a dropped engine waits for its workers to finish the requests they hold.
+const WORKERS_END_WITHIN: Duration = Duration::from_secs(5);
+
 impl Drop for EngineServer {
     fn drop(&mut self) {
         self.shared.sessions_mut().clear();
+        // Withdrawing the queryable drops the workers' queue, and the workers end once
+        // they have answered what they hold. Waiting for them means no engine thread
+        // outlives the engine: the last of them would otherwise close its Zenoh session,
+        // and if the program was exiting meanwhile, Zenoh's statics were gone (a panic at
+        // exit, seen in the tests).
+        if let Some(queryable) = self.queryable.take() {
+            let _ = queryable.undeclare().wait();
+        }
+        self.workers_ended.wait(WORKERS_END_WITHIN);
     }
 }
 

@@ -6,9 +6,10 @@
 //! of, and a request that waited past its deadline is refused by the worker that takes
 //! it. Batches still spread over every core inside a request (rayon).
 
-use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread;
+use std::time::Duration;
 
 /// Requests waiting for a worker, at most.
 const QUEUE: usize = 1024;
@@ -17,25 +18,35 @@ pub(crate) struct Workers<J> {
     queue: SyncSender<J>,
 }
 
+/// Tells when every worker of a pool has ended.
+pub(crate) struct WorkersEnded(Receiver<()>);
+
 impl<J: Send + 'static> Workers<J> {
     /// Starts one worker per core, each running `work` on the jobs it takes. The workers
-    /// end when this pool is dropped.
-    pub fn spawn(name: &str, work: impl Fn(J) + Send + Sync + 'static) -> std::io::Result<Self> {
+    /// end when this pool is dropped, once they have dropped their `work`.
+    pub fn spawn(
+        name: &str,
+        work: impl Fn(J) + Send + Sync + 'static,
+    ) -> std::io::Result<(Self, WorkersEnded)> {
         let (queue, jobs) = mpsc::sync_channel::<J>(QUEUE);
         let jobs = Arc::new(Mutex::new(jobs));
         let work = Arc::new(work);
+        // Never sent on: the channel disconnects when the last worker drops its end.
+        let (ended, workers_ended) = mpsc::channel();
         let count = thread::available_parallelism().map_or(2, |n| n.get());
         for index in 0..count {
-            let (jobs, work) = (Arc::clone(&jobs), Arc::clone(&work));
+            let (jobs, work, ended) = (Arc::clone(&jobs), Arc::clone(&work), ended.clone());
             thread::Builder::new()
                 .name(format!("ciflow-engine-{name}-{index}"))
                 .spawn(move || {
                     while let Some(job) = next(&jobs) {
                         work(job);
                     }
+                    drop(work);
+                    drop(ended);
                 })?;
         }
-        Ok(Self { queue })
+        Ok((Self { queue }, WorkersEnded(workers_ended)))
     }
 
     /// Queues a job; gives it back if the queue is full or the workers are gone.
@@ -43,6 +54,16 @@ impl<J: Send + 'static> Workers<J> {
         self.queue.try_send(job).map_err(|error| match error {
             TrySendError::Full(job) | TrySendError::Disconnected(job) => job,
         })
+    }
+}
+
+impl WorkersEnded {
+    /// Waits up to `timeout` for every worker to end; whether they did.
+    pub fn wait(&self, timeout: Duration) -> bool {
+        matches!(
+            self.0.recv_timeout(timeout),
+            Err(RecvTimeoutError::Disconnected)
+        )
     }
 }
 
