@@ -113,8 +113,9 @@ impl Default for ServerOptions {
     }
 }
 
-/// A running engine. Dropping it withdraws its liveliness token and queryable and closes
-/// every session.
+/// A running engine. Dropping it closes every session, withdraws its queryable and
+/// liveliness token, lets its workers answer the requests they hold (up to 5 s) and
+/// closes its Zenoh session before the drop returns.
 pub struct EngineServer {
     shared: Arc<Shared>,
     /// `None` once withdrawn, as the engine is dropped.
