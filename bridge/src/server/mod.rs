@@ -396,7 +396,14 @@ impl Drop for EngineServer {
         if let Some(queryable) = self.queryable.take() {
             let _ = queryable.undeclare().wait();
         }
-        self.workers_ended.wait(WORKERS_END_WITHIN);
+        if !self.workers_ended.wait(WORKERS_END_WITHIN) {
+            eprintln!(
+                "ciflow engine `{}`: requests still running {} s after the engine was \
+                 stopped; its Zenoh session closes when they end",
+                self.shared.name,
+                WORKERS_END_WITHIN.as_secs()
+            );
+        }
     }
 }
 
