@@ -243,11 +243,10 @@ impl<T: ArmTask> Env for ArmEnv<T> {
         self.episode.advance(&self.spec, action, observation)?;
         let pose = self.pose()?;
         let outcome = self.outcome(&pose, info);
-        let max_episode_steps = self.spec.max_episode_steps;
         Ok(self.episode.finish_step(
             T::traced_point(&pose),
             outcome,
-            max_episode_steps,
+            self.spec.max_episode_steps,
             observation,
         ))
     }

@@ -204,11 +204,10 @@ impl<T: PlanarTask> Env for PlanarEnv<T> {
     ) -> Result<StepOutcome, EnvError> {
         self.episode.advance(&self.spec, action, observation)?;
         let outcome = self.outcome(info);
-        let max_episode_steps = self.spec.max_episode_steps;
         let point = self.state().0;
         Ok(self
             .episode
-            .finish_step(point, outcome, max_episode_steps, observation))
+            .finish_step(point, outcome, self.spec.max_episode_steps, observation))
     }
 
     fn expert_action(&self) -> Result<Vec<f64>, EnvError> {

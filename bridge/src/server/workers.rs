@@ -42,6 +42,8 @@ impl<J: Send + 'static> Workers<J> {
                     while let Some(job) = next(&jobs) {
                         work(job);
                     }
+                    // `work` before `ended`: what it holds (the engine's Zenoh session) is
+                    // let go of before the pool's owner learns that the workers ended.
                     drop(work);
                     drop(ended);
                 })?;
