@@ -1,7 +1,8 @@
-//! A dropped engine has closed its Zenoh session when the drop returns. Its workers hold
-//! that session too: the last of them used to close it a moment later, on its own thread,
-//! and if the program was exiting meanwhile, Zenoh's statics were already gone (a panic at
-//! exit, in 6 of 20 runs of `shared_memory`).
+//! A dropped engine has closed its Zenoh session when the drop returns. Its workers, its
+//! Zenoh callbacks and the threads that look for vanished clients hold that session too:
+//! the last of them used to close it a moment later, on its own thread, and if the program
+//! was exiting meanwhile, Zenoh's statics were already gone (a panic at exit, in 6 of 20
+//! runs of `shared_memory`).
 
 mod common;
 
@@ -29,6 +30,32 @@ fn a_dropped_engine_has_closed_its_session() {
         assert!(
             TcpStream::connect((Ipv4Addr::LOCALHOST, port)).is_err(),
             "the engine's session still listens after the engine was dropped"
+        );
+    }
+}
+
+/// A client that vanished sets a thread looking for it for about a second. That thread
+/// used the engine's state during each look, and an engine dropped during one closed its
+/// session on that thread, after the drop returned. Dropped at several moments of the
+/// first looks, the engine has closed its session when the drop returns.
+#[test]
+fn a_dropped_engine_has_closed_its_session_while_it_looked_for_a_vanished_client() {
+    for (port, delay_ms) in (27425..27430).zip([0, 5, 10, 20, 40]) {
+        let engine = start_engine(port);
+        let client = connect(port);
+        let env = client
+            .make(engine.name(), FIXTURE_ID, 4, &no_kwargs())
+            .expect("a batch session");
+        env.reset_batch(Some(1), None).expect("reset");
+        // Gone without closing its session, as a client that crashed.
+        std::mem::forget(env);
+        drop(client);
+        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+        drop(engine);
+        assert!(
+            TcpStream::connect((Ipv4Addr::LOCALHOST, port)).is_err(),
+            "the engine's session still listens after the engine was dropped \
+             {delay_ms} ms after its client vanished"
         );
     }
 }

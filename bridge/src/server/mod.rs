@@ -23,6 +23,7 @@ mod session;
 mod slot;
 mod telemetry;
 mod usage;
+mod while_running;
 mod workers;
 
 use std::collections::HashMap;
@@ -53,7 +54,8 @@ use self::session::{RunPermit, Session};
 use self::slot::EnvSlot;
 use self::telemetry::TelemetryWatch;
 use self::usage::{ClientTable, Reservation};
-use self::workers::{Workers, WorkersEnded};
+use self::while_running::WhileRunning;
+use self::workers::Workers;
 use crate::config::{NetworkOptions, Role};
 use crate::error::{BridgeError, check_name, full_message};
 use crate::limits::{Deadline, Limits};
@@ -113,16 +115,17 @@ impl Default for ServerOptions {
     }
 }
 
-/// A running engine. Dropping it closes every session, withdraws its queryable and
-/// liveliness token, lets its workers answer the requests they hold (up to 5 s) and
-/// closes its Zenoh session before the drop returns.
+/// A running engine. Dropping it closes every session, withdraws its queryable,
+/// subscribers and liveliness token, lets its workers answer the requests they hold and
+/// its callbacks end (up to 5 s), and closes its Zenoh session before the drop returns.
 pub struct EngineServer {
     shared: Arc<Shared>,
-    /// `None` once withdrawn, as the engine is dropped.
+    /// The state as the threads that confirm a client vanished see it.
+    while_running: Arc<WhileRunning<Shared>>,
+    /// Each `None` once withdrawn, as the engine is dropped.
     queryable: Option<Queryable<()>>,
-    workers_ended: WorkersEnded,
-    _clients: Subscriber<()>,
-    _checkpoints: Subscriber<()>,
+    clients: Option<Subscriber<()>>,
+    checkpoints: Option<Subscriber<()>>,
     _token: LivelinessToken,
     joined: bool,
 }
@@ -225,8 +228,9 @@ impl EngineServer {
             reply_memory: ReplyMemory::new(&zsession),
         });
 
+        let while_running = Arc::new(WhileRunning::new(&shared));
         let clients = {
-            let shared = Arc::clone(&shared);
+            let (shared, while_running) = (Arc::clone(&shared), Arc::clone(&while_running));
             zsession
                 .liveliness()
                 .declare_subscriber(keys::ALL_CLIENTS_ALIVE)
@@ -237,7 +241,7 @@ impl EngineServer {
                     };
                     match sample.kind() {
                         SampleKind::Put => shared.client_appeared(client),
-                        SampleKind::Delete => Shared::client_token_deleted(&shared, client),
+                        SampleKind::Delete => shared.client_token_deleted(&while_running, client),
                     }
                 })
                 .wait()
@@ -293,7 +297,7 @@ impl EngineServer {
                 ))?
         };
 
-        let (workers, workers_ended) = {
+        let workers = {
             let shared = Arc::clone(&shared);
             let name = shared.name.clone();
             Workers::spawn(&name, move |(query, received): (Query, Instant)| {
@@ -334,10 +338,10 @@ impl EngineServer {
             ))?;
         Ok(Self {
             shared,
+            while_running,
             queryable: Some(queryable),
-            workers_ended,
-            _clients: clients,
-            _checkpoints: checkpoints,
+            clients: Some(clients),
+            checkpoints: Some(checkpoints),
             _token: token,
             joined: false,
         })
@@ -382,27 +386,42 @@ fn runs_inline(route: Option<Route<'_>>, query: &Query) -> bool {
     }
 }
 
-/// How long a dropped engine waits for its workers to finish the requests they hold.
-const WORKERS_END_WITHIN: Duration = Duration::from_secs(5);
+/// How long a dropped engine waits for its workers and callbacks to end.
+const STOP_WITHIN: Duration = Duration::from_secs(5);
 
 impl Drop for EngineServer {
     fn drop(&mut self) {
+        // First, so that no thread confirming a vanished client takes the state again
+        // (`while_running.rs`); it waits for a liveliness query in progress.
+        self.while_running.stop();
         self.shared.sessions_mut().clear();
         // Withdrawing the queryable drops the workers' queue, and the workers end once
-        // they have answered what they hold. Waiting for them means no engine thread
-        // outlives the engine: the last of them would otherwise close its Zenoh session,
-        // and if the program was exiting meanwhile, Zenoh's statics were gone (a panic at
-        // exit, seen in the tests).
+        // they have answered what they hold. The workers and any callback Zenoh is still
+        // running hold the state, Zenoh session included: waiting until the engine holds
+        // it alone means the session closes here. Otherwise the last of them closed it a
+        // moment later, and if the program was exiting meanwhile, Zenoh's statics were
+        // gone (a panic at exit, seen in the tests).
         if let Some(queryable) = self.queryable.take() {
             let _ = queryable.undeclare().wait();
         }
-        if !self.workers_ended.wait(WORKERS_END_WITHIN) {
-            eprintln!(
-                "ciflow engine `{}`: requests still running {} s after the engine was \
-                 stopped; its Zenoh session closes when they end",
-                self.shared.name,
-                WORKERS_END_WITHIN.as_secs()
-            );
+        for subscriber in [self.clients.take(), self.checkpoints.take()]
+            .into_iter()
+            .flatten()
+        {
+            let _ = subscriber.undeclare().wait();
+        }
+        let give_up = Instant::now() + STOP_WITHIN;
+        while Arc::strong_count(&self.shared) > 1 {
+            if Instant::now() >= give_up {
+                eprintln!(
+                    "ciflow engine `{}`: requests or callbacks still running {} s after the \
+                     engine was stopped; its Zenoh session closes when they end",
+                    self.shared.name,
+                    STOP_WITHIN.as_secs()
+                );
+                return;
+            }
+            std::thread::sleep(Duration::from_micros(200));
         }
     }
 }
@@ -461,17 +480,16 @@ impl Shared {
     /// [`LIVELINESS_SETTLE`], no longer find it, then closes the client's sessions. Zenoh
     /// also deletes a token it declares again at once (a link re-established, a route
     /// rebuilt): a client that never went away keeps its sessions. Looked at on a thread
-    /// of its own, since Zenoh's callback must not block; it does not keep the engine up.
-    fn client_token_deleted(shared: &Arc<Self>, client: &str) {
-        let engine = Arc::downgrade(shared);
+    /// of its own, since Zenoh's callback must not block; it uses the engine only while the
+    /// engine runs ([`WhileRunning`]).
+    fn client_token_deleted(&self, engine: &Arc<WhileRunning<Self>>, client: &str) {
+        let engine = Arc::clone(engine);
         let owner = client.to_owned();
         let confirm = move || {
-            // `None` once the engine is gone: its sessions went with it.
-            let look = || engine.upgrade().map(|shared| shared.query_alive(&owner));
-            if retry_within(LIVELINESS_SETTLE, look, |alive| *alive == Some(false)) == Some(false)
-                && let Some(shared) = engine.upgrade()
-            {
-                shared.client_vanished(&owner);
+            // `None` once the engine stopped: its sessions went with it.
+            let look = || engine.with(|shared| shared.query_alive(&owner));
+            if retry_within(LIVELINESS_SETTLE, look, |alive| *alive == Some(false)) == Some(false) {
+                engine.with(|shared| shared.client_vanished(&owner));
             }
         };
         let spawned = std::thread::Builder::new()
@@ -479,7 +497,7 @@ impl Shared {
             .spawn(confirm);
         if spawned.is_err() {
             // No thread to wait on: reclaim now rather than never.
-            shared.client_vanished(client);
+            self.client_vanished(client);
         }
     }
 

@@ -6,10 +6,9 @@
 //! of, and a request that waited past its deadline is refused by the worker that takes
 //! it. Batches still spread over every core inside a request (rayon).
 
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread;
-use std::time::Duration;
 
 /// Requests waiting for a worker, at most.
 const QUEUE: usize = 1024;
@@ -18,37 +17,25 @@ pub(crate) struct Workers<J> {
     queue: SyncSender<J>,
 }
 
-/// Tells when every worker of a pool has ended.
-pub(crate) struct WorkersEnded(Receiver<()>);
-
 impl<J: Send + 'static> Workers<J> {
     /// Starts one worker per core, each running `work` on the jobs it takes. The workers
-    /// end when this pool is dropped, once they have dropped their `work`.
-    pub fn spawn(
-        name: &str,
-        work: impl Fn(J) + Send + Sync + 'static,
-    ) -> std::io::Result<(Self, WorkersEnded)> {
+    /// end when this pool is dropped and its queue drained.
+    pub fn spawn(name: &str, work: impl Fn(J) + Send + Sync + 'static) -> std::io::Result<Self> {
         let (queue, jobs) = mpsc::sync_channel::<J>(QUEUE);
         let jobs = Arc::new(Mutex::new(jobs));
         let work = Arc::new(work);
-        // Never sent on: the channel disconnects when the last worker drops its end.
-        let (ended, workers_ended) = mpsc::channel();
         let count = thread::available_parallelism().map_or(2, |n| n.get());
         for index in 0..count {
-            let (jobs, work, ended) = (Arc::clone(&jobs), Arc::clone(&work), ended.clone());
+            let (jobs, work) = (Arc::clone(&jobs), Arc::clone(&work));
             thread::Builder::new()
                 .name(format!("ciflow-engine-{name}-{index}"))
                 .spawn(move || {
                     while let Some(job) = next(&jobs) {
                         work(job);
                     }
-                    // `work` before `ended`: what it holds (the engine's Zenoh session) is
-                    // let go of before the pool's owner learns that the workers ended.
-                    drop(work);
-                    drop(ended);
                 })?;
         }
-        Ok((Self { queue }, WorkersEnded(workers_ended)))
+        Ok(Self { queue })
     }
 
     /// Queues a job; gives it back if the queue is full or the workers are gone.
@@ -56,16 +43,6 @@ impl<J: Send + 'static> Workers<J> {
         self.queue.try_send(job).map_err(|error| match error {
             TrySendError::Full(job) | TrySendError::Disconnected(job) => job,
         })
-    }
-}
-
-impl WorkersEnded {
-    /// Waits up to `timeout` for every worker to end; whether they did.
-    pub fn wait(&self, timeout: Duration) -> bool {
-        matches!(
-            self.0.recv_timeout(timeout),
-            Err(RecvTimeoutError::Disconnected)
-        )
     }
 }
 
