@@ -8,18 +8,25 @@ mod common;
 
 use std::net::{Ipv4Addr, TcpStream};
 
+use ciflow_bridge::{Client, EngineServer, RemoteEnv};
 use common::*;
+
+/// An engine on `port` and a client's session of `num_envs` environments on it, reset.
+fn engine_with_a_batch(port: u16, num_envs: u32) -> (EngineServer, Client, RemoteEnv) {
+    let engine = start_engine(port);
+    let client = connect(port);
+    let env = client
+        .make(engine.name(), FIXTURE_ID, num_envs, &no_kwargs())
+        .expect("a batch session");
+    env.reset_batch(Some(1), None).expect("reset");
+    (engine, client, env)
+}
 
 /// Three times, since the old fault lost its race to the test only about half of the time.
 #[test]
 fn a_dropped_engine_has_closed_its_session() {
     for port in 27421..27424 {
-        let engine = start_engine(port);
-        let client = connect(port);
-        let env = client
-            .make(engine.name(), FIXTURE_ID, 64, &no_kwargs())
-            .expect("a batch session");
-        env.reset_batch(Some(1), None).expect("reset");
+        let (engine, _client, env) = engine_with_a_batch(port, 64);
         // A batch step is answered by a worker, not in Zenoh's callback.
         env.step_batch(&[0.1; 64]).expect("a step");
         assert!(
@@ -41,12 +48,7 @@ fn a_dropped_engine_has_closed_its_session() {
 #[test]
 fn a_dropped_engine_has_closed_its_session_while_it_looked_for_a_vanished_client() {
     for (port, delay_ms) in (27425..27430).zip([0, 5, 10, 20, 40]) {
-        let engine = start_engine(port);
-        let client = connect(port);
-        let env = client
-            .make(engine.name(), FIXTURE_ID, 4, &no_kwargs())
-            .expect("a batch session");
-        env.reset_batch(Some(1), None).expect("reset");
+        let (engine, client, env) = engine_with_a_batch(port, 4);
         // Gone without closing its session, as a client that crashed.
         std::mem::forget(env);
         drop(client);
