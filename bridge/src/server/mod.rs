@@ -410,18 +410,14 @@ impl Drop for EngineServer {
         {
             let _ = subscriber.undeclare().wait();
         }
-        let give_up = Instant::now() + STOP_WITHIN;
-        while Arc::strong_count(&self.shared) > 1 {
-            if Instant::now() >= give_up {
-                eprintln!(
-                    "ciflow engine `{}`: requests or callbacks still running {} s after the \
-                     engine was stopped; its Zenoh session closes when they end",
-                    self.shared.name,
-                    STOP_WITHIN.as_secs()
-                );
-                return;
-            }
-            std::thread::sleep(Duration::from_micros(200));
+        let holders = || Arc::strong_count(&self.shared);
+        if retry_within(STOP_WITHIN, holders, |&holders| holders > 1) > 1 {
+            eprintln!(
+                "ciflow engine `{}`: requests or callbacks still running {} s after the \
+                 engine was stopped; its Zenoh session closes when they end",
+                self.shared.name,
+                STOP_WITHIN.as_secs()
+            );
         }
     }
 }
